@@ -1,0 +1,180 @@
+//! The graph's one clock: an absolute-deadline timer on `CLOCK_MONOTONIC`
+//! (`clock_nanosleep(TIMER_ABSTIME)`), which does not drift the way a relative sleep does, and
+//! the real-time settings the bridge asks for.
+
+/// What [`Clock::wait`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wake {
+    /// The deadline passed.
+    Tick {
+        /// The ideal time of this tick on the period grid (ns).
+        ideal_ns: u64,
+        /// How late the wake-up was against it (ns).
+        lateness_ns: u64,
+        /// Whole periods skipped because the process was held up for longer than a period.
+        skipped: u64,
+    },
+    /// A signal interrupted the wait; the caller checks its flags and waits again.
+    Interrupted,
+}
+
+/// A periodic absolute-deadline timer.
+#[derive(Debug, Clone)]
+pub struct Clock {
+    period_ns: u64,
+    next_ns: u64,
+}
+
+fn to_timespec(ns: u64) -> libc::timespec {
+    libc::timespec {
+        tv_sec: (ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (ns % 1_000_000_000) as libc::c_long,
+    }
+}
+
+impl Clock {
+    /// A clock whose first deadline is `first_ns` and then every `period_ns`.
+    pub fn new(first_ns: u64, period_ns: u64) -> Self {
+        Self {
+            period_ns: period_ns.max(1),
+            next_ns: first_ns,
+        }
+    }
+
+    /// The period (ns).
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// Sleeps until the next deadline.
+    pub fn wait(&mut self) -> Wake {
+        let ts = to_timespec(self.next_ns);
+        // SAFETY: `ts` is a valid timespec; a null remainder is allowed with TIMER_ABSTIME.
+        let rc = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if rc == libc::EINTR {
+            return Wake::Interrupted;
+        }
+        self.on_wake(ipc_types::time::now_ns())
+    }
+
+    /// Accounts a wake-up at `now_ns` (split out of [`Clock::wait`] for tests): returns the
+    /// tick and moves the deadline on by one period, or past `now_ns` if more than a whole
+    /// period was lost (those periods are reported as skipped, never caught up in a burst).
+    pub fn on_wake(&mut self, now_ns: u64) -> Wake {
+        let ideal = self.next_ns;
+        let lateness = now_ns.saturating_sub(ideal);
+        let skipped = lateness / self.period_ns;
+        let ideal_ns = ideal + skipped * self.period_ns;
+        self.next_ns = ideal_ns + self.period_ns;
+        Wake::Tick {
+            ideal_ns,
+            lateness_ns: now_ns.saturating_sub(ideal_ns),
+            skipped,
+        }
+    }
+
+    /// The next deadline (ns).
+    pub fn next_deadline_ns(&self) -> u64 {
+        self.next_ns
+    }
+}
+
+/// Which real-time settings the process obtained.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RtReport {
+    /// SCHED_FIFO at the given priority, or why not.
+    pub fifo: Result<i32, String>,
+    /// mlockall(MCL_CURRENT | MCL_FUTURE), or why not.
+    pub mlock: Result<(), String>,
+}
+
+impl RtReport {
+    /// One line for the log: what was obtained and what was not.
+    pub fn summary(&self) -> String {
+        let fifo = match &self.fifo {
+            Ok(p) => format!("SCHED_FIFO priority {p}"),
+            Err(e) => format!("no SCHED_FIFO ({e}); tick lateness will suffer under CPU load"),
+        };
+        let mlock = match &self.mlock {
+            Ok(()) => "memory locked".to_owned(),
+            Err(e) => format!("memory not locked ({e})"),
+        };
+        format!("{fifo}; {mlock}")
+    }
+}
+
+/// Asks for SCHED_FIFO at `priority` and locks the process's memory. Never fails: what could
+/// not be had is reported, and the caller warns in one line.
+pub fn request_realtime(priority: i32) -> RtReport {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: plain system calls on the calling process with valid arguments.
+    let fifo = unsafe {
+        if libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) == 0 {
+            Ok(priority)
+        } else {
+            Err(std::io::Error::last_os_error().to_string())
+        }
+    };
+    // SAFETY: as above.
+    let mlock = unsafe {
+        if libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) == 0 {
+            Ok(())
+        } else {
+            Err(std::io::Error::last_os_error().to_string())
+        }
+    };
+    RtReport { fifo, mlock }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn on_time_and_late_wakes() {
+        let mut c = Clock::new(1_000, 100);
+        assert_eq!(
+            c.on_wake(1_010),
+            Wake::Tick {
+                ideal_ns: 1_000,
+                lateness_ns: 10,
+                skipped: 0
+            }
+        );
+        assert_eq!(c.next_deadline_ns(), 1_100);
+        // Held up for 2.5 periods: two skipped, no burst of catch-up ticks.
+        assert_eq!(
+            c.on_wake(1_350),
+            Wake::Tick {
+                ideal_ns: 1_300,
+                lateness_ns: 50,
+                skipped: 2
+            }
+        );
+        assert_eq!(c.next_deadline_ns(), 1_400);
+    }
+
+    #[test]
+    fn real_sleep_reaches_the_deadline() {
+        let start = ipc_types::time::now_ns();
+        let mut c = Clock::new(start + 2_000_000, 2_000_000);
+        for _ in 0..3 {
+            match c.wait() {
+                Wake::Tick { ideal_ns, .. } => {
+                    assert!(ipc_types::time::now_ns() >= ideal_ns);
+                }
+                Wake::Interrupted => {}
+            }
+        }
+        assert!(ipc_types::time::now_ns() >= start + 6_000_000);
+    }
+}

@@ -1,0 +1,387 @@
+//! The bridge's tick logic, free of I/O: the process loop calls [`BridgeCore::begin_tick`] on
+//! the clock's deadline, publishes the state, waits for the command and hands whatever arrived
+//! to [`BridgeCore::finish_tick`].
+//!
+//! Invariant: a command is executed only at the tick it names. A missing, late, wrong-tick,
+//! mis-shaped or non-finite command is never executed; it is counted as a miss and answered
+//! with a controlled stop (deceleration within the acceleration limits, keeping the direction
+//! of motion, then zero).
+
+use ipc_types::{MAX_JOINTS, NO_TICK, RobotState, SafeCommand, safe_flags, state_flags};
+
+use crate::Robot;
+
+/// What happened to a tick's command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// The command for this tick was executed.
+    Executed,
+    /// No usable command: counted, controlled stop.
+    Missed(MissReason),
+}
+
+/// Why a tick counted as missed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MissReason {
+    /// Nothing arrived before the deadline.
+    NoCommand,
+    /// A command arrived for another tick.
+    WrongTick,
+    /// The command's joint count is not the robot's.
+    BadShape,
+    /// The command had a non-finite value.
+    NonFinite,
+}
+
+/// The velocity after one period of a controlled stop from `v`: every joint decelerates by at
+/// most its limit `accel * dt`, all by one common factor so the direction of motion is kept.
+/// Reaches exactly zero.
+pub fn controlled_stop_step(v: &mut [f64], accel: &[f64], dt: f64) {
+    let mut keep: f64 = 0.0;
+    for (vj, aj) in v.iter().zip(accel) {
+        if vj.abs() > 0.0 {
+            keep = keep.max(1.0 - aj * dt / vj.abs());
+        }
+    }
+    let keep = keep.clamp(0.0, 1.0);
+    v.iter_mut().for_each(|x| *x *= keep);
+}
+
+/// The bridge's state between ticks.
+#[derive(Debug)]
+pub struct BridgeCore<R: Robot> {
+    robot: R,
+    dt: f64,
+    accel: Vec<f64>,
+    tick: u64,
+    missed: u64,
+    applied_tick: u64,
+    in_force: [f64; MAX_JOINTS],
+    stopping: bool,
+    safety_stop: bool,
+    travel: f64,
+    last_q: Option<[f64; MAX_JOINTS]>,
+}
+
+impl<R: Robot> BridgeCore<R> {
+    /// A bridge for `robot` ticking every `period_s` seconds, stopping within `accel` (rad/s²
+    /// per joint) on a miss.
+    pub fn new(robot: R, period_s: f64, accel: Vec<f64>) -> Self {
+        Self {
+            robot,
+            dt: period_s,
+            accel,
+            tick: NO_TICK,
+            missed: 0,
+            applied_tick: NO_TICK,
+            in_force: [0.0; MAX_JOINTS],
+            stopping: false,
+            safety_stop: false,
+            travel: 0.0,
+            last_q: None,
+        }
+    }
+
+    /// The robot.
+    pub fn robot(&self) -> &R {
+        &self.robot
+    }
+
+    /// The current tick ([`NO_TICK`] before the first).
+    pub fn tick(&self) -> u64 {
+        self.tick
+    }
+
+    /// Ticks missed so far.
+    pub fn missed(&self) -> u64 {
+        self.missed
+    }
+
+    /// Counts ticks the clock itself skipped (the bridge process was held up for more than a
+    /// period) as missed.
+    pub fn add_skipped(&mut self, n: u64) {
+        self.missed += n;
+    }
+
+    /// Joint-space path length travelled so far (rad).
+    pub fn joint_travel_rad(&self) -> f64 {
+        self.travel
+    }
+
+    /// Whether the bridge is executing a controlled stop.
+    pub fn stopping(&self) -> bool {
+        self.stopping
+    }
+
+    /// Starts the next tick: lets one period of the command in force pass and returns the
+    /// state to publish, stamped `now_ns`.
+    pub fn begin_tick(&mut self, now_ns: u64) -> RobotState {
+        self.tick = self.tick.wrapping_add(1);
+        let r = self.robot.advance(self.dt);
+        self.state_from(r, now_ns, 0)
+    }
+
+    fn state_from(&mut self, r: crate::Reading, now_ns: u64, extra: u32) -> RobotState {
+        let n = self.robot.n_joints();
+        if let Some(prev) = self.last_q {
+            self.travel += (0..n)
+                .map(|j| (r.q_rad[j] - prev[j]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+        }
+        self.last_q = Some(r.q_rad);
+        let mut flags = extra;
+        if self.stopping {
+            flags |= state_flags::STOPPING;
+        }
+        if self.safety_stop {
+            flags |= state_flags::SAFETY_STOP;
+        }
+        if r.at_limit {
+            flags |= state_flags::AT_LIMIT;
+        }
+        if self.robot.is_mock() {
+            flags |= state_flags::MOCK;
+        }
+        RobotState {
+            tick: self.tick,
+            t_ns: now_ns,
+            applied_tick: self.applied_tick,
+            missed: self.missed,
+            n_joints: n as u32,
+            flags,
+            q_rad: r.q_rad,
+            qdot_rad_s: r.qdot_rad_s,
+            gripper: r.gripper,
+        }
+    }
+
+    /// Ends the current tick with the command that arrived for it, if any.
+    pub fn finish_tick(&mut self, cmd: Option<&SafeCommand>) -> Outcome {
+        let n = self.robot.n_joints();
+        let verdict = match cmd {
+            None => Err(MissReason::NoCommand),
+            Some(c) if c.tick != self.tick => Err(MissReason::WrongTick),
+            Some(c) if c.n_joints as usize != n => Err(MissReason::BadShape),
+            Some(c)
+                if !(c.qdot_rad_s[..n].iter().all(|v| v.is_finite())
+                    && c.gripper_rate.is_finite()) =>
+            {
+                Err(MissReason::NonFinite)
+            }
+            Some(c) => Ok(c),
+        };
+        match verdict {
+            Ok(c) => {
+                self.in_force = [0.0; MAX_JOINTS];
+                self.in_force[..n].copy_from_slice(&c.qdot_rad_s[..n]);
+                self.robot.command(&self.in_force[..n], c.gripper_rate);
+                self.applied_tick = self.tick;
+                self.stopping = false;
+                self.safety_stop = c.flags & safe_flags::STOP != 0;
+                Outcome::Executed
+            }
+            Err(reason) => {
+                self.missed += 1;
+                self.stop_step();
+                Outcome::Missed(reason)
+            }
+        }
+    }
+
+    fn stop_step(&mut self) {
+        let n = self.robot.n_joints();
+        controlled_stop_step(&mut self.in_force[..n], &self.accel, self.dt);
+        if self.in_force[..n].iter().all(|v| *v == 0.0) {
+            self.robot.stop();
+        } else {
+            self.robot.command(&self.in_force[..n], 0.0);
+        }
+        self.applied_tick = NO_TICK;
+        self.stopping = true;
+        self.safety_stop = false;
+    }
+
+    /// Stops the arm at once (shutdown, or a fault outside the tick) and returns the final
+    /// state to publish, flagged [`state_flags::SHUTDOWN`].
+    pub fn shutdown(&mut self, now_ns: u64) -> RobotState {
+        self.robot.stop();
+        self.in_force = [0.0; MAX_JOINTS];
+        self.stopping = true;
+        self.applied_tick = NO_TICK;
+        // Read the final state without letting a period pass.
+        let r = self.robot.advance(1e-9);
+        self.state_from(r, now_ns, state_flags::SHUTDOWN)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mock::{MockArm, MockConfig};
+    use kinematics::gen3_lite;
+    use proptest::prelude::*;
+
+    const DT: f64 = 0.025;
+
+    fn core() -> BridgeCore<MockArm> {
+        BridgeCore::new(
+            MockArm::new(MockConfig::default()).unwrap(),
+            DT,
+            gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
+        )
+    }
+
+    fn cmd(tick: u64, v: f64) -> SafeCommand {
+        let mut q = [0.0; MAX_JOINTS];
+        q[0] = v;
+        q[1] = -v / 2.0;
+        SafeCommand {
+            tick,
+            t_ns: 0,
+            state_t_ns: 0,
+            joystick_t_ns: 0,
+            mapper_t_ns: 0,
+            mapper_compute_ns: 0,
+            compute_ns: 0,
+            mapper_id: 1,
+            n_joints: 6,
+            flags: 0,
+            reserved: 0,
+            qdot_rad_s: q,
+            gripper_rate: 0.0,
+        }
+    }
+
+    #[test]
+    fn executes_only_the_command_of_its_tick() {
+        let mut b = core();
+        let s0 = b.begin_tick(10);
+        assert_eq!((s0.tick, s0.applied_tick), (0, NO_TICK));
+        assert_eq!(b.finish_tick(Some(&cmd(0, 0.2))), Outcome::Executed);
+        let s1 = b.begin_tick(20);
+        assert_eq!((s1.tick, s1.applied_tick, s1.missed), (1, 0, 0));
+        assert!((s1.q_rad[0] - 0.2 * DT).abs() < 1e-12);
+        // A command for the previous tick is never executed.
+        assert_eq!(
+            b.finish_tick(Some(&cmd(0, 0.4))),
+            Outcome::Missed(MissReason::WrongTick)
+        );
+        let s2 = b.begin_tick(30);
+        assert_eq!((s2.applied_tick, s2.missed), (NO_TICK, 1));
+        assert!(s2.flags & state_flags::STOPPING != 0);
+        assert!(s2.flags & state_flags::MOCK != 0);
+        assert!(s2.qdot_rad_s[0] < 0.2, "decelerating, not executing 0.4");
+    }
+
+    #[test]
+    fn refuses_non_finite_and_misshaped_commands() {
+        let mut b = core();
+        b.begin_tick(0);
+        let mut c = cmd(0, 0.1);
+        c.qdot_rad_s[3] = f64::NAN;
+        assert_eq!(
+            b.finish_tick(Some(&c)),
+            Outcome::Missed(MissReason::NonFinite)
+        );
+        b.begin_tick(1);
+        let mut c = cmd(1, 0.1);
+        c.n_joints = 5;
+        assert_eq!(
+            b.finish_tick(Some(&c)),
+            Outcome::Missed(MissReason::BadShape)
+        );
+        b.begin_tick(2);
+        assert_eq!(b.finish_tick(None), Outcome::Missed(MissReason::NoCommand));
+        assert_eq!(b.missed(), 3);
+    }
+
+    #[test]
+    fn a_miss_starts_a_controlled_stop_that_ends_at_zero() {
+        let mut b = core();
+        b.begin_tick(0);
+        b.finish_tick(Some(&cmd(0, 0.48)));
+        let mut last = b.begin_tick(1);
+        let mut ticks = 0;
+        loop {
+            b.finish_tick(None);
+            let s = b.begin_tick(0);
+            // Deceleration within the limits, direction kept.
+            for j in 0..6 {
+                let dv = (s.qdot_rad_s[j] - last.qdot_rad_s[j]).abs();
+                assert!(dv <= gen3_lite::DEFAULT_ACCELERATION_RAD_S2[j] * DT + 1e-9);
+            }
+            assert!(s.qdot_rad_s[0] >= 0.0 && s.qdot_rad_s[1] <= 0.0);
+            last = s;
+            ticks += 1;
+            if s.qdot_rad_s.iter().all(|v| *v == 0.0) {
+                break;
+            }
+            assert!(ticks < 100);
+        }
+        assert!(ticks > 1);
+        // Joint 2 (0.24 rad/s at 0.5 rad/s²) limits the stop to about 0.48 s.
+        assert!(ticks <= 21, "{ticks}");
+    }
+
+    #[test]
+    fn a_safety_stop_is_executed_and_reported() {
+        let mut b = core();
+        b.begin_tick(0);
+        let mut c = cmd(0, 0.0);
+        c.flags = safe_flags::STOP | safe_flags::STALE_JOYSTICK;
+        assert_eq!(b.finish_tick(Some(&c)), Outcome::Executed);
+        let s = b.begin_tick(1);
+        assert_eq!(s.applied_tick, 0);
+        assert!(s.flags & state_flags::SAFETY_STOP != 0);
+        assert!(s.flags & state_flags::STOPPING == 0);
+        b.finish_tick(Some(&cmd(1, 0.1)));
+        assert!(b.begin_tick(2).flags & state_flags::SAFETY_STOP == 0);
+    }
+
+    #[test]
+    fn shutdown_stops_at_once_and_says_so() {
+        let mut b = core();
+        b.begin_tick(0);
+        b.finish_tick(Some(&cmd(0, 0.3)));
+        b.begin_tick(1);
+        let s = b.shutdown(2);
+        assert!(s.flags & state_flags::SHUTDOWN != 0);
+        assert_eq!(s.applied_tick, NO_TICK);
+        assert_eq!(b.robot().command_in_force(), &[0.0; 6]);
+    }
+
+    #[test]
+    fn travel_is_the_joint_path_length() {
+        let mut b = core();
+        b.begin_tick(0);
+        for k in 0..40 {
+            b.finish_tick(Some(&cmd(k, 0.2)));
+            b.begin_tick(0);
+        }
+        let expect = 40.0 * DT * (0.2f64.powi(2) + 0.1f64.powi(2)).sqrt();
+        assert!((b.joint_travel_rad() - expect).abs() < 1e-9);
+    }
+
+    proptest! {
+        #[test]
+        fn stop_step_respects_limits_and_direction(
+            v in proptest::array::uniform6(-3.0f64..3.0),
+        ) {
+            let accel = gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
+            let mut w = v;
+            controlled_stop_step(&mut w, &accel, DT);
+            let mut k: Option<f64> = None;
+            for j in 0..6 {
+                prop_assert!((w[j] - v[j]).abs() <= accel[j] * DT + 1e-12);
+                prop_assert!(w[j].abs() <= v[j].abs());
+                if v[j].abs() > 1e-9 {
+                    let r = w[j] / v[j];
+                    prop_assert!(r >= 0.0);
+                    if let Some(k) = k { prop_assert!((r - k).abs() < 1e-9); }
+                    k = Some(r);
+                }
+            }
+        }
+    }
+}

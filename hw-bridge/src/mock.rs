@@ -1,0 +1,276 @@
+//! The mock Gen3 lite: a kinematic simulation that closes the loop in tests and is the default
+//! when no robot is attached.
+
+use std::collections::VecDeque;
+
+use ipc_types::MAX_JOINTS;
+use kinematics::{ArmLimits, gen3_lite};
+use serde::{Deserialize, Serialize};
+
+use crate::{Reading, Robot};
+
+/// Settings of the mock: the `[bridge.mock]` table of the graph TOML.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MockConfig {
+    /// Start pose: `home`, `zero` or `retract`.
+    pub initial_pose: String,
+    /// Initial gripper state in `[0, 1]`.
+    pub initial_gripper: f64,
+    /// Time constant of the gripper's first-order lag (s).
+    pub gripper_time_constant_s: f64,
+    /// Commands take effect this many ticks after they are given (fault injection).
+    pub latency_ticks: u32,
+    /// Every n-th command is lost, the previous one staying in force (0 = none).
+    pub drop_every: u32,
+}
+
+impl Default for MockConfig {
+    fn default() -> Self {
+        Self {
+            initial_pose: "home".into(),
+            initial_gripper: 0.0,
+            gripper_time_constant_s: gen3_lite::GRIPPER_TIME_CONSTANT_S,
+            latency_ticks: 0,
+            drop_every: 0,
+        }
+    }
+}
+
+/// Why a mock configuration was refused.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("bridge.mock.{key}: {reason}")]
+pub struct MockConfigError {
+    /// The key under `[bridge.mock]`.
+    pub key: &'static str,
+    /// What is wrong.
+    pub reason: String,
+}
+
+/// The simulated arm.
+#[derive(Debug, Clone)]
+pub struct MockArm {
+    limits: ArmLimits,
+    cfg: MockConfig,
+    q: [f64; MAX_JOINTS],
+    qdot: [f64; MAX_JOINTS],
+    /// Commanded velocity currently in force.
+    cmd: [f64; MAX_JOINTS],
+    gripper_rate: f64,
+    gripper_target: f64,
+    gripper: f64,
+    pending: VecDeque<([f64; MAX_JOINTS], f64)>,
+    commands_seen: u64,
+}
+
+impl MockArm {
+    /// A mock Gen3 lite with the given settings.
+    pub fn new(cfg: MockConfig) -> Result<Self, MockConfigError> {
+        let pose = gen3_lite::named_pose(&cfg.initial_pose).ok_or_else(|| MockConfigError {
+            key: "initial_pose",
+            reason: format!(
+                "`{}` is not a named pose; use home, zero or retract",
+                cfg.initial_pose
+            ),
+        })?;
+        if !(0.0..=1.0).contains(&cfg.initial_gripper) {
+            return Err(MockConfigError {
+                key: "initial_gripper",
+                reason: format!("{} is outside [0, 1]", cfg.initial_gripper),
+            });
+        }
+        if !(cfg.gripper_time_constant_s.is_finite() && cfg.gripper_time_constant_s > 0.0) {
+            return Err(MockConfigError {
+                key: "gripper_time_constant_s",
+                reason: format!("{} must be a positive number", cfg.gripper_time_constant_s),
+            });
+        }
+        let mut q = [0.0; MAX_JOINTS];
+        q[..gen3_lite::N_JOINTS].copy_from_slice(&pose);
+        Ok(Self {
+            limits: gen3_lite::limits(),
+            q,
+            qdot: [0.0; MAX_JOINTS],
+            cmd: [0.0; MAX_JOINTS],
+            gripper_rate: 0.0,
+            gripper_target: cfg.initial_gripper,
+            gripper: cfg.initial_gripper,
+            pending: VecDeque::new(),
+            commands_seen: 0,
+            cfg,
+        })
+    }
+
+    /// The joint limits the mock respects.
+    pub fn limits(&self) -> &ArmLimits {
+        &self.limits
+    }
+
+    /// The velocity command currently in force.
+    pub fn command_in_force(&self) -> &[f64] {
+        &self.cmd[..self.limits.n_joints()]
+    }
+}
+
+impl Robot for MockArm {
+    fn n_joints(&self) -> usize {
+        self.limits.n_joints()
+    }
+
+    fn advance(&mut self, dt: f64) -> Reading {
+        let n = self.n_joints();
+        let mut at_limit = false;
+        for j in 0..n {
+            let before = self.q[j];
+            let next = (before + self.cmd[j] * dt)
+                .clamp(self.limits.lower_rad[j], self.limits.upper_rad[j]);
+            if next == self.limits.lower_rad[j] || next == self.limits.upper_rad[j] {
+                at_limit = true;
+            }
+            self.qdot[j] = (next - before) / dt;
+            self.q[j] = next;
+        }
+        self.gripper_target = (self.gripper_target + self.gripper_rate * dt).clamp(0.0, 1.0);
+        let alpha = 1.0 - (-dt / self.cfg.gripper_time_constant_s).exp();
+        self.gripper += (self.gripper_target - self.gripper) * alpha;
+        Reading {
+            q_rad: self.q,
+            qdot_rad_s: self.qdot,
+            gripper: self.gripper,
+            at_limit,
+        }
+    }
+
+    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) {
+        self.commands_seen += 1;
+        if self.cfg.drop_every > 0
+            && self
+                .commands_seen
+                .is_multiple_of(u64::from(self.cfg.drop_every))
+        {
+            return;
+        }
+        let mut c = [0.0; MAX_JOINTS];
+        let n = self.n_joints().min(qdot_rad_s.len());
+        c[..n].copy_from_slice(&qdot_rad_s[..n]);
+        self.pending.push_back((c, gripper_rate));
+        while self.pending.len() > self.cfg.latency_ticks as usize {
+            if let Some((c, g)) = self.pending.pop_front() {
+                self.cmd = c;
+                self.gripper_rate = g;
+            }
+        }
+    }
+
+    fn stop(&mut self) {
+        self.pending.clear();
+        self.cmd = [0.0; MAX_JOINTS];
+        self.gripper_rate = 0.0;
+    }
+
+    fn is_mock(&self) -> bool {
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT: f64 = 0.025;
+
+    #[test]
+    fn integrates_from_home() {
+        let mut arm = MockArm::new(MockConfig::default()).unwrap();
+        let r0 = arm.advance(DT);
+        assert_eq!(&r0.q_rad[..6], &gen3_lite::HOME);
+        arm.command(&[0.4, 0.0, 0.0, 0.0, 0.0, -0.2], 0.0);
+        for _ in 0..40 {
+            arm.advance(DT);
+        }
+        let r = arm.advance(0.0 + 1e-9);
+        assert!((r.q_rad[0] - 0.4).abs() < 1e-9);
+        assert!((r.q_rad[5] + 0.2).abs() < 1e-9);
+        assert_eq!(r.q_rad[1], gen3_lite::HOME[1]);
+    }
+
+    #[test]
+    fn stops_at_joint_limits() {
+        let mut arm = MockArm::new(MockConfig::default()).unwrap();
+        arm.command(&[2.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
+        let mut r = arm.advance(DT);
+        for _ in 0..200 {
+            r = arm.advance(DT);
+        }
+        assert_eq!(r.q_rad[0], 2.68);
+        assert_eq!(r.qdot_rad_s[0], 0.0);
+        assert!(r.at_limit);
+        // Motion away from the limit is possible.
+        arm.command(&[-0.5, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
+        let r = arm.advance(DT);
+        assert!(r.q_rad[0] < 2.68);
+        assert!(!r.at_limit);
+    }
+
+    #[test]
+    fn gripper_is_a_first_order_lag() {
+        let mut arm = MockArm::new(MockConfig::default()).unwrap();
+        arm.command(&[0.0; 6], 10.0); // target reaches 1 within 0.1 s
+        let mut prev = 0.0;
+        let mut r = arm.advance(DT);
+        for _ in 0..4 {
+            r = arm.advance(DT);
+            assert!(r.gripper > prev);
+            prev = r.gripper;
+        }
+        assert!(r.gripper < 1.0);
+        for _ in 0..80 {
+            r = arm.advance(DT);
+        }
+        assert!((r.gripper - 1.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn latency_and_drops() {
+        let cfg = MockConfig {
+            latency_ticks: 2,
+            ..MockConfig::default()
+        };
+        let mut arm = MockArm::new(cfg).unwrap();
+        arm.command(&[0.1; 6], 0.0);
+        assert_eq!(arm.command_in_force(), &[0.0; 6]);
+        arm.command(&[0.2; 6], 0.0);
+        assert_eq!(arm.command_in_force(), &[0.0; 6]);
+        arm.command(&[0.3; 6], 0.0);
+        assert_eq!(arm.command_in_force(), &[0.1; 6]);
+
+        let cfg = MockConfig {
+            drop_every: 2,
+            ..MockConfig::default()
+        };
+        let mut arm = MockArm::new(cfg).unwrap();
+        arm.command(&[0.1; 6], 0.0);
+        arm.command(&[0.2; 6], 0.0); // dropped
+        assert_eq!(arm.command_in_force(), &[0.1; 6]);
+        arm.command(&[0.3; 6], 0.0);
+        assert_eq!(arm.command_in_force(), &[0.3; 6]);
+        arm.stop();
+        assert_eq!(arm.command_in_force(), &[0.0; 6]);
+    }
+
+    #[test]
+    fn refuses_bad_settings() {
+        let e = MockArm::new(MockConfig {
+            initial_pose: "sideways".into(),
+            ..MockConfig::default()
+        })
+        .unwrap_err();
+        assert_eq!(e.key, "initial_pose");
+        let e = MockArm::new(MockConfig {
+            gripper_time_constant_s: 0.0,
+            ..MockConfig::default()
+        })
+        .unwrap_err();
+        assert_eq!(e.key, "gripper_time_constant_s");
+    }
+}

@@ -1,0 +1,552 @@
+//! The one place that opens every service of a graph, with its settings.
+//!
+//! Each topic is a publish-subscribe service for the data plus an event service of the same
+//! name with `/event` appended, which wakes the processes that react to the topic. Settings
+//! (history, buffer sizes, how many publishers may exist) live in [`TopicSettings`] constants
+//! next to the topic names, so every process opens every service identically.
+//!
+//! The graph's [`Prefix`] is used twice: in every service name (`lab2/robot_state`) and as the
+//! file-name prefix of every shared-memory resource (`scl_lab2_…`), so two graphs never see
+//! each other and a test can check that it left nothing behind.
+
+use core::time::Duration;
+
+use iceoryx2::config::Config;
+use iceoryx2::node::{NodeState, NodeView};
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+use crate::msg::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand};
+use crate::prefix::Prefix;
+
+/// The iceoryx2 service variant of every graph: inter-process.
+pub type Ipc = iceoryx2::service::ipc::Service;
+
+/// Errors of opening or using the graph's shared-memory services.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    /// The iceoryx2 node of this process could not be created.
+    #[error("cannot create the iceoryx2 node `{node}`: {reason}")]
+    Node {
+        /// Node name.
+        node: String,
+        /// What iceoryx2 said.
+        reason: String,
+    },
+    /// A service could not be opened or created, e.g. because another graph opened it with
+    /// other message types or settings.
+    #[error("cannot open service `{service}`: {reason}")]
+    Open {
+        /// Full service name.
+        service: String,
+        /// What iceoryx2 said.
+        reason: String,
+    },
+    /// A publisher, subscriber, notifier or listener could not be created. For the
+    /// `safe_command` publisher this is how a second safety process is refused.
+    #[error("cannot create a {port} on `{service}`: {reason}")]
+    Port {
+        /// Full service name.
+        service: String,
+        /// Which port.
+        port: &'static str,
+        /// What iceoryx2 said.
+        reason: String,
+    },
+    /// Sending, receiving or notifying failed.
+    #[error("{op} failed on `{service}`: {reason}")]
+    Io {
+        /// Full service name.
+        service: String,
+        /// The operation.
+        op: &'static str,
+        /// What iceoryx2 said.
+        reason: String,
+    },
+}
+
+/// Quality-of-service settings of one topic.
+#[derive(Debug, Clone, Copy)]
+pub struct TopicSettings {
+    /// Topic name below the prefix.
+    pub name: &'static str,
+    /// Samples a late-joining subscriber receives at once.
+    pub history: usize,
+    /// Samples a subscriber buffers; the oldest is overwritten (safe overflow), so a slow
+    /// reader never blocks a writer.
+    pub buffer: usize,
+    /// Publishers the service admits.
+    pub max_publishers: usize,
+    /// Subscribers the service admits.
+    pub max_subscribers: usize,
+}
+
+/// Joystick samples: newest wins; a late mapper gets the last sample at once.
+pub const JOYSTICK: TopicSettings = TopicSettings {
+    name: "joystick",
+    history: 1,
+    buffer: 4,
+    max_publishers: 2,
+    max_subscribers: 16,
+};
+/// Robot state, one per tick, from the bridge.
+pub const ROBOT_STATE: TopicSettings = TopicSettings {
+    name: "robot_state",
+    history: 1,
+    buffer: 8,
+    max_publishers: 1,
+    max_subscribers: 16,
+};
+/// Mapper commands; several mappers may publish at once during a live swap.
+pub const MAPPER_COMMAND: TopicSettings = TopicSettings {
+    name: "mapper_command",
+    history: 0,
+    buffer: 8,
+    max_publishers: 4,
+    max_subscribers: 8,
+};
+/// The command the arm executes. Exactly one publisher: the safety process.
+pub const SAFE_COMMAND: TopicSettings = TopicSettings {
+    name: "safe_command",
+    history: 0,
+    buffer: 8,
+    max_publishers: 1,
+    max_subscribers: 8,
+};
+/// Heartbeats of every node; buffered deep enough for a reader that polls a few times a second.
+pub const STATUS: TopicSettings = TopicSettings {
+    name: "status",
+    history: 0,
+    buffer: 512,
+    max_publishers: 16,
+    max_subscribers: 8,
+};
+
+/// A process's membership in one graph: its iceoryx2 node and the graph prefix.
+pub struct Graph {
+    node: Node<Ipc>,
+    prefix: Prefix,
+    config: Config,
+}
+
+impl std::fmt::Debug for Graph {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Graph")
+            .field("prefix", &self.prefix)
+            .finish()
+    }
+}
+
+/// The iceoryx2 configuration of the graph with prefix `prefix`: defaults, with every file
+/// name prefixed by [`Prefix::file_prefix`].
+pub fn config_for(prefix: &Prefix) -> Result<Config, IpcError> {
+    let mut config = Config::default();
+    config.global.prefix =
+        FileName::new(prefix.file_prefix().as_bytes()).map_err(|e| IpcError::Node {
+            node: prefix.to_string(),
+            reason: format!("prefix is not a valid file name: {e:?}"),
+        })?;
+    Ok(config)
+}
+
+impl Graph {
+    /// Joins the graph `prefix` as a node called `name` (e.g. `mapper-1`). Signal handling is
+    /// left to the process (iceoryx2's own handlers are disabled).
+    pub fn join(prefix: &Prefix, name: &str) -> Result<Self, IpcError> {
+        let config = config_for(prefix)?;
+        let node_err = |reason: String| IpcError::Node {
+            node: name.to_owned(),
+            reason,
+        };
+        let node_name = NodeName::new(name).map_err(|e| node_err(format!("{e:?}")))?;
+        let node = NodeBuilder::new()
+            .config(&config)
+            .name(&node_name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .map_err(|e| node_err(e.to_string()))?;
+        Ok(Self {
+            node,
+            prefix: prefix.clone(),
+            config,
+        })
+    }
+
+    /// The graph prefix.
+    pub fn prefix(&self) -> &Prefix {
+        &self.prefix
+    }
+
+    fn pubsub<T: ZeroCopySend + core::fmt::Debug + Copy>(
+        &self,
+        s: &TopicSettings,
+    ) -> Result<(String, publish_subscribe::PortFactory<Ipc, T, ()>), IpcError> {
+        let full = self.prefix.service(s.name);
+        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
+            service: full.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        let factory = self
+            .node
+            .service_builder(&name)
+            .publish_subscribe::<T>()
+            .history_size(s.history)
+            .subscriber_max_buffer_size(s.buffer.max(s.history))
+            .enable_safe_overflow(true)
+            .max_publishers(s.max_publishers)
+            .max_subscribers(s.max_subscribers)
+            .open_or_create()
+            .map_err(|e| IpcError::Open {
+                service: full.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok((full, factory))
+    }
+
+    fn event(&self, s: &TopicSettings) -> Result<(String, event::PortFactory<Ipc>), IpcError> {
+        let full = format!("{}/event", self.prefix.service(s.name));
+        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
+            service: full.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        let factory = self
+            .node
+            .service_builder(&name)
+            .event()
+            .max_notifiers(s.max_publishers)
+            .max_listeners(s.max_subscribers)
+            .open_or_create()
+            .map_err(|e| IpcError::Open {
+                service: full.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok((full, factory))
+    }
+
+    fn publisher<T: ZeroCopySend + core::fmt::Debug + Copy>(
+        &self,
+        s: &TopicSettings,
+    ) -> Result<TopicPublisher<T>, IpcError> {
+        let (service, data) = self.pubsub::<T>(s)?;
+        let publisher = data
+            .publisher_builder()
+            .create()
+            .map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "publisher",
+                reason: e.to_string(),
+            })?;
+        let (_, ev) = self.event(s)?;
+        let notifier = ev.notifier_builder().create().map_err(|e| IpcError::Port {
+            service: service.clone(),
+            port: "notifier",
+            reason: e.to_string(),
+        })?;
+        Ok(TopicPublisher {
+            service,
+            publisher,
+            notifier,
+        })
+    }
+
+    fn subscriber<T: ZeroCopySend + core::fmt::Debug + Copy>(
+        &self,
+        s: &TopicSettings,
+        wake: bool,
+    ) -> Result<TopicSubscriber<T>, IpcError> {
+        let (service, data) = self.pubsub::<T>(s)?;
+        let subscriber = data
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "subscriber",
+                reason: e.to_string(),
+            })?;
+        let listener = if wake {
+            let (_, ev) = self.event(s)?;
+            Some(ev.listener_builder().create().map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "listener",
+                reason: e.to_string(),
+            })?)
+        } else {
+            None
+        };
+        Ok(TopicSubscriber {
+            service,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// Publisher of joystick samples.
+    pub fn joystick_publisher(&self) -> Result<TopicPublisher<JoystickInput>, IpcError> {
+        self.publisher(&JOYSTICK)
+    }
+    /// Subscriber of joystick samples (read the newest; no wake-up).
+    pub fn joystick_subscriber(&self) -> Result<TopicSubscriber<JoystickInput>, IpcError> {
+        self.subscriber(&JOYSTICK, false)
+    }
+    /// Publisher of robot states (the bridge).
+    pub fn robot_state_publisher(&self) -> Result<TopicPublisher<RobotState>, IpcError> {
+        self.publisher(&ROBOT_STATE)
+    }
+    /// Subscriber of robot states; `wake` attaches a listener so the caller can block until
+    /// the next tick.
+    pub fn robot_state_subscriber(
+        &self,
+        wake: bool,
+    ) -> Result<TopicSubscriber<RobotState>, IpcError> {
+        self.subscriber(&ROBOT_STATE, wake)
+    }
+    /// Publisher of mapper commands.
+    pub fn mapper_command_publisher(&self) -> Result<TopicPublisher<MapperCommand>, IpcError> {
+        self.publisher(&MAPPER_COMMAND)
+    }
+    /// Subscriber of mapper commands (safety wakes on them).
+    pub fn mapper_command_subscriber(
+        &self,
+        wake: bool,
+    ) -> Result<TopicSubscriber<MapperCommand>, IpcError> {
+        self.subscriber(&MAPPER_COMMAND, wake)
+    }
+    /// Publisher of the executed command. Fails with [`IpcError::Port`] if another process
+    /// already publishes it: the arm listens to one safety process only.
+    pub fn safe_command_publisher(&self) -> Result<TopicPublisher<SafeCommand>, IpcError> {
+        self.publisher(&SAFE_COMMAND)
+    }
+    /// Subscriber of executed commands (the bridge wakes on them).
+    pub fn safe_command_subscriber(
+        &self,
+        wake: bool,
+    ) -> Result<TopicSubscriber<SafeCommand>, IpcError> {
+        self.subscriber(&SAFE_COMMAND, wake)
+    }
+    /// Publisher of this node's heartbeat.
+    pub fn status_publisher(&self) -> Result<TopicPublisher<NodeStatus>, IpcError> {
+        self.publisher(&STATUS)
+    }
+    /// Subscriber of every node's heartbeat.
+    pub fn status_subscriber(&self) -> Result<TopicSubscriber<NodeStatus>, IpcError> {
+        self.subscriber(&STATUS, false)
+    }
+
+    /// Removes the resources that dead processes of this graph left behind (a SIGKILLed
+    /// child cannot clean up after itself). Returns how many dead nodes were cleaned.
+    pub fn cleanup_dead_nodes(&self) -> usize {
+        self.node.try_cleanup_dead_nodes().cleanups as usize
+    }
+
+    /// Names and process ids of the live nodes of this graph.
+    pub fn alive_nodes(&self) -> Vec<(String, u32)> {
+        let mut out = Vec::new();
+        let _ = Node::<Ipc>::list(&self.config, |state| {
+            if let NodeState::Alive(view) = state
+                && let Some(d) = view.details().as_ref()
+            {
+                out.push((d.name().to_string(), d.process_id().value() as u32));
+            }
+            CallbackProgression::Continue
+        });
+        out
+    }
+}
+
+/// Removes the resources of every dead node of graph `prefix` without joining it.
+pub fn cleanup_dead_nodes(prefix: &Prefix) -> Result<usize, IpcError> {
+    let config = config_for(prefix)?;
+    let mut cleaned = 0;
+    let _ = Node::<Ipc>::list(&config, |state| {
+        if let NodeState::Dead(view) = state
+            && view.try_remove_stale_resources().is_ok()
+        {
+            cleaned += 1;
+        }
+        CallbackProgression::Continue
+    });
+    Ok(cleaned)
+}
+
+/// Releases graph `prefix`'s domain once no process of it is alive: removes what dead
+/// processes left behind and the domain's global management segment (a node counter that
+/// iceoryx2 keeps for the life of a domain). Returns whether the domain was released; it is
+/// not while any node of the graph is alive.
+pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
+    cleanup_dead_nodes(prefix)?;
+    let config = config_for(prefix)?;
+    let mut alive = 0;
+    let _ = Node::<Ipc>::list(&config, |state| {
+        if let NodeState::Alive(_) = state {
+            alive += 1;
+        }
+        CallbackProgression::Continue
+    });
+    if alive > 0 {
+        return Ok(false);
+    }
+    // SAFETY: no node of this domain is alive (checked just above), and every process of the
+    // graph joins through `Graph::join`; the segment is recreated by the next node.
+    unsafe { iceoryx2::testing::remove_global_mgmt_segment::<Ipc>(&config) }.map_err(|e| {
+        IpcError::Io {
+            service: prefix.to_string(),
+            op: "release domain",
+            reason: format!("{e:?}"),
+        }
+    })
+}
+
+/// A publisher that wakes the topic's listeners after each send.
+pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+    service: String,
+    publisher: Publisher<Ipc, T, ()>,
+    notifier: Notifier<Ipc>,
+}
+
+impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicPublisher<T> {
+    /// Sends `msg` through shared memory (loan, write, send) and notifies the listeners.
+    /// Returns the number of subscribers that received it.
+    pub fn send(&self, msg: T) -> Result<usize, IpcError> {
+        let io = |op: &'static str, reason: String| IpcError::Io {
+            service: self.service.clone(),
+            op,
+            reason,
+        };
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| io("loan", e.to_string()))?;
+        let n = sample
+            .write_payload(msg)
+            .send()
+            .map_err(|e| io("send", e.to_string()))?;
+        self.notifier
+            .notify()
+            .map_err(|e| io("notify", e.to_string()))?;
+        Ok(n)
+    }
+
+    /// The full service name.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+/// A subscriber with an optional wake-up listener.
+pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+    service: String,
+    subscriber: Subscriber<Ipc, T, ()>,
+    listener: Option<Listener<Ipc>>,
+}
+
+impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
+    /// Calls `f` with every buffered message, oldest first.
+    pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
+        let mut n = 0;
+        loop {
+            match self.subscriber.receive() {
+                Ok(Some(sample)) => {
+                    n += 1;
+                    f(sample.payload());
+                }
+                Ok(None) => return Ok(n),
+                Err(e) => {
+                    return Err(IpcError::Io {
+                        service: self.service.clone(),
+                        op: "receive",
+                        reason: e.to_string(),
+                    });
+                }
+            }
+        }
+    }
+
+    /// The newest buffered message, discarding older ones.
+    pub fn latest(&self) -> Result<Option<T>, IpcError> {
+        let mut last = None;
+        self.drain(|m| last = Some(*m))?;
+        Ok(last)
+    }
+
+    /// Blocks until the topic's event fires or `timeout` passes; returns whether it fired.
+    /// Consumes every pending notification. A signal ends the wait early (returning `false`)
+    /// so the caller can check its shutdown flag. Without a listener this sleeps for
+    /// `timeout`.
+    pub fn wait(&self, timeout: Duration) -> Result<bool, IpcError> {
+        match &self.listener {
+            Some(l) => match l.timed_wait(|_| {}, timeout) {
+                Ok(n) => Ok(n > 0),
+                Err(ListenerWaitError::InterruptSignal) => Ok(false),
+                Err(e) => Err(IpcError::Io {
+                    service: self.service.clone(),
+                    op: "wait",
+                    reason: e.to_string(),
+                }),
+            },
+            None => {
+                std::thread::sleep(timeout);
+                Ok(false)
+            }
+        }
+    }
+
+    /// The full service name.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msg::*;
+    use crate::time::now_ns;
+
+    fn unique_prefix(tag: &str) -> Prefix {
+        Prefix::new(&format!("ut{}{}", tag, std::process::id())).unwrap()
+    }
+
+    #[test]
+    fn publish_wake_receive_in_one_process() {
+        let p = unique_prefix("a");
+        let g = Graph::join(&p, "unit").unwrap();
+        let sub = g.robot_state_subscriber(true).unwrap();
+        let publ = g.robot_state_publisher().unwrap();
+        let mut s = RobotState {
+            tick: 7,
+            t_ns: now_ns(),
+            applied_tick: NO_TICK,
+            missed: 0,
+            n_joints: 6,
+            flags: 0,
+            q_rad: [0.0; MAX_JOINTS],
+            qdot_rad_s: [0.0; MAX_JOINTS],
+            gripper: 0.0,
+        };
+        assert_eq!(publ.send(s).unwrap(), 1);
+        s.tick = 8;
+        publ.send(s).unwrap();
+        assert!(sub.wait(Duration::from_millis(100)).unwrap());
+        assert_eq!(sub.latest().unwrap().map(|m| m.tick), Some(8));
+        assert_eq!(sub.latest().unwrap(), None);
+    }
+
+    #[test]
+    fn safe_command_admits_one_publisher() {
+        let p = unique_prefix("b");
+        let g = Graph::join(&p, "unit").unwrap();
+        let _first = g.safe_command_publisher().unwrap();
+        let second = g.safe_command_publisher();
+        assert!(matches!(
+            second,
+            Err(IpcError::Port {
+                port: "publisher",
+                ..
+            })
+        ));
+    }
+}

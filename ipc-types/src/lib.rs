@@ -1,0 +1,20 @@
+//! What flows through an SCL teleoperation graph, and how it is opened.
+//!
+//! * [`msg`]: the fixed-size `#[repr(C)]` message types. They know nothing of iceoryx2
+//!   beyond the `ZeroCopySend` derive and a stable type name, so step functions and unit tests
+//!   use them directly.
+//! * [`prefix`]: the graph prefix that isolates one graph from another on the same machine.
+//! * [`graph`]: the one place that opens every service with its settings (history, buffers,
+//!   publisher limits), and thin publisher / subscriber wrappers that pair a data service with
+//!   its wake-up event.
+//! * [`time`]: the monotonic clock every process stamps its messages with.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod graph;
+pub mod msg;
+pub mod prefix;
+pub mod time;
+
+pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber};
+pub use msg::*;
+pub use prefix::{Prefix, PrefixError};

@@ -1,0 +1,354 @@
+//! The message types of the graph.
+//!
+//! Every message is fixed-size, `Copy`, `#[repr(C)]`, free of pointers, and carries
+//! * the tick it belongs to (the bridge's clock is the only clock; see [`RobotState::tick`]),
+//! * `t_ns`, the monotonic time at which it was produced ([`crate::time::now_ns`]),
+//! * the timestamps it inherited from the messages it was computed from,
+//!
+//! so that any process can compute a sample's age or the end-to-end latency without a clock of
+//! its own. Type names are stable strings (`scl::RobotState`), so separately built binaries
+//! connect. Joint arrays are sized by [`MAX_JOINTS`] with an explicit count.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Capacity of every joint array. The Gen3 lite uses 6.
+pub const MAX_JOINTS: usize = 8;
+
+/// Number of joystick axes the maps take (the paper's 2-D action).
+pub const ACTION_DIM: usize = 2;
+
+/// The tick value of "no tick": a joystick sample taken before the first robot state, a robot
+/// state that executed no command.
+pub const NO_TICK: u64 = u64::MAX;
+
+/// Joystick button bits in [`JoystickInput::buttons`].
+pub mod buttons {
+    /// The deadman button is held.
+    pub const DEADMAN: u32 = 1 << 0;
+    /// The mode-switch button is pressed.
+    pub const MODE: u32 = 1 << 1;
+    /// The e-stop button is pressed.
+    pub const ESTOP: u32 = 1 << 2;
+    /// The gripper button is held (close while held).
+    pub const GRIPPER: u32 = 1 << 3;
+}
+
+/// One sample of the operator's input device.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::JoystickInput")]
+#[repr(C)]
+pub struct JoystickInput {
+    /// Newest [`RobotState::tick`] the joystick process had seen when it took this sample
+    /// ([`NO_TICK`] before the first).
+    pub tick: u64,
+    /// When the device was read (monotonic ns).
+    pub t_ns: u64,
+    /// Sample counter of the publishing process, from 0.
+    pub seq: u64,
+    /// The two axes, each nominally in `[-1, 1]`; the mapper enforces `|a| <= 1`.
+    pub axes: [f32; ACTION_DIM],
+    /// Gripper rate input in `[-1, 1]`: positive closes, negative opens.
+    pub gripper: f32,
+    /// Button bits, see [`buttons`].
+    pub buttons: u32,
+}
+
+impl JoystickInput {
+    /// A neutral sample (axes at rest) produced at `t_ns`.
+    pub fn neutral(t_ns: u64) -> Self {
+        Self {
+            tick: NO_TICK,
+            t_ns,
+            seq: 0,
+            axes: [0.0; ACTION_DIM],
+            gripper: 0.0,
+            buttons: 0,
+        }
+    }
+}
+
+/// [`RobotState::flags`] bits.
+pub mod state_flags {
+    /// The bridge is executing a controlled stop this period.
+    pub const STOPPING: u32 = 1 << 0;
+    /// No valid command for the previous tick arrived in time (a counted miss).
+    pub const MISSED: u32 = 1 << 1;
+    /// The bridge is shutting down; this is its last state.
+    pub const SHUTDOWN: u32 = 1 << 2;
+    /// A joint is at its position limit.
+    pub const AT_LIMIT: u32 = 1 << 3;
+    /// The robot is the mock Gen3 lite, not hardware.
+    pub const MOCK: u32 = 1 << 4;
+    /// The command executed during the last period was a stop decided by the safety filter
+    /// (its `SafeCommand` carried `safe_flags::STOP`).
+    pub const SAFETY_STOP: u32 = 1 << 5;
+}
+
+/// The arm's state at tick `tick`, published by the hardware bridge (the graph's only clock).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::RobotState")]
+#[repr(C)]
+pub struct RobotState {
+    /// Tick number, from 0, one every period (25 ms at 40 Hz).
+    pub tick: u64,
+    /// When the state was published (monotonic ns).
+    pub t_ns: u64,
+    /// The tick of the command executed during the period that ended with this state, or
+    /// [`NO_TICK`] if the bridge executed a stop instead.
+    pub applied_tick: u64,
+    /// Ticks missed since the bridge started (cumulative).
+    pub missed: u64,
+    /// Number of valid entries in the joint arrays.
+    pub n_joints: u32,
+    /// [`state_flags`] bits.
+    pub flags: u32,
+    /// Joint angles (rad).
+    pub q_rad: [f64; MAX_JOINTS],
+    /// Joint velocities (rad/s).
+    pub qdot_rad_s: [f64; MAX_JOINTS],
+    /// Gripper state `c` in `[0, 1]` (0 open, 1 closed).
+    pub gripper: f64,
+}
+
+impl RobotState {
+    /// The valid joint angles.
+    pub fn q(&self) -> &[f64] {
+        &self.q_rad[..(self.n_joints as usize).min(MAX_JOINTS)]
+    }
+}
+
+/// [`MapperCommand::flags`] bits.
+pub mod mapper_flags {
+    /// No joystick sample has arrived yet; the action was zero.
+    pub const NO_INPUT: u32 = 1 << 0;
+    /// The joystick sample had a non-finite axis; the action was zero.
+    pub const INPUT_NON_FINITE: u32 = 1 << 1;
+    /// The action was longer than 1 and was clamped radially.
+    pub const INPUT_CLAMPED: u32 = 1 << 2;
+    /// The model produced a non-finite velocity; the command was zeroed.
+    pub const OUTPUT_NON_FINITE: u32 = 1 << 3;
+    /// The robot state was unusable (non-finite joint angle, wrong joint count); the command
+    /// was zeroed.
+    pub const STATE_INVALID: u32 = 1 << 4;
+}
+
+/// A joint-velocity command for tick `tick`, produced by one mapper process.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::MapperCommand")]
+#[repr(C)]
+pub struct MapperCommand {
+    /// The tick of the robot state this command was computed from.
+    pub tick: u64,
+    /// When the command was published (monotonic ns).
+    pub t_ns: u64,
+    /// Inherited: `t_ns` of the robot state used.
+    pub state_t_ns: u64,
+    /// Inherited: `t_ns` of the joystick sample used (0 if none).
+    pub joystick_t_ns: u64,
+    /// Inherited: `seq` of the joystick sample used.
+    pub joystick_seq: u64,
+    /// Time spent in the map itself (ns), for compute-versus-transport figures.
+    pub compute_ns: u64,
+    /// Id of the mapper process; safety forwards only the active id.
+    pub mapper_id: u32,
+    /// Number of valid entries in `qdot_rad_s`.
+    pub n_joints: u32,
+    /// [`mapper_flags`] bits.
+    pub flags: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
+    /// The action `a` after clamping, as fed to the map.
+    pub action: [f32; ACTION_DIM],
+    /// Commanded joint velocities (rad/s).
+    pub qdot_rad_s: [f64; MAX_JOINTS],
+    /// Commanded gripper rate (1/s on the `c` scale; positive closes).
+    pub gripper_rate: f64,
+}
+
+/// [`SafeCommand::flags`] bits: which rule of the safety filter acted this tick.
+pub mod safe_flags {
+    /// A non-finite value in the command or state: controlled stop, fault.
+    pub const NON_FINITE: u32 = 1 << 0;
+    /// The command's robot state was older than allowed: stop.
+    pub const STALE_STATE: u32 = 1 << 1;
+    /// The command's joystick sample was older than allowed: stop.
+    pub const STALE_JOYSTICK: u32 = 1 << 2;
+    /// The command's tick was not the newest robot tick: stop.
+    pub const STALE_COMMAND: u32 = 1 << 3;
+    /// The velocity was scaled down uniformly to respect a joint speed limit.
+    pub const VELOCITY_SCALED: u32 = 1 << 4;
+    /// The output is a stop (zero velocity) decided by the filter.
+    pub const STOP: u32 = 1 << 5;
+    /// The command's joint count does not match the robot's.
+    pub const BAD_SHAPE: u32 = 1 << 6;
+}
+
+/// The command the arm executes at tick `tick`: the safety process's output, the only one the
+/// bridge accepts. The service admits exactly one publisher.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::SafeCommand")]
+#[repr(C)]
+pub struct SafeCommand {
+    /// The tick this command is for; the bridge executes it only at this tick.
+    pub tick: u64,
+    /// When it was published (monotonic ns).
+    pub t_ns: u64,
+    /// Inherited: `t_ns` of the robot state of this tick.
+    pub state_t_ns: u64,
+    /// Inherited: `t_ns` of the joystick sample behind the command.
+    pub joystick_t_ns: u64,
+    /// Inherited: `t_ns` of the mapper command.
+    pub mapper_t_ns: u64,
+    /// Inherited: the mapper's compute time (ns).
+    pub mapper_compute_ns: u64,
+    /// Time spent in the safety filter (ns).
+    pub compute_ns: u64,
+    /// The mapper the command came from.
+    pub mapper_id: u32,
+    /// Number of valid entries in `qdot_rad_s`.
+    pub n_joints: u32,
+    /// [`safe_flags`] bits: which rules acted.
+    pub flags: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
+    /// Joint velocities to execute (rad/s).
+    pub qdot_rad_s: [f64; MAX_JOINTS],
+    /// Gripper rate (1/s on the `c` scale).
+    pub gripper_rate: f64,
+}
+
+/// Which process a [`NodeStatus`] comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum NodeRole {
+    /// The joystick (input) process.
+    Joystick = 1,
+    /// A mapper process.
+    Mapper = 2,
+    /// The safety process.
+    Safety = 3,
+    /// The hardware bridge (the clock).
+    Bridge = 4,
+}
+
+impl NodeRole {
+    /// Decodes a raw role value.
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::Joystick),
+            2 => Some(Self::Mapper),
+            3 => Some(Self::Safety),
+            4 => Some(Self::Bridge),
+            _ => None,
+        }
+    }
+
+    /// The role's name as the CLI and the status line spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Joystick => "joystick",
+            Self::Mapper => "mapper",
+            Self::Safety => "safety",
+            Self::Bridge => "bridge",
+        }
+    }
+}
+
+/// Node life-cycle phases in [`NodeStatus::phase`].
+pub mod phase {
+    /// Ports are open; the node is ready to take part in the next tick.
+    pub const READY: u32 = 1;
+    /// The node is handling ticks.
+    pub const RUNNING: u32 = 2;
+    /// The node is shutting down (its last status).
+    pub const STOPPING: u32 = 3;
+}
+
+/// Heartbeat of one process, published once per tick it handled (and once when ready).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::NodeStatus")]
+#[repr(C)]
+pub struct NodeStatus {
+    /// When it was published (monotonic ns).
+    pub t_ns: u64,
+    /// Newest tick the node handled ([`NO_TICK`] before the first).
+    pub tick: u64,
+    /// Ticks handled since the node started.
+    pub handled: u64,
+    /// Bridge: ticks missed since start. Others: inputs refused (non-finite, stale, shape).
+    pub faults: u64,
+    /// Bridge: RobotState(k) published -> SafeCommand(k) received, this tick (ns; 0 on a miss).
+    pub latency_ns: u64,
+    /// Bridge: lateness of this tick against the ideal period grid (ns).
+    pub lateness_ns: u64,
+    /// Bridge: joint-space path length travelled since start (rad, L2 per tick, summed).
+    pub joint_travel_rad: f64,
+    /// Process id.
+    pub pid: u32,
+    /// [`NodeRole`] as u32.
+    pub role: u32,
+    /// [`phase`] value.
+    pub phase: u32,
+    /// Mapper id (mappers: their own; safety and bridge: the active / last executed one).
+    pub mapper_id: u32,
+}
+
+impl NodeStatus {
+    /// A status for `role` in `phase` with every counter at zero.
+    pub fn new(role: NodeRole, phase: u32, t_ns: u64) -> Self {
+        Self {
+            t_ns,
+            tick: NO_TICK,
+            handled: 0,
+            faults: 0,
+            latency_ns: 0,
+            lateness_ns: 0,
+            joint_travel_rad: 0.0,
+            pid: std::process::id(),
+            role: role as u32,
+            phase,
+            mapper_id: 0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use iceoryx2::prelude::ZeroCopySend;
+
+    #[test]
+    fn type_names_are_stable() {
+        // SAFETY: type_name only returns the string given to the derive.
+        unsafe {
+            assert_eq!(JoystickInput::type_name(), "scl::JoystickInput");
+            assert_eq!(RobotState::type_name(), "scl::RobotState");
+            assert_eq!(MapperCommand::type_name(), "scl::MapperCommand");
+            assert_eq!(SafeCommand::type_name(), "scl::SafeCommand");
+            assert_eq!(NodeStatus::type_name(), "scl::NodeStatus");
+        }
+    }
+
+    #[test]
+    fn sizes_are_fixed() {
+        // A change of layout breaks binaries built from another version: make it visible.
+        assert_eq!(std::mem::size_of::<JoystickInput>(), 40);
+        assert_eq!(std::mem::size_of::<RobotState>(), 176);
+        assert_eq!(std::mem::size_of::<MapperCommand>(), 144);
+        assert_eq!(std::mem::size_of::<SafeCommand>(), 144);
+        assert_eq!(std::mem::size_of::<NodeStatus>(), 72);
+    }
+
+    #[test]
+    fn roles_round_trip() {
+        for r in [
+            NodeRole::Joystick,
+            NodeRole::Mapper,
+            NodeRole::Safety,
+            NodeRole::Bridge,
+        ] {
+            assert_eq!(NodeRole::from_u32(r as u32), Some(r));
+        }
+        assert_eq!(NodeRole::from_u32(0), None);
+    }
+}

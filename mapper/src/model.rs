@@ -1,0 +1,541 @@
+//! The model file: weights in safetensors, a JSON [`ModelHeader`] in the file's metadata under
+//! the key [`HEADER_KEY`].
+//!
+//! A file is checked completely when it is loaded (format, version, kind, shapes, finiteness,
+//! agreement between header and tensors), so a bad file is an error at start-up and never at
+//! tick time. Later model kinds (SCL, CAE) add tensors and header fields; the reader dispatches
+//! on [`ModelHeader::kind`].
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+
+use crate::ActionMap;
+use crate::pca::PcaMap;
+
+/// Metadata key that holds the JSON header.
+pub const HEADER_KEY: &str = "scl";
+/// Value of [`ModelHeader::format`].
+pub const FORMAT: &str = "scl-model";
+/// Highest header version this reader understands.
+pub const VERSION: u32 = 1;
+
+/// The model bundled into the `scl` binary: PCA fitted on the generated joint-space reaching
+/// demonstrations (regenerate with `scripts/regenerate-bundled-model.sh`).
+pub const BUNDLED: &[u8] = include_bytes!("../../models/default.safetensors");
+/// The name by which configs and the CLI refer to [`BUNDLED`].
+pub const BUNDLED_NAME: &str = "bundled";
+
+/// The kind of map a file holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// Principal component analysis: a constant orthonormal basis.
+    Pca,
+    /// State-conditioned linear map (the paper's method).
+    Scl,
+    /// Conditional autoencoder decoder.
+    Cae,
+}
+
+impl std::fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Pca => "pca",
+            Self::Scl => "scl",
+            Self::Cae => "cae",
+        })
+    }
+}
+
+/// Where a model came from: enough to reproduce it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct TrainingInfo {
+    /// FNV-1a 64 hash of the training files' bytes, hex.
+    pub data_hash: String,
+    /// Tuples used for fitting.
+    pub n_train: usize,
+    /// Tuples used for validation.
+    pub n_val: usize,
+    /// Mean squared reconstruction error of `qdot` on the validation tuples ((rad/s)²).
+    pub validation_loss: Option<f64>,
+    /// Seed of the run.
+    pub seed: u64,
+    /// The command that produced the file.
+    pub command: String,
+}
+
+/// The JSON header of a model file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelHeader {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// Header version, at most [`VERSION`].
+    pub version: u32,
+    /// Model kind.
+    pub kind: ModelKind,
+    /// Output joints `m`.
+    pub n_joints: usize,
+    /// Action dimension `d`.
+    pub latent_dim: usize,
+    /// Joint names, in output order.
+    pub joint_names: Vec<String>,
+    /// Speed scale `s` (rad/s): `qdot = s * map(o, a)`, so a full deflection of an
+    /// orthonormal map moves the joints at `s` in norm.
+    pub speed_scale_rad_s: f64,
+    /// Lipschitz bound of the network, where one was enforced.
+    #[serde(default)]
+    pub lipschitz_bound: Option<f64>,
+    /// Provenance.
+    #[serde(default)]
+    pub training: TrainingInfo,
+}
+
+/// Why a model file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The file could not be read.
+    #[error("cannot read model file {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file could not be written.
+    #[error("cannot write model file {path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file exists and overwriting was not asked for.
+    #[error("model file {0} already exists; pass --force to overwrite it")]
+    Exists(PathBuf),
+    /// The bytes are not a safetensors file.
+    #[error("model file {path} is not a safetensors file (corrupt or truncated?): {reason}")]
+    NotSafetensors {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        reason: String,
+    },
+    /// The safetensors metadata has no SCL header.
+    #[error(
+        "model file {0} has no `scl` header in its metadata; it was not written by `scl train`"
+    )]
+    MissingHeader(PathBuf),
+    /// The header is not valid JSON of the expected shape.
+    #[error("model file {path}: bad header: {reason}")]
+    BadHeader {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A tensor the kind needs is missing.
+    #[error("model file {path}: tensor `{name}` is missing")]
+    MissingTensor {
+        /// The file.
+        path: PathBuf,
+        /// The tensor.
+        name: String,
+    },
+    /// A tensor has the wrong type, shape or values.
+    #[error("model file {path}: tensor `{name}`: {reason}")]
+    BadTensor {
+        /// The file.
+        path: PathBuf,
+        /// The tensor.
+        name: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The model does not fit the robot or the input device.
+    #[error("model file {path}: {what} is {found}, but the {against} needs {expected}")]
+    Mismatch {
+        /// The file.
+        path: PathBuf,
+        /// Which quantity.
+        what: &'static str,
+        /// The model's value.
+        found: usize,
+        /// The required value.
+        expected: usize,
+        /// What requires it.
+        against: &'static str,
+    },
+    /// The header declares a kind this build cannot serve yet.
+    #[error("model file {path}: models of kind `{kind}` are not supported by this build")]
+    Unsupported {
+        /// The file.
+        path: PathBuf,
+        /// The kind.
+        kind: ModelKind,
+    },
+}
+
+/// A checked model: its header and a ready map.
+pub struct LoadedModel {
+    /// Where it was loaded from (`bundled` for the built-in model).
+    pub source: String,
+    /// The header.
+    pub header: ModelHeader,
+    /// The map.
+    pub map: Box<dyn ActionMap>,
+}
+
+impl std::fmt::Debug for LoadedModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LoadedModel")
+            .field("source", &self.source)
+            .field("header", &self.header)
+            .finish()
+    }
+}
+
+impl LoadedModel {
+    /// Loads `spec`: a path, or [`BUNDLED_NAME`] for the model built into the binary.
+    pub fn load(spec: &str) -> Result<Self, ModelError> {
+        if spec == BUNDLED_NAME {
+            return Self::from_bytes(BUNDLED, Path::new(BUNDLED_NAME));
+        }
+        let path = Path::new(spec);
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Parses and checks a model from its bytes; `path` names it in errors.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ModelError> {
+        let st = SafeTensors::deserialize(bytes).map_err(|e| ModelError::NotSafetensors {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        let header = read_header(bytes, path)?;
+        let map: Box<dyn ActionMap> = match header.kind {
+            ModelKind::Pca => Box::new(PcaMap::from_tensors(&st, &header, path)?),
+            kind => {
+                return Err(ModelError::Unsupported {
+                    path: path.to_owned(),
+                    kind,
+                });
+            }
+        };
+        Ok(Self {
+            source: path.display().to_string(),
+            header,
+            map,
+        })
+    }
+
+    /// Refuses the model unless it drives `n_joints` joints from a `latent_dim`-D input.
+    pub fn expect_dims(&self, n_joints: usize, latent_dim: usize) -> Result<(), ModelError> {
+        let path = PathBuf::from(&self.source);
+        if self.header.n_joints != n_joints {
+            return Err(ModelError::Mismatch {
+                path,
+                what: "the joint count",
+                found: self.header.n_joints,
+                expected: n_joints,
+                against: "robot",
+            });
+        }
+        if self.header.latent_dim != latent_dim {
+            return Err(ModelError::Mismatch {
+                path,
+                what: "the latent (action) size",
+                found: self.header.latent_dim,
+                expected: latent_dim,
+                against: "joystick",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Reads and checks the header of a safetensors byte buffer.
+pub fn read_header(bytes: &[u8], path: &Path) -> Result<ModelHeader, ModelError> {
+    let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| ModelError::NotSafetensors {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })?;
+    let json = meta
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get(HEADER_KEY))
+        .ok_or_else(|| ModelError::MissingHeader(path.to_owned()))?;
+    let header: ModelHeader = serde_json::from_str(json).map_err(|e| ModelError::BadHeader {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })?;
+    let bad = |reason: String| ModelError::BadHeader {
+        path: path.to_owned(),
+        reason,
+    };
+    if header.format != FORMAT {
+        return Err(bad(format!(
+            "format is `{}`, expected `{FORMAT}`",
+            header.format
+        )));
+    }
+    if header.version == 0 || header.version > VERSION {
+        return Err(bad(format!(
+            "version {} is not supported (this build reads 1..={VERSION})",
+            header.version
+        )));
+    }
+    if header.n_joints == 0 || header.n_joints > ipc_types::MAX_JOINTS {
+        return Err(bad(format!(
+            "n_joints is {}, expected 1..={}",
+            header.n_joints,
+            ipc_types::MAX_JOINTS
+        )));
+    }
+    if header.latent_dim == 0 || header.latent_dim > header.n_joints {
+        return Err(bad(format!(
+            "latent_dim is {}, expected 1..={}",
+            header.latent_dim, header.n_joints
+        )));
+    }
+    if header.joint_names.len() != header.n_joints {
+        return Err(bad(format!(
+            "{} joint names for {} joints",
+            header.joint_names.len(),
+            header.n_joints
+        )));
+    }
+    if !(header.speed_scale_rad_s.is_finite() && header.speed_scale_rad_s > 0.0) {
+        return Err(bad(format!(
+            "speed_scale_rad_s is {}, expected a positive number",
+            header.speed_scale_rad_s
+        )));
+    }
+    Ok(header)
+}
+
+/// Reads tensor `name` as f32 values of shape `shape`, checking type, shape and finiteness.
+pub fn tensor_f32(
+    st: &SafeTensors<'_>,
+    name: &str,
+    shape: &[usize],
+    path: &Path,
+) -> Result<Vec<f32>, ModelError> {
+    let t = st.tensor(name).map_err(|_| ModelError::MissingTensor {
+        path: path.to_owned(),
+        name: name.to_owned(),
+    })?;
+    let bad = |reason: String| ModelError::BadTensor {
+        path: path.to_owned(),
+        name: name.to_owned(),
+        reason,
+    };
+    if t.dtype() != Dtype::F32 {
+        return Err(bad(format!("dtype is {:?}, expected F32", t.dtype())));
+    }
+    if t.shape() != shape {
+        return Err(bad(format!("shape is {:?}, expected {shape:?}", t.shape())));
+    }
+    let values: Vec<f32> = t
+        .data()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(bad(format!("element {i} is {}", values[i])));
+    }
+    Ok(values)
+}
+
+/// Serialises `header` and the named f32 tensors (row-major) into safetensors bytes.
+pub fn to_bytes(
+    header: &ModelHeader,
+    tensors: &[(&str, Vec<usize>, Vec<f32>)],
+) -> Result<Vec<u8>, ModelError> {
+    let encoded: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
+        .iter()
+        .map(|(n, s, v)| {
+            (
+                (*n).to_owned(),
+                s.clone(),
+                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            )
+        })
+        .collect();
+    let views = encoded
+        .iter()
+        .map(|(n, s, b)| {
+            TensorView::new(Dtype::F32, s.clone(), b)
+                .map(|v| (n.clone(), v))
+                .map_err(|e| ModelError::BadTensor {
+                    path: PathBuf::new(),
+                    name: n.clone(),
+                    reason: e.to_string(),
+                })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let json = serde_json::to_string(header).map_err(|e| ModelError::BadHeader {
+        path: PathBuf::new(),
+        reason: e.to_string(),
+    })?;
+    let meta = HashMap::from([(HEADER_KEY.to_owned(), json)]);
+    safetensors::serialize(views, Some(meta)).map_err(|e| ModelError::NotSafetensors {
+        path: PathBuf::new(),
+        reason: e.to_string(),
+    })
+}
+
+/// Writes model bytes to `path`, refusing to replace an existing file unless `force`. The
+/// bytes go to a temporary file first and are renamed into place, so a crash never leaves a
+/// half-written model under the final name.
+pub fn write_file(path: &Path, bytes: &[u8], force: bool) -> Result<(), ModelError> {
+    if path.exists() && !force {
+        return Err(ModelError::Exists(path.to_owned()));
+    }
+    let werr = |source| ModelError::Write {
+        path: path.to_owned(),
+        source,
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(werr)?;
+    }
+    let tmp = path.with_extension("safetensors.partial");
+    std::fs::write(&tmp, bytes).map_err(werr)?;
+    std::fs::rename(&tmp, path).map_err(werr)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pca::tests::sample_header;
+
+    fn pca_bytes(header: &ModelHeader, basis: Vec<f32>) -> Vec<u8> {
+        to_bytes(
+            header,
+            &[("basis", vec![header.n_joints, header.latent_dim], basis)],
+        )
+        .unwrap()
+    }
+
+    fn identity_basis() -> Vec<f32> {
+        let mut b = vec![0.0f32; 12];
+        b[0] = 1.0; // row 0, col 0
+        b[3] = 1.0; // row 1, col 1
+        b
+    }
+
+    #[test]
+    fn round_trip() {
+        let h = sample_header();
+        let m = LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("x")).unwrap();
+        assert_eq!(m.header, h);
+        assert_eq!(m.map.kind(), ModelKind::Pca);
+        m.expect_dims(6, 2).unwrap();
+        assert!(matches!(
+            m.expect_dims(7, 2),
+            Err(ModelError::Mismatch {
+                found: 6,
+                expected: 7,
+                ..
+            })
+        ));
+        assert!(matches!(
+            m.expect_dims(6, 3),
+            Err(ModelError::Mismatch {
+                found: 2,
+                expected: 3,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn bundled_model_loads() {
+        let m = LoadedModel::load(BUNDLED_NAME).unwrap();
+        m.expect_dims(6, 2).unwrap();
+    }
+
+    #[test]
+    fn refuses_corrupt_and_truncated_files() {
+        let bytes = pca_bytes(&sample_header(), identity_basis());
+        let p = Path::new("m.safetensors");
+        for cut in [0, 4, 8, bytes.len() / 2, bytes.len() - 1] {
+            let e = LoadedModel::from_bytes(&bytes[..cut], p).unwrap_err();
+            assert!(
+                matches!(e, ModelError::NotSafetensors { .. }),
+                "cut {cut}: {e}"
+            );
+            assert!(e.to_string().contains("m.safetensors"));
+        }
+        let e = LoadedModel::from_bytes(b"hello world, not a model", p).unwrap_err();
+        assert!(matches!(e, ModelError::NotSafetensors { .. }));
+    }
+
+    #[test]
+    fn refuses_bad_headers() {
+        let mut h = sample_header();
+        h.version = 99;
+        let e = LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("m"));
+        assert!(matches!(e, Err(ModelError::BadHeader { .. })));
+        let mut h = sample_header();
+        h.speed_scale_rad_s = f64::NAN;
+        // serde_json writes NaN as null, which then fails to parse as a number.
+        let e = LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("m"));
+        assert!(matches!(e, Err(ModelError::BadHeader { .. })));
+        let mut h = sample_header();
+        h.joint_names.pop();
+        let e = LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("m"));
+        assert!(matches!(e, Err(ModelError::BadHeader { .. })));
+        // No header at all.
+        let v: Vec<u8> = identity_basis()
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let view = TensorView::new(Dtype::F32, vec![6, 2], &v).unwrap();
+        let bytes = safetensors::serialize([("basis", view)], None).unwrap();
+        let e = LoadedModel::from_bytes(&bytes, Path::new("m"));
+        assert!(matches!(e, Err(ModelError::MissingHeader(_))));
+    }
+
+    #[test]
+    fn refuses_bad_tensors() {
+        let h = sample_header();
+        let mut b = identity_basis();
+        b[5] = f32::NAN;
+        let e = LoadedModel::from_bytes(&pca_bytes(&h, b), Path::new("m")).unwrap_err();
+        assert!(matches!(e, ModelError::BadTensor { .. }), "{e}");
+        // Wrong shape.
+        let bytes = to_bytes(&h, &[("basis", vec![2, 6], identity_basis())]).unwrap();
+        let e = LoadedModel::from_bytes(&bytes, Path::new("m")).unwrap_err();
+        assert!(matches!(e, ModelError::BadTensor { .. }), "{e}");
+        // Missing tensor.
+        let bytes = to_bytes(&h, &[("other", vec![6, 2], identity_basis())]).unwrap();
+        let e = LoadedModel::from_bytes(&bytes, Path::new("m")).unwrap_err();
+        assert!(matches!(e, ModelError::MissingTensor { .. }), "{e}");
+        // Columns not orthonormal.
+        let e = LoadedModel::from_bytes(&pca_bytes(&h, vec![1.0; 12]), Path::new("m")).unwrap_err();
+        assert!(matches!(e, ModelError::BadTensor { .. }), "{e}");
+    }
+
+    #[test]
+    fn write_refuses_to_overwrite() {
+        let dir = std::env::temp_dir().join(format!("scl-model-test-{}", std::process::id()));
+        let p = dir.join("m.safetensors");
+        let _ = std::fs::remove_dir_all(&dir);
+        let bytes = pca_bytes(&sample_header(), identity_basis());
+        write_file(&p, &bytes, false).unwrap();
+        assert!(matches!(
+            write_file(&p, &bytes, false),
+            Err(ModelError::Exists(_))
+        ));
+        write_file(&p, &bytes, true).unwrap();
+        LoadedModel::load(p.to_str().unwrap()).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

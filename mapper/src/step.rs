@@ -1,0 +1,232 @@
+//! The mapper process's step function: one robot state and the newest joystick sample in,
+//! one [`MapperCommand`] out. Pure and allocation-free; the process loop around it only
+//! waits, reads, stamps times and publishes.
+
+use ipc_types::{ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, RobotState, mapper_flags};
+
+use crate::model::{LoadedModel, ModelError};
+
+/// Gripper rate at full gripper input (1/s on the `c` scale): open to closed in 1 s.
+pub const DEFAULT_GRIPPER_RATE: f64 = 1.0;
+
+/// The state of one mapper: its id, its model and preallocated buffers.
+#[derive(Debug)]
+pub struct MapperStep {
+    id: u32,
+    model: LoadedModel,
+    gripper_rate: f64,
+    out: [f64; MAX_JOINTS],
+}
+
+impl MapperStep {
+    /// A mapper with id `id` serving `model` for a robot with `n_joints` joints. Refuses a
+    /// model of another shape.
+    pub fn new(id: u32, model: LoadedModel, n_joints: usize) -> Result<Self, ModelError> {
+        model.expect_dims(n_joints, ACTION_DIM)?;
+        Ok(Self {
+            id,
+            model,
+            gripper_rate: DEFAULT_GRIPPER_RATE,
+            out: [0.0; MAX_JOINTS],
+        })
+    }
+
+    /// The mapper id.
+    pub fn id(&self) -> u32 {
+        self.id
+    }
+
+    /// The model served.
+    pub fn model(&self) -> &LoadedModel {
+        &self.model
+    }
+
+    /// Computes the command for `state`'s tick from the newest joystick sample `joy`.
+    ///
+    /// The action is zero when there is no sample or a non-finite one, and clamped radially to
+    /// `|a| <= 1`. A non-finite model output or an unusable state gives a zero command. Each
+    /// case sets its bit in [`MapperCommand::flags`]. Times (`t_ns`, `compute_ns`) are left at
+    /// 0 for the caller to stamp.
+    pub fn step(&mut self, state: &RobotState, joy: Option<&JoystickInput>) -> MapperCommand {
+        let m = self.model.header.n_joints;
+        let mut flags = 0;
+        let mut a = [0.0f64; ACTION_DIM];
+        let mut gripper = 0.0;
+        match joy {
+            None => flags |= mapper_flags::NO_INPUT,
+            Some(j) if j.axes.iter().any(|v| !v.is_finite()) => {
+                flags |= mapper_flags::INPUT_NON_FINITE;
+            }
+            Some(j) => {
+                for (ai, v) in a.iter_mut().zip(j.axes) {
+                    *ai = f64::from(v);
+                }
+                let norm = a.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if norm > 1.0 {
+                    flags |= mapper_flags::INPUT_CLAMPED;
+                    a.iter_mut().for_each(|v| *v /= norm);
+                }
+                if j.gripper.is_finite() {
+                    gripper = f64::from(j.gripper).clamp(-1.0, 1.0) * self.gripper_rate;
+                }
+            }
+        }
+        let state_ok = state.n_joints as usize == m
+            && state.q().iter().all(|v| v.is_finite())
+            && state.gripper.is_finite();
+        self.out = [0.0; MAX_JOINTS];
+        if !state_ok {
+            flags |= mapper_flags::STATE_INVALID;
+            gripper = 0.0;
+        } else {
+            self.model
+                .map
+                .eval(state.q(), state.gripper, &a, &mut self.out[..m]);
+            let s = self.model.header.speed_scale_rad_s;
+            self.out[..m].iter_mut().for_each(|v| *v *= s);
+            if self.out[..m].iter().any(|v| !v.is_finite()) {
+                flags |= mapper_flags::OUTPUT_NON_FINITE;
+                self.out = [0.0; MAX_JOINTS];
+            }
+        }
+        MapperCommand {
+            tick: state.tick,
+            t_ns: 0,
+            state_t_ns: state.t_ns,
+            joystick_t_ns: joy.map_or(0, |j| j.t_ns),
+            joystick_seq: joy.map_or(0, |j| j.seq),
+            compute_ns: 0,
+            mapper_id: self.id,
+            n_joints: m as u32,
+            flags,
+            reserved: 0,
+            action: [a[0] as f32, a[1] as f32],
+            qdot_rad_s: self.out,
+            gripper_rate: gripper,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::BUNDLED_NAME;
+    use crate::pca::PcaMap;
+    use ipc_types::NO_TICK;
+    use nalgebra::DMatrix;
+
+    fn state(tick: u64) -> RobotState {
+        RobotState {
+            tick,
+            t_ns: 1000,
+            applied_tick: NO_TICK,
+            missed: 0,
+            n_joints: 6,
+            flags: 0,
+            q_rad: [0.0; MAX_JOINTS],
+            qdot_rad_s: [0.0; MAX_JOINTS],
+            gripper: 0.0,
+        }
+    }
+
+    fn joy(axes: [f32; 2]) -> JoystickInput {
+        JoystickInput {
+            tick: 3,
+            t_ns: 900,
+            seq: 42,
+            axes,
+            gripper: 0.5,
+            buttons: 0,
+        }
+    }
+
+    fn step_with_basis() -> (MapperStep, DMatrix<f64>) {
+        let model = LoadedModel::load(BUNDLED_NAME).unwrap();
+        let s = model.header.speed_scale_rad_s;
+        let step = MapperStep::new(7, model, 6).unwrap();
+        // The bundled model is PCA: recover its basis through the map itself.
+        let mut probe = MapperStep::new(7, LoadedModel::load(BUNDLED_NAME).unwrap(), 6).unwrap();
+        let mut b = DMatrix::zeros(6, 2);
+        for j in 0..2 {
+            let mut a = [0.0f32; 2];
+            a[j] = 1.0;
+            let c = probe.step(&state(0), Some(&joy(a)));
+            for i in 0..6 {
+                b[(i, j)] = c.qdot_rad_s[i] / s;
+            }
+        }
+        (step, b)
+    }
+
+    #[test]
+    fn command_is_scaled_map_of_action_with_inherited_times() {
+        let (mut step, b) = step_with_basis();
+        let s = step.model().header.speed_scale_rad_s;
+        let c = step.step(&state(11), Some(&joy([0.3, -0.4])));
+        assert_eq!(c.tick, 11);
+        assert_eq!(c.mapper_id, 7);
+        assert_eq!(
+            (c.state_t_ns, c.joystick_t_ns, c.joystick_seq),
+            (1000, 900, 42)
+        );
+        assert_eq!(c.flags, 0);
+        for i in 0..6 {
+            let e = s * (b[(i, 0)] * 0.3 - b[(i, 1)] * 0.4);
+            assert!((c.qdot_rad_s[i] - e).abs() < 1e-6);
+        }
+        assert_eq!(&c.qdot_rad_s[6..], &[0.0, 0.0]);
+        assert!((c.gripper_rate - 0.5).abs() < 1e-9);
+        // The basis is orthonormal, so the speed is s * |a|.
+        let n: f64 = c.qdot_rad_s.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!((n - 0.5 * s).abs() < 1e-5);
+    }
+
+    #[test]
+    fn long_actions_are_clamped_radially() {
+        let (mut step, _) = step_with_basis();
+        let c = step.step(&state(1), Some(&joy([3.0, 4.0])));
+        assert_eq!(c.flags, mapper_flags::INPUT_CLAMPED);
+        assert!((c.action[0] - 0.6).abs() < 1e-6 && (c.action[1] - 0.8).abs() < 1e-6);
+    }
+
+    #[test]
+    fn missing_or_bad_input_gives_zero_command() {
+        let (mut step, _) = step_with_basis();
+        let c = step.step(&state(1), None);
+        assert_eq!(c.flags, mapper_flags::NO_INPUT);
+        assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
+        let c = step.step(&state(1), Some(&joy([f32::NAN, 0.0])));
+        assert_eq!(c.flags, mapper_flags::INPUT_NON_FINITE);
+        assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
+        assert_eq!(c.gripper_rate, 0.0);
+        let mut s = state(1);
+        s.q_rad[2] = f64::INFINITY;
+        let c = step.step(&s, Some(&joy([1.0, 0.0])));
+        assert_eq!(c.flags, mapper_flags::STATE_INVALID);
+        assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
+        let mut s = state(1);
+        s.n_joints = 5;
+        let c = step.step(&s, Some(&joy([1.0, 0.0])));
+        assert_eq!(c.flags, mapper_flags::STATE_INVALID);
+    }
+
+    #[test]
+    fn non_finite_model_output_is_zeroed() {
+        let mut b = DMatrix::zeros(6, 2);
+        b[(0, 0)] = f64::MAX;
+        b[(1, 0)] = 1.0;
+        let mut model = LoadedModel::load(BUNDLED_NAME).unwrap();
+        model.map = Box::new(PcaMap::new(b));
+        model.header.speed_scale_rad_s = 10.0;
+        let mut step = MapperStep::new(1, model, 6).unwrap();
+        let c = step.step(&state(1), Some(&joy([1.0, 0.0])));
+        assert_eq!(c.flags, mapper_flags::OUTPUT_NON_FINITE);
+        assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
+    }
+
+    #[test]
+    fn refuses_a_model_for_another_robot() {
+        let model = LoadedModel::load(BUNDLED_NAME).unwrap();
+        assert!(MapperStep::new(1, model, 7).is_err());
+    }
+}

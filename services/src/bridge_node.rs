@@ -1,0 +1,125 @@
+//! The hardware bridge process: the graph's only clock.
+//!
+//! On every deadline of the absolute 40 Hz timer it publishes `RobotState(k)`, waits until
+//! `command_deadline` into the period for `SafeCommand(k)`, and executes it; anything else is
+//! a counted miss answered by a controlled stop. On shutdown it stops the arm first and
+//! publishes a last state flagged `SHUTDOWN`.
+
+use std::time::Duration;
+
+use hw_bridge::clock::{Clock, Wake, request_realtime};
+use hw_bridge::core::{BridgeCore, Outcome};
+use hw_bridge::mock::MockArm;
+use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
+
+use crate::config::BridgeConfig;
+use crate::{SclError, signals};
+
+/// Runs the bridge until a shutdown is requested.
+pub fn run(prefix: &Prefix, cfg: &BridgeConfig) -> Result<(), SclError> {
+    let robot =
+        MockArm::new(cfg.mock.clone()).map_err(|e| SclError::Graph(format!("config: {e}")))?;
+    let period_ns = (1e9 / cfg.rate_hz) as u64;
+    let period_s = period_ns as f64 * 1e-9;
+    let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
+    if cfg.realtime {
+        let rt = request_realtime(cfg.rt_priority);
+        if rt.fifo.is_ok() && rt.mlock.is_ok() {
+            tracing::info!("real-time: {}", rt.summary());
+        } else {
+            tracing::warn!("real-time not fully available: {}", rt.summary());
+        }
+    }
+    let graph = Graph::join(prefix, "bridge")?;
+    let states = graph.robot_state_publisher()?;
+    let commands = graph.safe_command_subscriber(true)?;
+    let status = graph.status_publisher()?;
+    let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
+    let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
+    status.send(st)?;
+    st.phase = phase::RUNNING;
+    tracing::info!(rate_hz = cfg.rate_hz, robot = %cfg.robot, "ticking");
+
+    let mut clock = Clock::new(now_ns() + period_ns, period_ns);
+    // Drop whatever commands are left over from an earlier bridge of this graph.
+    commands.drain(|_| {})?;
+    while !signals::stop_requested() {
+        let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
+            Wake::Interrupted => continue,
+            Wake::Tick {
+                ideal_ns,
+                lateness_ns,
+                skipped,
+            } => (ideal_ns, lateness_ns, skipped),
+        };
+        if signals::stop_requested() {
+            break;
+        }
+        if skipped > 0 {
+            tracing::warn!(skipped, "the bridge was held up for more than a period");
+            core.add_skipped(skipped);
+        }
+        let state = core.begin_tick(now_ns());
+        states.send(state)?;
+
+        let deadline = ideal_ns + wait_ns;
+        let mut found: Option<SafeCommand> = None;
+        let mut other: Option<SafeCommand> = None;
+        let mut received_ns = 0;
+        loop {
+            commands.drain(|c| {
+                if c.tick == state.tick {
+                    found = Some(*c);
+                } else {
+                    other = Some(*c);
+                }
+            })?;
+            let now = now_ns();
+            if found.is_some() {
+                received_ns = now;
+                break;
+            }
+            if now >= deadline || signals::stop_requested() {
+                break;
+            }
+            commands.wait(Duration::from_nanos(deadline - now))?;
+        }
+        let outcome = core.finish_tick(found.as_ref().or(other.as_ref()));
+        st.latency_ns = match outcome {
+            Outcome::Executed => received_ns - state.t_ns,
+            Outcome::Missed(reason) => {
+                if core.missed() <= 10 || core.missed().is_power_of_two() {
+                    tracing::warn!(
+                        tick = state.tick,
+                        ?reason,
+                        missed = core.missed(),
+                        "missed tick: controlled stop"
+                    );
+                }
+                0
+            }
+        };
+        st.t_ns = now_ns();
+        st.tick = state.tick;
+        st.handled += 1;
+        st.faults = core.missed();
+        st.lateness_ns = lateness_ns;
+        st.joint_travel_rad = core.joint_travel_rad();
+        st.mapper_id = found.map_or(0, |c| c.mapper_id);
+        status.send(st)?;
+    }
+    // Stop the arm first, then say so.
+    let last = core.shutdown(now_ns());
+    states.send(last)?;
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    st.latency_ns = 0;
+    status.send(st)?;
+    tracing::info!(
+        ticks = st.handled,
+        missed = core.missed(),
+        signal = signals::signal(),
+        "arm stopped; bridge exiting"
+    );
+    Ok(())
+}

@@ -1,0 +1,348 @@
+//! The graph configuration: one TOML file, every key optional, every default written out in
+//! `examples/graph.toml`. Unknown keys are errors that name the key, so a typo never silently
+//! falls back to a default.
+
+use std::path::{Path, PathBuf};
+
+use hw_bridge::mock::MockConfig;
+use safety::SafetyConfig;
+use serde::{Deserialize, Serialize};
+
+/// The whole graph configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct GraphConfig {
+    /// `[graph]`: graph-wide settings.
+    pub graph: GraphSection,
+    /// `[joystick]`: the input source.
+    pub joystick: JoystickConfig,
+    /// `[mapper]`: the model served.
+    pub mapper: MapperConfig,
+    /// `[safety]`: the safety filter.
+    pub safety: SafetyConfig,
+    /// `[bridge]`: the robot and the clock.
+    pub bridge: BridgeConfig,
+}
+
+/// `[graph]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GraphSection {
+    /// Service-name prefix; `--prefix` and `SCL_PREFIX` override it.
+    pub prefix: String,
+    /// How long `scl up` waits for each child to report ready (s).
+    pub start_timeout_s: f64,
+}
+
+impl Default for GraphSection {
+    fn default() -> Self {
+        Self {
+            prefix: ipc_types::prefix::DEFAULT_PREFIX.to_owned(),
+            start_timeout_s: 10.0,
+        }
+    }
+}
+
+/// `[joystick]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JoystickConfig {
+    /// Input source: `script` (devices come with the joystick issue).
+    pub source: String,
+    /// Script: `circle` (a slow circle) or `step` (+x, +y, -x, -y holds with rests).
+    pub script: String,
+    /// Circle: period of one turn (s).
+    pub circle_period_s: f64,
+    /// Script amplitude, `|a|` at full deflection, in `(0, 1]`.
+    pub amplitude: f64,
+    /// Step: how long each direction is held (s).
+    pub step_hold_s: f64,
+    /// Step: rest at zero between holds (s).
+    pub step_rest_s: f64,
+}
+
+impl Default for JoystickConfig {
+    fn default() -> Self {
+        Self {
+            source: "script".into(),
+            script: "circle".into(),
+            circle_period_s: 8.0,
+            amplitude: 1.0,
+            step_hold_s: 2.0,
+            step_rest_s: 0.5,
+        }
+    }
+}
+
+/// `[mapper]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapperConfig {
+    /// Model file, or `bundled` for the model built into `scl`. A relative path is taken
+    /// relative to the config file's directory.
+    pub model: String,
+    /// Id of the mapper process started by `scl up`; safety forwards this id.
+    pub id: u32,
+}
+
+impl Default for MapperConfig {
+    fn default() -> Self {
+        Self {
+            model: mapper::model::BUNDLED_NAME.into(),
+            id: 1,
+        }
+    }
+}
+
+/// `[bridge]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BridgeConfig {
+    /// Robot backend: `mock` (the Kortex client comes with the hardware issue).
+    pub robot: String,
+    /// Tick rate (Hz). The Gen3 lite's high-level API runs at 40 Hz.
+    pub rate_hz: f64,
+    /// How far into the period the bridge waits for the tick's command, as a fraction of the
+    /// period; a command later than this is a miss.
+    pub command_deadline: f64,
+    /// Ask for SCHED_FIFO and mlockall (a one-line warning when refused).
+    pub realtime: bool,
+    /// SCHED_FIFO priority (1..=99).
+    pub rt_priority: i32,
+    /// Acceleration limits for the bridge's controlled stop (rad/s²).
+    pub stop_acceleration_rad_s2: Vec<f64>,
+    /// `[bridge.mock]`: the mock arm.
+    pub mock: MockConfig,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        Self {
+            robot: "mock".into(),
+            rate_hz: kinematics::gen3_lite::CONTROL_RATE_HZ,
+            command_deadline: 0.6,
+            realtime: true,
+            rt_priority: 80,
+            stop_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
+            mock: MockConfig::default(),
+        }
+    }
+}
+
+/// A configuration that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for the graph.
+    #[error("config {path}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message (names the key and line).
+        reason: String,
+    },
+    /// A value is out of range.
+    #[error("config: {key}: {reason}")]
+    Value {
+        /// The dotted key.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+impl GraphConfig {
+    /// Reads `path`, or the defaults if `None`. Relative model paths are resolved against
+    /// the file's directory.
+    pub fn load(path: Option<&Path>) -> Result<Self, ConfigError> {
+        let Some(path) = path else {
+            return Ok(Self::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        let mut cfg: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        if cfg.mapper.model != mapper::model::BUNDLED_NAME {
+            let p = Path::new(&cfg.mapper.model);
+            if p.is_relative()
+                && let Some(dir) = path.parent()
+            {
+                cfg.mapper.model = dir.join(p).display().to_string();
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// Checks every value that no single crate checks; the crates check their own tables
+    /// when they build from them.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
+        ipc_types::Prefix::new(&self.graph.prefix)
+            .map_err(|e| err("graph.prefix", e.to_string()))?;
+        if !(self.graph.start_timeout_s.is_finite() && self.graph.start_timeout_s > 0.0) {
+            return Err(err(
+                "graph.start_timeout_s",
+                "must be a positive number".into(),
+            ));
+        }
+        let j = &self.joystick;
+        if j.source != "script" {
+            return Err(err(
+                "joystick.source",
+                format!("`{}` is not available; use `script`", j.source),
+            ));
+        }
+        if crate::joystick::Script::from_config(j).is_none() {
+            return Err(err(
+                "joystick.script",
+                format!("`{}` is not a script; use `circle` or `step`", j.script),
+            ));
+        }
+        if !(j.amplitude > 0.0 && j.amplitude <= 1.0) {
+            return Err(err(
+                "joystick.amplitude",
+                format!("{} is outside (0, 1]", j.amplitude),
+            ));
+        }
+        for (key, v) in [
+            ("joystick.circle_period_s", j.circle_period_s),
+            ("joystick.step_hold_s", j.step_hold_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(err(key, format!("{v} must be a positive number")));
+            }
+        }
+        if !(j.step_rest_s.is_finite() && j.step_rest_s >= 0.0) {
+            return Err(err(
+                "joystick.step_rest_s",
+                "must be zero or positive".into(),
+            ));
+        }
+        let b = &self.bridge;
+        if b.robot != "mock" {
+            return Err(err(
+                "bridge.robot",
+                format!("`{}` is not available; use `mock`", b.robot),
+            ));
+        }
+        if !(b.rate_hz.is_finite() && b.rate_hz > 0.0 && b.rate_hz <= 1000.0) {
+            return Err(err(
+                "bridge.rate_hz",
+                format!("{} is outside (0, 1000]", b.rate_hz),
+            ));
+        }
+        if !(b.command_deadline > 0.0 && b.command_deadline < 1.0) {
+            return Err(err(
+                "bridge.command_deadline",
+                format!(
+                    "{} is outside (0, 1): a fraction of the period",
+                    b.command_deadline
+                ),
+            ));
+        }
+        if !(1..=99).contains(&b.rt_priority) {
+            return Err(err(
+                "bridge.rt_priority",
+                format!("{} is outside 1..=99", b.rt_priority),
+            ));
+        }
+        let n = kinematics::gen3_lite::N_JOINTS;
+        if b.stop_acceleration_rad_s2.len() != n
+            || b.stop_acceleration_rad_s2
+                .iter()
+                .any(|a| !(a.is_finite() && *a > 0.0))
+        {
+            return Err(err(
+                "bridge.stop_acceleration_rad_s2",
+                format!("needs {n} positive numbers"),
+            ));
+        }
+        hw_bridge::mock::MockArm::new(b.mock.clone())
+            .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
+        self.safety
+            .validate(n)
+            .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
+        if self.mapper.id == 0 {
+            return Err(err("mapper.id", "must be at least 1".into()));
+        }
+        Ok(())
+    }
+
+    /// The tick period (s).
+    pub fn period_s(&self) -> f64 {
+        1.0 / self.bridge.rate_hz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn example_file_is_the_defaults() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/graph.toml"
+        ));
+        let cfg = GraphConfig::load(Some(path)).unwrap();
+        assert_eq!(cfg, GraphConfig::default());
+        cfg.validate().unwrap();
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_named() {
+        let dir = std::env::temp_dir().join(format!("scl-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("g.toml");
+        std::fs::write(&p, "[safety]\nmax_velocity = 1.0\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("max_velocity"), "{e}");
+        std::fs::write(&p, "[bridge]\nrate_hz = -4\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.rate_hz"), "{e}");
+        std::fs::write(&p, "[safety]\nmax_velocity_rad_s = [1, 1, 1, 1, 1, 0]\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safety.max_velocity_rad_s"), "{e}");
+        std::fs::write(&p, "[bridge.mock]\ninitial_pose = \"up\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.mock.initial_pose"), "{e}");
+        std::fs::write(&p, "[mapper]\nmodel = \"m.safetensors\"\n").unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(
+            cfg.mapper.model,
+            dir.join("m.safetensors").display().to_string()
+        );
+        std::fs::write(&p, "not toml [").unwrap();
+        assert!(matches!(
+            GraphConfig::load(Some(&p)),
+            Err(ConfigError::Parse { .. })
+        ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,302 @@
+//! `scl`: the SCL teleoperation stack in one command. See `scl --help`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Parser, Subcommand};
+use ipc_types::Prefix;
+use services::config::GraphConfig;
+use services::{SclError, signals};
+
+/// Teleoperate a 6-joint arm with a 2-axis joystick through a learned action map.
+///
+/// The graph is four processes talking through iceoryx2 shared memory: joystick -> mapper ->
+/// safety -> bridge, with the bridge as the only clock (40 Hz). `scl up` runs all four on the
+/// mock Gen3 lite with a scripted joystick and the bundled model.
+#[derive(Parser, Debug)]
+#[command(name = "scl", version, propagate_version = true)]
+struct Cli {
+    /// Graph prefix: isolates this graph's services and shared memory from every other graph.
+    #[arg(long, global = true, env = ipc_types::prefix::PREFIX_ENV)]
+    prefix: Option<String>,
+    /// Graph configuration (TOML); every key is optional, see examples/graph.toml.
+    #[arg(long, global = true, value_name = "FILE")]
+    config: Option<PathBuf>,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Run the whole graph: joystick, mapper, safety and bridge as supervised children.
+    Up {
+        /// Stop after this long (e.g. `60s`, `2m`, `500ms`); default: until Ctrl-C.
+        #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration)]
+        duration: Option<Duration>,
+        /// Print one JSON summary object on stdout at the end.
+        #[arg(long)]
+        json: bool,
+        /// Serve this model file (or `bundled`) instead of the config's.
+        #[arg(long, value_name = "FILE")]
+        model: Option<String>,
+        /// Joystick script instead of the config's: `circle` or `step`.
+        #[arg(long)]
+        script: Option<String>,
+    },
+    /// The joystick process (scripted source).
+    Joystick {
+        /// Script: `circle` or `step`.
+        #[arg(long)]
+        script: Option<String>,
+    },
+    /// A mapper process serving one model.
+    Mapper {
+        /// Model file, or `bundled`.
+        #[arg(long, value_name = "FILE")]
+        model: Option<String>,
+        /// Mapper id (safety forwards only the active id).
+        #[arg(long)]
+        id: Option<u32>,
+    },
+    /// The safety process (the one publisher of the executed command).
+    Safety,
+    /// The hardware bridge: the robot and the graph's clock.
+    Bridge {
+        /// Robot backend: `mock`.
+        #[arg(long)]
+        robot: Option<String>,
+    },
+    /// Generate demonstrations as CSV trajectories.
+    Demos {
+        /// Task: `joint-reach` (joint-space reaches from home, the bundled model's data).
+        #[arg(long, default_value = "joint-reach")]
+        task: String,
+        /// Output directory (gets train/ and val/); existing files are never overwritten.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Random seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Training trajectories.
+        #[arg(long = "train", default_value_t = 6)]
+        n_train: usize,
+        /// Validation trajectories.
+        #[arg(long = "val", default_value_t = 2)]
+        n_val: usize,
+    },
+    /// Fit a model on demonstrations and write a model file.
+    Train {
+        /// Model kind: `pca` (SCL and CAE come with the learning issue).
+        #[arg(long, default_value = "pca")]
+        kind: String,
+        /// Data set directory (train/*.csv, val/*.csv).
+        #[arg(long, value_name = "DIR")]
+        data: PathBuf,
+        /// Action dimension d.
+        #[arg(long, default_value_t = 2)]
+        latent_dim: usize,
+        /// Speed scale s in rad/s (default: 95th percentile of the demonstrated speed).
+        #[arg(long)]
+        speed_scale: Option<f64>,
+        /// Model file to write.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// Overwrite an existing model file.
+        #[arg(long)]
+        force: bool,
+    },
+}
+
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let s = s.trim();
+    let (num, unit) = s
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .map_or((s, "s"), |i| (&s[..i], &s[i..]));
+    let v: f64 = num
+        .parse()
+        .map_err(|_| format!("`{s}` is not a duration; write e.g. 60s, 2m or 500ms"))?;
+    let secs = match unit {
+        "ms" => v / 1000.0,
+        "s" => v,
+        "m" | "min" => v * 60.0,
+        "h" => v * 3600.0,
+        _ => return Err(format!("unknown unit `{unit}` in `{s}`; use ms, s, m or h")),
+    };
+    if !(secs.is_finite() && secs > 0.0) {
+        return Err(format!("`{s}` must be a positive duration"));
+    }
+    Ok(Duration::from_secs_f64(secs))
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("SCL_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .without_time()
+        .init();
+}
+
+fn run(cli: Cli) -> Result<ExitCode, SclError> {
+    let mut cfg = GraphConfig::load(cli.config.as_deref())?;
+    if let Some(p) = &cli.prefix {
+        cfg.graph.prefix = p.clone();
+    }
+    let prefix =
+        Prefix::new(&cfg.graph.prefix).map_err(|e| services::config::ConfigError::Value {
+            key: "prefix".into(),
+            reason: e.to_string(),
+        })?;
+    let period_s = cfg.period_s();
+    match cli.cmd {
+        Cmd::Up {
+            duration,
+            json,
+            model,
+            script,
+        } => {
+            if let Some(m) = model {
+                cfg.mapper.model = m;
+            }
+            if let Some(s) = script {
+                cfg.joystick.script = s;
+            }
+            let opts = services::up::UpOptions {
+                prefix,
+                config_path: cli.config.clone(),
+                config: cfg,
+                duration,
+                json,
+            };
+            let summary = services::up::run(&opts)?;
+            if json {
+                let text = serde_json::to_string(&summary)
+                    .map_err(|e| SclError::Graph(format!("cannot encode the summary: {e}")))?;
+                println!("{text}");
+            } else {
+                eprintln!(
+                    "scl up: {} ticks, {} missed, e2e latency p50 {:.1} µs p99 {:.1} µs max {:.1} µs, joint travel {:.3} rad",
+                    summary.ticks,
+                    summary.missed,
+                    summary.latency_us.p50,
+                    summary.latency_us.p99,
+                    summary.latency_us.max,
+                    summary.joint_travel_rad
+                );
+            }
+            if let Some(f) = summary.failure {
+                eprintln!("scl up: {f}");
+                return Ok(ExitCode::from(1));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Joystick { script } => {
+            if let Some(s) = script {
+                cfg.joystick.script = s;
+            }
+            services::joystick::run(&prefix, &cfg.joystick, period_s)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Mapper { model, id } => {
+            let model = model.unwrap_or(cfg.mapper.model);
+            services::mapper_node::run(&prefix, &model, id.unwrap_or(cfg.mapper.id))?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Safety => {
+            services::safety_node::run(&prefix, &cfg.safety)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Bridge { robot } => {
+            if let Some(r) = robot {
+                cfg.bridge.robot = r;
+            }
+            cfg.validate()?;
+            services::bridge_node::run(&prefix, &cfg.bridge)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Demos {
+            task,
+            out,
+            seed,
+            n_train,
+            n_val,
+        } => {
+            services::tools::demos(&task, &out, seed, n_train, n_val)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Train {
+            kind,
+            data,
+            latent_dim,
+            speed_scale,
+            out,
+            force,
+        } => {
+            if kind != "pca" {
+                return Err(SclError::Graph(format!(
+                    "--kind {kind}: this build trains `pca` only"
+                )));
+            }
+            let command = std::env::args().collect::<Vec<_>>().join(" ");
+            services::tools::train_pca(&services::tools::TrainOptions {
+                data: &data,
+                out: &out,
+                latent_dim,
+                speed_scale,
+                force,
+                command,
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let role = match &cli.cmd {
+        Cmd::Up { .. } => "up",
+        Cmd::Joystick { .. } => "joystick",
+        Cmd::Mapper { .. } => "mapper",
+        Cmd::Safety => "safety",
+        Cmd::Bridge { .. } => "bridge",
+        Cmd::Demos { .. } => "demos",
+        Cmd::Train { .. } => "train",
+    };
+    init_logging();
+    let span = tracing::info_span!("scl", role);
+    let _guard = span.enter();
+    signals::install();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("scl {role}: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations() {
+        assert_eq!(parse_duration("60s"), Ok(Duration::from_secs(60)));
+        assert_eq!(parse_duration("2m"), Ok(Duration::from_secs(120)));
+        assert_eq!(parse_duration("500ms"), Ok(Duration::from_millis(500)));
+        assert_eq!(parse_duration("5"), Ok(Duration::from_secs(5)));
+        assert!(parse_duration("5 parsecs").is_err());
+        assert!(parse_duration("-1s").is_err());
+        assert!(parse_duration("0s").is_err());
+    }
+
+    #[test]
+    fn cli_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

@@ -1,0 +1,68 @@
+//! The mapper process: wakes on each robot state, maps the newest joystick sample through the
+//! model, publishes the command for that tick.
+
+use std::time::Duration;
+
+use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use mapper::LoadedModel;
+use mapper::step::MapperStep;
+
+use crate::{SclError, signals};
+
+/// Loads and checks the model `spec` for the Gen3 lite: every problem is reported here, at
+/// start-up, never at tick time.
+pub fn load_step(spec: &str, id: u32) -> Result<MapperStep, SclError> {
+    let model = LoadedModel::load(spec)?;
+    Ok(MapperStep::new(id, model, kinematics::gen3_lite::N_JOINTS)?)
+}
+
+/// Runs the mapper process until a shutdown is requested.
+pub fn run(prefix: &Prefix, model: &str, id: u32) -> Result<(), SclError> {
+    let mut step = load_step(model, id)?;
+    let graph = Graph::join(prefix, &format!("mapper-{id}"))?;
+    let states = graph.robot_state_subscriber(true)?;
+    let joystick = graph.joystick_subscriber()?;
+    let commands = graph.mapper_command_publisher()?;
+    let status = graph.status_publisher()?;
+    let mut st = NodeStatus::new(NodeRole::Mapper, phase::READY, now_ns());
+    st.mapper_id = id;
+    status.send(st)?;
+    let h = &step.model().header;
+    tracing::info!(
+        id,
+        kind = %h.kind,
+        model = %step.model().source,
+        speed_scale_rad_s = h.speed_scale_rad_s,
+        "serving"
+    );
+    st.phase = phase::RUNNING;
+    let mut joy = None;
+    while !signals::stop_requested() {
+        if !states.wait(Duration::from_millis(100))? {
+            continue;
+        }
+        let Some(state) = states.latest()? else {
+            continue;
+        };
+        if let Some(j) = joystick.latest()? {
+            joy = Some(j);
+        }
+        let t0 = now_ns();
+        let mut cmd = step.step(&state, joy.as_ref());
+        let t1 = now_ns();
+        cmd.compute_ns = t1 - t0;
+        cmd.t_ns = now_ns();
+        commands.send(cmd)?;
+        st.t_ns = cmd.t_ns;
+        st.tick = state.tick;
+        st.handled += 1;
+        if cmd.flags != 0 {
+            st.faults += 1;
+        }
+        status.send(st)?;
+    }
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    status.send(st)?;
+    Ok(())
+}

@@ -1,0 +1,170 @@
+//! Helpers for whole-graph tests: the `scl` binary, unique graph prefixes, a read-only
+//! recorder of the graph's topics, and the check that a graph left nothing behind.
+#![allow(clippy::unwrap_used)]
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use ipc_types::{
+    Graph, JoystickInput, NodeStatus, Prefix, RobotState, SafeCommand, TopicSubscriber,
+};
+
+/// Path of the `scl` binary of this build, built once per test process. `cargo test` does
+/// not build other packages' binaries for a test crate, so this asks cargo (a no-op when the
+/// binary is up to date) with the same profile as the running test.
+pub fn scl_binary() -> PathBuf {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        let exe = std::env::current_exe().unwrap();
+        // target/<profile>/deps/<test> -> target/<profile>
+        let profile_dir = exe.parent().unwrap().parent().unwrap().to_owned();
+        let release = profile_dir.file_name().is_some_and(|n| n == "release");
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args(["build", "-q", "-p", "services", "--bin", "scl"]);
+        if release {
+            cmd.arg("--release");
+        }
+        cmd.current_dir(env!("CARGO_MANIFEST_DIR"));
+        let status = cmd.status().unwrap();
+        assert!(status.success(), "building the scl binary failed");
+        let bin = profile_dir.join("scl");
+        assert!(bin.exists(), "{} was not built", bin.display());
+        bin
+    })
+    .clone()
+}
+
+/// A prefix no other test (or test run) uses.
+pub fn unique_prefix(tag: &str) -> Prefix {
+    static N: AtomicU32 = AtomicU32::new(0);
+    let n = N.fetch_add(1, Ordering::SeqCst);
+    Prefix::new(&format!("t{tag}{}x{n}", std::process::id())).unwrap()
+}
+
+/// Files of graph `prefix` left in `/dev/shm` or iceoryx2's directory.
+pub fn leftovers(prefix: &Prefix) -> Vec<String> {
+    let needle = prefix.file_prefix();
+    let mut found = Vec::new();
+    let mut stack = vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")];
+    while let Some(dir) = stack.pop() {
+        let Ok(rd) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p.clone());
+            }
+            if e.file_name().to_string_lossy().contains(&needle) {
+                found.push(p.display().to_string());
+            }
+        }
+    }
+    found
+}
+
+/// Releases the domain of graph `prefix` (the test's recorder was the last node) and waits
+/// until the graph has left nothing behind, or returns what is left after `timeout`.
+pub fn wait_clean(prefix: &Prefix, timeout: Duration) -> Vec<String> {
+    let t0 = Instant::now();
+    loop {
+        let _ = ipc_types::graph::release_domain(prefix);
+        let left = leftovers(prefix);
+        if left.is_empty() || t0.elapsed() > timeout {
+            return left;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A read-only observer of a graph: every robot state, joystick sample, executed command and
+/// heartbeat, with the monotonic time it was seen.
+pub struct Recorder {
+    states: TopicSubscriber<RobotState>,
+    joystick: TopicSubscriber<JoystickInput>,
+    safe: TopicSubscriber<SafeCommand>,
+    status: TopicSubscriber<NodeStatus>,
+    /// Robot states, in order.
+    pub robot_states: Vec<RobotState>,
+    /// Joystick samples, in order.
+    pub joystick_samples: Vec<JoystickInput>,
+    /// Commands sent to the bridge, in order.
+    pub safe_commands: Vec<SafeCommand>,
+    /// Heartbeats, in order.
+    pub statuses: Vec<NodeStatus>,
+    // Declared last: dropped after its ports.
+    _graph: Graph,
+}
+
+impl Recorder {
+    /// Joins graph `prefix` as an observer.
+    pub fn join(prefix: &Prefix) -> Self {
+        let graph = Graph::join(prefix, "test-recorder").unwrap();
+        Self {
+            states: graph.robot_state_subscriber(false).unwrap(),
+            joystick: graph.joystick_subscriber().unwrap(),
+            safe: graph.safe_command_subscriber(false).unwrap(),
+            status: graph.status_subscriber().unwrap(),
+            robot_states: Vec::new(),
+            joystick_samples: Vec::new(),
+            safe_commands: Vec::new(),
+            statuses: Vec::new(),
+            _graph: graph,
+        }
+    }
+
+    /// Takes in everything published since the last poll.
+    pub fn poll(&mut self) {
+        self.states.drain(|m| self.robot_states.push(*m)).unwrap();
+        self.joystick
+            .drain(|m| self.joystick_samples.push(*m))
+            .unwrap();
+        self.safe.drain(|m| self.safe_commands.push(*m)).unwrap();
+        self.status.drain(|m| self.statuses.push(*m)).unwrap();
+    }
+
+    /// Polls every 2 ms for `d`.
+    pub fn poll_for(&mut self, d: Duration) {
+        let t0 = Instant::now();
+        while t0.elapsed() < d {
+            self.poll();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.poll();
+    }
+
+    /// Polls until `pred` holds or `timeout` passes; returns whether it held.
+    pub fn poll_until(&mut self, timeout: Duration, mut pred: impl FnMut(&Self) -> bool) -> bool {
+        let t0 = Instant::now();
+        loop {
+            self.poll();
+            if pred(self) {
+                return true;
+            }
+            if t0.elapsed() > timeout {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// The pid of the newest heartbeat of `role`.
+    pub fn pid_of(&self, role: ipc_types::NodeRole) -> Option<u32> {
+        self.statuses
+            .iter()
+            .rev()
+            .find(|s| s.role == role as u32)
+            .map(|s| s.pid)
+    }
+}
+
+/// A serial lock for whole-graph tests: they share two cores and must not overlap.
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}

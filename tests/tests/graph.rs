@@ -1,0 +1,241 @@
+//! Whole-graph tests: `scl up` with its four real processes over real shared memory, each
+//! test under its own prefix, one at a time, checking that nothing is left behind.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use ipc_types::{NO_TICK, NodeRole, state_flags, time::now_ns};
+use mapper::LoadedModel;
+use scl_tests::{Recorder, scl_binary, serial, unique_prefix, wait_clean};
+
+const DT: f64 = 0.025;
+
+fn up(prefix: &ipc_types::Prefix, args: &[&str]) -> Command {
+    let mut c = Command::new(scl_binary());
+    c.arg("up").args(args).env("SCL_PREFIX", prefix.as_str());
+    c.env("SCL_LOG", "warn");
+    c
+}
+
+/// Cosine of the angle between two vectors.
+fn cosine(a: &[f64], b: &[f64]) -> f64 {
+    let dot: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+    let na: f64 = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let nb: f64 = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+    dot / (na * nb)
+}
+
+#[test]
+fn graph_runs_closed_loop_at_40hz_without_misses() {
+    let _serial = serial();
+    let prefix = unique_prefix("loop");
+    let mut rec = Recorder::join(&prefix);
+    let child = up(&prefix, &["--for", "9s", "--json", "--script", "step"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Record while the graph runs.
+    let out = {
+        let mut child = child;
+        while child.try_wait().unwrap().is_none() {
+            rec.poll();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        rec.poll();
+        child.wait_with_output().unwrap()
+    };
+    assert!(out.status.success(), "scl up failed: {:?}", out.status);
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ticks = summary["ticks"].as_u64().unwrap();
+    assert!(ticks >= 200, "only {ticks} ticks");
+    assert_eq!(summary["missed"].as_u64(), Some(0), "{summary}");
+    for key in ["p50", "p99", "max"] {
+        assert!(summary["latency_us"][key].as_f64().unwrap() > 0.0);
+    }
+    assert!(summary["joint_travel_rad"].as_f64().unwrap() > 0.5);
+
+    // Every executed command is the one of the state's tick: state k+1 reports that the
+    // command of tick k was applied, for every tick but the final shutdown state.
+    let states: Vec<_> = rec
+        .robot_states
+        .iter()
+        .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+        .copied()
+        .collect();
+    assert!(states.len() >= 200, "recorded {} states", states.len());
+    for w in states.windows(2) {
+        assert_eq!(w[1].tick, w[0].tick + 1, "gap in ticks");
+        assert_eq!(
+            w[1].applied_tick, w[0].tick,
+            "tick {} executed {}",
+            w[1].tick, w[1].applied_tick
+        );
+        assert_eq!(w[1].missed, 0);
+    }
+    for c in &rec.safe_commands {
+        assert!(states.iter().any(|s| s.tick == c.tick));
+    }
+    let last = rec.robot_states.last().unwrap();
+    assert!(
+        last.flags & state_flags::SHUTDOWN != 0,
+        "the bridge did not report its stop"
+    );
+
+    // Closed loop: over every second of the run the arm moved along s·Σ·Σa·dt, the
+    // displacement the bundled PCA map predicts for the scripted input.
+    let mut model = LoadedModel::load("bundled").unwrap();
+    let s = model.header.speed_scale_rad_s;
+    let a_at = |tick: u64| {
+        rec.joystick_samples
+            .iter()
+            .rev()
+            .find(|j| j.tick != NO_TICK && j.tick <= tick)
+            .map(|j| [f64::from(j.axes[0]), f64::from(j.axes[1])])
+    };
+    let mut checked = 0;
+    for window in states.chunks(40) {
+        let (first, last) = (window[0], window[window.len() - 1]);
+        let mut predicted = [0.0; 6];
+        for st in &window[..window.len() - 1] {
+            let Some(a) = a_at(st.tick) else { continue };
+            let mut out = [0.0; 6];
+            model.map.eval(st.q(), st.gripper, &a, &mut out);
+            for j in 0..6 {
+                predicted[j] += s * out[j] * DT;
+            }
+        }
+        let actual: Vec<f64> = (0..6).map(|j| last.q_rad[j] - first.q_rad[j]).collect();
+        let pn: f64 = predicted.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if pn < 0.05 {
+            continue;
+        }
+        let an: f64 = actual.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let cos = cosine(&actual, &predicted);
+        assert!(cos > 0.95, "ticks {}..{}: cos {cos}", first.tick, last.tick);
+        assert!(an > 0.5 * pn && an < 1.1 * pn, "moved {an}, predicted {pn}");
+        checked += 1;
+    }
+    assert!(checked >= 4, "only {checked} windows with motion");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+/// Kills one child with SIGKILL; `scl up` must exit non-zero naming it, and the bridge must
+/// have commanded a stop within two ticks of the kill.
+fn kill_child_and_check(role: NodeRole) {
+    let _serial = serial();
+    let prefix = unique_prefix(role.name());
+    let mut rec = Recorder::join(&prefix);
+    let mut child = up(&prefix, &["--for", "60s"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    assert!(
+        rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 40),
+        "the graph did not start"
+    );
+    let pid = rec.pid_of(role).unwrap();
+    let t_kill = now_ns();
+    // SAFETY: signalling a process of the graph under test.
+    unsafe {
+        libc::kill(pid as libc::pid_t, libc::SIGKILL);
+    }
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "scl up did not exit"
+        );
+    }
+    rec.poll();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
+    assert!(
+        stderr.contains(&format!("the {} process", role.name())) && stderr.contains("SIGKILL"),
+        "stderr does not name the {} process: {stderr}",
+        role.name()
+    );
+    // Ticks published after the kill, up to and including the first that reports a stop
+    // (a controlled stop after a miss, a stop decided by safety, or the bridge's shutdown).
+    let stop_flags = state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
+    let after: Vec<_> = rec
+        .robot_states
+        .iter()
+        .filter(|s| s.t_ns > t_kill)
+        .collect();
+    let first_stop = after
+        .iter()
+        .position(|s| s.flags & stop_flags != 0)
+        .expect("the bridge never reported a stop");
+    assert!(
+        first_stop < 2,
+        "stop reported at the {}th tick after the kill",
+        first_stop + 1
+    );
+    // After the stop, no command is executed except stops.
+    for s in &after[first_stop..] {
+        assert!(
+            s.applied_tick == NO_TICK || s.flags & state_flags::SAFETY_STOP != 0,
+            "tick {} executed a command after the stop",
+            s.tick
+        );
+    }
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+#[test]
+fn killing_the_mapper_stops_the_arm_and_fails_up() {
+    kill_child_and_check(NodeRole::Mapper);
+}
+
+#[test]
+fn killing_safety_stops_the_arm_and_fails_up() {
+    kill_child_and_check(NodeRole::Safety);
+}
+
+#[test]
+fn killing_the_joystick_stops_the_arm_and_fails_up() {
+    kill_child_and_check(NodeRole::Joystick);
+}
+
+#[test]
+fn bad_model_is_refused_before_anything_starts() {
+    let _serial = serial();
+    let prefix = unique_prefix("badmodel");
+    let dir = std::env::temp_dir().join(format!("scl-badmodel-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let corrupt = dir.join("corrupt.safetensors");
+    std::fs::write(&corrupt, b"\x10\x00\x00\x00\x00\x00\x00\x00{not json").unwrap();
+    let missing = dir.join("missing.safetensors");
+    for (path, needle) in [
+        (&corrupt, "not a safetensors file"),
+        (&missing, "cannot read model file"),
+    ] {
+        let out = up(&prefix, &["--for", "2s", "--model", path.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(needle), "{stderr}");
+        assert!(
+            stderr.contains(path.file_name().unwrap().to_str().unwrap()),
+            "{stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(2)),
+        Vec::<String>::new()
+    );
+}
