@@ -77,7 +77,8 @@ pub struct TopicSettings {
     /// Samples a late-joining subscriber receives at once.
     pub history: usize,
     /// Samples a subscriber buffers; the oldest is overwritten (safe overflow), so a slow
-    /// reader never blocks a writer.
+    /// reader never blocks a writer. Control-path readers take the newest sample; the depth
+    /// (64 ticks = 1.6 s) is for observers (recorder, tests) that want every sample.
     pub buffer: usize,
     /// Publishers the service admits.
     pub max_publishers: usize,
@@ -89,7 +90,7 @@ pub struct TopicSettings {
 pub const JOYSTICK: TopicSettings = TopicSettings {
     name: "joystick",
     history: 1,
-    buffer: 4,
+    buffer: 64,
     max_publishers: 2,
     max_subscribers: 16,
 };
@@ -97,7 +98,7 @@ pub const JOYSTICK: TopicSettings = TopicSettings {
 pub const ROBOT_STATE: TopicSettings = TopicSettings {
     name: "robot_state",
     history: 1,
-    buffer: 8,
+    buffer: 64,
     max_publishers: 1,
     max_subscribers: 16,
 };
@@ -105,7 +106,7 @@ pub const ROBOT_STATE: TopicSettings = TopicSettings {
 pub const MAPPER_COMMAND: TopicSettings = TopicSettings {
     name: "mapper_command",
     history: 0,
-    buffer: 8,
+    buffer: 64,
     max_publishers: 4,
     max_subscribers: 8,
 };
@@ -113,7 +114,7 @@ pub const MAPPER_COMMAND: TopicSettings = TopicSettings {
 pub const SAFE_COMMAND: TopicSettings = TopicSettings {
     name: "safe_command",
     history: 0,
-    buffer: 8,
+    buffer: 64,
     max_publishers: 1,
     max_subscribers: 8,
 };
@@ -533,6 +534,20 @@ mod tests {
         assert!(sub.wait(Duration::from_millis(100)).unwrap());
         assert_eq!(sub.latest().unwrap().map(|m| m.tick), Some(8));
         assert_eq!(sub.latest().unwrap(), None);
+        // While a node lives the domain stays; once the last is gone nothing is left.
+        assert!(!release_domain(&p).unwrap());
+        drop((sub, publ, g));
+        assert!(release_domain(&p).unwrap());
+        assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
+    }
+
+    fn leftovers(p: &Prefix) -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(&p.file_prefix()))
+            .collect()
     }
 
     #[test]
@@ -548,5 +563,8 @@ mod tests {
                 ..
             })
         ));
+        drop((second, _first, g));
+        assert!(release_domain(&p).unwrap());
+        assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
     }
 }

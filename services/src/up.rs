@@ -114,10 +114,13 @@ fn spawn(name: &'static str, args: &[String]) -> Result<Proc, SclError> {
         .map_err(|e| SclError::Graph(format!("cannot find the scl executable: {e}")))?;
     let mut cmd = Command::new(exe);
     cmd.args(args);
-    // SAFETY: prctl is async-signal-safe; it makes the child receive SIGTERM if the
-    // supervisor dies, so no process of the graph outlives it.
+    // SAFETY: setpgid and prctl are async-signal-safe. Each child gets its own process
+    // group, so a terminal's Ctrl-C reaches only the supervisor, which then stops the graph
+    // in order (bridge first); and each child gets SIGTERM if the supervisor dies, so no
+    // process of the graph outlives it.
     unsafe {
         cmd.pre_exec(|| {
+            libc::setpgid(0, 0);
             libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
             Ok(())
         });

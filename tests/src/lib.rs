@@ -3,7 +3,7 @@
 #![allow(clippy::unwrap_used)]
 
 use std::path::PathBuf;
-use std::process::Command;
+use std::process::{Child, Command};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
@@ -159,6 +159,55 @@ impl Recorder {
             .rev()
             .find(|s| s.role == role as u32)
             .map(|s| s.pid)
+    }
+}
+
+/// Owns a running `scl up` (or any child): on drop, even when the test panics, the child is
+/// asked to stop (SIGTERM: bridge first), and killed if it has not within 5 s.
+pub struct ChildGuard(pub Option<Child>);
+
+impl ChildGuard {
+    /// The child.
+    pub fn child(&mut self) -> &mut Child {
+        self.0.as_mut().unwrap()
+    }
+
+    /// Takes the child out (the test waits for it itself).
+    pub fn take(&mut self) -> Child {
+        self.0.take().unwrap()
+    }
+}
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        let Some(child) = self.0.as_mut() else {
+            return;
+        };
+        if let Ok(None) = child.try_wait() {
+            // SAFETY: signalling our own child.
+            unsafe {
+                libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+            }
+            let t0 = Instant::now();
+            while let Ok(None) = child.try_wait() {
+                if t0.elapsed() > Duration::from_secs(5) {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+    }
+}
+
+/// Releases a graph's domain when dropped, even when the test panics; declare it before the
+/// recorder and the child guard so it is dropped after them.
+pub struct DomainGuard(pub Prefix);
+
+impl Drop for DomainGuard {
+    fn drop(&mut self) {
+        let _ = ipc_types::graph::release_domain(&self.0);
     }
 }
 

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use ipc_types::{NO_TICK, NodeRole, state_flags, time::now_ns};
 use mapper::LoadedModel;
-use scl_tests::{Recorder, scl_binary, serial, unique_prefix, wait_clean};
+use scl_tests::{ChildGuard, DomainGuard, Recorder, scl_binary, serial, unique_prefix, wait_clean};
 
 const DT: f64 = 0.025;
 
@@ -30,21 +30,21 @@ fn cosine(a: &[f64], b: &[f64]) -> f64 {
 fn graph_runs_closed_loop_at_40hz_without_misses() {
     let _serial = serial();
     let prefix = unique_prefix("loop");
+    let _domain = DomainGuard(prefix.clone());
     let mut rec = Recorder::join(&prefix);
-    let child = up(&prefix, &["--for", "9s", "--json", "--script", "step"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut guard = ChildGuard(Some(
+        up(&prefix, &["--for", "9s", "--json", "--script", "step"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
     // Record while the graph runs.
-    let out = {
-        let mut child = child;
-        while child.try_wait().unwrap().is_none() {
-            rec.poll();
-            std::thread::sleep(Duration::from_millis(2));
-        }
+    while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
-        child.wait_with_output().unwrap()
-    };
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    rec.poll();
+    let out = guard.take().wait_with_output().unwrap();
     assert!(out.status.success(), "scl up failed: {:?}", out.status);
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let ticks = summary["ticks"].as_u64().unwrap();
@@ -125,15 +125,19 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
 }
 
 /// Kills one child with SIGKILL; `scl up` must exit non-zero naming it, and the bridge must
-/// have commanded a stop within two ticks of the kill.
+/// have commanded a stop within two ticks of the kill (for the bridge itself: the mock arm
+/// dies with it and no tick follows).
 fn kill_child_and_check(role: NodeRole) {
     let _serial = serial();
     let prefix = unique_prefix(role.name());
+    let _domain = DomainGuard(prefix.clone());
     let mut rec = Recorder::join(&prefix);
-    let mut child = up(&prefix, &["--for", "60s"])
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut guard = ChildGuard(Some(
+        up(&prefix, &["--for", "60s"])
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
     assert!(
         rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 40),
         "the graph did not start"
@@ -145,7 +149,7 @@ fn kill_child_and_check(role: NodeRole) {
         libc::kill(pid as libc::pid_t, libc::SIGKILL);
     }
     let t0 = std::time::Instant::now();
-    while child.try_wait().unwrap().is_none() {
+    while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
         std::thread::sleep(Duration::from_millis(2));
         assert!(
@@ -154,7 +158,7 @@ fn kill_child_and_check(role: NodeRole) {
         );
     }
     rec.poll();
-    let out = child.wait_with_output().unwrap();
+    let out = guard.take().wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
     assert!(
@@ -162,6 +166,17 @@ fn kill_child_and_check(role: NodeRole) {
         "stderr does not name the {} process: {stderr}",
         role.name()
     );
+    if role == NodeRole::Bridge {
+        // The mock arm lives in the bridge process: it stopped with it. The last state the
+        // bridge published was an ordinary tick, and none came after the kill.
+        assert!(rec.robot_states.iter().all(|s| s.t_ns < t_kill));
+        drop(rec);
+        assert_eq!(
+            wait_clean(&prefix, Duration::from_secs(5)),
+            Vec::<String>::new()
+        );
+        return;
+    }
     // Ticks published after the kill, up to and including the first that reports a stop
     // (a controlled stop after a miss, a stop decided by safety, or the bridge's shutdown).
     let stop_flags = state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
@@ -210,9 +225,15 @@ fn killing_the_joystick_stops_the_arm_and_fails_up() {
 }
 
 #[test]
+fn killing_the_bridge_fails_up() {
+    kill_child_and_check(NodeRole::Bridge);
+}
+
+#[test]
 fn bad_model_is_refused_before_anything_starts() {
     let _serial = serial();
     let prefix = unique_prefix("badmodel");
+    let _domain = DomainGuard(prefix.clone());
     let dir = std::env::temp_dir().join(format!("scl-badmodel-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let corrupt = dir.join("corrupt.safetensors");
