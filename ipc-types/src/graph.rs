@@ -517,17 +517,7 @@ mod tests {
         let g = Graph::join(&p, "unit").unwrap();
         let sub = g.robot_state_subscriber(true).unwrap();
         let publ = g.robot_state_publisher().unwrap();
-        let mut s = RobotState {
-            tick: 7,
-            t_ns: now_ns(),
-            applied_tick: NO_TICK,
-            missed: 0,
-            n_joints: 6,
-            flags: 0,
-            q_rad: [0.0; MAX_JOINTS],
-            qdot_rad_s: [0.0; MAX_JOINTS],
-            gripper: 0.0,
-        };
+        let mut s = RobotState::at_rest(7, now_ns(), 6);
         assert_eq!(publ.send(s).unwrap(), 1);
         s.tick = 8;
         publ.send(s).unwrap();

@@ -111,6 +111,22 @@ pub struct RobotState {
 }
 
 impl RobotState {
+    /// The state of an arm of `n_joints` joints at rest at the zero pose, with gripper open,
+    /// at tick `tick`, stamped `t_ns`; nothing executed, nothing missed.
+    pub fn at_rest(tick: u64, t_ns: u64, n_joints: u32) -> Self {
+        Self {
+            tick,
+            t_ns,
+            applied_tick: NO_TICK,
+            missed: 0,
+            n_joints,
+            flags: 0,
+            q_rad: [0.0; MAX_JOINTS],
+            qdot_rad_s: [0.0; MAX_JOINTS],
+            gripper: 0.0,
+        }
+    }
+
     /// The valid joint angles.
     pub fn q(&self) -> &[f64] {
         &self.q_rad[..(self.n_joints as usize).min(MAX_JOINTS)]

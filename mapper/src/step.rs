@@ -112,21 +112,10 @@ mod tests {
     use super::*;
     use crate::model::BUNDLED_NAME;
     use crate::pca::PcaMap;
-    use ipc_types::NO_TICK;
     use nalgebra::DMatrix;
 
     fn state(tick: u64) -> RobotState {
-        RobotState {
-            tick,
-            t_ns: 1000,
-            applied_tick: NO_TICK,
-            missed: 0,
-            n_joints: 6,
-            flags: 0,
-            q_rad: [0.0; MAX_JOINTS],
-            qdot_rad_s: [0.0; MAX_JOINTS],
-            gripper: 0.0,
-        }
+        RobotState::at_rest(tick, 1000, 6)
     }
 
     fn joy(axes: [f32; 2]) -> JoystickInput {

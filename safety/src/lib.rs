@@ -198,23 +198,12 @@ pub fn uniform_scale(qdot: &[f64], limit: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ipc_types::NO_TICK;
     use proptest::prelude::*;
 
     const NOW: u64 = 1_000_000_000;
 
     fn state(tick: u64) -> RobotState {
-        RobotState {
-            tick,
-            t_ns: NOW - 1_000_000,
-            applied_tick: NO_TICK,
-            missed: 0,
-            n_joints: 6,
-            flags: 0,
-            q_rad: [0.0; MAX_JOINTS],
-            qdot_rad_s: [0.0; MAX_JOINTS],
-            gripper: 0.0,
-        }
+        RobotState::at_rest(tick, NOW - 1_000_000, 6)
     }
 
     fn cmd(tick: u64, qdot: [f64; 6]) -> MapperCommand {
