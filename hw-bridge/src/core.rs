@@ -87,6 +87,17 @@ impl<R: Robot> BridgeCore<R> {
         &self.robot
     }
 
+    /// The robot, mutably (set-up before the first tick).
+    pub fn robot_mut(&mut self) -> &mut R {
+        &mut self.robot
+    }
+
+    /// Makes the next tick `first`: a restarted bridge continues its predecessor's count, so
+    /// tick numbers never repeat within a graph.
+    pub fn start_at(&mut self, first: u64) {
+        self.tick = first.wrapping_sub(1);
+    }
+
     /// The current tick ([`NO_TICK`] before the first).
     pub fn tick(&self) -> u64 {
         self.tick
@@ -272,6 +283,16 @@ mod tests {
         assert!(s2.flags & state_flags::STOPPING != 0);
         assert!(s2.flags & state_flags::MOCK != 0);
         assert!(s2.qdot_rad_s[0] < 0.2, "decelerating, not executing 0.4");
+    }
+
+    #[test]
+    fn a_restarted_bridge_continues_the_tick_count() {
+        let mut b = core();
+        b.start_at(500);
+        let s = b.begin_tick(0);
+        assert_eq!((s.tick, s.applied_tick), (500, NO_TICK));
+        assert_eq!(b.finish_tick(Some(&cmd(500, 0.1))), Outcome::Executed);
+        assert_eq!(b.begin_tick(0).applied_tick, 500);
     }
 
     #[test]

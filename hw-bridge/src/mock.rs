@@ -106,6 +106,26 @@ impl MockArm {
         &self.limits
     }
 
+    /// Puts the simulated arm at pose `q` (clamped into the limits) and gripper state
+    /// `gripper`, at rest with no command in force: how a restarted bridge takes over the arm
+    /// its predecessor left (a real arm keeps its pose by itself).
+    pub fn resume(&mut self, q: &[f64], gripper: f64) {
+        let n = self.limits.n_joints().min(q.len());
+        self.q = [0.0; MAX_JOINTS];
+        self.q[..n].copy_from_slice(&q[..n]);
+        self.limits
+            .clamp_position(&mut self.q[..self.limits.n_joints()]);
+        let c = if gripper.is_finite() {
+            gripper.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        self.gripper = c;
+        self.gripper_target = c;
+        self.stop();
+        self.qdot = [0.0; MAX_JOINTS];
+    }
+
     /// The velocity command currently in force.
     pub fn command_in_force(&self) -> &[f64] {
         &self.cmd[..self.limits.n_joints()]
@@ -256,6 +276,18 @@ mod tests {
         assert_eq!(arm.command_in_force(), &[0.3; 6]);
         arm.stop();
         assert_eq!(arm.command_in_force(), &[0.0; 6]);
+    }
+
+    #[test]
+    fn resume_takes_over_a_pose_at_rest() {
+        let mut arm = MockArm::new(MockConfig::default()).unwrap();
+        arm.command(&[0.3; 6], 1.0);
+        arm.resume(&[0.1, 0.2, 0.3, 0.4, 0.5, 9.0], 0.7);
+        assert_eq!(arm.command_in_force(), &[0.0; 6]);
+        let r = arm.advance(DT);
+        assert_eq!(&r.q_rad[..5], &[0.1, 0.2, 0.3, 0.4, 0.5]);
+        assert_eq!(r.q_rad[5], 2.6, "clamped into the limit");
+        assert!((r.gripper - 0.7).abs() < 1e-12);
     }
 
     #[test]

@@ -182,6 +182,11 @@ impl Graph {
         &self.prefix
     }
 
+    /// The iceoryx2 node (for the control plane in this crate).
+    pub(crate) fn node(&self) -> &Node<Ipc> {
+        &self.node
+    }
+
     fn pubsub<T: ZeroCopySend + core::fmt::Debug + Copy>(
         &self,
         s: &TopicSettings,

@@ -7,9 +7,12 @@
 //! * [`graph`]: the one place that opens every service with its settings (history, buffers,
 //!   publisher limits), and thin publisher / subscriber wrappers that pair a data service with
 //!   its wake-up event.
+//! * [`control`]: the control plane: `scl swap` requests to the supervisor, and the
+//!   active-mapper switch the supervisor sends to safety.
 //! * [`time`]: the monotonic clock every process stamps its messages with.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod control;
 pub mod graph;
 pub mod msg;
 pub mod prefix;

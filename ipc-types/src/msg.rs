@@ -197,6 +197,10 @@ pub mod safe_flags {
     pub const STOP: u32 = 1 << 5;
     /// The command's joint count does not match the robot's.
     pub const BAD_SHAPE: u32 = 1 << 6;
+    /// The change from the previous command was scaled down to the acceleration limits.
+    pub const ACCEL_LIMITED: u32 = 1 << 7;
+    /// The supervisor holds the arm (a process of the input side is down): stop.
+    pub const HOLD: u32 = 1 << 8;
 }
 
 /// The command the arm executes at tick `tick`: the safety process's output, the only one the

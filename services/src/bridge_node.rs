@@ -7,34 +7,52 @@
 
 use std::time::Duration;
 
-use hw_bridge::clock::{Clock, Wake, request_realtime};
+use hw_bridge::clock::{Clock, Wake};
 use hw_bridge::core::{BridgeCore, Outcome};
 use hw_bridge::mock::MockArm;
 use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
 
-use crate::config::BridgeConfig;
+use crate::config::{BridgeConfig, GraphSection, RtRole};
 use crate::{SclError, signals};
 
+/// Where a restarted bridge takes over (given by the supervisor from the last state its
+/// predecessor published).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Resume {
+    /// The first tick to publish.
+    pub start_tick: Option<u64>,
+    /// The mock arm's pose and gripper state to start from.
+    pub pose: Option<(Vec<f64>, f64)>,
+}
+
 /// Runs the bridge until a shutdown is requested.
-pub fn run(prefix: &Prefix, cfg: &BridgeConfig) -> Result<(), SclError> {
-    let robot =
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    cfg: &BridgeConfig,
+    resume: &Resume,
+) -> Result<(), SclError> {
+    let mut robot =
         MockArm::new(cfg.mock.clone()).map_err(|e| SclError::Graph(format!("config: {e}")))?;
+    if let Some((q, c)) = &resume.pose {
+        robot.resume(q, *c);
+    }
     let period_ns = (1e9 / cfg.rate_hz) as u64;
     let period_s = period_ns as f64 * 1e-9;
     let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
-    if cfg.realtime {
-        let rt = request_realtime(cfg.rt_priority);
-        if rt.fifo.is_ok() && rt.mlock.is_ok() {
-            tracing::info!("real-time: {}", rt.summary());
-        } else {
-            tracing::warn!("real-time not fully available: {}", rt.summary());
-        }
-    }
+    crate::rt::elevate(graph_cfg, RtRole::Bridge);
     let graph = Graph::join(prefix, "bridge")?;
     let states = graph.robot_state_publisher()?;
     let commands = graph.safe_command_subscriber(true)?;
     let status = graph.status_publisher()?;
     let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
+    if let Some(t) = resume.start_tick {
+        core.start_at(t);
+        tracing::info!(
+            start_tick = t,
+            "resuming the graph's tick count from a stop"
+        );
+    }
     let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
     status.send(st)?;
     st.phase = phase::RUNNING;

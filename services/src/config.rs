@@ -22,6 +22,90 @@ pub struct GraphConfig {
     pub safety: SafetyConfig,
     /// `[bridge]`: the robot and the clock.
     pub bridge: BridgeConfig,
+    /// `[supervisor]`: what `scl up` does when a process dies, and live swaps.
+    pub supervisor: SupervisorConfig,
+}
+
+/// What the supervisor does when a process exits on its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    /// Stop the whole graph (bridge first) and exit non-zero, naming the process.
+    Never,
+    /// Restart it after a crash or a non-zero exit, with exponential backoff; a clean exit
+    /// stops the graph.
+    OnFailure,
+    /// Restart it whenever it exits, with exponential backoff.
+    Always,
+}
+
+/// `[supervisor.restart]`: one policy per process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RestartPolicies {
+    /// The joystick process.
+    pub joystick: RestartPolicy,
+    /// Mapper processes.
+    pub mapper: RestartPolicy,
+    /// The safety process.
+    pub safety: RestartPolicy,
+    /// The bridge (a restarted bridge resumes the tick count and starts from a stop).
+    pub bridge: RestartPolicy,
+}
+
+impl Default for RestartPolicies {
+    fn default() -> Self {
+        Self {
+            joystick: RestartPolicy::Never,
+            mapper: RestartPolicy::Never,
+            safety: RestartPolicy::Never,
+            bridge: RestartPolicy::Never,
+        }
+    }
+}
+
+impl RestartPolicies {
+    /// The policy of a role.
+    pub fn of(&self, role: ipc_types::NodeRole) -> RestartPolicy {
+        match role {
+            ipc_types::NodeRole::Joystick => self.joystick,
+            ipc_types::NodeRole::Mapper => self.mapper,
+            ipc_types::NodeRole::Safety => self.safety,
+            ipc_types::NodeRole::Bridge => self.bridge,
+        }
+    }
+}
+
+/// `[supervisor]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisorConfig {
+    /// First restart delay (ms); doubles with each consecutive failure.
+    pub backoff_initial_ms: u64,
+    /// Longest restart delay (ms).
+    pub backoff_max_ms: u64,
+    /// A process that ran this long before failing starts its backoff afresh (s).
+    pub stable_after_s: f64,
+    /// A new mapper must produce valid commands for this many consecutive ticks before
+    /// safety switches to it.
+    pub swap_valid_ticks: u32,
+    /// A swap that has not switched over by then is refused and undone (s).
+    pub swap_timeout_s: f64,
+    /// `[supervisor.restart]`: restart policy per process.
+    pub restart: RestartPolicies,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        Self {
+            backoff_initial_ms: 100,
+            backoff_max_ms: 5000,
+            stable_after_s: 10.0,
+            swap_valid_ticks: 10,
+            swap_timeout_s: 10.0,
+            restart: RestartPolicies::default(),
+        }
+    }
 }
 
 /// `[graph]`.
@@ -32,6 +116,41 @@ pub struct GraphSection {
     pub prefix: String,
     /// How long `scl up` waits for each child to report ready (s).
     pub start_timeout_s: f64,
+    /// The control-path processes (bridge, safety, mappers, joystick) ask for SCHED_FIFO and
+    /// mlockall once initialised; each says in one line what it was refused.
+    pub realtime: bool,
+    /// SCHED_FIFO priority of the bridge; safety, mappers and the joystick take the next
+    /// three below it, in the order the data flows back from the clock.
+    pub rt_priority: i32,
+}
+
+/// A process of the control path, for its real-time priority.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RtRole {
+    /// The bridge: `rt_priority`.
+    Bridge,
+    /// Safety: one below.
+    Safety,
+    /// Mappers: two below.
+    Mapper,
+    /// The joystick: three below.
+    Joystick,
+    /// The supervisor (`scl up`), which reaps dead children and holds the arm: four below.
+    Supervisor,
+}
+
+impl GraphSection {
+    /// The SCHED_FIFO priority of `role`, or `None` when real-time is off.
+    pub fn rt_priority_of(&self, role: RtRole) -> Option<i32> {
+        let below = match role {
+            RtRole::Bridge => 0,
+            RtRole::Safety => 1,
+            RtRole::Mapper => 2,
+            RtRole::Joystick => 3,
+            RtRole::Supervisor => 4,
+        };
+        self.realtime.then_some(self.rt_priority - below)
+    }
 }
 
 impl Default for GraphSection {
@@ -39,6 +158,8 @@ impl Default for GraphSection {
         Self {
             prefix: ipc_types::prefix::DEFAULT_PREFIX.to_owned(),
             start_timeout_s: 10.0,
+            realtime: true,
+            rt_priority: 80,
         }
     }
 }
@@ -105,10 +226,6 @@ pub struct BridgeConfig {
     /// How far into the period the bridge waits for the tick's command, as a fraction of the
     /// period; a command later than this is a miss.
     pub command_deadline: f64,
-    /// Ask for SCHED_FIFO and mlockall (a one-line warning when refused).
-    pub realtime: bool,
-    /// SCHED_FIFO priority (1..=99).
-    pub rt_priority: i32,
     /// Acceleration limits for the bridge's controlled stop (rad/s²).
     pub stop_acceleration_rad_s2: Vec<f64>,
     /// `[bridge.mock]`: the mock arm.
@@ -121,8 +238,6 @@ impl Default for BridgeConfig {
             robot: "mock".into(),
             rate_hz: kinematics::gen3_lite::CONTROL_RATE_HZ,
             command_deadline: 0.6,
-            realtime: true,
-            rt_priority: 80,
             stop_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
             mock: MockConfig::default(),
         }
@@ -199,6 +314,15 @@ impl GraphConfig {
                 "must be a positive number".into(),
             ));
         }
+        if !(5..=99).contains(&self.graph.rt_priority) {
+            return Err(err(
+                "graph.rt_priority",
+                format!(
+                    "{} is outside 5..=99 (the four processes after the bridge take the priorities below it)",
+                    self.graph.rt_priority
+                ),
+            ));
+        }
         let j = &self.joystick;
         if j.source != "script" {
             return Err(err(
@@ -254,12 +378,6 @@ impl GraphConfig {
                 ),
             ));
         }
-        if !(1..=99).contains(&b.rt_priority) {
-            return Err(err(
-                "bridge.rt_priority",
-                format!("{} is outside 1..=99", b.rt_priority),
-            ));
-        }
         let n = kinematics::gen3_lite::N_JOINTS;
         if b.stop_acceleration_rad_s2.len() != n
             || b.stop_acceleration_rad_s2
@@ -278,6 +396,27 @@ impl GraphConfig {
             .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
         if self.mapper.id == 0 {
             return Err(err("mapper.id", "must be at least 1".into()));
+        }
+        let sv = &self.supervisor;
+        if sv.backoff_initial_ms == 0 || sv.backoff_max_ms < sv.backoff_initial_ms {
+            return Err(err(
+                "supervisor.backoff_max_ms",
+                "backoff_initial_ms must be positive and at most backoff_max_ms".into(),
+            ));
+        }
+        for (key, v) in [
+            ("supervisor.stable_after_s", sv.stable_after_s),
+            ("supervisor.swap_timeout_s", sv.swap_timeout_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(err(key, format!("{v} must be a positive number")));
+            }
+        }
+        if sv.swap_valid_ticks == 0 {
+            return Err(err(
+                "supervisor.swap_valid_ticks",
+                "must be at least 1".into(),
+            ));
         }
         Ok(())
     }
@@ -338,6 +477,12 @@ mod tests {
             cfg.mapper.model,
             dir.join("m.safetensors").display().to_string()
         );
+        std::fs::write(&p, "[supervisor.restart]\nmapper = \"sometimes\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("sometimes") && e.contains("on-failure"), "{e}");
+        std::fs::write(&p, "[supervisor.restart]\nmapper = \"on-failure\"\n").unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(cfg.supervisor.restart.mapper, RestartPolicy::OnFailure);
         std::fs::write(&p, "not toml [").unwrap();
         assert!(matches!(
             GraphConfig::load(Some(&p)),

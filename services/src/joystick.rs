@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use ipc_types::{Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 
-use crate::config::JoystickConfig;
+use crate::config::{GraphSection, JoystickConfig, RtRole};
 use crate::{SclError, signals};
 
 /// A scripted input: `a(t)` with `|a| <= amplitude`.
@@ -99,7 +99,12 @@ impl Script {
 }
 
 /// Runs the joystick process until a shutdown is requested.
-pub fn run(prefix: &Prefix, cfg: &JoystickConfig, period_s: f64) -> Result<(), SclError> {
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    cfg: &JoystickConfig,
+    period_s: f64,
+) -> Result<(), SclError> {
     let script = Script::from_config(cfg).ok_or_else(|| {
         SclError::Graph(format!(
             "joystick.script `{}` is not a script; use `circle` or `step`",
@@ -110,6 +115,7 @@ pub fn run(prefix: &Prefix, cfg: &JoystickConfig, period_s: f64) -> Result<(), S
     let publisher = graph.joystick_publisher()?;
     let states = graph.robot_state_subscriber(true)?;
     let status = graph.status_publisher()?;
+    crate::rt::elevate(graph_cfg, RtRole::Joystick);
     let mut seq = 0;
     publisher.send(script.sample(NO_TICK, period_s, seq, now_ns()))?;
     status.send(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;

@@ -2,14 +2,17 @@
 //!
 //! Each process module is a thin loop (wait, read, step, publish) around a pure step function
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
-//! [`bridge_node`]. [`up`] supervises the four as child processes. [`config`] is the graph
+//! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
+//! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
 //! TOML, [`signals`] the shutdown flag every loop polls.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
 pub mod config;
+pub mod control;
 pub mod joystick;
 pub mod mapper_node;
+pub mod rt;
 pub mod safety_node;
 pub mod signals;
 pub mod stats;

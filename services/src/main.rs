@@ -44,6 +44,25 @@ enum Cmd {
         #[arg(long)]
         script: Option<String>,
     },
+    /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
+    ///
+    /// The supervisor starts a new mapper process beside the old one, waits until it has
+    /// produced valid commands for `swap_valid_ticks` consecutive ticks, has safety switch to
+    /// it at a tick boundary, then stops the old one. A model that does not load is refused
+    /// and the old mapper keeps running.
+    Swap {
+        /// Model file, or `bundled`.
+        model: String,
+        /// How long to wait for the switch-over.
+        #[arg(long, default_value = "30s", value_parser = parse_duration)]
+        timeout: Duration,
+    },
+    /// Show the running graph: nodes, pids, liveness, active mapper, counters.
+    Status {
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
     /// The joystick process (scripted source).
     Joystick {
         /// Script: `circle` or `step`.
@@ -66,6 +85,16 @@ enum Cmd {
         /// Robot backend: `mock`.
         #[arg(long)]
         robot: Option<String>,
+        /// First tick number (a restarted bridge continues its predecessor's count).
+        #[arg(long)]
+        start_tick: Option<u64>,
+        /// Mock arm: start from these joint angles (rad, comma-separated) instead of the
+        /// configured pose.
+        #[arg(long, value_name = "Q0,Q1,...", value_delimiter = ',')]
+        resume_q: Option<Vec<f64>>,
+        /// Mock arm: start with this gripper state (0 open .. 1 closed).
+        #[arg(long, default_value_t = 0.0)]
+        resume_gripper: f64,
     },
     /// Generate demonstrations as CSV trajectories.
     Demos {
@@ -194,28 +223,71 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Cmd::Swap { model, timeout } => {
+            let r = services::control::swap(&prefix, &model, timeout)?;
+            if r.ok == 1 {
+                println!(
+                    "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed",
+                    r.old_mapper,
+                    r.new_mapper,
+                    r.switch_tick,
+                    r.elapsed_ns as f64 / 1e6,
+                    r.missed_during
+                );
+                Ok(ExitCode::SUCCESS)
+            } else {
+                eprintln!("scl swap: refused: {}", r.message.as_string());
+                Ok(ExitCode::from(1))
+            }
+        }
+        Cmd::Status { json } => {
+            let st = services::control::status(&prefix, Duration::from_millis(300))?;
+            if st.nodes.is_empty() {
+                eprintln!(
+                    "scl status: no node of graph `{prefix}` sent a heartbeat in 300 ms; is it running?"
+                );
+                return Ok(ExitCode::from(1));
+            }
+            if json {
+                let text = serde_json::to_string_pretty(&st)
+                    .map_err(|e| SclError::Graph(format!("cannot encode the status: {e}")))?;
+                println!("{text}");
+            } else {
+                print!("{}", services::control::render(&st));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
         Cmd::Joystick { script } => {
             if let Some(s) = script {
                 cfg.joystick.script = s;
             }
-            services::joystick::run(&prefix, &cfg.joystick, period_s)?;
+            services::joystick::run(&prefix, &cfg.graph, &cfg.joystick, period_s)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Mapper { model, id } => {
             let model = model.unwrap_or(cfg.mapper.model);
-            services::mapper_node::run(&prefix, &model, id.unwrap_or(cfg.mapper.id))?;
+            services::mapper_node::run(&prefix, &cfg.graph, &model, id.unwrap_or(cfg.mapper.id))?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Safety => {
-            services::safety_node::run(&prefix, &cfg.safety)?;
+            services::safety_node::run(&prefix, &cfg.graph, &cfg.safety, period_s)?;
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Bridge { robot } => {
+        Cmd::Bridge {
+            robot,
+            start_tick,
+            resume_q,
+            resume_gripper,
+        } => {
             if let Some(r) = robot {
                 cfg.bridge.robot = r;
             }
             cfg.validate()?;
-            services::bridge_node::run(&prefix, &cfg.bridge)?;
+            let resume = services::bridge_node::Resume {
+                start_tick,
+                pose: resume_q.map(|q| (q, resume_gripper)),
+            };
+            services::bridge_node::run(&prefix, &cfg.graph, &cfg.bridge, &resume)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {
@@ -259,6 +331,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let role = match &cli.cmd {
         Cmd::Up { .. } => "up",
+        Cmd::Swap { .. } => "swap",
+        Cmd::Status { .. } => "status",
         Cmd::Joystick { .. } => "joystick",
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",

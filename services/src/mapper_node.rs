@@ -7,6 +7,7 @@ use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use mapper::LoadedModel;
 use mapper::step::MapperStep;
 
+use crate::config::{GraphSection, RtRole};
 use crate::{SclError, signals};
 
 /// Loads and checks the model `spec` for the Gen3 lite: every problem is reported here, at
@@ -17,13 +18,21 @@ pub fn load_step(spec: &str, id: u32) -> Result<MapperStep, SclError> {
 }
 
 /// Runs the mapper process until a shutdown is requested.
-pub fn run(prefix: &Prefix, model: &str, id: u32) -> Result<(), SclError> {
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    model: &str,
+    id: u32,
+) -> Result<(), SclError> {
     let mut step = load_step(model, id)?;
     let graph = Graph::join(prefix, &format!("mapper-{id}"))?;
     let states = graph.robot_state_subscriber(true)?;
     let joystick = graph.joystick_subscriber()?;
     let commands = graph.mapper_command_publisher()?;
     let status = graph.status_publisher()?;
+    // Initialised at normal priority (a mapper starting for a live swap must not compete
+    // with the running one); real-time from here on.
+    crate::rt::elevate(graph_cfg, RtRole::Mapper);
     let mut st = NodeStatus::new(NodeRole::Mapper, phase::READY, now_ns());
     st.mapper_id = id;
     status.send(st)?;

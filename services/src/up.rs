@@ -1,19 +1,38 @@
-//! `scl up`: starts the four processes of the graph as children, reports once a second, and
-//! stops them in a safe order (bridge first, so the arm is stopped before anything else goes).
+//! `scl up`: starts the four processes of the graph as children, supervises them, serves live
+//! mapper swaps, reports once a second, and stops them in a safe order (bridge first, so the
+//! arm is stopped before anything else goes).
 //!
-//! Start order: joystick, mapper and safety, each awaited until it reports ready, then the
-//! bridge (the clock), so the first tick already finds every process listening. A child that
-//! exits while the graph runs ends the run with a non-zero status and a message naming it.
+//! * Start: joystick, mapper and safety, each awaited until it reports ready, then the bridge
+//!   (the clock), so the first tick already finds every process listening.
+//! * A child that exits is reaped at once and what it left in shared memory is cleaned up.
+//!   Its restart policy (`[supervisor.restart]`) decides: `never` stops the graph with a
+//!   non-zero status and a message naming it; `on-failure` / `always` restart it after an
+//!   exponential backoff. The arm is stopped meanwhile (the bridge misses the tick, or for a
+//!   dead bridge the robot's own watchdog acts). A restarted bridge continues the tick count
+//!   and starts from a stop.
+//! * `scl swap MODEL` (a request on the supervisor's control service) is make-before-break:
+//!   a new mapper process with a new id starts beside the old one; once it has produced valid
+//!   commands for `swap_valid_ticks` consecutive ticks, safety is told to forward its commands
+//!   from a tick boundary on; when the bridge has received the first of them, the old mapper
+//!   is stopped. A model that does not load, or a new mapper that fails, is refused with the
+//!   reason and the old mapper keeps running.
 
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
 
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase};
+use ipc_types::control::{
+    ActiveControlRequest, ControlResponse, SafetyControl, SafetyControlPublisher, Text,
+    request_kind,
+};
+use ipc_types::{
+    Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, mapper_flags, phase,
+    time::now_ns,
+};
 use serde::Serialize;
 
-use crate::config::GraphConfig;
+use crate::config::{GraphConfig, RestartPolicy};
 use crate::stats::{Percentiles, percentiles_us};
 use crate::{SclError, signals};
 
@@ -35,7 +54,7 @@ pub struct UpOptions {
 /// The end-of-run summary (`--json`).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
-    /// Ticks the bridge ran.
+    /// Ticks the bridge ran (over every bridge process of the run).
     pub ticks: u64,
     /// Ticks without a valid command in time.
     pub missed: u64,
@@ -51,16 +70,43 @@ pub struct Summary {
     pub duration_s: f64,
     /// The graph prefix.
     pub prefix: String,
-    /// The mapper whose commands the bridge executed last.
+    /// The mapper whose commands reached the arm last.
     pub active_mapper: u32,
-    /// Set when a child died: which, and how.
+    /// Processes restarted by their restart policy.
+    pub restarts: u32,
+    /// Live swaps completed.
+    pub swaps: u32,
+    /// Set when a child died and was not restarted: which, and how.
     pub failure: Option<String>,
 }
 
-struct Proc {
-    name: &'static str,
-    child: Child,
-    exited: Option<ExitStatus>,
+/// A supervised child process.
+struct Managed {
+    role: NodeRole,
+    /// Mapper id (mappers only).
+    mapper_id: u32,
+    args: Vec<String>,
+    child: Option<Child>,
+    pid: u32,
+    started: Instant,
+    /// Consecutive failures, for the backoff.
+    failures: u32,
+    restart_at: Option<Instant>,
+    /// Being stopped on purpose (the old mapper after a swap, a refused new one).
+    retiring: bool,
+}
+
+impl Managed {
+    fn label(&self) -> String {
+        if self.role == NodeRole::Mapper {
+            format!(
+                "the mapper process (id {}, pid {})",
+                self.mapper_id, self.pid
+            )
+        } else {
+            format!("the {} process (pid {})", self.role.name(), self.pid)
+        }
+    }
 }
 
 fn describe(status: ExitStatus) -> String {
@@ -72,32 +118,44 @@ fn describe(status: ExitStatus) -> String {
     }
 }
 
+/// What the supervisor learns from the heartbeats.
 #[derive(Default)]
-struct Collector {
-    ready: Vec<NodeRole>,
-    ticks: u64,
-    missed: u64,
-    travel: f64,
+struct Telemetry {
+    ready: Vec<(NodeRole, u32)>,
+    bridge_pid: u32,
+    base_ticks: u64,
+    base_missed: u64,
+    base_travel: f64,
+    cur_ticks: u64,
+    cur_missed: u64,
+    cur_travel: f64,
     active_mapper: u32,
     latency_ns: Vec<u64>,
     lateness_ns: Vec<u64>,
     last_bridge_tick: Option<u64>,
 }
 
-impl Collector {
+impl Telemetry {
     fn take(&mut self, s: &NodeStatus) {
         let Some(role) = NodeRole::from_u32(s.role) else {
             return;
         };
-        if s.phase == phase::READY && !self.ready.contains(&role) {
-            self.ready.push(role);
+        if s.phase == phase::READY && !self.ready.contains(&(role, s.pid)) {
+            self.ready.push((role, s.pid));
         }
         if role != NodeRole::Bridge || s.phase == phase::READY {
             return;
         }
-        self.ticks = self.ticks.max(s.handled);
-        self.missed = self.missed.max(s.faults);
-        self.travel = s.joint_travel_rad;
+        if s.pid != self.bridge_pid {
+            // A new bridge process: bank the counts of the one before.
+            self.base_ticks += self.cur_ticks;
+            self.base_missed += self.cur_missed;
+            self.base_travel += self.cur_travel;
+            self.bridge_pid = s.pid;
+        }
+        self.cur_ticks = s.handled;
+        self.cur_missed = s.faults;
+        self.cur_travel = s.joint_travel_rad;
         if s.phase == phase::RUNNING && self.last_bridge_tick != Some(s.tick) {
             self.last_bridge_tick = Some(s.tick);
             if s.latency_ns > 0 {
@@ -107,11 +165,64 @@ impl Collector {
             self.lateness_ns.push(s.lateness_ns);
         }
     }
+
+    fn is_ready(&self, role: NodeRole, pid: u32) -> bool {
+        self.ready.contains(&(role, pid))
+    }
+
+    fn ticks(&self) -> u64 {
+        self.base_ticks + self.cur_ticks
+    }
+
+    fn missed(&self) -> u64 {
+        self.base_missed + self.cur_missed
+    }
+
+    fn travel(&self) -> f64 {
+        self.base_travel + self.cur_travel
+    }
 }
 
-fn spawn(name: &'static str, args: &[String]) -> Result<Proc, SclError> {
-    let exe = std::env::current_exe()
-        .map_err(|e| SclError::Graph(format!("cannot find the scl executable: {e}")))?;
+type Request = ActiveControlRequest;
+
+enum SwapPhase {
+    /// Waiting for the new mapper's valid consecutive commands.
+    Warmup { valid: u32, last_tick: Option<u64> },
+    /// Safety was told to switch at `from_tick`; waiting for the bridge to get its command.
+    Switching { from_tick: u64 },
+}
+
+struct Swap {
+    request: Request,
+    new_id: u32,
+    old_id: u32,
+    started: Instant,
+    missed_at_start: u64,
+    phase: SwapPhase,
+}
+
+/// Everything the supervisor keeps while the graph runs.
+struct Supervisor<'a> {
+    opts: &'a UpOptions,
+    graph: Graph,
+    procs: Vec<Managed>,
+    tel: Telemetry,
+    last_state: Option<RobotState>,
+    next_mapper_id: u32,
+    active_mapper: u32,
+    restarts: u32,
+    swaps: u32,
+    control_seq: u64,
+    swap: Option<Swap>,
+    switch_publisher: Option<SafetyControlPublisher>,
+    /// The switch last sent to safety: mapper id and first tick.
+    switch: (u32, u64),
+    /// Whether safety is told to hold the arm (the joystick is down).
+    hold: bool,
+}
+
+fn spawn(args: &[String]) -> std::io::Result<Child> {
+    let exe = std::env::current_exe()?;
     let mut cmd = Command::new(exe);
     cmd.args(args);
     // SAFETY: setpgid and prctl are async-signal-safe. Each child gets its own process
@@ -125,50 +236,394 @@ fn spawn(name: &'static str, args: &[String]) -> Result<Proc, SclError> {
             Ok(())
         });
     }
-    let child = cmd
-        .spawn()
-        .map_err(|e| SclError::Graph(format!("cannot start the {name} process: {e}")))?;
-    Ok(Proc {
-        name,
-        child,
-        exited: None,
-    })
+    cmd.spawn()
 }
 
-fn child_args(opts: &UpOptions, sub: &str) -> Vec<String> {
-    let mut a = vec![sub.to_owned(), "--prefix".into(), opts.prefix.to_string()];
-    if let Some(p) = &opts.config_path {
-        a.push("--config".into());
-        a.push(p.display().to_string());
-    }
-    a
-}
-
-fn signal_and_wait(p: &mut Proc, timeout: Duration) {
-    if p.exited.is_some() {
-        return;
-    }
+fn terminate(child: &Child) {
     // SAFETY: sending a signal to our own child's pid.
     unsafe {
-        libc::kill(p.child.id() as libc::pid_t, libc::SIGTERM);
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
     }
+}
+
+fn signal_and_wait(p: &mut Managed, timeout: Duration) {
+    let label = p.label();
+    let Some(child) = p.child.as_mut() else {
+        return;
+    };
+    terminate(child);
     let start = Instant::now();
     loop {
-        if let Ok(Some(s)) = p.child.try_wait() {
-            p.exited = Some(s);
-            return;
+        if let Ok(Some(_)) = child.try_wait() {
+            break;
         }
         if start.elapsed() > timeout {
-            tracing::warn!("{} did not stop within {timeout:?}; killing it", p.name);
-            let _ = p.child.kill();
-            p.exited = p.child.wait().ok();
-            return;
+            tracing::warn!("{label} did not stop within {timeout:?}; killing it");
+            let _ = child.kill();
+            let _ = child.wait();
+            break;
         }
         std::thread::sleep(Duration::from_millis(2));
     }
+    p.child = None;
 }
 
-/// Runs the graph; returns the summary, with `failure` set if a child died.
+impl<'a> Supervisor<'a> {
+    fn child_args(&self, sub: &str) -> Vec<String> {
+        let mut a = vec![
+            sub.to_owned(),
+            "--prefix".into(),
+            self.opts.prefix.to_string(),
+        ];
+        if let Some(p) = &self.opts.config_path {
+            a.push("--config".into());
+            a.push(p.display().to_string());
+        }
+        a
+    }
+
+    fn mapper_args(&self, model: &str, id: u32) -> Vec<String> {
+        let mut a = self.child_args("mapper");
+        a.extend([
+            "--model".into(),
+            model.to_owned(),
+            "--id".into(),
+            id.to_string(),
+        ]);
+        a
+    }
+
+    /// Starts (or restarts) process `i`. A restarted bridge resumes from the last state.
+    fn start(&mut self, i: usize) -> Result<(), SclError> {
+        let mut args = self.procs[i].args.clone();
+        if self.procs[i].role == NodeRole::Bridge
+            && let Some(s) = &self.last_state
+        {
+            let q: Vec<String> = s.q().iter().map(|v| format!("{v:.9}")).collect();
+            args.push(format!("--start-tick={}", s.tick + 1));
+            args.push(format!("--resume-q={}", q.join(",")));
+            args.push(format!("--resume-gripper={:.9}", s.gripper));
+        }
+        let p = &mut self.procs[i];
+        let child = spawn(&args).map_err(|e| {
+            SclError::Graph(format!("cannot start the {} process: {e}", p.role.name()))
+        })?;
+        p.pid = child.id();
+        p.child = Some(child);
+        p.started = Instant::now();
+        p.restart_at = None;
+        Ok(())
+    }
+
+    fn push(&mut self, role: NodeRole, mapper_id: u32, args: Vec<String>) -> usize {
+        self.procs.push(Managed {
+            role,
+            mapper_id,
+            args,
+            child: None,
+            pid: 0,
+            started: Instant::now(),
+            failures: 0,
+            restart_at: None,
+            retiring: false,
+        });
+        self.procs.len() - 1
+    }
+
+    /// Reaps exited children; returns a failure message if the graph must stop.
+    fn reap(&mut self) -> Option<String> {
+        let sv = &self.opts.config.supervisor;
+        let mut failure = None;
+        let mut refuse_swap = None;
+        for p in self.procs.iter_mut() {
+            let Some(child) = p.child.as_mut() else {
+                continue;
+            };
+            let Ok(Some(status)) = child.try_wait() else {
+                continue;
+            };
+            p.child = None;
+            let what = format!("{} {}", p.label(), describe(status));
+            if p.retiring {
+                tracing::info!("{what}");
+                continue;
+            }
+            if self.swap.as_ref().is_some_and(|s| s.new_id == p.mapper_id)
+                && p.role == NodeRole::Mapper
+            {
+                p.retiring = true;
+                refuse_swap = Some(format!("the new mapper did not start: {what}"));
+                continue;
+            }
+            let restart = match sv.restart.of(p.role) {
+                RestartPolicy::Never => false,
+                RestartPolicy::OnFailure => !status.success(),
+                RestartPolicy::Always => true,
+            };
+            if !restart || signals::stop_requested() {
+                failure = Some(what);
+                break;
+            }
+            if p.started.elapsed().as_secs_f64() > sv.stable_after_s {
+                p.failures = 0;
+            }
+            p.failures += 1;
+            let factor = 1u64 << (p.failures - 1).min(20);
+            let delay = Duration::from_millis(
+                sv.backoff_initial_ms
+                    .saturating_mul(factor)
+                    .min(sv.backoff_max_ms),
+            );
+            p.restart_at = Some(Instant::now() + delay);
+            self.restarts += 1;
+            tracing::warn!(
+                "{what}; restarting it in {delay:?} (restart {} of this process)",
+                p.failures
+            );
+        }
+        // What the dead left in shared memory (ports, a publisher slot) goes now, before a
+        // successor needs it.
+        let cleaned = self.graph.cleanup_dead_nodes();
+        if cleaned > 0 {
+            tracing::debug!(cleaned, "removed resources of dead processes");
+        }
+        self.procs.retain(|p| !(p.retiring && p.child.is_none()));
+        if let Some(reason) = refuse_swap {
+            self.finish_swap(Err(reason));
+        }
+        failure
+    }
+
+    fn restart_due(&mut self) -> Result<(), SclError> {
+        let now = Instant::now();
+        for i in 0..self.procs.len() {
+            if self.procs[i].restart_at.is_some_and(|t| t <= now) {
+                self.start(i)?;
+                tracing::info!("restarted {}", self.procs[i].label());
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_switch(&mut self, id: u32, from_tick: u64) -> Result<(), SclError> {
+        self.switch = (id, from_tick);
+        self.publish_control()
+    }
+
+    /// Holds the arm while the joystick process is down or restarting (not yet ready): the
+    /// mapper would otherwise keep acting on its last sample until safety found it stale.
+    fn update_hold(&mut self) -> Result<(), SclError> {
+        let down = self.procs.iter().any(|p| {
+            p.role == NodeRole::Joystick
+                && !p.retiring
+                && (p.child.is_none() || !self.tel.is_ready(p.role, p.pid))
+        });
+        if down != self.hold {
+            self.hold = down;
+            if down {
+                tracing::warn!("the joystick is down: safety holds the arm");
+            } else {
+                tracing::info!("the joystick is back: hold released");
+            }
+            self.publish_control()?;
+        }
+        Ok(())
+    }
+
+    fn publish_control(&mut self) -> Result<(), SclError> {
+        let (id, from_tick) = self.switch;
+        self.control_seq += 1;
+        let publisher = match self.switch_publisher.take() {
+            Some(p) => p,
+            None => self.graph.safety_control_publisher()?,
+        };
+        let msg = SafetyControl {
+            seq: self.control_seq,
+            t_ns: now_ns(),
+            from_tick,
+            active_mapper: id,
+            hold: u32::from(self.hold),
+        };
+        publisher
+            .send_copy(msg)
+            .map_err(|e| SclError::Graph(format!("cannot send the switch to safety: {e}")))?;
+        // Keep the publisher (and with it the topic's history for a restarted safety).
+        self.switch_publisher = Some(publisher);
+        Ok(())
+    }
+
+    fn begin_swap(&mut self, request: Request) {
+        let req = *request.payload();
+        let refuse = |request: &Request, reason: &str| {
+            tracing::warn!("swap refused: {reason}");
+            let _ = request.send_copy(ControlResponse::refused(reason));
+        };
+        if self.swap.is_some() {
+            refuse(&request, "another swap is in progress");
+            return;
+        }
+        if req.kind != request_kind::SWAP {
+            refuse(&request, &format!("unknown request kind {}", req.kind));
+            return;
+        }
+        let model = req.path.as_string();
+        let new_id = self.next_mapper_id;
+        if let Err(e) = crate::mapper_node::load_step(&model, new_id) {
+            refuse(&request, &e.to_string());
+            return;
+        }
+        self.next_mapper_id += 1;
+        let args = self.mapper_args(&model, new_id);
+        let i = self.push(NodeRole::Mapper, new_id, args);
+        if let Err(e) = self.start(i) {
+            self.procs.remove(i);
+            refuse(&request, &e.to_string());
+            return;
+        }
+        tracing::info!(new_id, model = %model, "swap: new mapper started, warming up");
+        self.swap = Some(Swap {
+            request,
+            new_id,
+            old_id: self.active_mapper,
+            started: Instant::now(),
+            missed_at_start: self.tel.missed(),
+            phase: SwapPhase::Warmup {
+                valid: 0,
+                last_tick: None,
+            },
+        });
+    }
+
+    fn on_mapper_command(&mut self, c: &MapperCommand) -> Result<(), SclError> {
+        let need = self.opts.config.supervisor.swap_valid_ticks;
+        let Some(swap) = self.swap.as_mut() else {
+            return Ok(());
+        };
+        let SwapPhase::Warmup { valid, last_tick } = &mut swap.phase else {
+            return Ok(());
+        };
+        if c.mapper_id != swap.new_id {
+            return Ok(());
+        }
+        let bad = mapper_flags::INPUT_NON_FINITE
+            | mapper_flags::OUTPUT_NON_FINITE
+            | mapper_flags::STATE_INVALID;
+        let ok = c.flags & bad == 0 && c.qdot_rad_s.iter().all(|v| v.is_finite());
+        let consecutive = last_tick.is_none_or(|t| c.tick == t.wrapping_add(1));
+        *valid = match (ok, consecutive) {
+            (true, true) => *valid + 1,
+            (true, false) => 1,
+            (false, _) => 0,
+        };
+        *last_tick = Some(c.tick);
+        if *valid >= need {
+            // Two ticks ahead: safety has the switch before that tick's commands arrive.
+            let from_tick = c.tick + 2;
+            let new_id = swap.new_id;
+            swap.phase = SwapPhase::Switching { from_tick };
+            self.publish_switch(new_id, from_tick)?;
+            tracing::info!(
+                new_id,
+                from_tick,
+                "swap: safety switches at tick {from_tick}"
+            );
+        }
+        Ok(())
+    }
+
+    fn on_safe_command(&mut self, tick: u64, mapper_id: u32) {
+        let Some(swap) = self.swap.as_ref() else {
+            return;
+        };
+        if let SwapPhase::Switching { from_tick } = swap.phase
+            && tick >= from_tick
+            && mapper_id == swap.new_id
+        {
+            self.finish_swap(Ok(tick));
+        }
+    }
+
+    /// Ends the swap in flight: on success stops the old mapper; on failure stops the new one
+    /// and, if safety was already told to switch, tells it to switch back.
+    fn finish_swap(&mut self, result: Result<u64, String>) {
+        let Some(swap) = self.swap.take() else {
+            return;
+        };
+        let retire = match &result {
+            Ok(_) => swap.old_id,
+            Err(_) => swap.new_id,
+        };
+        for p in self.procs.iter_mut() {
+            if p.role == NodeRole::Mapper && p.mapper_id == retire && !p.retiring {
+                p.retiring = true;
+                p.restart_at = None;
+                if let Some(c) = p.child.as_ref() {
+                    terminate(c);
+                }
+            }
+        }
+        let resp = match result {
+            Ok(switch_tick) => {
+                self.active_mapper = swap.new_id;
+                self.swaps += 1;
+                let r = ControlResponse {
+                    ok: 1,
+                    new_mapper: swap.new_id,
+                    old_mapper: swap.old_id,
+                    reserved: 0,
+                    switch_tick,
+                    elapsed_ns: swap.started.elapsed().as_nanos() as u64,
+                    missed_during: self.tel.missed() - swap.missed_at_start,
+                    message: Text::new("switched"),
+                };
+                tracing::info!(
+                    new = swap.new_id,
+                    old = swap.old_id,
+                    switch_tick,
+                    elapsed_ms = r.elapsed_ns as f64 / 1e6,
+                    missed = r.missed_during,
+                    "swap done"
+                );
+                r
+            }
+            Err(reason) => {
+                if matches!(swap.phase, SwapPhase::Switching { .. }) {
+                    let back = self.last_state.map_or(0, |s| s.tick + 2);
+                    if let Err(e) = self.publish_switch(swap.old_id, back) {
+                        tracing::error!("cannot switch safety back: {e}");
+                    }
+                }
+                tracing::warn!("swap refused: {reason}");
+                ControlResponse::refused(&reason)
+            }
+        };
+        if let Err(e) = swap.request.send_copy(resp) {
+            tracing::warn!("cannot answer the swap request: {e}");
+        }
+    }
+
+    fn check_swap_timeout(&mut self) {
+        let timeout = Duration::from_secs_f64(self.opts.config.supervisor.swap_timeout_s);
+        let Some(swap) = self.swap.as_ref() else {
+            return;
+        };
+        if swap.started.elapsed() < timeout {
+            return;
+        }
+        let reason = match swap.phase {
+            SwapPhase::Warmup { valid, .. } => format!(
+                "the new mapper produced {valid} valid consecutive commands in {timeout:?}, {} needed",
+                self.opts.config.supervisor.swap_valid_ticks
+            ),
+            SwapPhase::Switching { from_tick } => {
+                format!("safety did not forward the new mapper's commands from tick {from_tick}")
+            }
+        };
+        self.finish_swap(Err(reason));
+    }
+}
+
+/// Runs the graph; returns the summary, with `failure` set if a child died for good.
 pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     let cfg = &opts.config;
     cfg.validate()?;
@@ -184,42 +639,61 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     }
     let graph = Graph::join(&opts.prefix, "supervisor")?;
     let status = graph.status_subscriber()?;
-    let mut col = Collector::default();
-    let mut procs: Vec<Proc> = Vec::new();
+    let states = graph.robot_state_subscriber(false)?;
+    let mapper_commands = graph.mapper_command_subscriber(false)?;
+    let safe_commands = graph.safe_command_subscriber(false)?;
+    let server = graph.control_server()?;
+    let mut sv = Supervisor {
+        opts,
+        graph,
+        procs: Vec::new(),
+        tel: Telemetry::default(),
+        last_state: None,
+        next_mapper_id: cfg.mapper.id + 1,
+        active_mapper: cfg.mapper.id,
+        restarts: 0,
+        swaps: 0,
+        control_seq: 0,
+        swap: None,
+        switch_publisher: None,
+        switch: (cfg.mapper.id, 0),
+        hold: false,
+    };
+    // Reaping and holding the arm must not wait behind other load; below the control path.
+    crate::rt::elevate(&cfg.graph, crate::config::RtRole::Supervisor);
     let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
-
-    let mut mapper_args = child_args(opts, "mapper");
-    mapper_args.extend([
-        "--model".into(),
-        cfg.mapper.model.clone(),
-        "--id".into(),
-        cfg.mapper.id.to_string(),
-    ]);
-    let plan: [(&'static str, Vec<String>, NodeRole); 4] = [
-        ("joystick", child_args(opts, "joystick"), NodeRole::Joystick),
-        ("mapper", mapper_args, NodeRole::Mapper),
-        ("safety", child_args(opts, "safety"), NodeRole::Safety),
-        ("bridge", child_args(opts, "bridge"), NodeRole::Bridge),
+    let plan = [
+        (NodeRole::Joystick, 0, sv.child_args("joystick")),
+        (
+            NodeRole::Mapper,
+            cfg.mapper.id,
+            sv.mapper_args(&cfg.mapper.model, cfg.mapper.id),
+        ),
+        (NodeRole::Safety, 0, sv.child_args("safety")),
+        (NodeRole::Bridge, 0, sv.child_args("bridge")),
     ];
     let mut failure: Option<String> = None;
-    'start: for (name, args, role) in plan {
-        procs.push(spawn(name, &args)?);
+    'start: for (role, id, args) in plan {
+        let i = sv.push(role, id, args);
+        sv.start(i)?;
         let t0 = Instant::now();
-        while !col.ready.contains(&role) {
-            status.drain(|s| col.take(s))?;
-            if let Some(p) = procs.last_mut()
-                && let Ok(Some(s)) = p.child.try_wait()
+        while !sv.tel.is_ready(role, sv.procs[i].pid) {
+            status.drain(|s| sv.tel.take(s))?;
+            if let Some(c) = sv.procs[i].child.as_mut()
+                && let Ok(Some(s)) = c.try_wait()
             {
-                p.exited = Some(s);
+                sv.procs[i].child = None;
                 failure = Some(format!(
-                    "the {name} process {} during start-up",
+                    "the {} process {} during start-up",
+                    role.name(),
                     describe(s)
                 ));
                 break 'start;
             }
             if t0.elapsed() > start_timeout || signals::stop_requested() {
                 failure = Some(format!(
-                    "the {name} process did not report ready within {start_timeout:?}"
+                    "the {} process did not report ready within {start_timeout:?}",
+                    role.name()
                 ));
                 break 'start;
             }
@@ -230,32 +704,50 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     let started = Instant::now();
     let mut next_report = Duration::from_secs(1);
     while failure.is_none() && !signals::stop_requested() {
-        std::thread::sleep(Duration::from_millis(5));
-        for p in procs.iter_mut() {
-            if let Ok(Some(s)) = p.child.try_wait() {
-                p.exited = Some(s);
-                failure = Some(format!(
-                    "the {} process (pid {}) {}",
-                    p.name,
-                    p.child.id(),
-                    describe(s)
-                ));
-                break;
-            }
+        std::thread::sleep(Duration::from_millis(2));
+        if let Some(f) = sv.reap() {
+            failure = Some(f);
+            break;
         }
-        status.drain(|s| col.take(s))?;
+        sv.restart_due()?;
+        status.drain(|s| sv.tel.take(s))?;
+        sv.update_hold()?;
+        states.drain(|s| sv.last_state = Some(*s))?;
+        let mut cmds = Vec::new();
+        mapper_commands.drain(|c| cmds.push(*c))?;
+        for c in &cmds {
+            sv.on_mapper_command(c)?;
+        }
+        let mut executed = Vec::new();
+        safe_commands.drain(|c| executed.push((c.tick, c.mapper_id)))?;
+        for (tick, id) in executed {
+            sv.on_safe_command(tick, id);
+        }
+        while let Some(request) = server
+            .receive()
+            .map_err(|e| SclError::Graph(format!("control service: {e}")))?
+        {
+            sv.begin_swap(request);
+        }
+        sv.check_swap_timeout();
+
         let elapsed = started.elapsed();
         if elapsed >= next_report {
             next_report += Duration::from_secs(1);
-            let l = percentiles_us(&col.latency_ns);
+            let l = percentiles_us(&sv.tel.latency_ns);
+            let restarts = if sv.restarts > 0 {
+                format!("  restarts {}", sv.restarts)
+            } else {
+                String::new()
+            };
             eprintln!(
-                "scl up: {:>4.0}s  ticks {:>6}  missed {:>3}  e2e p50 {:>6.1} µs  p99 {:>7.1} µs  mapper {}",
+                "scl up: {:>4.0}s  ticks {:>6}  missed {:>3}  e2e p50 {:>6.1} µs  p99 {:>7.1} µs  mapper {}{restarts}",
                 elapsed.as_secs_f64(),
-                col.ticks,
-                col.missed,
+                sv.tel.ticks(),
+                sv.tel.missed(),
                 l.p50,
                 l.p99,
-                col.active_mapper
+                sv.active_mapper,
             );
         }
         if opts.duration.is_some_and(|d| elapsed >= d) {
@@ -263,34 +755,43 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         }
     }
     let duration_s = started.elapsed().as_secs_f64();
+    if sv.swap.is_some() {
+        sv.finish_swap(Err("the graph is shutting down".into()));
+    }
 
     // Bridge first: it stops the arm at once and publishes a final state.
-    let order = ["bridge", "safety", "mapper", "joystick"];
-    for name in order {
-        if let Some(p) = procs.iter_mut().find(|p| p.name == name) {
+    for role in [
+        NodeRole::Bridge,
+        NodeRole::Safety,
+        NodeRole::Mapper,
+        NodeRole::Joystick,
+    ] {
+        for p in sv.procs.iter_mut().filter(|p| p.role == role) {
             signal_and_wait(p, Duration::from_secs(3));
         }
     }
-    status.drain(|s| col.take(s))?;
-    drop(status);
-    drop(graph);
+    status.drain(|s| sv.tel.take(s))?;
+    let summary = Summary {
+        ticks: sv.tel.ticks(),
+        missed: sv.tel.missed(),
+        latency_us: percentiles_us(&sv.tel.latency_ns),
+        tick_lateness_us: percentiles_us(&sv.tel.lateness_ns),
+        joint_travel_rad: sv.tel.travel(),
+        latency_samples: sv.tel.latency_ns.len(),
+        duration_s,
+        prefix: opts.prefix.to_string(),
+        active_mapper: sv.tel.active_mapper,
+        restarts: sv.restarts,
+        swaps: sv.swaps,
+        failure,
+    };
+    drop((status, states, mapper_commands, safe_commands, server));
+    drop(sv);
     // Last one out: remove what killed children left and the domain itself, unless an
     // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
     ipc_types::graph::release_domain(&opts.prefix)?;
-
-    if let Some(f) = &failure {
+    if let Some(f) = &summary.failure {
         tracing::error!("{f}; the graph was stopped (bridge first)");
     }
-    Ok(Summary {
-        ticks: col.ticks,
-        missed: col.missed,
-        latency_us: percentiles_us(&col.latency_ns),
-        tick_lateness_us: percentiles_us(&col.lateness_ns),
-        joint_travel_rad: col.travel,
-        latency_samples: col.latency_ns.len(),
-        duration_s,
-        prefix: opts.prefix.to_string(),
-        active_mapper: col.active_mapper,
-        failure,
-    })
+    Ok(summary)
 }

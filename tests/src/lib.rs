@@ -211,6 +211,32 @@ impl Drop for DomainGuard {
     }
 }
 
+/// Checks that the bridge commanded a stop within the first two ticks after an event at
+/// `t_ns` (a kill), given the robot states recorded after it. A state reports the command
+/// executed during the period before it (`applied_tick`, flags), so a stop commanded at the
+/// second tick after the event shows in the third state; a shutdown state reports itself.
+/// Returns the index of the first state that reports the stop.
+pub fn assert_stop_within_two_ticks(after: &[RobotState], what: &str) -> usize {
+    let stop = ipc_types::state_flags::STOPPING
+        | ipc_types::state_flags::SAFETY_STOP
+        | ipc_types::state_flags::SHUTDOWN;
+    let first = after
+        .iter()
+        .position(|s| s.flags & stop != 0)
+        .unwrap_or_else(|| panic!("{what}: the bridge never reported a stop"));
+    let commanded_at = if after[first].flags & ipc_types::state_flags::SHUTDOWN != 0 {
+        first
+    } else {
+        first - 1
+    };
+    assert!(
+        commanded_at < 2,
+        "{what}: the stop was commanded at the {}th tick after the event",
+        commanded_at + 1
+    );
+    first
+}
+
 /// A serial lock for whole-graph tests: they share two cores and must not overlap.
 pub fn serial() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());

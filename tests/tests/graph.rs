@@ -7,7 +7,10 @@ use std::time::Duration;
 
 use ipc_types::{NO_TICK, NodeRole, state_flags, time::now_ns};
 use mapper::LoadedModel;
-use scl_tests::{ChildGuard, DomainGuard, Recorder, scl_binary, serial, unique_prefix, wait_clean};
+use scl_tests::{
+    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, scl_binary, serial,
+    unique_prefix, wait_clean,
+};
 
 const DT: f64 = 0.025;
 
@@ -177,23 +180,13 @@ fn kill_child_and_check(role: NodeRole) {
         );
         return;
     }
-    // Ticks published after the kill, up to and including the first that reports a stop
-    // (a controlled stop after a miss, a stop decided by safety, or the bridge's shutdown).
-    let stop_flags = state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
     let after: Vec<_> = rec
         .robot_states
         .iter()
         .filter(|s| s.t_ns > t_kill)
+        .copied()
         .collect();
-    let first_stop = after
-        .iter()
-        .position(|s| s.flags & stop_flags != 0)
-        .expect("the bridge never reported a stop");
-    assert!(
-        first_stop < 2,
-        "stop reported at the {}th tick after the kill",
-        first_stop + 1
-    );
+    let first_stop = assert_stop_within_two_ticks(&after, role.name());
     // After the stop, no command is executed except stops.
     for s in &after[first_stop..] {
         assert!(

@@ -1,0 +1,291 @@
+//! The graph's control plane: requests to the supervisor (`scl swap`) over an iceoryx2
+//! request-response service, and the active-mapper switch that the supervisor sends to safety.
+//!
+//! Messages are fixed-size like every other message; text (a model path, a refusal reason)
+//! travels in fixed byte arrays with an explicit length.
+
+use core::time::Duration;
+
+use iceoryx2::port::client::Client;
+use iceoryx2::port::server::Server;
+use iceoryx2::prelude::*;
+
+use crate::graph::{Graph, Ipc, IpcError};
+
+/// Capacity of the text fields of control messages (bytes).
+pub const TEXT_CAP: usize = 512;
+
+/// A short UTF-8 text in a fixed array.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+pub struct Text {
+    /// Used bytes.
+    pub len: u32,
+    /// The bytes.
+    pub bytes: [u8; TEXT_CAP],
+}
+
+impl Text {
+    /// `s`, cut at a character boundary to fit.
+    pub fn new(s: &str) -> Self {
+        let mut end = s.len().min(TEXT_CAP);
+        while !s.is_char_boundary(end) {
+            end -= 1;
+        }
+        let mut bytes = [0u8; TEXT_CAP];
+        bytes[..end].copy_from_slice(&s.as_bytes()[..end]);
+        Self {
+            len: end as u32,
+            bytes,
+        }
+    }
+
+    /// The text (lossy if the bytes are not UTF-8, which only a corrupt message can cause).
+    pub fn as_string(&self) -> String {
+        let n = (self.len as usize).min(TEXT_CAP);
+        String::from_utf8_lossy(&self.bytes[..n]).into_owned()
+    }
+}
+
+/// Tells safety which mapper's commands reach the arm, from which tick on, and whether to
+/// hold the arm (stop it until released) because a process of the input side is down. The
+/// topic keeps the newest message as history, so a restarted safety learns both.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::SafetyControl")]
+#[repr(C)]
+pub struct SafetyControl {
+    /// Counter of the publishing supervisor.
+    pub seq: u64,
+    /// When it was published (monotonic ns).
+    pub t_ns: u64,
+    /// The first tick whose command comes from `active_mapper`.
+    pub from_tick: u64,
+    /// The mapper id to forward.
+    pub active_mapper: u32,
+    /// 1: hold the arm (controlled stop) until a message with 0 arrives.
+    pub hold: u32,
+}
+
+/// What a [`ControlRequest`] asks for.
+pub mod request_kind {
+    /// Swap the active mapper for a new one serving the model at `path`.
+    pub const SWAP: u32 = 1;
+}
+
+/// A request to the supervisor of a running graph.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::ControlRequest")]
+#[repr(C)]
+pub struct ControlRequest {
+    /// [`request_kind`] value.
+    pub kind: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
+    /// The model file (absolute path) for a swap.
+    pub path: Text,
+}
+
+/// The supervisor's answer.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::ControlResponse")]
+#[repr(C)]
+pub struct ControlResponse {
+    /// 1 if done, 0 if refused.
+    pub ok: u32,
+    /// The new active mapper id (swap).
+    pub new_mapper: u32,
+    /// The mapper it replaced (swap).
+    pub old_mapper: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
+    /// The first tick executed from the new mapper (swap).
+    pub switch_tick: u64,
+    /// From the request's arrival to the switch-over (ns).
+    pub elapsed_ns: u64,
+    /// Ticks the bridge missed between the request and the switch-over.
+    pub missed_during: u64,
+    /// Why it was refused, or a summary.
+    pub message: Text,
+}
+
+impl ControlResponse {
+    /// A refusal with a reason.
+    pub fn refused(reason: &str) -> Self {
+        Self {
+            ok: 0,
+            new_mapper: 0,
+            old_mapper: 0,
+            reserved: 0,
+            switch_tick: 0,
+            elapsed_ns: 0,
+            missed_during: 0,
+            message: Text::new(reason),
+        }
+    }
+}
+
+/// Topic name of [`SafetyControl`].
+pub const SAFETY_CONTROL: &str = "safety_control";
+/// Service name of the supervisor's request-response service.
+pub const SUPERVISOR: &str = "supervisor";
+
+type ControlFactory = iceoryx2::service::port_factory::request_response::PortFactory<
+    Ipc,
+    ControlRequest,
+    (),
+    ControlResponse,
+    (),
+>;
+
+/// The supervisor's end of the control service.
+pub type ControlServer = Server<Ipc, ControlRequest, (), ControlResponse, ()>;
+/// A client's end of the control service.
+pub type ControlClient = Client<Ipc, ControlRequest, (), ControlResponse, ()>;
+/// A request the server holds until it answers it (`send_copy` the response).
+pub type ActiveControlRequest =
+    iceoryx2::active_request::ActiveRequest<Ipc, ControlRequest, (), ControlResponse, ()>;
+/// The supervisor's publisher of active-mapper switches.
+pub type SafetyControlPublisher = iceoryx2::port::publisher::Publisher<Ipc, SafetyControl, ()>;
+
+impl Graph {
+    fn safety_control_service(
+        &self,
+    ) -> Result<
+        (
+            String,
+            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, SafetyControl, ()>,
+        ),
+        IpcError,
+    > {
+        let full = self.prefix().service(SAFETY_CONTROL);
+        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
+            service: full.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        let f = self
+            .node()
+            .service_builder(&name)
+            .publish_subscribe::<SafetyControl>()
+            .history_size(1)
+            .subscriber_max_buffer_size(8)
+            .enable_safe_overflow(true)
+            .max_publishers(2)
+            .max_subscribers(8)
+            .open_or_create()
+            .map_err(|e| IpcError::Open {
+                service: full.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok((full, f))
+    }
+
+    /// Publisher of active-mapper switches (the supervisor).
+    pub fn safety_control_publisher(&self) -> Result<SafetyControlPublisher, IpcError> {
+        let (service, f) = self.safety_control_service()?;
+        f.publisher_builder().create().map_err(|e| IpcError::Port {
+            service,
+            port: "publisher",
+            reason: e.to_string(),
+        })
+    }
+
+    /// Subscriber of active-mapper switches (safety); receives the newest switch at once.
+    pub fn safety_control_subscriber(
+        &self,
+    ) -> Result<iceoryx2::port::subscriber::Subscriber<Ipc, SafetyControl, ()>, IpcError> {
+        let (service, f) = self.safety_control_service()?;
+        f.subscriber_builder().create().map_err(|e| IpcError::Port {
+            service,
+            port: "subscriber",
+            reason: e.to_string(),
+        })
+    }
+
+    fn control_service(&self) -> Result<(String, ControlFactory), IpcError> {
+        let full = self.prefix().service(SUPERVISOR);
+        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
+            service: full.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        let f = self
+            .node()
+            .service_builder(&name)
+            .request_response::<ControlRequest, ControlResponse>()
+            .max_servers(1)
+            .max_clients(8)
+            .max_active_requests_per_client(1)
+            .max_response_buffer_size(2)
+            .open_or_create()
+            .map_err(|e| IpcError::Open {
+                service: full.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok((full, f))
+    }
+
+    /// The supervisor's server; there is one per graph.
+    pub fn control_server(&self) -> Result<ControlServer, IpcError> {
+        let (service, f) = self.control_service()?;
+        f.server_builder().create().map_err(|e| IpcError::Port {
+            service,
+            port: "server",
+            reason: e.to_string(),
+        })
+    }
+
+    /// Sends `req` to the graph's supervisor and waits up to `timeout` for the answer.
+    pub fn request(
+        &self,
+        req: ControlRequest,
+        timeout: Duration,
+    ) -> Result<ControlResponse, IpcError> {
+        let (service, f) = self.control_service()?;
+        let io = |op: &'static str, reason: String| IpcError::Io {
+            service: service.clone(),
+            op,
+            reason,
+        };
+        if f.dynamic_config().number_of_servers() == 0 {
+            return Err(io(
+                "request",
+                "no supervisor is serving this graph (is `scl up` running with this prefix?)"
+                    .into(),
+            ));
+        }
+        let client: ControlClient = f.client_builder().create().map_err(|e| IpcError::Port {
+            service: service.clone(),
+            port: "client",
+            reason: e.to_string(),
+        })?;
+        let pending = client
+            .send_copy(req)
+            .map_err(|e| io("send", e.to_string()))?;
+        let t0 = std::time::Instant::now();
+        loop {
+            if let Some(r) = pending
+                .receive()
+                .map_err(|e| io("receive", e.to_string()))?
+            {
+                return Ok(*r.payload());
+            }
+            if t0.elapsed() > timeout {
+                return Err(io("request", format!("no answer within {timeout:?}")));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_fits_and_cuts_at_char_boundaries() {
+        assert_eq!(Text::new("hello").as_string(), "hello");
+        let long = "é".repeat(400); // 800 bytes
+        let t = Text::new(&long);
+        assert!(t.len as usize <= TEXT_CAP);
+        assert_eq!(t.as_string(), "é".repeat(256));
+    }
+}
