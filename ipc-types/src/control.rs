@@ -64,7 +64,37 @@ pub struct SafetyControl {
     pub active_mapper: u32,
     /// 1: hold the arm (controlled stop) until a message with 0 arrives.
     pub hold: u32,
+    /// Counter of e-stop changes relayed by the supervisor; safety applies `estop` only when
+    /// it changes (so a swap message never releases an e-stop latched by a joystick button).
+    pub estop_seq: u32,
+    /// With a new `estop_seq`: 1 latch the e-stop, 0 release it.
+    pub estop: u32,
 }
+
+/// What an [`EstopCommand`] does.
+pub mod estop_action {
+    /// Latch the e-stop: safety commands zero until a reset.
+    pub const ESTOP: u32 = 1;
+    /// Release a latched e-stop.
+    pub const RESET: u32 = 2;
+}
+
+/// `scl estop` / `scl reset`: latches or releases safety's e-stop. The supervisor relays the
+/// state into [`SafetyControl`], so a restarted safety comes up still latched.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::EstopCommand")]
+#[repr(C)]
+pub struct EstopCommand {
+    /// When it was sent (monotonic ns).
+    pub t_ns: u64,
+    /// [`estop_action`] value.
+    pub action: u32,
+    /// Process id of the sender.
+    pub source_pid: u32,
+}
+
+/// Topic name of [`EstopCommand`].
+pub const ESTOP: &str = "estop";
 
 /// What a [`ControlRequest`] asks for.
 pub mod request_kind {
@@ -144,6 +174,10 @@ pub type ControlClient = Client<Ipc, ControlRequest, (), ControlResponse, ()>;
 /// A request the server holds until it answers it (`send_copy` the response).
 pub type ActiveControlRequest =
     iceoryx2::active_request::ActiveRequest<Ipc, ControlRequest, (), ControlResponse, ()>;
+/// A publisher of e-stop commands.
+pub type EstopPublisher = iceoryx2::port::publisher::Publisher<Ipc, EstopCommand, ()>;
+/// Safety's subscriber of e-stop commands.
+pub type EstopSubscriber = iceoryx2::port::subscriber::Subscriber<Ipc, EstopCommand, ()>;
 /// The supervisor's publisher of active-mapper switches.
 pub type SafetyControlPublisher = iceoryx2::port::publisher::Publisher<Ipc, SafetyControl, ()>;
 
@@ -194,6 +228,58 @@ impl Graph {
         &self,
     ) -> Result<iceoryx2::port::subscriber::Subscriber<Ipc, SafetyControl, ()>, IpcError> {
         let (service, f) = self.safety_control_service()?;
+        f.subscriber_builder().create().map_err(|e| IpcError::Port {
+            service,
+            port: "subscriber",
+            reason: e.to_string(),
+        })
+    }
+
+    fn estop_service(
+        &self,
+    ) -> Result<
+        (
+            String,
+            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, EstopCommand, ()>,
+        ),
+        IpcError,
+    > {
+        let full = self.prefix().service(ESTOP);
+        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
+            service: full.clone(),
+            reason: format!("{e:?}"),
+        })?;
+        let f = self
+            .node()
+            .service_builder(&name)
+            .publish_subscribe::<EstopCommand>()
+            .history_size(1)
+            .subscriber_max_buffer_size(8)
+            .enable_safe_overflow(true)
+            .max_publishers(8)
+            .max_subscribers(8)
+            .open_or_create()
+            .map_err(|e| IpcError::Open {
+                service: full.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok((full, f))
+    }
+
+    /// A publisher of e-stop commands. Keep it alive until the command took effect: a sample
+    /// of a publisher that is gone is not delivered.
+    pub fn estop_publisher(&self) -> Result<EstopPublisher, IpcError> {
+        let (service, f) = self.estop_service()?;
+        f.publisher_builder().create().map_err(|e| IpcError::Port {
+            service,
+            port: "publisher",
+            reason: e.to_string(),
+        })
+    }
+
+    /// Subscriber of e-stop commands (safety); receives the newest at once.
+    pub fn estop_subscriber(&self) -> Result<EstopSubscriber, IpcError> {
+        let (service, f) = self.estop_service()?;
         f.subscriber_builder().create().map_err(|e| IpcError::Port {
             service,
             port: "subscriber",

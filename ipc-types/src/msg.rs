@@ -171,8 +171,8 @@ pub struct MapperCommand {
     pub n_joints: u32,
     /// [`mapper_flags`] bits.
     pub flags: u32,
-    /// Padding, always 0.
-    pub reserved: u32,
+    /// Inherited: the joystick's [`buttons`] bits (deadman, e-stop) of the sample used.
+    pub buttons: u32,
     /// The action `a` after clamping, as fed to the map.
     pub action: [f32; ACTION_DIM],
     /// Commanded joint velocities (rad/s).
@@ -201,6 +201,34 @@ pub mod safe_flags {
     pub const ACCEL_LIMITED: u32 = 1 << 7;
     /// The supervisor holds the arm (a process of the input side is down): stop.
     pub const HOLD: u32 = 1 << 8;
+    /// A joint would have passed its limit margin: the command was scaled down (braking in
+    /// time, motion away from the limit stays free).
+    pub const POSITION_LIMITED: u32 = 1 << 9;
+    /// The tool would have left the workspace (table plane, box): the command was scaled
+    /// down; motion back inside stays free.
+    pub const WORKSPACE_LIMITED: u32 = 1 << 10;
+    /// The deadman button is required and was not held: stop.
+    pub const DEADMAN: u32 = 1 << 11;
+    /// The e-stop is latched (joystick button or `scl estop`) until `scl reset`: zero at once.
+    pub const ESTOP: u32 = 1 << 12;
+    /// Number of flag bits, for per-rule counters.
+    pub const COUNT: usize = 13;
+    /// Short names of the bits, in bit order, for status displays.
+    pub const NAMES: [&str; COUNT] = [
+        "non-finite",
+        "stale-state",
+        "stale-joystick",
+        "stale-command",
+        "velocity",
+        "stop",
+        "bad-shape",
+        "acceleration",
+        "hold",
+        "position",
+        "workspace",
+        "deadman",
+        "e-stop",
+    ];
 }
 
 /// The command the arm executes at tick `tick`: the safety process's output, the only one the
@@ -284,6 +312,14 @@ pub mod phase {
     pub const STOPPING: u32 = 3;
 }
 
+/// [`NodeStatus::safety_state`] bits.
+pub mod safety_state {
+    /// The e-stop is latched.
+    pub const ESTOP: u32 = 1 << 0;
+    /// The supervisor holds the arm.
+    pub const HOLD: u32 = 1 << 1;
+}
+
 /// Heartbeat of one process, published once per tick it handled (and once when ready).
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::NodeStatus")]
@@ -311,6 +347,10 @@ pub struct NodeStatus {
     pub phase: u32,
     /// Mapper id (mappers: their own; safety and bridge: the active / last executed one).
     pub mapper_id: u32,
+    /// Safety: [`safety_state`] bits.
+    pub safety_state: u32,
+    /// Safety: how many ticks each rule of [`safe_flags`] acted, by bit.
+    pub rule_counts: [u32; 16],
 }
 
 impl NodeStatus {
@@ -328,6 +368,8 @@ impl NodeStatus {
             role: role as u32,
             phase,
             mapper_id: 0,
+            safety_state: 0,
+            rule_counts: [0; 16],
         }
     }
 }
@@ -356,7 +398,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<RobotState>(), 176);
         assert_eq!(std::mem::size_of::<MapperCommand>(), 144);
         assert_eq!(std::mem::size_of::<SafeCommand>(), 144);
-        assert_eq!(std::mem::size_of::<NodeStatus>(), 72);
+        assert_eq!(std::mem::size_of::<NodeStatus>(), 144);
     }
 
     #[test]

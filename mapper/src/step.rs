@@ -99,7 +99,7 @@ impl MapperStep {
             mapper_id: self.id,
             n_joints: m as u32,
             flags,
-            reserved: 0,
+            buttons: joy.map_or(0, |j| j.buttons),
             action: [a[0] as f32, a[1] as f32],
             qdot_rad_s: self.out,
             gripper_rate: gripper,

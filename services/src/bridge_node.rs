@@ -12,7 +12,7 @@ use hw_bridge::core::{BridgeCore, Outcome};
 use hw_bridge::mock::MockArm;
 use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
 
-use crate::config::{BridgeConfig, GraphSection, RtRole};
+use crate::config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
 use crate::{SclError, signals};
 
 /// Where a restarted bridge takes over (given by the supervisor from the last state its
@@ -30,6 +30,7 @@ pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
     cfg: &BridgeConfig,
+    faults: &FaultConfig,
     resume: &Resume,
 ) -> Result<(), SclError> {
     let mut robot =
@@ -78,7 +79,12 @@ pub fn run(
             core.add_skipped(skipped);
         }
         let state = core.begin_tick(now_ns());
-        states.send(state)?;
+        let stop_after = faults.bridge_states_stop_after_ticks;
+        if stop_after == 0 || st.handled < stop_after {
+            states.send(state)?;
+        } else if st.handled == stop_after {
+            tracing::warn!(tick = state.tick, "fault injection: robot states stop");
+        }
 
         let deadline = ideal_ns + wait_ns;
         let mut found: Option<SafeCommand> = None;

@@ -24,6 +24,20 @@ pub struct GraphConfig {
     pub bridge: BridgeConfig,
     /// `[supervisor]`: what `scl up` does when a process dies, and live swaps.
     pub supervisor: SupervisorConfig,
+    /// `[faults]`: fault injection for tests and drills; all off by default.
+    pub faults: FaultConfig,
+}
+
+/// `[faults]`: make a process misbehave on purpose, to see the stack stop the arm. 0 is off.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct FaultConfig {
+    /// The mapper publishes a NaN velocity for this one tick.
+    pub mapper_nan_at_tick: u64,
+    /// The joystick stops publishing samples after this many ticks (the process lives on).
+    pub joystick_silent_after_ticks: u64,
+    /// The bridge stops publishing robot states after this many ticks (its clock goes on).
+    pub bridge_states_stop_after_ticks: u64,
 }
 
 /// What the supervisor does when a process exits on its own.
@@ -170,7 +184,8 @@ impl Default for GraphSection {
 pub struct JoystickConfig {
     /// Input source: `script` (devices come with the joystick issue).
     pub source: String,
-    /// Script: `circle` (a slow circle) or `step` (+x, +y, -x, -y holds with rests).
+    /// Script: `circle` (a slow circle), `step` (+x, +y, -x, -y holds with rests) or
+    /// `constant` (`constant_axes` held).
     pub script: String,
     /// Circle: period of one turn (s).
     pub circle_period_s: f64,
@@ -180,6 +195,8 @@ pub struct JoystickConfig {
     pub step_hold_s: f64,
     /// Step: rest at zero between holds (s).
     pub step_rest_s: f64,
+    /// Constant: the axes held (scaled by `amplitude`).
+    pub constant_axes: [f64; 2],
 }
 
 impl Default for JoystickConfig {
@@ -191,6 +208,7 @@ impl Default for JoystickConfig {
             amplitude: 1.0,
             step_hold_s: 2.0,
             step_rest_s: 0.5,
+            constant_axes: [1.0, 0.0],
         }
     }
 }
@@ -333,7 +351,10 @@ impl GraphConfig {
         if crate::joystick::Script::from_config(j).is_none() {
             return Err(err(
                 "joystick.script",
-                format!("`{}` is not a script; use `circle` or `step`", j.script),
+                format!(
+                    "`{}` is not a script; use `circle`, `step` or `constant`",
+                    j.script
+                ),
             ));
         }
         if !(j.amplitude > 0.0 && j.amplitude <= 1.0) {
@@ -392,7 +413,7 @@ impl GraphConfig {
         hw_bridge::mock::MockArm::new(b.mock.clone())
             .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
         self.safety
-            .validate(n)
+            .validate(&kinematics::gen3_lite::limits())
             .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
         if self.mapper.id == 0 {
             return Err(err("mapper.id", "must be at least 1".into()));

@@ -38,6 +38,41 @@ pub fn swap(prefix: &Prefix, model: &str, timeout: Duration) -> Result<ControlRe
     Ok(graph.request(req, timeout)?)
 }
 
+/// Sends an e-stop or a reset (an `estop_action` value) to graph `prefix` and waits up to
+/// `timeout` for a safety process to confirm the new state in its heartbeat. Returns the
+/// confirming process's pid, or `None` if none did. The publisher stays alive until then: a
+/// sample of a publisher that is gone is not delivered.
+pub fn estop(prefix: &Prefix, action: u32, timeout: Duration) -> Result<Option<u32>, SclError> {
+    use ipc_types::control::{EstopCommand, estop_action};
+    let graph = Graph::join(prefix, &format!("estop-{}", std::process::id()))?;
+    let status = graph.status_subscriber()?;
+    let publisher = graph.estop_publisher()?;
+    publisher
+        .send_copy(EstopCommand {
+            t_ns: now_ns(),
+            action,
+            source_pid: std::process::id(),
+        })
+        .map_err(|e| SclError::Graph(format!("cannot send the e-stop command: {e}")))?;
+    let want = action == estop_action::ESTOP;
+    let sent = now_ns();
+    let t0 = Instant::now();
+    while t0.elapsed() < timeout {
+        let mut confirmed = None;
+        status.drain(|s| {
+            let latched = s.safety_state & ipc_types::safety_state::ESTOP != 0;
+            if s.role == NodeRole::Safety as u32 && s.t_ns > sent && latched == want {
+                confirmed = Some(s.pid);
+            }
+        })?;
+        if confirmed.is_some() {
+            return Ok(confirmed);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Ok(None)
+}
+
 /// One node as `scl status` shows it.
 #[derive(Debug, Clone, Serialize)]
 pub struct NodeRow {
@@ -60,6 +95,8 @@ pub struct NodeRow {
     /// Whether the node counts as alive: heartbeat younger than 250 ms and its iceoryx2
     /// node alive.
     pub alive: bool,
+    /// Safety: how many ticks each rule acted (only rules that did).
+    pub rules: Vec<(String, u32)>,
 }
 
 /// The graph as `scl status` shows it.
@@ -129,6 +166,12 @@ pub fn status(prefix: &Prefix, listen: Duration) -> Result<GraphStatus, SclError
             faults: s.faults,
             heartbeat_age_ms: age_ms,
             alive: age_ms < 250.0 && node_alive && s.phase != phase::STOPPING,
+            rules: ipc_types::safe_flags::NAMES
+                .iter()
+                .zip(s.rule_counts)
+                .filter(|(_, c)| *c > 0)
+                .map(|(n, c)| ((*n).to_owned(), c))
+                .collect(),
         };
         if row.alive {
             match role {
@@ -183,6 +226,16 @@ pub fn render(st: &GraphStatus) -> String {
             n.faults,
             n.heartbeat_age_ms,
             if n.alive { "alive" } else { "gone" }
+        );
+    }
+    for n in st.nodes.iter().filter(|n| !n.rules.is_empty()) {
+        let rules: Vec<String> = n.rules.iter().map(|(r, c)| format!("{r} {c}")).collect();
+        let _ = writeln!(
+            s,
+            "{} (pid {}) rules acted: {}",
+            n.role,
+            n.pid,
+            rules.join(", ")
         );
     }
     for (name, pid) in &st.other_nodes {

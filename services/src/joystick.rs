@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use ipc_types::{Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 
-use crate::config::{GraphSection, JoystickConfig, RtRole};
+use crate::config::{FaultConfig, GraphSection, JoystickConfig, RtRole};
 use crate::{SclError, signals};
 
 /// A scripted input: `a(t)` with `|a| <= amplitude`.
@@ -20,6 +20,11 @@ pub enum Script {
         period_s: f64,
         /// Amplitude A.
         amplitude: f64,
+    },
+    /// The same axes all the time (driving into a bound on purpose).
+    Constant {
+        /// The axes.
+        axes: [f64; 2],
     },
     /// `+x, 0, +y, 0, -x, 0, -y, 0`, each direction held `hold_s`, each rest `rest_s`.
     Step {
@@ -40,6 +45,12 @@ impl Script {
                 period_s: c.circle_period_s,
                 amplitude: c.amplitude,
             }),
+            "constant" => Some(Self::Constant {
+                axes: [
+                    c.amplitude * c.constant_axes[0],
+                    c.amplitude * c.constant_axes[1],
+                ],
+            }),
             "step" => Some(Self::Step {
                 hold_s: c.step_hold_s,
                 rest_s: c.step_rest_s,
@@ -59,6 +70,7 @@ impl Script {
                 let w = 2.0 * std::f64::consts::PI * t_s / period_s;
                 [(amplitude * w.cos()) as f32, (amplitude * w.sin()) as f32]
             }
+            Self::Constant { axes } => [axes[0] as f32, axes[1] as f32],
             Self::Step {
                 hold_s,
                 rest_s,
@@ -103,6 +115,7 @@ pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
     cfg: &JoystickConfig,
+    faults: &FaultConfig,
     period_s: f64,
 ) -> Result<(), SclError> {
     let script = Script::from_config(cfg).ok_or_else(|| {
@@ -128,8 +141,16 @@ pub fn run(
         let Some(state) = states.latest()? else {
             continue;
         };
-        seq += 1;
-        publisher.send(script.sample(state.tick, period_s, seq, now_ns()))?;
+        let silent = faults.joystick_silent_after_ticks;
+        if silent == 0 || st.handled < silent {
+            seq += 1;
+            publisher.send(script.sample(state.tick, period_s, seq, now_ns()))?;
+        } else if st.handled == silent {
+            tracing::warn!(
+                tick = state.tick,
+                "fault injection: the joystick goes silent"
+            );
+        }
         st.t_ns = now_ns();
         st.tick = state.tick;
         st.handled += 1;

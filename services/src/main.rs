@@ -57,6 +57,11 @@ enum Cmd {
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
         timeout: Duration,
     },
+    /// Latch the running graph's e-stop: safety commands zero at once and keeps doing so
+    /// until `scl reset`.
+    Estop,
+    /// Release a latched e-stop.
+    Reset,
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
     Status {
         /// Print JSON instead of a table.
@@ -240,6 +245,25 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 Ok(ExitCode::from(1))
             }
         }
+        Cmd::Estop | Cmd::Reset => {
+            let (action, what) = if matches!(cli.cmd, Cmd::Estop) {
+                (ipc_types::control::estop_action::ESTOP, "e-stop latched")
+            } else {
+                (ipc_types::control::estop_action::RESET, "e-stop reset")
+            };
+            match services::control::estop(&prefix, action, Duration::from_secs(2))? {
+                Some(pid) => {
+                    println!("{what} (confirmed by safety, pid {pid}, graph `{prefix}`)");
+                    Ok(ExitCode::SUCCESS)
+                }
+                None => {
+                    eprintln!(
+                        "scl: no safety process of graph `{prefix}` confirmed it within 2 s; is the graph running?"
+                    );
+                    Ok(ExitCode::from(1))
+                }
+            }
+        }
         Cmd::Status { json } => {
             let st = services::control::status(&prefix, Duration::from_millis(300))?;
             if st.nodes.is_empty() {
@@ -261,12 +285,18 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             if let Some(s) = script {
                 cfg.joystick.script = s;
             }
-            services::joystick::run(&prefix, &cfg.graph, &cfg.joystick, period_s)?;
+            services::joystick::run(&prefix, &cfg.graph, &cfg.joystick, &cfg.faults, period_s)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Mapper { model, id } => {
             let model = model.unwrap_or(cfg.mapper.model);
-            services::mapper_node::run(&prefix, &cfg.graph, &model, id.unwrap_or(cfg.mapper.id))?;
+            services::mapper_node::run(
+                &prefix,
+                &cfg.graph,
+                &cfg.faults,
+                &model,
+                id.unwrap_or(cfg.mapper.id),
+            )?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Safety => {
@@ -287,7 +317,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 start_tick,
                 pose: resume_q.map(|q| (q, resume_gripper)),
             };
-            services::bridge_node::run(&prefix, &cfg.graph, &cfg.bridge, &resume)?;
+            services::bridge_node::run(&prefix, &cfg.graph, &cfg.bridge, &cfg.faults, &resume)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {
@@ -333,6 +363,8 @@ fn main() -> ExitCode {
         Cmd::Up { .. } => "up",
         Cmd::Swap { .. } => "swap",
         Cmd::Status { .. } => "status",
+        Cmd::Estop => "estop",
+        Cmd::Reset => "reset",
         Cmd::Joystick { .. } => "joystick",
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",

@@ -7,7 +7,7 @@ use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use mapper::LoadedModel;
 use mapper::step::MapperStep;
 
-use crate::config::{GraphSection, RtRole};
+use crate::config::{FaultConfig, GraphSection, RtRole};
 use crate::{SclError, signals};
 
 /// Loads and checks the model `spec` for the Gen3 lite: every problem is reported here, at
@@ -21,6 +21,7 @@ pub fn load_step(spec: &str, id: u32) -> Result<MapperStep, SclError> {
 pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
+    faults: &FaultConfig,
     model: &str,
     id: u32,
 ) -> Result<(), SclError> {
@@ -60,6 +61,10 @@ pub fn run(
         let mut cmd = step.step(&state, joy.as_ref());
         let t1 = now_ns();
         cmd.compute_ns = t1 - t0;
+        if faults.mapper_nan_at_tick != 0 && state.tick == faults.mapper_nan_at_tick {
+            tracing::warn!(tick = state.tick, "fault injection: a NaN velocity");
+            cmd.qdot_rad_s[0] = f64::NAN;
+        }
         cmd.t_ns = now_ns();
         commands.send(cmd)?;
         st.t_ns = cmd.t_ns;

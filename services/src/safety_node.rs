@@ -10,6 +10,28 @@ use safety::{SafetyConfig, SafetyFilter};
 use crate::config::{GraphSection, RtRole};
 use crate::{SclError, signals};
 
+/// The names of the rules set in `flags`, comma-separated.
+fn rule_names(flags: u32) -> String {
+    ipc_types::safe_flags::NAMES
+        .iter()
+        .enumerate()
+        .filter(|(bit, _)| flags & (1 << bit) != 0)
+        .map(|(_, n)| *n)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn safety_state_bits(f: &SafetyFilter) -> u32 {
+    let mut bits = 0;
+    if f.estopped() {
+        bits |= ipc_types::safety_state::ESTOP;
+    }
+    if f.held() {
+        bits |= ipc_types::safety_state::HOLD;
+    }
+    bits
+}
+
 /// Runs the safety process until a shutdown is requested.
 pub fn run(
     prefix: &Prefix,
@@ -17,18 +39,25 @@ pub fn run(
     cfg: &SafetyConfig,
     period_s: f64,
 ) -> Result<(), SclError> {
-    let mut filter = SafetyFilter::new(cfg.clone(), kinematics::gen3_lite::N_JOINTS, period_s)
+    let mut filter = SafetyFilter::new(cfg.clone(), &kinematics::gen3_lite::limits(), period_s)
         .map_err(|e| SclError::Graph(format!("config: {e}")))?;
+    if cfg.workspace.enabled {
+        tracing::warn!(
+            "the workspace bounds are configured but this build has no forward kinematics for them yet; joint limits, speed and acceleration are enforced"
+        );
+    }
     let graph = Graph::join(prefix, "safety")?;
     let commands = graph.mapper_command_subscriber(true)?;
     let states = graph.robot_state_subscriber(false)?;
     let control = graph.safety_control_subscriber()?;
+    let estops = graph.estop_subscriber()?;
     // Fails if another safety process already publishes: the arm listens to one only.
     let out = graph.safe_command_publisher()?;
     let status = graph.status_publisher()?;
     let mut st = NodeStatus::new(NodeRole::Safety, phase::READY, now_ns());
     // A restarted safety learns the active mapper from the topic's history.
-    let apply_control = |filter: &mut SafetyFilter| -> Result<(), SclError> {
+    let mut estop_seq = 0;
+    let mut apply_control = |filter: &mut SafetyFilter| -> Result<(), SclError> {
         while let Some(c) = control.receive().map_err(|e| {
             SclError::Ipc(ipc_types::IpcError::Io {
                 service: prefix.service(ipc_types::control::SAFETY_CONTROL),
@@ -44,10 +73,42 @@ pub fn run(
             );
             filter.request_switch(c.active_mapper, c.from_tick);
             filter.set_hold(c.hold != 0);
+            if c.estop_seq != estop_seq {
+                estop_seq = c.estop_seq;
+                if c.estop != 0 {
+                    tracing::warn!("E-STOP latched (relayed by the supervisor)");
+                    filter.estop();
+                } else {
+                    filter.reset();
+                }
+            }
+        }
+        Ok(())
+    };
+    let apply_estop = |filter: &mut SafetyFilter| -> Result<(), SclError> {
+        while let Some(e) = estops.receive().map_err(|e| {
+            SclError::Ipc(ipc_types::IpcError::Io {
+                service: prefix.service(ipc_types::control::ESTOP),
+                op: "receive",
+                reason: e.to_string(),
+            })
+        })? {
+            match e.action {
+                ipc_types::control::estop_action::ESTOP => {
+                    tracing::warn!(from_pid = e.source_pid, "E-STOP latched");
+                    filter.estop();
+                }
+                ipc_types::control::estop_action::RESET => {
+                    tracing::info!(from_pid = e.source_pid, "e-stop reset");
+                    filter.reset();
+                }
+                other => tracing::warn!(action = other, "unknown e-stop action ignored"),
+            }
         }
         Ok(())
     };
     apply_control(&mut filter)?;
+    apply_estop(&mut filter)?;
     crate::rt::elevate(graph_cfg, RtRole::Safety);
     st.mapper_id = filter.active_for_tick(0);
     status.send(st)?;
@@ -59,11 +120,19 @@ pub fn run(
     st.phase = phase::RUNNING;
     let mut state = None;
     let mut last_tick = NO_TICK;
+    let mut last_stop_flags = 0;
     while !signals::stop_requested() {
-        if !commands.wait(Duration::from_millis(100))? {
+        let woke = commands.wait(Duration::from_millis(100))?;
+        apply_control(&mut filter)?;
+        apply_estop(&mut filter)?;
+        if !woke {
+            // No commands (no mapper, no ticks): still say what state safety is in, so
+            // `scl estop` can confirm and `scl status` shows it alive.
+            st.t_ns = now_ns();
+            st.safety_state = safety_state_bits(&filter);
+            status.send(st)?;
             continue;
         }
-        apply_control(&mut filter)?;
         if let Some(s) = states.latest()? {
             state = Some(s);
         }
@@ -93,13 +162,24 @@ pub fn run(
         st.tick = safe.tick;
         st.handled += 1;
         st.mapper_id = active;
+        st.rule_counts = filter.rule_counts();
+        st.safety_state = safety_state_bits(&filter);
         if safe.flags & ipc_types::safe_flags::STOP != 0 {
             st.faults += 1;
-            tracing::warn!(
-                tick = safe.tick,
-                flags = format!("{:#x}", safe.flags),
-                "stop"
-            );
+        }
+        // Say when the set of stop reasons changes, not every tick of a stop.
+        let stop_flags = if safe.flags & ipc_types::safe_flags::STOP != 0 {
+            safe.flags
+        } else {
+            0
+        };
+        if stop_flags != last_stop_flags {
+            if stop_flags != 0 {
+                tracing::warn!(tick = safe.tick, rules = %rule_names(stop_flags), "stopping the arm");
+            } else {
+                tracing::info!(tick = safe.tick, "stop cleared");
+            }
+            last_stop_flags = stop_flags;
         }
         status.send(st)?;
     }

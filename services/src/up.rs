@@ -219,6 +219,8 @@ struct Supervisor<'a> {
     switch: (u32, u64),
     /// Whether safety is told to hold the arm (the joystick is down).
     hold: bool,
+    /// E-stop state relayed to safety: change counter and latched or not.
+    estop: (u32, bool),
 }
 
 fn spawn(args: &[String]) -> std::io::Result<Child> {
@@ -443,6 +445,8 @@ impl<'a> Supervisor<'a> {
             from_tick,
             active_mapper: id,
             hold: u32::from(self.hold),
+            estop_seq: self.estop.0,
+            estop: u32::from(self.estop.1),
         };
         publisher
             .send_copy(msg)
@@ -643,6 +647,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     let mapper_commands = graph.mapper_command_subscriber(false)?;
     let safe_commands = graph.safe_command_subscriber(false)?;
     let server = graph.control_server()?;
+    let estops = graph.estop_subscriber()?;
     let mut sv = Supervisor {
         opts,
         graph,
@@ -658,6 +663,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         switch_publisher: None,
         switch: (cfg.mapper.id, 0),
         hold: false,
+        estop: (0, false),
     };
     // Reaping and holding the arm must not wait behind other load; below the control path.
     crate::rt::elevate(&cfg.graph, crate::config::RtRole::Supervisor);
@@ -712,6 +718,18 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         sv.restart_due()?;
         status.drain(|s| sv.tel.take(s))?;
         sv.update_hold()?;
+        // Relay e-stops into the control topic, whose history outlives `scl estop`: a
+        // restarted safety comes up still latched.
+        while let Some(e) = estops
+            .receive()
+            .map_err(|e| SclError::Graph(format!("e-stop topic: {e}")))?
+        {
+            sv.estop = (
+                sv.estop.0.wrapping_add(1),
+                e.action == ipc_types::control::estop_action::ESTOP,
+            );
+            sv.publish_control()?;
+        }
         states.drain(|s| sv.last_state = Some(*s))?;
         let mut cmds = Vec::new();
         mapper_commands.drain(|c| cmds.push(*c))?;
@@ -785,7 +803,14 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         swaps: sv.swaps,
         failure,
     };
-    drop((status, states, mapper_commands, safe_commands, server));
+    drop((
+        status,
+        states,
+        mapper_commands,
+        safe_commands,
+        server,
+        estops,
+    ));
     drop(sv);
     // Last one out: remove what killed children left and the domain itself, unless an
     // observer (a recorder, a test) is still attached; it releases the domain when it leaves.

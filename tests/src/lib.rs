@@ -3,7 +3,7 @@
 #![allow(clippy::unwrap_used)]
 
 use std::path::PathBuf;
-use std::process::{Child, Command};
+use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
@@ -235,6 +235,38 @@ pub fn assert_stop_within_two_ticks(after: &[RobotState], what: &str) -> usize {
         commanded_at + 1
     );
     first
+}
+
+/// An `scl` command for graph `prefix`, logging warnings only.
+pub fn scl(prefix: &Prefix) -> Command {
+    let mut c = Command::new(scl_binary());
+    c.env("SCL_PREFIX", prefix.as_str()).env("SCL_LOG", "warn");
+    c
+}
+
+/// A fresh temporary directory for one test.
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("scl-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Runs `cmd` to completion (stdout and stderr captured) while `rec` keeps polling.
+pub fn run_polling(mut cmd: Command, rec: &mut Recorder) -> Output {
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(t0.elapsed() < Duration::from_secs(120), "command hung");
+    }
+    rec.poll();
+    child.wait_with_output().unwrap()
 }
 
 /// A serial lock for whole-graph tests: they share two cores and must not overlap.

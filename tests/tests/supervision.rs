@@ -3,47 +3,17 @@
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
 use ipc_types::{NO_TICK, NodeRole, Prefix, phase, state_flags, time::now_ns};
 use kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, scl_binary, serial,
-    unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, run_polling, scl, scl_binary,
+    serial, temp_dir, unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
-
-fn scl(prefix: &Prefix) -> Command {
-    let mut c = Command::new(scl_binary());
-    c.env("SCL_PREFIX", prefix.as_str()).env("SCL_LOG", "warn");
-    c
-}
-
-/// Runs `cmd` to completion while the recorder keeps polling.
-fn run_polling(mut cmd: Command, rec: &mut Recorder) -> Output {
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-        assert!(t0.elapsed() < Duration::from_secs(60), "command hung");
-    }
-    rec.poll();
-    child.wait_with_output().unwrap()
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("scl-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A second, different model: PCA on the same data with a lower speed scale.
 fn slow_model(dir: &Path) -> PathBuf {

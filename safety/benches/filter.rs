@@ -1,0 +1,91 @@
+//! Per-tick cost of the safety filter, `SafetyFilter::step`, on the Gen3 lite limits: a
+//! command in the middle of the range, one braking toward a joint limit, and one with the
+//! workspace rule on (a linear tool model, to time the rule itself; the real forward
+//! kinematics adds its own cost).
+//!
+//! Run: `cargo bench -p safety --bench filter`.
+#![allow(missing_docs, clippy::unwrap_used)]
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use ipc_types::{MAX_JOINTS, MapperCommand, RobotState};
+use safety::{SafetyConfig, SafetyFilter, TcpModel};
+use std::hint::black_box;
+
+const NOW: u64 = 1_000_000_000;
+
+struct LinearTcp;
+
+impl TcpModel for LinearTcp {
+    fn tcp(&mut self, q: &[f64], p: &mut [f64; 3], jv: &mut [[f64; MAX_JOINTS]; 3]) {
+        *jv = [[0.0; MAX_JOINTS]; 3];
+        jv[0][1] = 0.3;
+        jv[1][0] = 0.4;
+        jv[2][1] = -0.3;
+        jv[2][2] = -0.25;
+        *p = [0.4 + 0.3 * q[1], 0.4 * q[0], 0.3 - 0.3 * q[1] - 0.25 * q[2]];
+    }
+}
+
+fn cmd(tick: u64, q0: f64) -> MapperCommand {
+    let mut qdot = [0.0; MAX_JOINTS];
+    qdot[..6].copy_from_slice(&[q0, -0.2, 0.1, 0.3, -0.1, 0.2]);
+    MapperCommand {
+        tick,
+        t_ns: NOW - 500_000,
+        state_t_ns: NOW - 1_000_000,
+        joystick_t_ns: NOW - 10_000_000,
+        joystick_seq: 1,
+        compute_ns: 0,
+        mapper_id: 1,
+        n_joints: 6,
+        flags: 0,
+        buttons: 0,
+        action: [0.0; 2],
+        qdot_rad_s: qdot,
+        gripper_rate: 0.0,
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let limits = kinematics::gen3_lite::limits();
+    let mut state = RobotState::at_rest(0, NOW - 1_000_000, 6);
+    state.q_rad[..6].copy_from_slice(&kinematics::gen3_lite::HOME);
+
+    let mut f = SafetyFilter::new(SafetyConfig::default(), &limits, 0.025).unwrap();
+    let mut tick = 0u64;
+    c.bench_function("safety step (mid-range)", |b| {
+        b.iter(|| {
+            tick += 1;
+            state.tick = tick;
+            state.applied_tick = tick - 1;
+            black_box(f.step(black_box(&cmd(tick, 0.3)), &state, NOW))
+        })
+    });
+
+    let mut near = state;
+    near.q_rad[0] = 2.62;
+    let mut f = SafetyFilter::new(SafetyConfig::default(), &limits, 0.025).unwrap();
+    c.bench_function("safety step (braking at a joint limit)", |b| {
+        b.iter(|| {
+            tick += 1;
+            near.tick = tick;
+            near.applied_tick = tick - 1;
+            black_box(f.step(black_box(&cmd(tick, 0.4)), &near, NOW))
+        })
+    });
+
+    let mut f = SafetyFilter::new(SafetyConfig::default(), &limits, 0.025)
+        .unwrap()
+        .with_tcp_model(Box::new(LinearTcp));
+    c.bench_function("safety step (workspace rule, linear tool model)", |b| {
+        b.iter(|| {
+            tick += 1;
+            state.tick = tick;
+            state.applied_tick = tick - 1;
+            black_box(f.step(black_box(&cmd(tick, 0.3)), &state, NOW))
+        })
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

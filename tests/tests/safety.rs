@@ -1,0 +1,375 @@
+//! Whole-graph tests of the safety filter: the arm driven into a joint limit, the e-stop, and
+//! injected faults (a NaN from the mapper, a silent joystick, robot states that stop), each
+//! with real processes over real shared memory.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
+
+use std::process::Stdio;
+use std::time::Duration;
+
+use ipc_types::{NodeRole, Prefix, RobotState, SafeCommand, phase, safe_flags, state_flags};
+use kinematics::gen3_lite::{
+    DEFAULT_ACCELERATION_RAD_S2, DEFAULT_VELOCITY_RAD_S, POSITION_LIMIT_RAD,
+};
+use scl_tests::{
+    ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
+    wait_clean,
+};
+
+const DT: f64 = 0.025;
+const MARGIN: f64 = 0.05;
+
+/// One recorded run of the graph. Fields drop in order: the recorder leaves before the
+/// domain is released.
+struct Run {
+    rec: Recorder,
+    summary: serde_json::Value,
+    prefix: Prefix,
+    _domain: DomainGuard,
+}
+
+impl Run {
+    /// Checks that the run left nothing behind.
+    fn finish(self) {
+        let prefix = self.prefix.clone();
+        drop(self);
+        assert_eq!(
+            wait_clean(&prefix, Duration::from_secs(5)),
+            Vec::<String>::new()
+        );
+    }
+
+    fn running(&self) -> Vec<RobotState> {
+        self.rec
+            .robot_states
+            .iter()
+            .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+            .copied()
+            .collect()
+    }
+
+    fn first_command_with(&self, flag: u32) -> Option<SafeCommand> {
+        self.rec
+            .safe_commands
+            .iter()
+            .find(|c| c.flags & flag != 0)
+            .copied()
+    }
+}
+
+/// Runs `scl up` with `config` for `secs` seconds while recording; `during` is called once
+/// the graph has run `after_ticks` ticks.
+fn run_graph(
+    tag: &str,
+    config: &str,
+    secs: u32,
+    after_ticks: usize,
+    during: impl FnOnce(&Prefix, &mut Recorder),
+) -> Run {
+    let prefix = unique_prefix(tag);
+    let domain = DomainGuard(prefix.clone());
+    let dir = temp_dir(tag);
+    let cfg = dir.join("graph.toml");
+    std::fs::write(&cfg, config).unwrap();
+    let mut rec = Recorder::join(&prefix);
+    let mut up = scl(&prefix);
+    up.args(["up", "--json", "--for", &format!("{secs}s"), "--config"])
+        .arg(&cfg);
+    let mut guard = ChildGuard(Some(up.stdout(Stdio::piped()).spawn().unwrap()));
+    assert!(
+        rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len()
+            > after_ticks),
+        "the graph did not run {after_ticks} ticks"
+    );
+    during(&prefix, &mut rec);
+    while guard.child().try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    rec.poll();
+    let out = guard.take().wait_with_output().unwrap();
+    assert!(out.status.success(), "scl up: {:?}", out.status);
+    std::fs::remove_dir_all(&dir).unwrap();
+    Run {
+        rec,
+        summary: serde_json::from_slice(&out.stdout).unwrap(),
+        prefix,
+        _domain: domain,
+    }
+}
+
+fn speed(s: &RobotState) -> f64 {
+    s.qdot_rad_s.iter().map(|v| v.abs()).fold(0.0, f64::max)
+}
+
+/// Ticks from a stop's start until the arm stood still, checking that it decelerated within
+/// the acceleration limits all the way.
+fn ticks_to_standstill(states: &[RobotState], from_tick: u64) -> u64 {
+    let mut prev: Option<&RobotState> = None;
+    for s in states.iter().filter(|s| s.tick >= from_tick) {
+        if let Some(p) = prev {
+            for j in 0..6 {
+                assert!(
+                    s.qdot_rad_s[j].abs() <= p.qdot_rad_s[j].abs() + 1e-12,
+                    "tick {}: sped up during a stop",
+                    s.tick
+                );
+                let dv = (s.qdot_rad_s[j] - p.qdot_rad_s[j]).abs();
+                assert!(
+                    dv <= DEFAULT_ACCELERATION_RAD_S2[j] * DT * (1.0 + 1e-9),
+                    "tick {} joint {j}: {dv}",
+                    s.tick
+                );
+            }
+        }
+        if speed(s) == 0.0 {
+            return s.tick - from_tick;
+        }
+        prev = Some(s);
+    }
+    panic!("the arm never stood still after tick {from_tick}");
+}
+
+#[test]
+fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
+    let _serial = serial();
+    let run = run_graph(
+        "limit",
+        "[joystick]\nscript = \"constant\"\n",
+        14,
+        30,
+        |prefix, rec| {
+            // E-stop while moving: zero at once, latched until the reset.
+            let mut c = scl(prefix);
+            c.arg("estop");
+            let out = run_polling(c, rec);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            rec.poll_for(Duration::from_millis(300));
+            let mut c = scl(prefix);
+            c.arg("reset");
+            assert!(run_polling(c, rec).status.success());
+        },
+    );
+    assert_eq!(run.summary["missed"], 0, "{}", run.summary);
+    let cmds = &run.rec.safe_commands;
+    let first = cmds
+        .iter()
+        .position(|c| c.flags & safe_flags::ESTOP != 0)
+        .expect("no e-stop");
+    let last = cmds
+        .iter()
+        .rposition(|c| c.flags & safe_flags::ESTOP != 0)
+        .unwrap();
+    assert!(
+        cmds[first - 1].qdot_rad_s.iter().any(|v| *v != 0.0),
+        "not moving before the e-stop"
+    );
+    assert!(last - first >= 10, "the e-stop did not stay latched");
+    for c in &cmds[first..=last] {
+        assert!(c.flags & safe_flags::ESTOP != 0 && c.qdot_rad_s.iter().all(|v| *v == 0.0));
+    }
+    assert!(
+        cmds[last + 1..]
+            .iter()
+            .any(|c| c.qdot_rad_s.iter().any(|v| *v != 0.0)),
+        "motion did not resume after the reset"
+    );
+    assert!(
+        run.first_command_with(safe_flags::POSITION_LIMITED)
+            .is_some(),
+        "the position rule never acted"
+    );
+
+    // No joint ever went past its margin, and the arm came to rest at one.
+    let states = run.running();
+    for s in &states {
+        for j in 0..6 {
+            let lim = POSITION_LIMIT_RAD[j] - MARGIN;
+            assert!(
+                s.q_rad[j].abs() <= lim + 1e-9,
+                "tick {} joint {j} at {}",
+                s.tick,
+                s.q_rad[j]
+            );
+        }
+    }
+    let end = states.last().unwrap();
+    assert!(
+        speed(end) < 1e-9,
+        "still moving at the end: {:?}",
+        end.qdot_rad_s
+    );
+    let at_margin =
+        (0..6).any(|j| (end.q_rad[j].abs() - (POSITION_LIMIT_RAD[j] - MARGIN)).abs() < 0.01);
+    assert!(
+        at_margin,
+        "stopped away from any margin: {:?}",
+        &end.q_rad[..6]
+    );
+    // Velocity limits held on every executed command; acceleration limits too, except at the
+    // e-stop (zero at once, by design).
+    for w in cmds.windows(2) {
+        for j in 0..6 {
+            assert!(w[1].qdot_rad_s[j].abs() <= DEFAULT_VELOCITY_RAD_S[j] + 1e-12);
+            if w[1].tick == w[0].tick + 1 && (w[0].flags | w[1].flags) & safe_flags::ESTOP == 0 {
+                let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
+                assert!(
+                    dv <= DEFAULT_ACCELERATION_RAD_S2[j] * DT * (1.0 + 1e-9),
+                    "tick {} joint {j}: {dv}",
+                    w[1].tick
+                );
+            }
+        }
+    }
+    run.finish();
+}
+
+#[test]
+fn a_nan_from_the_mapper_is_a_controlled_stop_for_that_tick() {
+    let _serial = serial();
+    let run = run_graph(
+        "nan",
+        "[faults]\nmapper_nan_at_tick = 120\n",
+        5,
+        0,
+        |_, _| {},
+    );
+    let bad = run
+        .first_command_with(safe_flags::NON_FINITE)
+        .expect("the NaN was not caught");
+    assert_eq!(bad.tick, 120);
+    assert!(bad.flags & safe_flags::STOP != 0);
+    assert!(bad.qdot_rad_s.iter().all(|v| v.is_finite()));
+    let before = run
+        .rec
+        .safe_commands
+        .iter()
+        .find(|c| c.tick == 119)
+        .unwrap();
+    assert!(
+        before.qdot_rad_s.iter().any(|v| *v != 0.0),
+        "not moving before the fault"
+    );
+    for j in 0..6 {
+        // A deceleration within the limits, not a jump.
+        assert!(bad.qdot_rad_s[j].abs() <= before.qdot_rad_s[j].abs());
+        assert!(
+            (bad.qdot_rad_s[j] - before.qdot_rad_s[j]).abs()
+                <= DEFAULT_ACCELERATION_RAD_S2[j] * DT * (1.0 + 1e-9)
+        );
+    }
+    // Only that tick: the commands after it are normal again.
+    assert!(
+        run.rec
+            .safe_commands
+            .iter()
+            .filter(|c| c.flags & safe_flags::NON_FINITE != 0)
+            .count()
+            == 1
+    );
+    assert_eq!(run.summary["missed"], 0);
+    run.finish();
+}
+
+#[test]
+fn a_silent_joystick_stops_the_arm_within_the_configured_age() {
+    let _serial = serial();
+    let run = run_graph(
+        "silent",
+        "[joystick]\nscript = \"constant\"\n[faults]\njoystick_silent_after_ticks = 60\n",
+        6,
+        0,
+        |_, _| {},
+    );
+    let last_sample = run
+        .rec
+        .joystick_samples
+        .iter()
+        .rfind(|j| j.tick != ipc_types::NO_TICK)
+        .unwrap();
+    let stale = run
+        .first_command_with(safe_flags::STALE_JOYSTICK)
+        .expect("no stale-joystick stop");
+    assert!(stale.flags & safe_flags::STOP != 0);
+    // Configured age 100 ms = 4 ticks, plus the tick the last sample answered.
+    assert!(
+        stale.tick - last_sample.tick <= 4 + 1,
+        "stopped at tick {} after the last sample of tick {}",
+        stale.tick,
+        last_sample.tick
+    );
+    let states = run.running();
+    let t = ticks_to_standstill(&states, stale.tick + 1);
+    // From at most 0.48 rad/s at 0.4 rad/s² (joint 3): 1.2 s = 48 ticks.
+    assert!(t <= 49, "standstill after {t} ticks");
+    assert!(
+        states
+            .iter()
+            .filter(|s| s.tick > stale.tick + 1 + t)
+            .all(|s| speed(s) == 0.0)
+    );
+    run.finish();
+}
+
+#[test]
+fn robot_states_that_stop_arriving_end_in_a_controlled_stop() {
+    let _serial = serial();
+    let run = run_graph(
+        "nostate",
+        "[joystick]\nscript = \"constant\"\n[faults]\nbridge_states_stop_after_ticks = 60\n",
+        5,
+        0,
+        |_, _| {},
+    );
+    // The recorder sees no state after the fault; the bridge's heartbeat shows every tick
+    // missed from then on and the arm's travel coming to a halt.
+    assert!(
+        run.rec
+            .robot_states
+            .iter()
+            .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+            .all(|s| s.tick < 60)
+    );
+    let bridge: Vec<_> = run
+        .rec
+        .statuses
+        .iter()
+        .filter(|s| s.role == NodeRole::Bridge as u32 && s.phase == phase::RUNNING)
+        .copied()
+        .collect();
+    let after: Vec<_> = bridge.iter().filter(|s| s.tick >= 60).collect();
+    assert!(
+        after.len() > 60,
+        "only {} bridge ticks after the fault",
+        after.len()
+    );
+    for s in &after {
+        assert_eq!(
+            s.faults,
+            s.tick - 59,
+            "tick {} not counted as missed",
+            s.tick
+        );
+    }
+    // Travel per tick never grows and reaches zero within the stop time (48 ticks).
+    let steps: Vec<f64> = after
+        .windows(2)
+        .map(|w| w[1].joint_travel_rad - w[0].joint_travel_rad)
+        .collect();
+    assert!(
+        steps[0] > 0.0,
+        "the arm was not moving when the states stopped"
+    );
+    for w in steps.windows(2) {
+        assert!(w[1] <= w[0] + 1e-12, "sped up during the stop");
+    }
+    let still = steps
+        .iter()
+        .position(|d| *d == 0.0)
+        .expect("the arm never stopped");
+    assert!(still <= 49, "standstill after {still} ticks");
+    run.finish();
+}
