@@ -20,7 +20,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
-use crate::msg::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand};
+use crate::msg::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, TickReport};
 use crate::prefix::Prefix;
 
 /// The iceoryx2 service variant of every graph: inter-process.
@@ -127,11 +127,44 @@ pub const STATUS: TopicSettings = TopicSettings {
     max_subscribers: 8,
 };
 
-/// A process's membership in one graph: its iceoryx2 node and the graph prefix.
+/// How the data-plane topics travel. The control plane (swaps, e-stop, safety control)
+/// always uses iceoryx2.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Transport {
+    /// iceoryx2 zero-copy shared memory with event wake-ups (the product).
+    #[default]
+    Iceoryx2,
+    /// Unix-domain datagram sockets (for latency comparisons; see [`crate::uds`]).
+    Uds,
+}
+
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Iceoryx2 => "iceoryx2",
+            Self::Uds => "uds",
+        })
+    }
+}
+
+/// The bridge's timing report of every tick; deep enough for a reader that polls a few
+/// times a second.
+pub const TICK_REPORT: TopicSettings = TopicSettings {
+    name: "tick_report",
+    history: 0,
+    buffer: 256,
+    max_publishers: 2,
+    max_subscribers: 8,
+};
+
+/// A process's membership in one graph: its iceoryx2 node, the graph prefix and the
+/// transport of its data-plane topics.
 pub struct Graph {
     node: Node<Ipc>,
     prefix: Prefix,
     config: Config,
+    transport: Transport,
 }
 
 impl std::fmt::Debug for Graph {
@@ -155,9 +188,15 @@ pub fn config_for(prefix: &Prefix) -> Result<Config, IpcError> {
 }
 
 impl Graph {
-    /// Joins the graph `prefix` as a node called `name` (e.g. `mapper-1`). Signal handling is
-    /// left to the process (iceoryx2's own handlers are disabled).
+    /// Joins the graph `prefix` as a node called `name` (e.g. `mapper-1`), with iceoryx2 for
+    /// every topic. Signal handling is left to the process (iceoryx2's own handlers are
+    /// disabled).
     pub fn join(prefix: &Prefix, name: &str) -> Result<Self, IpcError> {
+        Self::join_with(prefix, name, Transport::Iceoryx2)
+    }
+
+    /// Joins the graph with the data-plane topics on `transport`.
+    pub fn join_with(prefix: &Prefix, name: &str, transport: Transport) -> Result<Self, IpcError> {
         let config = config_for(prefix)?;
         let node_err = |reason: String| IpcError::Node {
             node: name.to_owned(),
@@ -174,7 +213,25 @@ impl Graph {
             node,
             prefix: prefix.clone(),
             config,
+            transport,
         })
+    }
+
+    /// The transport of the data-plane topics.
+    pub fn transport(&self) -> Transport {
+        self.transport
+    }
+
+    fn uds_dir(&self, s: &TopicSettings) -> std::path::PathBuf {
+        crate::uds::topic_dir(self.prefix.as_str(), s.name)
+    }
+
+    fn uds_err(&self, s: &TopicSettings, port: &'static str, e: crate::uds::UdsError) -> IpcError {
+        IpcError::Port {
+            service: self.prefix.service(s.name),
+            port,
+            reason: e.to_string(),
+        }
     }
 
     /// The graph prefix.
@@ -237,6 +294,14 @@ impl Graph {
         &self,
         s: &TopicSettings,
     ) -> Result<TopicPublisher<T>, IpcError> {
+        if self.transport == Transport::Uds {
+            let p = crate::uds::UdsPublisher::new(&self.uds_dir(s))
+                .map_err(|e| self.uds_err(s, "publisher", e))?;
+            return Ok(TopicPublisher {
+                service: self.prefix.service(s.name),
+                inner: PubInner::Uds(std::cell::RefCell::new(p)),
+            });
+        }
         let (service, data) = self.pubsub::<T>(s)?;
         let publisher = data
             .publisher_builder()
@@ -254,8 +319,10 @@ impl Graph {
         })?;
         Ok(TopicPublisher {
             service,
-            publisher,
-            notifier,
+            inner: PubInner::Iox {
+                publisher,
+                notifier,
+            },
         })
     }
 
@@ -264,6 +331,14 @@ impl Graph {
         s: &TopicSettings,
         wake: bool,
     ) -> Result<TopicSubscriber<T>, IpcError> {
+        if self.transport == Transport::Uds {
+            let sub = crate::uds::UdsSubscriber::new(&self.uds_dir(s))
+                .map_err(|e| self.uds_err(s, "subscriber", e))?;
+            return Ok(TopicSubscriber {
+                service: self.prefix.service(s.name),
+                inner: SubInner::Uds(sub),
+            });
+        }
         let (service, data) = self.pubsub::<T>(s)?;
         let subscriber = data
             .subscriber_builder()
@@ -285,8 +360,10 @@ impl Graph {
         };
         Ok(TopicSubscriber {
             service,
-            subscriber,
-            listener,
+            inner: SubInner::Iox {
+                subscriber,
+                listener,
+            },
         })
     }
 
@@ -294,9 +371,13 @@ impl Graph {
     pub fn joystick_publisher(&self) -> Result<TopicPublisher<JoystickInput>, IpcError> {
         self.publisher(&JOYSTICK)
     }
-    /// Subscriber of joystick samples (read the newest; no wake-up).
-    pub fn joystick_subscriber(&self) -> Result<TopicSubscriber<JoystickInput>, IpcError> {
-        self.subscriber(&JOYSTICK, false)
+    /// Subscriber of joystick samples; `wake` attaches a listener (the mapper takes samples
+    /// as they arrive).
+    pub fn joystick_subscriber(
+        &self,
+        wake: bool,
+    ) -> Result<TopicSubscriber<JoystickInput>, IpcError> {
+        self.subscriber(&JOYSTICK, wake)
     }
     /// Publisher of robot states (the bridge).
     pub fn robot_state_publisher(&self) -> Result<TopicPublisher<RobotState>, IpcError> {
@@ -332,6 +413,14 @@ impl Graph {
         wake: bool,
     ) -> Result<TopicSubscriber<SafeCommand>, IpcError> {
         self.subscriber(&SAFE_COMMAND, wake)
+    }
+    /// Publisher of the bridge's per-tick timing report.
+    pub fn tick_report_publisher(&self) -> Result<TopicPublisher<TickReport>, IpcError> {
+        self.publisher(&TICK_REPORT)
+    }
+    /// Subscriber of the bridge's per-tick timing reports (benchmarks, recorders).
+    pub fn tick_report_subscriber(&self) -> Result<TopicSubscriber<TickReport>, IpcError> {
+        self.subscriber(&TICK_REPORT, false)
     }
     /// Publisher of this node's heartbeat.
     pub fn status_publisher(&self) -> Result<TopicPublisher<NodeStatus>, IpcError> {
@@ -406,34 +495,48 @@ pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
     })
 }
 
+// One per port, made once per process: the size of the variants does not matter.
+#[allow(clippy::large_enum_variant)]
+enum PubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+    Iox {
+        publisher: Publisher<Ipc, T, ()>,
+        notifier: Notifier<Ipc>,
+    },
+    Uds(std::cell::RefCell<crate::uds::UdsPublisher<T>>),
+}
+
 /// A publisher that wakes the topic's listeners after each send.
 pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
     service: String,
-    publisher: Publisher<Ipc, T, ()>,
-    notifier: Notifier<Ipc>,
+    inner: PubInner<T>,
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicPublisher<T> {
-    /// Sends `msg` through shared memory (loan, write, send) and notifies the listeners.
-    /// Returns the number of subscribers that received it.
+    /// Sends `msg` (iceoryx2: loan, write, send through shared memory, then notify) and
+    /// returns the number of subscribers that received it.
     pub fn send(&self, msg: T) -> Result<usize, IpcError> {
         let io = |op: &'static str, reason: String| IpcError::Io {
             service: self.service.clone(),
             op,
             reason,
         };
-        let sample = self
-            .publisher
-            .loan_uninit()
-            .map_err(|e| io("loan", e.to_string()))?;
-        let n = sample
-            .write_payload(msg)
-            .send()
-            .map_err(|e| io("send", e.to_string()))?;
-        self.notifier
-            .notify()
-            .map_err(|e| io("notify", e.to_string()))?;
-        Ok(n)
+        match &self.inner {
+            PubInner::Iox {
+                publisher,
+                notifier,
+            } => {
+                let sample = publisher
+                    .loan_uninit()
+                    .map_err(|e| io("loan", e.to_string()))?;
+                let n = sample
+                    .write_payload(msg)
+                    .send()
+                    .map_err(|e| io("send", e.to_string()))?;
+                notifier.notify().map_err(|e| io("notify", e.to_string()))?;
+                Ok(n)
+            }
+            PubInner::Uds(p) => Ok(p.borrow_mut().send(&msg)),
+        }
     }
 
     /// The full service name.
@@ -442,32 +545,45 @@ impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicPublisher<T> {
     }
 }
 
+// One per port, made once per process: the size of the variants does not matter.
+#[allow(clippy::large_enum_variant)]
+enum SubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+    Iox {
+        subscriber: Subscriber<Ipc, T, ()>,
+        listener: Option<Listener<Ipc>>,
+    },
+    Uds(crate::uds::UdsSubscriber<T>),
+}
+
 /// A subscriber with an optional wake-up listener.
 pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
     service: String,
-    subscriber: Subscriber<Ipc, T, ()>,
-    listener: Option<Listener<Ipc>>,
+    inner: SubInner<T>,
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
     /// Calls `f` with every buffered message, oldest first.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
-        let mut n = 0;
-        loop {
-            match self.subscriber.receive() {
-                Ok(Some(sample)) => {
-                    n += 1;
-                    f(sample.payload());
-                }
-                Ok(None) => return Ok(n),
-                Err(e) => {
-                    return Err(IpcError::Io {
-                        service: self.service.clone(),
-                        op: "receive",
-                        reason: e.to_string(),
-                    });
+        let err = |reason: String| IpcError::Io {
+            service: self.service.clone(),
+            op: "receive",
+            reason,
+        };
+        match &self.inner {
+            SubInner::Iox { subscriber, .. } => {
+                let mut n = 0;
+                loop {
+                    match subscriber.receive() {
+                        Ok(Some(sample)) => {
+                            n += 1;
+                            f(sample.payload());
+                        }
+                        Ok(None) => return Ok(n),
+                        Err(e) => return Err(err(e.to_string())),
+                    }
                 }
             }
+            SubInner::Uds(sub) => sub.drain(f).map_err(|e| err(e.to_string())),
         }
     }
 
@@ -483,8 +599,10 @@ impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
     /// so the caller can check its shutdown flag. Without a listener this sleeps for
     /// `timeout`.
     pub fn wait(&self, timeout: Duration) -> Result<bool, IpcError> {
-        match &self.listener {
-            Some(l) => match l.timed_wait(|_| {}, timeout) {
+        match &self.inner {
+            SubInner::Iox {
+                listener: Some(l), ..
+            } => match l.timed_wait(|_| {}, timeout) {
                 Ok(n) => Ok(n > 0),
                 Err(ListenerWaitError::InterruptSignal) => Ok(false),
                 Err(e) => Err(IpcError::Io {
@@ -493,10 +611,36 @@ impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
                     reason: e.to_string(),
                 }),
             },
-            None => {
+            SubInner::Iox { listener: None, .. } => {
                 std::thread::sleep(timeout);
                 Ok(false)
             }
+            SubInner::Uds(sub) => Ok(crate::uds::poll_readable(&[sub.raw_fd()], timeout) != 0),
+        }
+    }
+
+    /// The descriptor that becomes readable when the topic's event fires, if it has one.
+    fn wake_fd(&self) -> Option<i32> {
+        match &self.inner {
+            SubInner::Iox {
+                listener: Some(l), ..
+            } => {
+                use iceoryx2::prelude::FileDescriptorBased;
+                // SAFETY: the descriptor stays owned by the listener; it is only polled.
+                Some(unsafe { l.file_descriptor().native_handle() })
+            }
+            SubInner::Iox { listener: None, .. } => None,
+            SubInner::Uds(sub) => Some(sub.raw_fd()),
+        }
+    }
+
+    /// Consumes the pending notifications of the topic's event (iceoryx2).
+    fn consume(&self) {
+        if let SubInner::Iox {
+            listener: Some(l), ..
+        } = &self.inner
+        {
+            let _ = l.try_wait(|_| {});
         }
     }
 
@@ -504,6 +648,46 @@ impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
     pub fn service(&self) -> &str {
         &self.service
     }
+}
+
+/// A subscriber that [`wait_any`] can wait on.
+pub trait Wakeable {
+    /// The descriptor to poll.
+    fn fd(&self) -> Option<i32>;
+    /// Consumes the pending notifications after a wake-up.
+    fn consume_wake(&self);
+}
+
+impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> Wakeable for TopicSubscriber<T> {
+    fn fd(&self) -> Option<i32> {
+        self.wake_fd()
+    }
+    fn consume_wake(&self) {
+        self.consume();
+    }
+}
+
+/// Waits until one of `subs` fires or `timeout` passes; returns a bit per subscriber (bit
+/// `i` for `subs[i]`) that fired, consuming their notifications. Subscribers without a
+/// wake-up never fire. A signal ends the wait early with no bit set.
+pub fn wait_any(subs: &[&dyn Wakeable], timeout: Duration) -> u64 {
+    let mut fds = Vec::with_capacity(subs.len());
+    let mut index = Vec::with_capacity(subs.len());
+    for (i, s) in subs.iter().enumerate() {
+        if let Some(fd) = s.fd() {
+            fds.push(fd);
+            index.push(i);
+        }
+    }
+    let ready = crate::uds::poll_readable(&fds, timeout);
+    let mut bits = 0;
+    for (k, i) in index.iter().enumerate() {
+        if ready & (1 << k) != 0 {
+            subs[*i].consume_wake();
+            bits |= 1 << i;
+        }
+    }
+    bits
 }
 
 #[cfg(test)]

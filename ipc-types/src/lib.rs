@@ -9,6 +9,7 @@
 //!   its wake-up event.
 //! * [`control`]: the control plane: `scl swap` requests to the supervisor, and the
 //!   active-mapper switch the supervisor sends to safety.
+//! * [`uds`]: the comparison transport (Unix-domain datagram sockets) for benchmarks.
 //! * [`time`]: the monotonic clock every process stamps its messages with.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
@@ -17,7 +18,8 @@ pub mod graph;
 pub mod msg;
 pub mod prefix;
 pub mod time;
+pub mod uds;
 
-pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber};
+pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber, Transport, wait_any};
 pub use msg::*;
 pub use prefix::{Prefix, PrefixError};

@@ -159,8 +159,12 @@ pub struct MapperCommand {
     pub t_ns: u64,
     /// Inherited: `t_ns` of the robot state used.
     pub state_t_ns: u64,
+    /// When the mapper received that robot state (monotonic ns).
+    pub state_rx_ns: u64,
     /// Inherited: `t_ns` of the joystick sample used (0 if none).
     pub joystick_t_ns: u64,
+    /// When the mapper received that joystick sample (monotonic ns; 0 if none).
+    pub joystick_rx_ns: u64,
     /// Inherited: `seq` of the joystick sample used.
     pub joystick_seq: u64,
     /// Time spent in the map itself (ns), for compute-versus-transport figures.
@@ -243,10 +247,16 @@ pub struct SafeCommand {
     pub t_ns: u64,
     /// Inherited: `t_ns` of the robot state of this tick.
     pub state_t_ns: u64,
+    /// Inherited: when the mapper received that state.
+    pub state_rx_ns: u64,
     /// Inherited: `t_ns` of the joystick sample behind the command.
     pub joystick_t_ns: u64,
+    /// Inherited: when the mapper received that joystick sample.
+    pub joystick_rx_ns: u64,
     /// Inherited: `t_ns` of the mapper command.
     pub mapper_t_ns: u64,
+    /// When safety received the mapper command (monotonic ns).
+    pub mapper_rx_ns: u64,
     /// Inherited: the mapper's compute time (ns).
     pub mapper_compute_ns: u64,
     /// Time spent in the safety filter (ns).
@@ -263,6 +273,46 @@ pub struct SafeCommand {
     pub qdot_rad_s: [f64; MAX_JOINTS],
     /// Gripper rate (1/s on the `c` scale).
     pub gripper_rate: f64,
+}
+
+/// The bridge's account of one tick: every timestamp the tick's messages carried, for
+/// per-hop latency figures (`scl bench latency`).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::TickReport")]
+#[repr(C)]
+pub struct TickReport {
+    /// The tick.
+    pub tick: u64,
+    /// Where the tick should have started on the ideal period grid (ns).
+    pub ideal_ns: u64,
+    /// How late the bridge woke against it (ns).
+    pub lateness_ns: u64,
+    /// RobotState(k) published.
+    pub state_t_ns: u64,
+    /// The mapper received it (0 on a miss, as every field below).
+    pub state_rx_ns: u64,
+    /// The joystick sample used was produced.
+    pub joystick_t_ns: u64,
+    /// The mapper received that sample.
+    pub joystick_rx_ns: u64,
+    /// The mapper published its command.
+    pub mapper_t_ns: u64,
+    /// Safety received it.
+    pub mapper_rx_ns: u64,
+    /// Safety published SafeCommand(k).
+    pub safe_t_ns: u64,
+    /// The bridge received it.
+    pub safe_rx_ns: u64,
+    /// Time in the mapper's map (ns).
+    pub mapper_compute_ns: u64,
+    /// Time in the safety filter (ns).
+    pub safety_compute_ns: u64,
+    /// Ticks missed since the bridge started.
+    pub missed: u64,
+    /// 1 if this tick's command was executed, 0 if missed.
+    pub executed: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
 }
 
 /// Which process a [`NodeStatus`] comes from.
@@ -396,8 +446,9 @@ mod tests {
         // A change of layout breaks binaries built from another version: make it visible.
         assert_eq!(std::mem::size_of::<JoystickInput>(), 40);
         assert_eq!(std::mem::size_of::<RobotState>(), 176);
-        assert_eq!(std::mem::size_of::<MapperCommand>(), 144);
-        assert_eq!(std::mem::size_of::<SafeCommand>(), 144);
+        assert_eq!(std::mem::size_of::<MapperCommand>(), 160);
+        assert_eq!(std::mem::size_of::<SafeCommand>(), 168);
+        assert_eq!(std::mem::size_of::<TickReport>(), 120);
         assert_eq!(std::mem::size_of::<NodeStatus>(), 144);
     }
 

@@ -10,7 +10,9 @@ use std::time::Duration;
 use hw_bridge::clock::{Clock, Wake};
 use hw_bridge::core::{BridgeCore, Outcome};
 use hw_bridge::mock::MockArm;
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
+use ipc_types::{
+    Graph, NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns,
+};
 
 use crate::config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
 use crate::{SclError, signals};
@@ -42,10 +44,11 @@ pub fn run(
     let period_s = period_ns as f64 * 1e-9;
     let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
     crate::rt::elevate(graph_cfg, RtRole::Bridge);
-    let graph = Graph::join(prefix, "bridge")?;
+    let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
     let states = graph.robot_state_publisher()?;
     let commands = graph.safe_command_subscriber(true)?;
     let status = graph.status_publisher()?;
+    let reports = graph.tick_report_publisher()?;
     let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
     if let Some(t) = resume.start_tick {
         core.start_at(t);
@@ -131,6 +134,26 @@ pub fn run(
         st.joint_travel_rad = core.joint_travel_rad();
         st.mapper_id = found.map_or(0, |c| c.mapper_id);
         status.send(st)?;
+        let executed = matches!(outcome, Outcome::Executed);
+        let c = found.filter(|_| executed);
+        reports.send(TickReport {
+            tick: state.tick,
+            ideal_ns,
+            lateness_ns,
+            state_t_ns: state.t_ns,
+            state_rx_ns: c.map_or(0, |c| c.state_rx_ns),
+            joystick_t_ns: c.map_or(0, |c| c.joystick_t_ns),
+            joystick_rx_ns: c.map_or(0, |c| c.joystick_rx_ns),
+            mapper_t_ns: c.map_or(0, |c| c.mapper_t_ns),
+            mapper_rx_ns: c.map_or(0, |c| c.mapper_rx_ns),
+            safe_t_ns: c.map_or(0, |c| c.t_ns),
+            safe_rx_ns: if executed { received_ns } else { 0 },
+            mapper_compute_ns: c.map_or(0, |c| c.mapper_compute_ns),
+            safety_compute_ns: c.map_or(0, |c| c.compute_ns),
+            missed: core.missed(),
+            executed: u32::from(executed),
+            reserved: 0,
+        })?;
     }
     // Stop the arm first, then say so.
     let last = core.shutdown(now_ns());

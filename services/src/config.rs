@@ -136,6 +136,11 @@ pub struct GraphSection {
     /// SCHED_FIFO priority of the bridge; safety, mappers and the joystick take the next
     /// three below it, in the order the data flows back from the clock.
     pub rt_priority: i32,
+    /// CPU the control-path processes are pinned to when real-time is on (`-1`: not pinned).
+    pub rt_cpu: i32,
+    /// Transport of the data-plane topics: `iceoryx2` (the product) or `uds` (Unix-domain
+    /// datagram sockets, for latency comparisons; no single-publisher guarantee).
+    pub transport: ipc_types::Transport,
 }
 
 /// A process of the control path, for its real-time priority.
@@ -174,6 +179,8 @@ impl Default for GraphSection {
             start_timeout_s: 10.0,
             realtime: true,
             rt_priority: 80,
+            rt_cpu: -1,
+            transport: ipc_types::Transport::Iceoryx2,
         }
     }
 }

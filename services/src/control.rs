@@ -42,9 +42,14 @@ pub fn swap(prefix: &Prefix, model: &str, timeout: Duration) -> Result<ControlRe
 /// `timeout` for a safety process to confirm the new state in its heartbeat. Returns the
 /// confirming process's pid, or `None` if none did. The publisher stays alive until then: a
 /// sample of a publisher that is gone is not delivered.
-pub fn estop(prefix: &Prefix, action: u32, timeout: Duration) -> Result<Option<u32>, SclError> {
+pub fn estop(
+    prefix: &Prefix,
+    transport: ipc_types::Transport,
+    action: u32,
+    timeout: Duration,
+) -> Result<Option<u32>, SclError> {
     use ipc_types::control::{EstopCommand, estop_action};
-    let graph = Graph::join(prefix, &format!("estop-{}", std::process::id()))?;
+    let graph = Graph::join_with(prefix, &format!("estop-{}", std::process::id()), transport)?;
     let status = graph.status_subscriber()?;
     let publisher = graph.estop_publisher()?;
     publisher
@@ -117,9 +122,13 @@ pub struct GraphStatus {
 }
 
 /// Reads the heartbeats of graph `prefix` for `listen`.
-pub fn status(prefix: &Prefix, listen: Duration) -> Result<GraphStatus, SclError> {
+pub fn status(
+    prefix: &Prefix,
+    transport: ipc_types::Transport,
+    listen: Duration,
+) -> Result<GraphStatus, SclError> {
     let me = format!("status-{}", std::process::id());
-    let graph = Graph::join(prefix, &me)?;
+    let graph = Graph::join_with(prefix, &me, transport)?;
     let sub = graph.status_subscriber()?;
     let mut latest: Vec<NodeStatus> = Vec::new();
     let t0 = Instant::now();

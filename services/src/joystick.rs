@@ -124,7 +124,7 @@ pub fn run(
             cfg.script
         ))
     })?;
-    let graph = Graph::join(prefix, "joystick")?;
+    let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
     let publisher = graph.joystick_publisher()?;
     let states = graph.robot_state_subscriber(true)?;
     let status = graph.status_publisher()?;

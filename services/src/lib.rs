@@ -7,6 +7,7 @@
 //! TOML, [`signals`] the shutdown flag every loop polls.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod bench;
 pub mod bridge_node;
 pub mod config;
 pub mod control;

@@ -62,6 +62,11 @@ enum Cmd {
     Estop,
     /// Release a latched e-stop.
     Reset,
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCmd,
+    },
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
     Status {
         /// Print JSON instead of a table.
@@ -140,6 +145,37 @@ enum Cmd {
         #[arg(long)]
         force: bool,
     },
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCmd {
+    /// Run the full graph and report per-hop, end-to-end, sample-age, tick-lateness and
+    /// compute figures (p50 / p90 / p99 / p99.9 / max), on iceoryx2, on Unix-domain datagram
+    /// sockets, or both one after the other with the ratio of each figure.
+    Latency {
+        /// How long each transport runs.
+        #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = parse_duration)]
+        duration: Duration,
+        /// Ask for SCHED_FIFO, mlockall and CPU affinity for the control path (the report
+        /// says what each process got).
+        #[arg(long)]
+        rt: bool,
+        /// Busy processes to run beside the graph.
+        #[arg(long, default_value_t = 0)]
+        load: usize,
+        /// `iceoryx2`, `uds` or `both`.
+        #[arg(long, default_value = "iceoryx2")]
+        transport: String,
+        /// Print the report as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Keep the report (report.json), the runs' configs and logs in DIR.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// A busy loop (the load processes of `--load`).
+    #[command(hide = true)]
+    Burn,
 }
 
 fn parse_duration(s: &str) -> Result<Duration, String> {
@@ -251,7 +287,12 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             } else {
                 (ipc_types::control::estop_action::RESET, "e-stop reset")
             };
-            match services::control::estop(&prefix, action, Duration::from_secs(2))? {
+            match services::control::estop(
+                &prefix,
+                cfg.graph.transport,
+                action,
+                Duration::from_secs(2),
+            )? {
                 Some(pid) => {
                     println!("{what} (confirmed by safety, pid {pid}, graph `{prefix}`)");
                     Ok(ExitCode::SUCCESS)
@@ -264,8 +305,57 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 }
             }
         }
+        Cmd::Bench { what } => match what {
+            BenchCmd::Burn => services::bench::burn(),
+            BenchCmd::Latency {
+                duration,
+                rt,
+                load,
+                transport,
+                json,
+                out,
+            } => {
+                let transports = match transport.as_str() {
+                    "iceoryx2" => vec![ipc_types::Transport::Iceoryx2],
+                    "uds" => vec![ipc_types::Transport::Uds],
+                    "both" => vec![ipc_types::Transport::Iceoryx2, ipc_types::Transport::Uds],
+                    other => {
+                        return Err(SclError::Graph(format!(
+                            "--transport {other}: use iceoryx2, uds or both"
+                        )));
+                    }
+                };
+                cfg.validate()?;
+                let opts = services::bench::LatencyOptions {
+                    duration,
+                    rt,
+                    load,
+                    transports,
+                    config: cfg,
+                    out: out.clone(),
+                };
+                let report = services::bench::latency(&opts)?;
+                let text = serde_json::to_string_pretty(&report)
+                    .map_err(|e| SclError::Graph(format!("cannot encode the report: {e}")))?;
+                if let Some(dir) = &out {
+                    let p = dir.join("report.json");
+                    std::fs::write(&p, &text)
+                        .map_err(|e| SclError::Graph(format!("{}: {e}", p.display())))?;
+                }
+                if json {
+                    println!("{text}");
+                } else {
+                    print!("{}", services::bench::render(&report));
+                }
+                Ok(ExitCode::SUCCESS)
+            }
+        },
         Cmd::Status { json } => {
-            let st = services::control::status(&prefix, Duration::from_millis(300))?;
+            let st = services::control::status(
+                &prefix,
+                cfg.graph.transport,
+                Duration::from_millis(300),
+            )?;
             if st.nodes.is_empty() {
                 eprintln!(
                     "scl status: no node of graph `{prefix}` sent a heartbeat in 300 ms; is it running?"
@@ -364,6 +454,7 @@ fn main() -> ExitCode {
         Cmd::Swap { .. } => "swap",
         Cmd::Status { .. } => "status",
         Cmd::Estop => "estop",
+        Cmd::Bench { .. } => "bench",
         Cmd::Reset => "reset",
         Cmd::Joystick { .. } => "joystick",
         Cmd::Mapper { .. } => "mapper",

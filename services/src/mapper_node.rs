@@ -26,9 +26,9 @@ pub fn run(
     id: u32,
 ) -> Result<(), SclError> {
     let mut step = load_step(model, id)?;
-    let graph = Graph::join(prefix, &format!("mapper-{id}"))?;
+    let graph = Graph::join_with(prefix, &format!("mapper-{id}"), graph_cfg.transport)?;
     let states = graph.robot_state_subscriber(true)?;
-    let joystick = graph.joystick_subscriber()?;
+    let joystick = graph.joystick_subscriber(true)?;
     let commands = graph.mapper_command_publisher()?;
     let status = graph.status_publisher()?;
     // Initialised at normal priority (a mapper starting for a live swap must not compete
@@ -46,21 +46,30 @@ pub fn run(
         "serving"
     );
     st.phase = phase::RUNNING;
+    // The newest joystick sample and when it arrived; samples are taken as they come (the
+    // joystick publishes on change), the map runs on each robot state.
     let mut joy = None;
+    let mut joy_rx_ns = 0;
+    let wakes: [&dyn ipc_types::graph::Wakeable; 2] = [&states, &joystick];
     while !signals::stop_requested() {
-        if !states.wait(Duration::from_millis(100))? {
+        let woke = ipc_types::wait_any(&wakes, Duration::from_millis(100));
+        let rx_ns = now_ns();
+        if let Some(j) = joystick.latest()? {
+            joy = Some(j);
+            joy_rx_ns = rx_ns;
+        }
+        if woke & 1 == 0 {
             continue;
         }
         let Some(state) = states.latest()? else {
             continue;
         };
-        if let Some(j) = joystick.latest()? {
-            joy = Some(j);
-        }
         let t0 = now_ns();
         let mut cmd = step.step(&state, joy.as_ref());
         let t1 = now_ns();
         cmd.compute_ns = t1 - t0;
+        cmd.state_rx_ns = rx_ns;
+        cmd.joystick_rx_ns = if joy.is_some() { joy_rx_ns } else { 0 };
         if faults.mapper_nan_at_tick != 0 && state.tick == faults.mapper_nan_at_tick {
             tracing::warn!(tick = state.tick, "fault injection: a NaN velocity");
             cmd.qdot_rad_s[0] = f64::NAN;

@@ -46,7 +46,7 @@ pub fn run(
             "the workspace bounds are configured but this build has no forward kinematics for them yet; joint limits, speed and acceleration are enforced"
         );
     }
-    let graph = Graph::join(prefix, "safety")?;
+    let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;
     let states = graph.robot_state_subscriber(false)?;
     let control = graph.safety_control_subscriber()?;
@@ -123,6 +123,7 @@ pub fn run(
     let mut last_stop_flags = 0;
     while !signals::stop_requested() {
         let woke = commands.wait(Duration::from_millis(100))?;
+        let rx_ns = now_ns();
         apply_control(&mut filter)?;
         apply_estop(&mut filter)?;
         if !woke {
@@ -155,6 +156,7 @@ pub fn run(
         last_tick = cmd.tick;
         let t0 = now_ns();
         let mut safe = filter.step(&cmd, &state, t0);
+        safe.mapper_rx_ns = rx_ns;
         safe.compute_ns = now_ns() - t0;
         safe.t_ns = now_ns();
         out.send(safe)?;

@@ -641,7 +641,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
             opts.prefix
         );
     }
-    let graph = Graph::join(&opts.prefix, "supervisor")?;
+    let graph = Graph::join_with(&opts.prefix, "supervisor", cfg.graph.transport)?;
     let status = graph.status_subscriber()?;
     let states = graph.robot_state_subscriber(false)?;
     let mapper_commands = graph.mapper_command_subscriber(false)?;
@@ -815,6 +815,9 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     // Last one out: remove what killed children left and the domain itself, unless an
     // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
     ipc_types::graph::release_domain(&opts.prefix)?;
+    if cfg.graph.transport == ipc_types::Transport::Uds {
+        ipc_types::uds::remove_graph(opts.prefix.as_str());
+    }
     if let Some(f) = &summary.failure {
         tracing::error!("{f}; the graph was stopped (bridge first)");
     }

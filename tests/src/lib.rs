@@ -106,7 +106,7 @@ impl Recorder {
         let graph = Graph::join(prefix, "test-recorder").unwrap();
         Self {
             states: graph.robot_state_subscriber(false).unwrap(),
-            joystick: graph.joystick_subscriber().unwrap(),
+            joystick: graph.joystick_subscriber(false).unwrap(),
             safe: graph.safe_command_subscriber(false).unwrap(),
             status: graph.status_subscriber().unwrap(),
             robot_states: Vec::new(),

@@ -1,0 +1,278 @@
+//! The comparison transport: the same fixed-size messages over Unix-domain datagram sockets,
+//! the kernel path that socket-based middleware takes. It exists so `scl bench latency` can
+//! measure the graph on both transports in one run; the graph's guarantees that rest on
+//! iceoryx2 (one `SafeCommand` publisher, history for late joiners) do not hold on it.
+//!
+//! Each subscriber binds a socket file in the topic's directory
+//! (`/tmp/scl-uds/<prefix>/<topic>/`); a publisher sends every message to every socket in that
+//! directory, without blocking (a full receiver drops the message, like iceoryx2's safe
+//! overflow). Messages are sent as their bytes: every message type is `#[repr(C)]`, `Copy` and
+//! pointer-free.
+
+use std::io::ErrorKind;
+use std::marker::PhantomData;
+use std::os::unix::io::AsRawFd;
+use std::os::unix::net::UnixDatagram;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+/// Root of every graph's socket directories.
+pub const ROOT: &str = "/tmp/scl-uds";
+
+/// How often a publisher re-reads the topic directory for new subscribers.
+const RESCAN: Duration = Duration::from_millis(100);
+
+/// Errors of the socket transport.
+#[derive(Debug, thiserror::Error)]
+pub enum UdsError {
+    /// A socket or directory operation failed.
+    #[error("{op} {path}: {source}")]
+    Io {
+        /// What was done.
+        op: &'static str,
+        /// On what.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A datagram of the wrong size arrived (another message type on the topic).
+    #[error("{path}: a datagram of {found} bytes arrived, the topic carries {expected}")]
+    Size {
+        /// The socket.
+        path: PathBuf,
+        /// Received size.
+        found: usize,
+        /// Message size.
+        expected: usize,
+    },
+}
+
+fn io(op: &'static str, path: &Path, source: std::io::Error) -> UdsError {
+    UdsError::Io {
+        op,
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// The directory of `topic` in graph `prefix`.
+pub fn topic_dir(prefix: &str, topic: &str) -> PathBuf {
+    Path::new(ROOT).join(prefix).join(topic)
+}
+
+/// Removes graph `prefix`'s socket directories (the last process out calls it).
+pub fn remove_graph(prefix: &str) {
+    let _ = std::fs::remove_dir_all(Path::new(ROOT).join(prefix));
+}
+
+fn as_bytes<T: Copy>(msg: &T) -> &[u8] {
+    // SAFETY: T is a `#[repr(C)]`, `Copy`, pointer-free message; its padding is always
+    // written as explicit zero fields, so every byte is initialised.
+    unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) }
+}
+
+/// A publisher of `T` on one topic.
+#[derive(Debug)]
+pub struct UdsPublisher<T> {
+    dir: PathBuf,
+    socket: UnixDatagram,
+    peers: Vec<PathBuf>,
+    scanned: Option<Instant>,
+    /// Messages a full or vanished receiver did not take.
+    pub dropped: u64,
+    _t: PhantomData<T>,
+}
+
+impl<T: Copy> UdsPublisher<T> {
+    /// A publisher on the topic directory `dir`.
+    pub fn new(dir: &Path) -> Result<Self, UdsError> {
+        std::fs::create_dir_all(dir).map_err(|e| io("create", dir, e))?;
+        let socket = UnixDatagram::unbound().map_err(|e| io("socket for", dir, e))?;
+        socket
+            .set_nonblocking(true)
+            .map_err(|e| io("set non-blocking", dir, e))?;
+        Ok(Self {
+            dir: dir.to_owned(),
+            socket,
+            peers: Vec::new(),
+            scanned: None,
+            dropped: 0,
+            _t: PhantomData,
+        })
+    }
+
+    fn rescan(&mut self) {
+        self.peers.clear();
+        if let Ok(rd) = std::fs::read_dir(&self.dir) {
+            self.peers.extend(
+                rd.flatten()
+                    .map(|e| e.path())
+                    .filter(|p| p.extension().is_some_and(|e| e == "sock")),
+            );
+        }
+        self.scanned = Some(Instant::now());
+    }
+
+    /// Sends `msg` to every subscriber; returns how many took it.
+    pub fn send(&mut self, msg: &T) -> usize {
+        if self.scanned.is_none_or(|t| t.elapsed() > RESCAN) {
+            self.rescan();
+        }
+        let bytes = as_bytes(msg);
+        let mut delivered = 0;
+        let mut stale = false;
+        for p in &self.peers {
+            match self.socket.send_to(bytes, p) {
+                Ok(_) => delivered += 1,
+                Err(e) if e.kind() == ErrorKind::WouldBlock => self.dropped += 1,
+                Err(_) => {
+                    // The subscriber is gone (refused, removed): forget it.
+                    self.dropped += 1;
+                    stale = true;
+                }
+            }
+        }
+        if stale {
+            self.rescan();
+        }
+        delivered
+    }
+}
+
+static NEXT: AtomicU32 = AtomicU32::new(0);
+
+/// A subscriber of `T` on one topic: a bound socket, removed when dropped.
+#[derive(Debug)]
+pub struct UdsSubscriber<T> {
+    path: PathBuf,
+    socket: UnixDatagram,
+    _t: PhantomData<T>,
+}
+
+impl<T: Copy> UdsSubscriber<T> {
+    /// A subscriber on the topic directory `dir`.
+    pub fn new(dir: &Path) -> Result<Self, UdsError> {
+        std::fs::create_dir_all(dir).map_err(|e| io("create", dir, e))?;
+        let n = NEXT.fetch_add(1, Ordering::SeqCst);
+        let path = dir.join(format!("{}-{n}.sock", std::process::id()));
+        let _ = std::fs::remove_file(&path);
+        let socket = UnixDatagram::bind(&path).map_err(|e| io("bind", &path, e))?;
+        socket
+            .set_nonblocking(true)
+            .map_err(|e| io("set non-blocking", &path, e))?;
+        Ok(Self {
+            path,
+            socket,
+            _t: PhantomData,
+        })
+    }
+
+    /// Calls `f` with every received message, oldest first.
+    pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, UdsError> {
+        let mut buf = [0u8; 1024];
+        let mut n = 0;
+        loop {
+            match self.socket.recv(&mut buf) {
+                Ok(len) if len == size_of::<T>() => {
+                    // SAFETY: `len` bytes of a `T` sent by `UdsPublisher::send`; read
+                    // unaligned from the byte buffer.
+                    let msg = unsafe { std::ptr::read_unaligned(buf.as_ptr().cast::<T>()) };
+                    f(&msg);
+                    n += 1;
+                }
+                Ok(len) => {
+                    return Err(UdsError::Size {
+                        path: self.path.clone(),
+                        found: len,
+                        expected: size_of::<T>(),
+                    });
+                }
+                Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(n),
+                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                Err(e) => return Err(io("receive on", &self.path, e)),
+            }
+        }
+    }
+
+    /// The socket's file descriptor, for `poll`.
+    pub fn raw_fd(&self) -> i32 {
+        self.socket.as_raw_fd()
+    }
+}
+
+impl<T> Drop for UdsSubscriber<T> {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Waits until one of `fds` is readable or `timeout` passes; returns a bit per fd (bit `i`
+/// for `fds[i]`, at most 64). A signal ends the wait early with no bit set.
+pub fn poll_readable(fds: &[i32], timeout: Duration) -> u64 {
+    let mut pfds: Vec<libc::pollfd> = fds
+        .iter()
+        .map(|fd| libc::pollfd {
+            fd: *fd,
+            events: libc::POLLIN,
+            revents: 0,
+        })
+        .collect();
+    let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
+    // SAFETY: `pfds` is a valid array of `pfds.len()` pollfd structs.
+    let rc = unsafe { libc::poll(pfds.as_mut_ptr(), pfds.len() as libc::nfds_t, ms) };
+    if rc <= 0 {
+        return 0;
+    }
+    pfds.iter()
+        .take(64)
+        .enumerate()
+        .filter(|(_, p)| p.revents & libc::POLLIN != 0)
+        .fold(0, |bits, (i, _)| bits | (1 << i))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn publish_and_receive_between_sockets() {
+        let dir = topic_dir(&format!("ut{}", std::process::id()), "t");
+        let a = UdsSubscriber::<[u64; 3]>::new(&dir).unwrap();
+        let b = UdsSubscriber::<[u64; 3]>::new(&dir).unwrap();
+        let mut p = UdsPublisher::<[u64; 3]>::new(&dir).unwrap();
+        assert_eq!(p.send(&[1, 2, 3]), 2);
+        assert_eq!(p.send(&[4, 5, 6]), 2);
+        assert_ne!(
+            poll_readable(&[a.raw_fd(), b.raw_fd()], Duration::from_millis(100)),
+            0
+        );
+        let mut got = Vec::new();
+        a.drain(|m| got.push(*m)).unwrap();
+        assert_eq!(got, vec![[1, 2, 3], [4, 5, 6]]);
+        assert_eq!(b.drain(|_| {}).unwrap(), 2);
+        assert_eq!(poll_readable(&[a.raw_fd()], Duration::from_millis(1)), 0);
+        // A subscriber that leaves is forgotten.
+        drop(b);
+        std::thread::sleep(RESCAN + Duration::from_millis(10));
+        assert_eq!(p.send(&[7, 8, 9]), 1);
+        drop(a);
+        remove_graph(&format!("ut{}", std::process::id()));
+        assert!(!dir.exists());
+    }
+
+    #[test]
+    fn a_wrong_size_is_an_error() {
+        let dir = topic_dir(&format!("uv{}", std::process::id()), "t");
+        let s = UdsSubscriber::<[u64; 2]>::new(&dir).unwrap();
+        let mut p = UdsPublisher::<[u8; 3]>::new(&dir).unwrap();
+        p.send(&[1, 2, 3]);
+        std::thread::sleep(Duration::from_millis(5));
+        assert!(matches!(
+            s.drain(|_| {}),
+            Err(UdsError::Size { found: 3, .. })
+        ));
+        drop(s);
+        remove_graph(&format!("uv{}", std::process::id()));
+    }
+}
