@@ -269,15 +269,35 @@ fn profile(tau: f64, skew: f64) -> f64 {
     t * t * t * (10.0 - 15.0 * t + 6.0 * t * t)
 }
 
+/// Fraction of the way at `tau` in `[0, 1]` for a cruise: speed ramps up over the first
+/// `ramp` of the time (a raised cosine), holds, and ramps down over the last `ramp`. The
+/// peak speed is only `1 / (1 - ramp)` times the mean, as when scrubbing at an even pace.
+fn cruise(tau: f64, ramp: f64) -> f64 {
+    let tau = tau.clamp(0.0, 1.0);
+    let v = 1.0 / (1.0 - ramp);
+    let up = |t: f64| {
+        v * (t / 2.0
+            - ramp / (2.0 * std::f64::consts::PI) * (std::f64::consts::PI * t / ramp).sin())
+    };
+    if tau < ramp {
+        up(tau)
+    } else if tau <= 1.0 - ramp {
+        v * (ramp / 2.0 + (tau - ramp))
+    } else {
+        1.0 - up(1.0 - tau)
+    }
+}
+
 /// What a segment does.
 #[derive(Debug, Clone)]
 enum Motion {
-    /// Move from one pose to another on a straight line (plus a bump of `arc` metres up in
-    /// the middle), orientation by slerp.
+    /// Move from one pose to another on a line bowed by `arc` metres up and `side` metres
+    /// sideways (to the left of the direction of travel) in the middle, orientation by slerp.
     Move {
         from: Isometry3<f64>,
         to: Isometry3<f64>,
         arc: f64,
+        side: f64,
     },
     /// Circle of `radius` about `centre` in the table plane, `turns` times, starting at angle
     /// `phase`, with the tool pose `orientation`.
@@ -326,9 +346,22 @@ impl Segment {
     fn at(&self, tau: f64, c_in: f64, roll_sign: f64) -> (Isometry3<f64>, f64) {
         let s = profile(tau, self.skew);
         match &self.motion {
-            Motion::Move { from, to, arc } => {
-                let p = from.translation.vector.lerp(&to.translation.vector, s)
-                    + Vector3::z() * (arc * 4.0 * s * (1.0 - s));
+            Motion::Move {
+                from,
+                to,
+                arc,
+                side,
+            } => {
+                let (a, b) = (from.translation.vector, to.translation.vector);
+                let d = b - a;
+                let left = Vector3::new(-d.y, d.x, 0.0);
+                let left = if left.norm() > 1e-9 {
+                    left.normalize()
+                } else {
+                    Vector3::zeros()
+                };
+                let p =
+                    a.lerp(&b, s) + (Vector3::z() * *arc + left * *side) * (4.0 * s * (1.0 - s));
                 let r = from.rotation.slerp(&to.rotation, s);
                 (Isometry3::from_parts(Translation3::from(p), r), c_in)
             }
@@ -339,6 +372,8 @@ impl Segment {
                 turns,
                 orientation,
             } => {
+                // An even pace: the skew varies the length of the ramps instead.
+                let s = cruise(tau, 0.15 * self.skew);
                 let a = phase + std::f64::consts::TAU * turns * s;
                 let p = centre + Vector3::new(radius * a.cos(), radius * a.sin(), 0.0);
                 (
@@ -669,7 +704,8 @@ fn table_cleaning(name: &str, ticks: usize, rng: &mut Rng) -> Result<Plan, TaskE
     let radius = rng.range(0.04, 0.06);
     let height = rng.range(0.015, 0.025);
     let phase = rng.range(0.0, std::f64::consts::TAU);
-    // Scrubbing at 9-13 cm/s: as many turns as that speed gives over the circling time.
+    // Scrubbing at an even 9-13 cm/s: as many turns as that speed gives over the circling
+    // time.
     let circling_s = 0.75 * ticks as f64 * DT;
     let speed = rng.range(0.09, 0.13);
     let turns = speed * circling_s / (std::f64::consts::TAU * radius);
@@ -687,6 +723,7 @@ fn table_cleaning(name: &str, ticks: usize, rng: &mut Rng) -> Result<Plan, TaskE
                 from: start,
                 to: touch,
                 arc: 0.0,
+                side: 0.0,
             },
             0.12,
             rng,
@@ -707,6 +744,7 @@ fn table_cleaning(name: &str, ticks: usize, rng: &mut Rng) -> Result<Plan, TaskE
                 from: leave,
                 to: lifted,
                 arc: 0.0,
+                side: 0.0,
             },
             0.13,
             rng,
@@ -753,6 +791,7 @@ fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: home,
                 to: pre_grasp,
                 arc: rng.range(0.0, 0.03),
+                side: rng.range(-0.04, 0.04),
             },
             0.36,
             rng,
@@ -762,6 +801,7 @@ fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: pre_grasp,
                 to: grasp,
                 arc: 0.0,
+                side: 0.0,
             },
             0.12,
             rng,
@@ -780,6 +820,7 @@ fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: grasp,
                 to: place,
                 arc: rng.range(0.08, 0.12),
+                side: rng.range(-0.03, 0.03),
             },
             0.30,
             rng,
@@ -798,6 +839,7 @@ fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: place,
                 to: retreat,
                 arc: 0.0,
+                side: 0.0,
             },
             0.06,
             rng,
@@ -845,6 +887,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: home,
                 to: pre_grasp,
                 arc: rng.range(0.0, 0.03),
+                side: rng.range(-0.04, 0.04),
             },
             0.20,
             rng,
@@ -854,6 +897,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: pre_grasp,
                 to: grasp,
                 arc: 0.0,
+                side: 0.0,
             },
             0.07,
             rng,
@@ -872,6 +916,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: grasp,
                 to: over,
                 arc: rng.range(0.04, 0.08),
+                side: rng.range(-0.03, 0.03),
             },
             0.17,
             rng,
@@ -891,6 +936,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: over,
                 to: put_down,
                 arc: rng.range(0.03, 0.06),
+                side: rng.range(-0.03, 0.03),
             },
             0.13,
             rng,
@@ -909,6 +955,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
                 from: put_down,
                 to: retreat,
                 arc: 0.0,
+                side: 0.0,
             },
             0.08,
             rng,
@@ -1055,6 +1102,22 @@ mod tests {
         assert!(split_lengths(0, 100.0, &mut rng).is_empty());
         let l = split_lengths(2, 595.5, &mut rng);
         assert_eq!(l.iter().sum::<usize>(), 1191);
+    }
+
+    #[test]
+    fn cruise_is_even_in_the_middle_and_continuous() {
+        for ramp in [0.12, 0.15, 0.18] {
+            assert_eq!(cruise(0.0, ramp), 0.0);
+            assert!((cruise(1.0, ramp) - 1.0).abs() < 1e-12);
+            let h = 1e-6;
+            let speed = |t: f64| (cruise(t + h, ramp) - cruise(t - h, ramp)) / (2.0 * h);
+            assert!(speed(h) < 1e-3 && speed(1.0 - h) < 1e-3);
+            assert!((speed(0.5) - 1.0 / (1.0 - ramp)).abs() < 1e-6);
+            // Continuous where the ramps meet the plateau.
+            for t in [ramp, 1.0 - ramp] {
+                assert!((cruise(t + 1e-9, ramp) - cruise(t - 1e-9, ramp)).abs() < 1e-8);
+            }
+        }
     }
 
     #[test]
