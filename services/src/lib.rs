@@ -3,13 +3,15 @@
 //! Each process module is a thin loop (wait, read, step, publish) around a pure step function
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes. [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls.
+//! TOML, [`signals`] the shutdown flag every loop polls. [`tools`] and [`plot`] are the offline
+//! commands (`demos`, `train`, `plot`).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
 pub mod config;
 pub mod joystick;
 pub mod mapper_node;
+pub mod plot;
 pub mod safety_node;
 pub mod signals;
 pub mod stats;
@@ -34,6 +36,12 @@ pub enum SclError {
     /// Fitting PCA failed.
     #[error(transparent)]
     Fit(#[from] mapper::pca::FitError),
+    /// Generating task demonstrations failed.
+    #[error(transparent)]
+    Tasks(#[from] mapper::tasks::TaskError),
+    /// Drawing a plot failed.
+    #[error(transparent)]
+    Plot(#[from] plot::PlotError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),
