@@ -114,7 +114,7 @@ enum Cmd {
         /// Model kind: `pca` (SCL and CAE come with the learning issue).
         #[arg(long, default_value = "pca")]
         kind: String,
-        /// Data set directory (train/*.csv, val/*.csv).
+        /// Data set: a directory (train/*.csv, val/*.csv; *.json too) or one CSV / JSON file.
         #[arg(long, value_name = "DIR")]
         data: PathBuf,
         /// Action dimension d.
