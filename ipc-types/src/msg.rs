@@ -146,6 +146,9 @@ pub mod mapper_flags {
     /// The robot state was unusable (non-finite joint angle, wrong joint count); the command
     /// was zeroed.
     pub const STATE_INVALID: u32 = 1 << 4;
+    /// The newest joystick sample answers a tick two or more before this one: the joystick,
+    /// which answers every tick, has stopped. The action was zero; safety stops the arm.
+    pub const INPUT_STALE: u32 = 1 << 5;
 }
 
 /// A joint-velocity command for tick `tick`, produced by one mapper process.

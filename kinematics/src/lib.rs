@@ -1,11 +1,39 @@
-//! Robot descriptions for the SCL stack.
+//! Robot models of the SCL stack: URDF loading, forward kinematics, geometric Jacobians,
+//! damped least squares and joint limits.
 //!
-//! For now this crate holds the one table of Kinova Gen3 lite joint facts that the mock arm
-//! and the safety limits read ([`gen3_lite`]). Loading the same facts from
-//! `robots/gen3_lite.urdf`, forward kinematics, the Jacobian and damped least squares come
-//! with the robot-model issue; callers already go through [`ArmLimits`], so the source of the
-//! numbers can change without touching them.
+//! * [`RobotModel`]: a URDF read with `urdf-rs` and checked (every revolute / prismatic joint
+//!   has usable limits; errors name the file and the element).
+//! * [`Chain`]: a serial chain cut out of a model, precomputed into fixed arrays: FK to any
+//!   link of the chain and the tip's geometric [`Jacobian`], allocation-free per call.
+//! * [`dls`]: damped least-squares steps with a damping that grows near singularities, and an
+//!   iterative inverse kinematics ([`Ik`]).
+//! * [`gen3_lite`]: the Kinova Gen3 lite (`robots/gen3_lite.urdf`, embedded): [`Gen3Lite`],
+//!   its teleoperation limits ([`ArmLimits`], position limits read from the URDF), named
+//!   poses, rates.
+//! * [`planar5`]: the paper's 5-DOF planar reaching arm (`robots/planar5.urdf`).
+//! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
+//!
+//! ```
+//! use kinematics::gen3_lite::{self, Gen3Lite};
+//!
+//! let arm = Gen3Lite::get().arm();
+//! let tcp = arm.fk(&gen3_lite::HOME).unwrap();
+//! assert!((tcp.translation.x - 0.43882).abs() < 1e-4);
+//! ```
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod cartesian;
+pub mod chain;
+pub mod dls;
+pub mod gen3_lite;
+pub mod planar5;
+pub mod robot;
+
+pub use cartesian::TcpPose;
+pub use chain::{Chain, Jacobian, JointKind, KinError, LinkId, MAX_DOF};
+pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
+pub use gen3_lite::Gen3Lite;
+pub use robot::{JointSpec, JointType, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,75 +70,9 @@ impl ArmLimits {
     }
 }
 
-/// Kinova Gen3 lite facts (shared/reference/gen3-lite.md).
-pub mod gen3_lite {
-    use super::ArmLimits;
-
-    /// Number of arm joints.
-    pub const N_JOINTS: usize = 6;
-
-    /// Joint names of the arm chain.
-    pub const JOINT_NAMES: [&str; N_JOINTS] = [
-        "joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6",
-    ];
-
-    /// Position limits (rad), symmetric: lower = -upper.
-    pub const POSITION_LIMIT_RAD: [f64; N_JOINTS] = [2.68, 2.61, 2.61, 2.6, 2.53, 2.6];
-
-    /// Teleoperation default velocity limits: the planning default velocities (rad/s).
-    pub const DEFAULT_VELOCITY_RAD_S: [f64; N_JOINTS] = [0.48, 0.48, 0.48, 0.76, 0.76, 1.52];
-
-    /// Teleoperation default acceleration limits: the simulator accelerations (rad/s²).
-    pub const DEFAULT_ACCELERATION_RAD_S2: [f64; N_JOINTS] = [1.0, 0.5, 0.4, 1.0, 10.0, 10.0];
-
-    /// The zero pose (arm straight up; singular).
-    pub const ZERO: [f64; N_JOINTS] = [0.0; N_JOINTS];
-    /// The home pose.
-    pub const HOME: [f64; N_JOINTS] = [0.0, -0.28, 1.309, 0.0, -1.047, 0.0];
-    /// The retract pose.
-    pub const RETRACT: [f64; N_JOINTS] = [-0.0522, 0.3664, 2.53, -1.536, -0.6981, -1.5184];
-
-    /// The rate of the high-level API (Hz): 40, fixed by the robot.
-    pub const CONTROL_RATE_HZ: f64 = 40.0;
-
-    /// Gripper: time constant of the first-order lag used by the mock (s).
-    pub const GRIPPER_TIME_CONSTANT_S: f64 = 0.15;
-
-    /// The Gen3 lite's teleoperation limits.
-    pub fn limits() -> ArmLimits {
-        ArmLimits {
-            names: JOINT_NAMES.iter().map(|s| (*s).to_owned()).collect(),
-            lower_rad: POSITION_LIMIT_RAD.iter().map(|v| -v).collect(),
-            upper_rad: POSITION_LIMIT_RAD.to_vec(),
-            max_velocity_rad_s: DEFAULT_VELOCITY_RAD_S.to_vec(),
-            max_acceleration_rad_s2: DEFAULT_ACCELERATION_RAD_S2.to_vec(),
-        }
-    }
-
-    /// A named pose by name (`zero`, `home`, `retract`).
-    pub fn named_pose(name: &str) -> Option<[f64; N_JOINTS]> {
-        match name {
-            "zero" => Some(ZERO),
-            "home" => Some(HOME),
-            "retract" => Some(RETRACT),
-            _ => None,
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn named_poses_are_within_limits() {
-        let l = gen3_lite::limits();
-        for name in ["zero", "home", "retract"] {
-            let mut q = gen3_lite::named_pose(name).unwrap();
-            assert!(!l.clamp_position(&mut q), "{name} is outside the limits");
-        }
-        assert!(gen3_lite::named_pose("nowhere").is_none());
-    }
 
     #[test]
     fn clamp_reports_and_clamps() {
@@ -119,5 +81,6 @@ mod tests {
         assert!(l.clamp_position(&mut q));
         assert_eq!(q[0], 2.68);
         assert_eq!(q[4], -2.53);
+        assert!(!l.clamp_position(&mut q));
     }
 }

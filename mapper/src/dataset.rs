@@ -4,6 +4,14 @@
 //! (seconds, rad, gripper state in `[0, 1]`, rad/s, 1/s). A data set is a directory with
 //! `train/` and `val/` sub-directories of such files; a directory of CSV files without them is
 //! all training data. Bad rows are reported by file and line.
+//!
+//! The same directories may also hold the SCL maps authors' JSON demonstrations (`*.json`):
+//! a list of trajectories, each a list of samples `{"thetas": [...], "velocity": [...]}`
+//! (joint angles in rad, joint velocities in rad/s, 40 Hz), with an optional `"gripper"`
+//! state in `[0, 1]` (0 when absent); other keys are ignored. A JSON file gives one
+//! trajectory per list entry, named `file.json#i`. Bad samples are reported by file,
+//! trajectory and sample index; bad JSON by file, line and column. [`load`] takes a data set
+//! directory or a single CSV or JSON file.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -89,7 +97,9 @@ pub enum DatasetError {
         source: std::io::Error,
     },
     /// The directory holds no trajectories.
-    #[error("{0}: no trajectory CSV files found (expected train/*.csv and val/*.csv, or *.csv)")]
+    #[error(
+        "{0}: no trajectories found (expected train/*.csv and val/*.csv, or *.csv; *.json also works)"
+    )]
     Empty(PathBuf),
     /// The header line is wrong.
     #[error("{path}:1: bad header: {reason}")]
@@ -122,6 +132,29 @@ pub enum DatasetError {
     /// Writing would replace an existing file.
     #[error("{0} already exists; choose another --out or remove it first")]
     Exists(PathBuf),
+    /// A JSON demonstration file is not valid JSON.
+    #[error("{path}:{line}:{column}: not valid JSON: {reason}")]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// The parser's message.
+        reason: String,
+    },
+    /// A JSON demonstration is not of the expected shape.
+    #[error("{path}: {at}: {reason}")]
+    JsonShape {
+        /// The file.
+        path: PathBuf,
+        /// Where in the file: `top level`, `trajectory 2` or `trajectory 2, sample 17`
+        /// (0-based indices).
+        at: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// The CSV header for `m` joints.
@@ -232,7 +265,118 @@ pub fn to_csv(traj: &Trajectory) -> String {
     s
 }
 
-fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
+/// Parses the authors' JSON demonstrations (see the module docs); `path` names the file in
+/// errors and, with `#i`, each trajectory.
+pub fn parse_json(text: &str, path: &Path) -> Result<Vec<Trajectory>, DatasetError> {
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| DatasetError::Json {
+        path: path.to_owned(),
+        line: e.line(),
+        column: e.column(),
+        reason: e.to_string(),
+    })?;
+    let shape = |at: String, reason: String| DatasetError::JsonShape {
+        path: path.to_owned(),
+        at,
+        reason,
+    };
+    let serde_json::Value::Array(trajs) = value else {
+        return Err(shape(
+            "top level".into(),
+            "expected a list of trajectories".into(),
+        ));
+    };
+    let file = path
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let numbers = |v: &serde_json::Value, key: &str, at: &dyn Fn() -> String| {
+        let Some(list) = v.get(key) else {
+            return Err(shape(at(), format!("no `{key}`")));
+        };
+        let Some(list) = list.as_array() else {
+            return Err(shape(at(), format!("`{key}` is not a list of numbers")));
+        };
+        list.iter()
+            .enumerate()
+            .map(|(j, x)| match x.as_f64() {
+                Some(f) if f.is_finite() => Ok(f),
+                _ => Err(shape(
+                    at(),
+                    format!("`{key}`[{j}] is `{x}`, not a finite number"),
+                )),
+            })
+            .collect::<Result<Vec<f64>, _>>()
+    };
+    let mut out = Vec::with_capacity(trajs.len());
+    let mut m: Option<usize> = None;
+    for (i, samples) in trajs.iter().enumerate() {
+        let Some(samples) = samples.as_array() else {
+            return Err(shape(
+                format!("trajectory {i}"),
+                "expected a list of samples".into(),
+            ));
+        };
+        let mut traj = Trajectory {
+            name: format!("{file}#{i}"),
+            ..Trajectory::default()
+        };
+        for (k, sample) in samples.iter().enumerate() {
+            let at = || format!("trajectory {i}, sample {k}");
+            if !sample.is_object() {
+                return Err(shape(
+                    at(),
+                    "expected an object with `thetas` and `velocity`".into(),
+                ));
+            }
+            let q = numbers(sample, "thetas", &at)?;
+            let qdot = numbers(sample, "velocity", &at)?;
+            if q.is_empty() || q.len() != qdot.len() {
+                return Err(shape(
+                    at(),
+                    format!(
+                        "`thetas` has {} values and `velocity` {}; expected the same number, at least one",
+                        q.len(),
+                        qdot.len()
+                    ),
+                ));
+            }
+            match m {
+                None => m = Some(q.len()),
+                Some(expected) if expected != q.len() => {
+                    return Err(shape(
+                        at(),
+                        format!("{} joints, but the samples before have {expected}", q.len()),
+                    ));
+                }
+                Some(_) => {}
+            }
+            let c = match sample.get("gripper") {
+                None | Some(serde_json::Value::Null) => 0.0,
+                Some(g) => match g.as_f64() {
+                    Some(c) if (0.0..=1.0).contains(&c) => c,
+                    _ => {
+                        return Err(shape(
+                            at(),
+                            format!("`gripper` is `{g}`, not a number in [0, 1]"),
+                        ));
+                    }
+                },
+            };
+            traj.t.push(k as f64 * crate::demos::DT);
+            traj.q.push(q);
+            traj.c.push(c);
+            traj.qdot.push(qdot);
+            traj.cdot.push(0.0);
+        }
+        // The gripper rate: forward differences of the state (0 on the last sample).
+        for k in 1..traj.len() {
+            traj.cdot[k - 1] = (traj.c[k] - traj.c[k - 1]) / crate::demos::DT;
+        }
+        out.push(traj);
+    }
+    Ok(out)
+}
+
+fn data_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
     let rd = std::fs::read_dir(dir).map_err(|source| DatasetError::Io {
         path: dir.to_owned(),
         source,
@@ -240,10 +384,14 @@ fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
     let mut files: Vec<PathBuf> = rd
         .filter_map(Result::ok)
         .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "csv"))
+        .filter(|p| p.extension().is_some_and(|e| e == "csv" || e == "json"))
         .collect();
     files.sort();
     Ok(files)
+}
+
+fn is_json(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e == "json")
 }
 
 fn fnv1a(hash: &mut u64, bytes: &[u8]) {
@@ -258,14 +406,32 @@ pub fn load_dir(dir: &Path) -> Result<Dataset, DatasetError> {
     let (train_dir, val_dir) = (dir.join("train"), dir.join("val"));
     let (train_files, val_files) = if train_dir.is_dir() {
         let val = if val_dir.is_dir() {
-            csv_files(&val_dir)?
+            data_files(&val_dir)?
         } else {
             Vec::new()
         };
-        (csv_files(&train_dir)?, val)
+        (data_files(&train_dir)?, val)
     } else {
-        (csv_files(dir)?, Vec::new())
+        (data_files(dir)?, Vec::new())
     };
+    load_files(dir, &train_files, &val_files)
+}
+
+/// Loads a data set from a directory (see [`load_dir`]) or from one CSV or JSON file (all
+/// of it training data).
+pub fn load(path: &Path) -> Result<Dataset, DatasetError> {
+    if path.is_file() {
+        load_files(path, &[path.to_owned()], &[])
+    } else {
+        load_dir(path)
+    }
+}
+
+fn load_files(
+    dir: &Path,
+    train_files: &[PathBuf],
+    val_files: &[PathBuf],
+) -> Result<Dataset, DatasetError> {
     if train_files.is_empty() {
         return Err(DatasetError::Empty(dir.to_owned()));
     }
@@ -280,28 +446,37 @@ pub fn load_dir(dir: &Path) -> Result<Dataset, DatasetError> {
             })?;
             fnv1a(&mut hash, &bytes);
             let text = String::from_utf8_lossy(&bytes);
-            let traj = parse_csv(&text, f)?;
-            let tm = traj.n_joints();
-            if traj.is_empty() {
-                continue;
-            }
-            match m {
-                None => m = Some(tm),
-                Some(expected) if expected != tm => {
-                    return Err(DatasetError::JointCount {
-                        path: f.clone(),
-                        found: tm,
-                        expected,
-                    });
+            let trajs = if is_json(f) {
+                parse_json(&text, f)?
+            } else {
+                vec![parse_csv(&text, f)?]
+            };
+            for traj in trajs {
+                let tm = traj.n_joints();
+                if traj.is_empty() {
+                    continue;
                 }
-                Some(_) => {}
+                match m {
+                    None => m = Some(tm),
+                    Some(expected) if expected != tm => {
+                        return Err(DatasetError::JointCount {
+                            path: f.clone(),
+                            found: tm,
+                            expected,
+                        });
+                    }
+                    Some(_) => {}
+                }
+                out.push(traj);
             }
-            out.push(traj);
         }
         Ok(out)
     };
-    let train = read(&train_files)?;
-    let val = read(&val_files)?;
+    let train = read(train_files)?;
+    let val = read(val_files)?;
+    if train.is_empty() {
+        return Err(DatasetError::Empty(dir.to_owned()));
+    }
     Ok(Dataset {
         train,
         val,
@@ -404,5 +579,103 @@ mod tests {
         assert!(matches!(write_dir(&dir, &ds), Err(DatasetError::Exists(_))));
         std::fs::remove_dir_all(&dir).unwrap();
         assert!(matches!(load_dir(&dir), Err(DatasetError::Io { .. })));
+    }
+
+    const TWO: &str = r#"[
+      [ {"thetas": [0.1, 0.2], "velocity": [0.4, -0.4]},
+        {"thetas": [0.11, 0.19], "velocity": [0.4, -0.4], "gripper": 0.5, "extra": "ignored"} ],
+      [ {"thetas": [0.0, 0.0], "velocity": [0.0, 0.0], "gripper": null} ]
+    ]"#;
+
+    #[test]
+    fn reads_the_authors_format() {
+        let t = parse_json(TWO, Path::new("d/demo.json")).unwrap();
+        assert_eq!(t.len(), 2);
+        assert_eq!(t[0].name, "demo.json#0");
+        assert_eq!(t[0].q, vec![vec![0.1, 0.2], vec![0.11, 0.19]]);
+        assert_eq!(t[0].qdot[1], vec![0.4, -0.4]);
+        assert_eq!(t[0].c, vec![0.0, 0.5]);
+        assert_eq!(t[0].t, vec![0.0, crate::demos::DT]);
+        assert!((t[0].cdot[0] - 0.5 / crate::demos::DT).abs() < 1e-9);
+        assert_eq!(t[0].cdot[1], 0.0);
+        assert_eq!(t[1].c, vec![0.0]);
+        assert_eq!(t[1].n_joints(), 2);
+    }
+
+    #[test]
+    fn errors_name_file_and_position() {
+        let p = Path::new("d/demo.json");
+        let e = |text: &str| parse_json(text, p).unwrap_err().to_string();
+        assert!(
+            e("[[{\"thetas\": [1,]}]]").starts_with("d/demo.json:1:"),
+            "{}",
+            e("[[{\"thetas\": [1,]}]]")
+        );
+        assert_eq!(
+            e("{}"),
+            "d/demo.json: top level: expected a list of trajectories"
+        );
+        assert_eq!(
+            e("[[], 3]"),
+            "d/demo.json: trajectory 1: expected a list of samples"
+        );
+        assert_eq!(
+            e(r#"[[{"thetas": [1], "velocity": [0]}, {"thetas": [1]}]]"#),
+            "d/demo.json: trajectory 0, sample 1: no `velocity`"
+        );
+        assert_eq!(
+            e(r#"[[{"thetas": [1, "a"], "velocity": [0, 0]}]]"#),
+            "d/demo.json: trajectory 0, sample 0: `thetas`[1] is `\"a\"`, not a finite number"
+        );
+        assert_eq!(
+            e(r#"[[{"thetas": [1, 2], "velocity": [0]}]]"#),
+            "d/demo.json: trajectory 0, sample 0: `thetas` has 2 values and `velocity` 1; expected the same number, at least one"
+        );
+        assert_eq!(
+            e(r#"[[{"thetas": [1, 2], "velocity": [0, 0]}], [{"thetas": [1], "velocity": [0]}]]"#),
+            "d/demo.json: trajectory 1, sample 0: 1 joints, but the samples before have 2"
+        );
+        assert_eq!(
+            e(r#"[[{"thetas": [1], "velocity": [0], "gripper": 2}]]"#),
+            "d/demo.json: trajectory 0, sample 0: `gripper` is `2`, not a number in [0, 1]"
+        );
+        assert_eq!(
+            e(r#"[[3]]"#),
+            "d/demo.json: trajectory 0, sample 0: expected an object with `thetas` and `velocity`"
+        );
+    }
+
+    #[test]
+    fn directories_and_single_files_load_json() {
+        let dir = std::env::temp_dir().join(format!("scl-ds-json-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("train")).unwrap();
+        std::fs::create_dir_all(dir.join("val")).unwrap();
+        std::fs::write(dir.join("train/a.json"), TWO).unwrap();
+        std::fs::write(
+            dir.join("val/b.csv"),
+            "t,q0,q1,c,qd0,qd1,cd\n0,0.1,0.2,0,0,0,0\n",
+        )
+        .unwrap();
+        let ds = load(&dir).unwrap();
+        assert_eq!(ds.train.len(), 2);
+        assert_eq!(ds.n_train(), 3);
+        assert_eq!(ds.val.len(), 1);
+        let single = load(&dir.join("train/a.json")).unwrap();
+        assert_eq!(single.train, ds.train);
+        assert!(single.val.is_empty());
+        assert_ne!(single.hash, ds.hash);
+        // A JSON file whose joint count differs from the CSV's is refused by name.
+        std::fs::write(
+            dir.join("val/c.json"),
+            r#"[[{"thetas": [1, 2, 3], "velocity": [0, 0, 0]}]]"#,
+        )
+        .unwrap();
+        let e = load(&dir).unwrap_err().to_string();
+        assert!(
+            e.ends_with("c.json: has 3 joints, but earlier files have 2"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -4,8 +4,8 @@
 //! the Gen3 lite's home pose to targets spread over two joint-space directions (a forward /
 //! back reach of the shoulder, elbow and wrist, and a sideways turn of the base with the wrist
 //! compensating) and back, with minimum-jerk speed profiles, varied durations and a little
-//! velocity noise. The Cartesian tasks of the paper (table cleaning, pick and place, pouring)
-//! come with the kinematics crate.
+//! velocity noise. The Cartesian tasks of the paper (table cleaning, pick and place, pouring,
+//! the planar reach) are in [`crate::tasks`].
 
 use kinematics::gen3_lite;
 

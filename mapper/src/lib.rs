@@ -8,6 +8,8 @@
 //!   reader that turns a file into a ready [`ActionMap`], refusing bad files at load time.
 //! * [`dataset`]: demonstrations as CSV trajectories of `(t, q, c, qdot, cdot)`.
 //! * [`demos`]: generated demonstrations (a joint-space reaching set for the bundled model).
+//! * [`tasks`]: generated demonstrations of the paper's tasks (table cleaning, pick and place,
+//!   pouring on the Gen3 lite; the 5-DOF planar reach) by Cartesian waypoints and DLS.
 //! * [`step`]: the mapper process's pure step function, `(RobotState, JoystickInput) ->
 //!   MapperCommand`.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
@@ -18,6 +20,7 @@ pub mod model;
 pub mod pca;
 pub mod rng;
 pub mod step;
+pub mod tasks;
 
 pub use model::{LoadedModel, ModelError, ModelHeader, ModelKind};
 

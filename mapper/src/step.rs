@@ -2,7 +2,9 @@
 //! one [`MapperCommand`] out. Pure and allocation-free; the process loop around it only
 //! waits, reads, stamps times and publishes.
 
-use ipc_types::{ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, RobotState, mapper_flags};
+use ipc_types::{
+    ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, RobotState, mapper_flags,
+};
 
 use crate::model::{LoadedModel, ModelError};
 
@@ -56,6 +58,9 @@ impl MapperStep {
             None => flags |= mapper_flags::NO_INPUT,
             Some(j) if j.axes.iter().any(|v| !v.is_finite()) => {
                 flags |= mapper_flags::INPUT_NON_FINITE;
+            }
+            Some(j) if j.tick != NO_TICK && state.tick > j.tick.saturating_add(1) => {
+                flags |= mapper_flags::INPUT_STALE;
             }
             Some(j) => {
                 for (ai, v) in a.iter_mut().zip(j.axes) {
@@ -122,7 +127,7 @@ mod tests {
 
     fn joy(axes: [f32; 2]) -> JoystickInput {
         JoystickInput {
-            tick: 3,
+            tick: NO_TICK,
             t_ns: 900,
             seq: 42,
             axes,
@@ -199,6 +204,25 @@ mod tests {
         s.n_joints = 5;
         let c = step.step(&s, Some(&joy([1.0, 0.0])));
         assert_eq!(c.flags, mapper_flags::STATE_INVALID);
+    }
+
+    #[test]
+    fn a_joystick_two_ticks_behind_is_stale() {
+        let (mut step, _) = step_with_basis();
+        let mut j = joy([1.0, 0.0]);
+        j.tick = 9;
+        // Answering the previous tick (or this one) is normal.
+        assert_eq!(step.step(&state(10), Some(&j)).flags, 0);
+        j.tick = 10;
+        assert_eq!(step.step(&state(10), Some(&j)).flags, 0);
+        // Two behind: the joystick stopped answering.
+        let c = step.step(&state(12), Some(&j));
+        assert_eq!(c.flags, mapper_flags::INPUT_STALE);
+        assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
+        assert_eq!(c.gripper_rate, 0.0);
+        // The start-up sample answers no tick: the age rule in safety covers it.
+        j.tick = NO_TICK;
+        assert_eq!(step.step(&state(12), Some(&j)).flags, 0);
     }
 
     #[test]

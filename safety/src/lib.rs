@@ -27,9 +27,11 @@ pub mod config;
 pub mod rules;
 
 pub use config::{ConfigError, SafetyConfig, WorkspaceConfig};
-pub use rules::{Bounds, TcpModel, limit_change, uniform_scale};
+pub use rules::{Bounds, ChainTcp, TcpModel, limit_change, uniform_scale};
 
-use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, buttons, safe_flags};
+use ipc_types::{
+    MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, buttons, mapper_flags, safe_flags,
+};
 use kinematics::ArmLimits;
 
 /// Slack kept inside the configured workspace bounds (m): the rule predicts the tool's motion
@@ -212,8 +214,9 @@ impl SafetyFilter {
         if now_ns.saturating_sub(cmd.state_t_ns) > self.max_state_age_ns {
             flags |= safe_flags::STALE_STATE;
         }
-        if cmd.joystick_t_ns != 0
-            && now_ns.saturating_sub(cmd.joystick_t_ns) > self.max_joystick_age_ns
+        if (cmd.joystick_t_ns != 0
+            && now_ns.saturating_sub(cmd.joystick_t_ns) > self.max_joystick_age_ns)
+            || cmd.flags & mapper_flags::INPUT_STALE != 0
         {
             flags |= safe_flags::STALE_JOYSTICK;
         }
@@ -505,6 +508,11 @@ mod tests {
         assert_eq!(out.gripper_rate, 0.0);
 
         let mut c = cmd(5, [0.1; 6]);
+        c.flags = mapper_flags::INPUT_STALE;
+        let out = f.step(&c, &state(5), NOW);
+        assert_eq!(out.flags, safe_flags::STALE_JOYSTICK | safe_flags::STOP);
+
+        let mut c = cmd(5, [0.1; 6]);
         c.state_t_ns = NOW - 30_000_000;
         let out = f.step(&c, &state(5), NOW);
         assert_eq!(out.flags, safe_flags::STALE_STATE | safe_flags::STOP);
@@ -767,7 +775,7 @@ mod tests {
 
     /// A joint angle: anywhere in the range, at or just beyond its margin, or garbage.
     fn any_q(j: usize) -> impl Strategy<Value = f64> {
-        let hi = gen3_lite::POSITION_LIMIT_RAD[j];
+        let hi = gen3_lite::limits().upper_rad[j];
         prop_oneof![
             4 => -hi..hi,
             1 => Just(hi - 0.05),
@@ -799,6 +807,7 @@ mod tests {
             let mut f = filter().with_tcp_model(Box::new(LinearTcp::gen3_like()));
             let (vmax, amax) = (gen3_lite::DEFAULT_VELOCITY_RAD_S, gen3_lite::DEFAULT_ACCELERATION_RAD_S2);
             let bounds = Bounds::new(0.02, [-0.8, -0.8, -0.1], [0.8, 0.8, 1.1]);
+            let limits = limits();
             let mut q = [0.0; MAX_JOINTS];
             q[..6].copy_from_slice(&start);
             let mut prev = [0.0; MAX_JOINTS];
@@ -824,7 +833,7 @@ mod tests {
                         prop_assert!((v - prev[j]).abs() <= amax[j] * DT * (1.0 + 1e-9), "joint {j}");
                     }
                     if q_ok {
-                        let (lo, hi) = (-gen3_lite::POSITION_LIMIT_RAD[j] + 0.05, gen3_lite::POSITION_LIMIT_RAD[j] - 0.05);
+                        let (lo, hi) = (limits.lower_rad[j] + 0.05, limits.upper_rad[j] - 0.05);
                         let next = q[j] + v * DT;
                         if q[j] <= hi { prop_assert!(next <= hi + 1e-12, "joint {j} past its upper margin"); }
                         else { prop_assert!(v <= 0.0); }
@@ -875,6 +884,38 @@ mod tests {
                 let out = f.step(&cmd(tick, qdot), &s, NOW);
                 for j in 0..6 { q[j] += out.qdot_rad_s[j] * DT; }
                 prop_assert!(model.at(&q[..6])[2] >= 0.02 - 1e-12, "tool at z {}", model.at(&q[..6])[2]);
+                prev = out.qdot_rad_s;
+            }
+        }
+
+        /// The same with the real Gen3 lite kinematics (nonlinear): from poses with the tool
+        /// just above the table, arbitrary commands never take it below the plane (the rule
+        /// predicts one tick to first order; the slack covers the rest).
+        #[test]
+        fn the_gen3_lite_tool_never_enters_the_table(
+            start in proptest::array::uniform6(-1.5f64..1.5),
+            height in 0.011f64..0.06,
+            cmds in proptest::collection::vec(proptest::array::uniform6(-3.0f64..3.0), 1..40),
+        ) {
+            let arm = kinematics::Gen3Lite::get().arm();
+            let z = |q: &[f64]| arm.fk(q).unwrap().translation.vector.z;
+            let mut q = [0.0; MAX_JOINTS];
+            q[..6].copy_from_slice(&start);
+            // Put the tool `height` above the table plane by the shoulder angle.
+            let shoulder = (0..=520)
+                .map(|i| -2.6 + i as f64 * 0.01)
+                .find(|a| { q[1] = *a; (z(&q[..6]) - 0.02 - height).abs() < 0.005 });
+            prop_assume!(shoulder.is_some());
+            prop_assume!(!limits().clamp_position(&mut q[..6].to_vec()));
+            let mut f = filter().with_tcp_model(Box::new(ChainTcp::gen3_lite()));
+            let mut prev = [0.0; MAX_JOINTS];
+            for (k, qdot) in cmds.into_iter().enumerate() {
+                let tick = k as u64 + 1;
+                let mut s = state_at(tick, q);
+                s.qdot_rad_s = prev;
+                let out = f.step(&cmd(tick, qdot), &s, NOW);
+                for j in 0..6 { q[j] += out.qdot_rad_s[j] * DT; }
+                prop_assert!(z(&q[..6]) >= 0.02, "tool at z {}", z(&q[..6]));
                 prev = out.qdot_rad_s;
             }
         }

@@ -87,6 +87,48 @@ pub trait TcpModel: Send {
     fn tcp(&mut self, q: &[f64], p: &mut [f64; 3], jv: &mut [[f64; MAX_JOINTS]; 3]);
 }
 
+/// The tool model of a kinematic chain (its tip is the tool): forward kinematics and the
+/// linear rows of the geometric Jacobian, allocation-free.
+#[derive(Debug, Clone)]
+pub struct ChainTcp {
+    chain: kinematics::Chain,
+    jac: kinematics::Jacobian,
+}
+
+impl ChainTcp {
+    /// The tool model of `chain`.
+    pub fn new(chain: kinematics::Chain) -> Self {
+        let jac = kinematics::Jacobian::zeros(chain.n_joints());
+        Self { chain, jac }
+    }
+
+    /// The Gen3 lite's `base_link -> tool_frame` chain.
+    pub fn gen3_lite() -> Self {
+        Self::new(kinematics::Gen3Lite::get().arm().clone())
+    }
+}
+
+impl TcpModel for ChainTcp {
+    fn tcp(&mut self, q: &[f64], p: &mut [f64; 3], jv: &mut [[f64; MAX_JOINTS]; 3]) {
+        match self.chain.fk_jacobian(q, &mut self.jac) {
+            Ok(pose) => {
+                let t = pose.translation.vector;
+                *p = [t.x, t.y, t.z];
+                let n = self.chain.n_joints().min(MAX_JOINTS);
+                for (i, row) in jv.iter_mut().enumerate() {
+                    *row = [0.0; MAX_JOINTS];
+                    for (j, v) in row.iter_mut().enumerate().take(n) {
+                        *v = self.jac.get(i, j);
+                    }
+                }
+            }
+            // A q the chain refuses (wrong length) makes the rule inactive for the tick: the
+            // filter checks finiteness and shape itself and stops the arm for those.
+            Err(_) => *p = [f64::NAN; 3],
+        }
+    }
+}
+
 /// Half-spaces `n·x >= b` that bound the tool: the table plane and the six faces of the box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Bounds {

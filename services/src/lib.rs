@@ -4,7 +4,8 @@
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls.
+//! TOML, [`signals`] the shutdown flag every loop polls. [`tools`] and [`plot`] are the offline
+//! commands (`demos`, `train`, `plot`); [`bench`] runs the latency benchmark.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bench;
@@ -13,6 +14,7 @@ pub mod config;
 pub mod control;
 pub mod joystick;
 pub mod mapper_node;
+pub mod plot;
 pub mod rt;
 pub mod safety_node;
 pub mod signals;
@@ -38,6 +40,12 @@ pub enum SclError {
     /// Fitting PCA failed.
     #[error(transparent)]
     Fit(#[from] mapper::pca::FitError),
+    /// Generating task demonstrations failed.
+    #[error(transparent)]
+    Tasks(#[from] mapper::tasks::TaskError),
+    /// Drawing a plot failed.
+    #[error(transparent)]
+    Plot(#[from] plot::PlotError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

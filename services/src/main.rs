@@ -108,7 +108,9 @@ enum Cmd {
     },
     /// Generate demonstrations as CSV trajectories.
     Demos {
-        /// Task: `joint-reach` (joint-space reaches from home, the bundled model's data).
+        /// Task: `joint-reach` (joint-space reaches from home, the bundled model's data), the
+        /// paper's Gen3 lite tasks `table-cleaning`, `pick-and-place`, `pouring`, or its 5-DOF
+        /// `planar-reach`.
         #[arg(long, default_value = "joint-reach")]
         task: String,
         /// Output directory (gets train/ and val/); existing files are never overwritten.
@@ -117,19 +119,41 @@ enum Cmd {
         /// Random seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Training trajectories.
-        #[arg(long = "train", default_value_t = 6)]
-        n_train: usize,
-        /// Validation trajectories.
-        #[arg(long = "val", default_value_t = 2)]
-        n_val: usize,
+        /// Training trajectories (default: the task's; the paper's 3, 6, 8 for table-cleaning,
+        /// pick-and-place, pouring; 40 for planar-reach; 6 for joint-reach).
+        #[arg(long = "train")]
+        n_train: Option<usize>,
+        /// Validation trajectories (default: the task's; 2, or 10 for planar-reach).
+        #[arg(long = "val")]
+        n_val: Option<usize>,
+        /// Also draw the TCP paths to this PNG (as `scl plot` does).
+        #[arg(long, value_name = "FILE.png")]
+        plot: Option<PathBuf>,
+    },
+    /// Draw the TCP paths of demonstrations (top and side view) to a PNG.
+    Plot {
+        /// Data set: a directory (train/*.csv, val/*.csv; *.json too) or one CSV / JSON file.
+        #[arg(long, value_name = "DIR")]
+        data: PathBuf,
+        /// The PNG to write.
+        #[arg(long, value_name = "FILE.png")]
+        out: PathBuf,
+        /// Figure title (default: the data's name and counts).
+        #[arg(long)]
+        title: Option<String>,
+        /// TrueType font for the text (default: a common system font; none: no text).
+        #[arg(long, value_name = "FILE.ttf")]
+        font: Option<PathBuf>,
+        /// Replace an existing PNG.
+        #[arg(long)]
+        force: bool,
     },
     /// Fit a model on demonstrations and write a model file.
     Train {
         /// Model kind: `pca` (SCL and CAE come with the learning issue).
         #[arg(long, default_value = "pca")]
         kind: String,
-        /// Data set directory (train/*.csv, val/*.csv).
+        /// Data set: a directory (train/*.csv, val/*.csv; *.json too) or one CSV / JSON file.
         #[arg(long, value_name = "DIR")]
         data: PathBuf,
         /// Action dimension d.
@@ -416,8 +440,19 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             seed,
             n_train,
             n_val,
+            plot,
         } => {
-            services::tools::demos(&task, &out, seed, n_train, n_val)?;
+            services::tools::demos(&task, &out, seed, (n_train, n_val), plot.as_deref())?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Plot {
+            data,
+            out,
+            title,
+            font,
+            force,
+        } => {
+            services::tools::plot(&data, &out, title.as_deref(), font.as_deref(), force)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Train {
@@ -461,6 +496,7 @@ fn main() -> ExitCode {
         Cmd::Safety => "safety",
         Cmd::Bridge { .. } => "bridge",
         Cmd::Demos { .. } => "demos",
+        Cmd::Plot { .. } => "plot",
         Cmd::Train { .. } => "train",
     };
     init_logging();

@@ -42,9 +42,7 @@ pub fn run(
     let mut filter = SafetyFilter::new(cfg.clone(), &kinematics::gen3_lite::limits(), period_s)
         .map_err(|e| SclError::Graph(format!("config: {e}")))?;
     if cfg.workspace.enabled {
-        tracing::warn!(
-            "the workspace bounds are configured but this build has no forward kinematics for them yet; joint limits, speed and acceleration are enforced"
-        );
+        filter = filter.with_tcp_model(Box::new(safety::ChainTcp::gen3_lite()));
     }
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;

@@ -1,31 +1,43 @@
-//! The offline tools: `scl demos` (generate demonstrations) and `scl train` (fit a model).
+//! The offline tools: `scl demos` (generate demonstrations), `scl train` (fit a model) and
+//! `scl plot` (draw demonstrations' TCP paths).
 
 use std::path::Path;
 
 use mapper::dataset;
 use mapper::model::{self, FORMAT, ModelHeader, ModelKind, TrainingInfo, VERSION};
 use mapper::pca;
+use mapper::tasks::Task;
 
 use crate::SclError;
+use crate::plot;
 
-/// Generates the demonstrations of `task` into `out` (refusing to overwrite any file).
+/// Task names `scl demos --task` accepts.
+pub const DEMO_TASKS: &str = "joint-reach, table-cleaning, pick-and-place, pouring, planar-reach";
+
+/// Generates the demonstrations of `task` into `out` (refusing to overwrite any file) and,
+/// with `plot`, draws their TCP paths to that PNG (refused up front if it exists).
+/// Trajectory counts default to the task's (the paper's for its tasks; 6 / 2 for
+/// joint-reach). Returns the data set written.
 pub fn demos(
     task: &str,
     out: &Path,
     seed: u64,
-    n_train: usize,
-    n_val: usize,
-) -> Result<usize, SclError> {
-    let ds = match task {
-        "joint-reach" => mapper::demos::joint_reach(n_train, n_val, seed),
-        other => {
-            return Err(SclError::Graph(format!(
-                "unknown task `{other}`; available: joint-reach"
-            )));
-        }
+    (n_train, n_val): (Option<usize>, Option<usize>),
+    plot: Option<&Path>,
+) -> Result<dataset::Dataset, SclError> {
+    if let Some(png) = plot
+        && png.exists()
+    {
+        return Err(plot::PlotError::Exists(png.to_owned()).into());
+    }
+    let ds = if task == "joint-reach" {
+        mapper::demos::joint_reach(n_train.unwrap_or(6), n_val.unwrap_or(2), seed)
+    } else {
+        let t = Task::from_name(task)?;
+        let (dt, dv) = t.default_counts();
+        mapper::tasks::generate(t, n_train.unwrap_or(dt), n_val.unwrap_or(dv), seed)?
     };
     let files = dataset::write_dir(out, &ds)?;
-    let tuples = ds.n_train() + ds.n_val();
     eprintln!(
         "wrote {} trajectories ({} train / {} validation tuples) to {}",
         files.len(),
@@ -33,7 +45,57 @@ pub fn demos(
         ds.n_val(),
         out.display()
     );
-    Ok(tuples)
+    if let Some(png) = plot {
+        plot_dataset(&ds, task, png, None, None, false)?;
+    }
+    Ok(ds)
+}
+
+/// Draws the TCP paths of the data set at `data` (a directory or a CSV / JSON file) to the
+/// PNG `out`. `title` defaults to the data's name and counts; `font` to a system font.
+pub fn plot(
+    data: &Path,
+    out: &Path,
+    title: Option<&str>,
+    font: Option<&Path>,
+    force: bool,
+) -> Result<(), SclError> {
+    let ds = dataset::load(data)?;
+    let name = data.file_name().map_or_else(
+        || data.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    plot_dataset(&ds, &name, out, title, font, force)
+}
+
+/// Draws an already loaded data set (see [`plot`]).
+pub fn plot_dataset(
+    ds: &dataset::Dataset,
+    name: &str,
+    out: &Path,
+    title: Option<&str>,
+    font: Option<&Path>,
+    force: bool,
+) -> Result<(), SclError> {
+    if out.exists() && !force {
+        return Err(plot::PlotError::Exists(out.to_owned()).into());
+    }
+    let text = plot::load_font(font)?.is_some();
+    if !text {
+        tracing::warn!(
+            "no font found (tried {}); drawing without text, pass --font FILE.ttf for labels",
+            plot::FONT_CANDIDATES.join(", ")
+        );
+    }
+    let title = title.map_or_else(|| plot::title_for(name, ds), str::to_owned);
+    let rgb = plot::render(ds, &title, text)?;
+    plot::write_png(out, &rgb, force)?;
+    eprintln!(
+        "drew {} trajectories to {}",
+        ds.train.len() + ds.val.len(),
+        out.display()
+    );
+    Ok(())
 }
 
 /// What `scl train` fits.
@@ -58,7 +120,7 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, SclError> {
     if o.out.exists() && !o.force {
         return Err(mapper::ModelError::Exists(o.out.to_owned()).into());
     }
-    let ds = dataset::load_dir(o.data)?;
+    let ds = dataset::load(o.data)?;
     let train = ds.train_qdot();
     let m = train.first().map_or(0, Vec::len);
     let map = pca::fit(&train, o.latent_dim)?;
@@ -128,4 +190,66 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, SclError> {
         o.out.display()
     );
     Ok(header)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str) -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("scl-tools-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn demos_default_counts_per_task() {
+        let d = tmp("defaults");
+        let ds = demos("joint-reach", &d.join("jr"), 1, (None, None), None).unwrap();
+        assert_eq!((ds.train.len(), ds.val.len()), (6, 2));
+        let ds = demos("table-cleaning", &d.join("tc"), 1, (None, None), None).unwrap();
+        assert_eq!((ds.train.len(), ds.val.len()), (3, 2));
+        assert_eq!(ds.n_train(), 509);
+        // Read back through the loader: the same tuples.
+        let back = dataset::load(&d.join("tc")).unwrap();
+        assert_eq!(back.n_train(), 509);
+        assert_eq!(back.train.len(), 3);
+        let e = demos("juggling", &d.join("x"), 1, (None, None), None).unwrap_err();
+        assert!(e.to_string().starts_with("unknown task `juggling`"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn demos_with_a_plot_and_no_overwrites() {
+        let d = tmp("plot");
+        let png = d.join("p.png");
+        demos(
+            "planar-reach",
+            &d.join("pr"),
+            2,
+            (Some(3), Some(1)),
+            Some(&png),
+        )
+        .unwrap();
+        assert!(png.is_file());
+        // The PNG exists: refused before anything is generated or written.
+        let e = demos(
+            "planar-reach",
+            &d.join("pr2"),
+            2,
+            (Some(3), Some(1)),
+            Some(&png),
+        );
+        assert!(matches!(e, Err(SclError::Plot(plot::PlotError::Exists(_)))));
+        assert!(!d.join("pr2").exists());
+        // The data exist: refused.
+        assert!(matches!(
+            demos("planar-reach", &d.join("pr"), 2, (Some(3), Some(1)), None),
+            Err(SclError::Dataset(dataset::DatasetError::Exists(_)))
+        ));
+        // scl plot on the written data; --force replaces.
+        plot(&d.join("pr"), &png, Some("t"), None, true).unwrap();
+        assert!(plot(&d.join("pr"), &png, None, None, false).is_err());
+        std::fs::remove_dir_all(&d).unwrap();
+    }
 }

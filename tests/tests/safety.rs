@@ -7,9 +7,7 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use ipc_types::{NodeRole, Prefix, RobotState, SafeCommand, phase, safe_flags, state_flags};
-use kinematics::gen3_lite::{
-    DEFAULT_ACCELERATION_RAD_S2, DEFAULT_VELOCITY_RAD_S, POSITION_LIMIT_RAD,
-};
+use kinematics::gen3_lite::{DEFAULT_ACCELERATION_RAD_S2, DEFAULT_VELOCITY_RAD_S};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
     wait_clean,
@@ -183,11 +181,13 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
         "the position rule never acted"
     );
 
-    // No joint ever went past its margin, and the arm came to rest at one.
+    // No joint ever went past its margin, and the arm came to rest at one (the Gen3 lite's
+    // limits are symmetric).
+    let upper = kinematics::gen3_lite::limits().upper_rad;
     let states = run.running();
     for s in &states {
         for j in 0..6 {
-            let lim = POSITION_LIMIT_RAD[j] - MARGIN;
+            let lim = upper[j] - MARGIN;
             assert!(
                 s.q_rad[j].abs() <= lim + 1e-9,
                 "tick {} joint {j} at {}",
@@ -202,8 +202,7 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
         "still moving at the end: {:?}",
         end.qdot_rad_s
     );
-    let at_margin =
-        (0..6).any(|j| (end.q_rad[j].abs() - (POSITION_LIMIT_RAD[j] - MARGIN)).abs() < 0.01);
+    let at_margin = (0..6).any(|j| (end.q_rad[j].abs() - (upper[j] - MARGIN)).abs() < 0.01);
     assert!(
         at_margin,
         "stopped away from any margin: {:?}",
@@ -371,5 +370,55 @@ fn robot_states_that_stop_arriving_end_in_a_controlled_stop() {
         .position(|d| *d == 0.0)
         .expect("the arm never stopped");
     assert!(still <= 49, "standstill after {still} ticks");
+    run.finish();
+}
+
+#[test]
+fn driving_into_the_table_stops_at_the_plane() {
+    let _serial = serial();
+    let run = run_graph(
+        "table",
+        "[joystick]\nscript = \"constant\"\nconstant_axes = [0.0, -1.0]\n",
+        10,
+        0,
+        |_, _| {},
+    );
+    assert_eq!(run.summary["missed"], 0, "{}", run.summary);
+    assert!(
+        run.first_command_with(safe_flags::WORKSPACE_LIMITED)
+            .is_some(),
+        "the workspace rule never acted"
+    );
+    let arm = kinematics::Gen3Lite::get().arm();
+    let tcp = |s: &RobotState| arm.fk(s.q()).unwrap().translation.vector;
+    let states = run.running();
+    let mut lowest = f64::MAX;
+    for s in &states {
+        let p = tcp(s);
+        lowest = lowest.min(p.z);
+        // The default workspace: above the table plane at 2 cm, inside the box.
+        assert!(
+            p.z >= 0.02,
+            "tick {}: tool at z {:.4} m, in the table",
+            s.tick,
+            p.z
+        );
+        assert!(
+            p.x.abs() <= 0.8 && p.y.abs() <= 0.8 && p.z <= 1.1,
+            "tick {}: out of the box",
+            s.tick
+        );
+    }
+    let end = states.last().unwrap();
+    assert!(
+        speed(end) < 1e-9,
+        "still moving at the end: {:?}",
+        end.qdot_rad_s
+    );
+    // It came to rest at the plane (within a centimetre), not short of it.
+    assert!(
+        lowest < 0.03,
+        "the tool never got near the table: lowest z {lowest:.4} m"
+    );
     run.finish();
 }
