@@ -114,11 +114,12 @@ impl Samples {
         }
         let d = |a: u64, b: u64| b.saturating_sub(a);
         if r.joystick_t_ns != 0 && r.joystick_rx_ns != 0 {
-            // A sample received before the tick's state: its hop; its age when used is
-            // counted from production to the mapper's wake-up with the state.
+            // The sample's hop, and its age when the map ran (the command's publication less
+            // the map's own time).
             self.joystick_mapper
                 .push(d(r.joystick_t_ns, r.joystick_rx_ns));
-            self.joystick_age.push(d(r.joystick_t_ns, r.state_rx_ns));
+            let used = r.mapper_t_ns.saturating_sub(r.mapper_compute_ns);
+            self.joystick_age.push(d(r.joystick_t_ns, used));
         }
         self.bridge_mapper.push(d(r.state_t_ns, r.state_rx_ns));
         self.mapper_safety.push(d(r.mapper_t_ns, r.mapper_rx_ns));
@@ -292,7 +293,11 @@ pub fn burn() -> ! {
     }
 }
 
-fn run_one(opts: &LatencyOptions, transport: Transport, dir: &Path) -> Result<RunReport, SclError> {
+fn run_one(
+    opts: &LatencyOptions,
+    transport: Transport,
+    dir: &Path,
+) -> Result<(RunReport, Samples), SclError> {
     let prefix = Prefix::new(&format!("bench{}{}", std::process::id(), transport))
         .map_err(|e| SclError::Graph(e.to_string()))?;
     let mut cfg = opts.config.clone();
@@ -380,7 +385,113 @@ fn run_one(opts: &LatencyOptions, transport: Transport, dir: &Path) -> Result<Ru
         .filter(|l| l.contains("real-time"))
         .map(|l| l.trim().to_owned())
         .collect();
-    Ok(RunReport::new(transport, &samples, realtime))
+    Ok((RunReport::new(transport, &samples, realtime), samples))
+}
+
+/// Log-spaced histogram of samples (ns): counts in bins from 1 µs to 100 ms, 8 per decade,
+/// as (bin centre in µs, fraction of samples).
+pub fn histogram(samples_ns: &[u64]) -> Vec<(f64, f64)> {
+    const PER_DECADE: f64 = 8.0;
+    let bins = (5.0 * PER_DECADE) as usize;
+    let mut counts = vec![0usize; bins];
+    for v in samples_ns {
+        let us = (*v as f64 / 1000.0).max(1.0);
+        let i = ((us.log10() * PER_DECADE) as usize).min(bins - 1);
+        counts[i] += 1;
+    }
+    let n = samples_ns.len().max(1) as f64;
+    counts
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (10f64.powf((i as f64 + 0.5) / PER_DECADE), *c as f64 / n))
+        .collect()
+}
+
+/// Draws the histograms of six figures, one line per transport, into an RGB buffer of
+/// [`crate::plot::SIZE`].
+pub fn render_histograms(
+    runs: &[(Transport, &Samples)],
+    title: &str,
+    text: bool,
+) -> Result<Vec<u8>, crate::plot::PlotError> {
+    use plotters::prelude::*;
+    let draw = |e: &dyn std::fmt::Display| crate::plot::PlotError::Draw(e.to_string());
+    let (w, h) = crate::plot::SIZE;
+    let mut buf = vec![0u8; (w as usize) * (h as usize) * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| draw(&e))?;
+        let body = if text {
+            root.titled(title, ("sans-serif", 24))
+                .map_err(|e| draw(&e))?
+        } else {
+            root.clone()
+        };
+        let panels = body.split_evenly((2, 3));
+        type Pick = fn(&Samples) -> &Vec<u64>;
+        let figures: [(&str, Pick); 6] = [
+            ("end to end", |s| &s.e2e),
+            ("bridge -> mapper", |s| &s.bridge_mapper),
+            ("mapper -> safety", |s| &s.mapper_safety),
+            ("safety -> bridge", |s| &s.safety_bridge),
+            ("joystick -> mapper", |s| &s.joystick_mapper),
+            ("tick lateness", |s| &s.lateness),
+        ];
+        let colours = [RGBColor(31, 119, 180), RGBColor(255, 127, 14)];
+        for (panel, (name, pick)) in panels.iter().zip(figures) {
+            let hists: Vec<(Transport, Vec<(f64, f64)>)> =
+                runs.iter().map(|(t, s)| (*t, histogram(pick(s)))).collect();
+            let top = hists
+                .iter()
+                .flat_map(|(_, h)| h.iter().map(|(_, f)| *f))
+                .fold(0.0, f64::max)
+                .max(0.01)
+                * 1.1;
+            let mut chart = ChartBuilder::on(panel);
+            chart.margin(8);
+            if text {
+                chart
+                    .caption(name, ("sans-serif", 18))
+                    .x_label_area_size(30)
+                    .y_label_area_size(40);
+            }
+            let mut chart = chart
+                .build_cartesian_2d((1.0f64..100_000.0).log_scale(), 0.0..top)
+                .map_err(|e| draw(&e))?;
+            let mut mesh = chart.configure_mesh();
+            if text {
+                mesh.x_desc("µs")
+                    .y_desc("fraction")
+                    .x_label_formatter(&|v| format!("{v:.0}"));
+            } else {
+                mesh.disable_x_mesh().disable_y_mesh();
+            }
+            mesh.draw().map_err(|e| draw(&e))?;
+            for (k, (t, hist)) in hists.iter().enumerate() {
+                let colour = colours[k % colours.len()];
+                let series = chart
+                    .draw_series(LineSeries::new(
+                        hist.iter().copied(),
+                        colour.stroke_width(2),
+                    ))
+                    .map_err(|e| draw(&e))?;
+                if text {
+                    series
+                        .label(t.to_string())
+                        .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+                }
+            }
+            if text {
+                chart
+                    .configure_series_labels()
+                    .border_style(BLACK)
+                    .draw()
+                    .map_err(|e| draw(&e))?;
+            }
+        }
+        root.present().map_err(|e| draw(&e))?;
+    }
+    Ok(buf)
 }
 
 /// Runs the benchmark.
@@ -392,11 +503,29 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, SclError> {
     std::fs::create_dir_all(&dir)
         .map_err(|e| SclError::Graph(format!("{}: {e}", dir.display())))?;
     let mut runs = Vec::new();
+    let mut all_samples = Vec::new();
     for t in &opts.transports {
         if signals::stop_requested() {
             break;
         }
-        runs.push(run_one(opts, *t, &dir)?);
+        let (report, samples) = run_one(opts, *t, &dir)?;
+        runs.push(report);
+        all_samples.push((*t, samples));
+    }
+    if opts.out.is_some() {
+        let font = crate::plot::load_font(None).map_err(|e| SclError::Graph(e.to_string()))?;
+        let refs: Vec<(Transport, &Samples)> = all_samples.iter().map(|(t, s)| (*t, s)).collect();
+        let title = format!(
+            "scl bench latency: {:.0} s per transport, load {}, rt {}",
+            opts.duration.as_secs_f64(),
+            opts.load,
+            opts.rt
+        );
+        let rgb = render_histograms(&refs, &title, font.is_some())
+            .map_err(|e| SclError::Graph(e.to_string()))?;
+        let png = dir.join("latency.png");
+        crate::plot::write_png(&png, &rgb, true).map_err(|e| SclError::Graph(e.to_string()))?;
+        eprintln!("bench: histograms in {}", png.display());
     }
     let mut ratios = Vec::new();
     if let (Some(i), Some(u)) = (
@@ -511,7 +640,7 @@ mod tests {
         assert_eq!(s.safety_bridge, vec![30_000]);
         assert_eq!(s.e2e, vec![120_000]);
         assert_eq!(s.joystick_mapper, vec![10_000]);
-        assert_eq!(s.joystick_age, vec![50_000]);
+        assert_eq!(s.joystick_age, vec![58_000]);
         // A missed tick counts, but has no hops.
         s.take(&report(2, false));
         assert_eq!(
