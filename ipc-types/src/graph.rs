@@ -450,6 +450,16 @@ pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> 
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
+    /// Wraps a subscriber of a topic opened elsewhere in this crate (the control topics),
+    /// without a wake-up listener.
+    pub(crate) fn without_listener(service: String, subscriber: Subscriber<Ipc, T, ()>) -> Self {
+        Self {
+            service,
+            subscriber,
+            listener: None,
+        }
+    }
+
     /// Calls `f` with every buffered message, oldest first.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
         let mut n = 0;
