@@ -4,7 +4,8 @@
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls.
+//! TOML, [`signals`] the shutdown flag every loop polls. [`mcap_log`] is the recording
+//! format.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
@@ -12,6 +13,7 @@ pub mod config;
 pub mod control;
 pub mod joystick;
 pub mod mapper_node;
+pub mod mcap_log;
 pub mod rt;
 pub mod safety_node;
 pub mod signals;
@@ -37,6 +39,9 @@ pub enum SclError {
     /// Fitting PCA failed.
     #[error(transparent)]
     Fit(#[from] mapper::pca::FitError),
+    /// A recording could not be written, read or recovered.
+    #[error(transparent)]
+    Record(#[from] mcap_log::RecordError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),
