@@ -4,8 +4,8 @@
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls. [`mcap_log`] is the recording
-//! format.
+//! TOML, [`signals`] the shutdown flag every loop polls. The read-only observer [`record`]
+//! (`scl record`) writes MCAP in the [`mcap_log`] format.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
@@ -14,6 +14,7 @@ pub mod control;
 pub mod joystick;
 pub mod mapper_node;
 pub mod mcap_log;
+pub mod record;
 pub mod rt;
 pub mod safety_node;
 pub mod signals;

@@ -43,7 +43,14 @@ enum Cmd {
         /// Joystick script instead of the config's: `circle` or `step`.
         #[arg(long)]
         script: Option<String>,
+        /// Record every message of the graph to this MCAP file (a supervised `scl record`,
+        /// started before the bridge and stopped last).
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
     },
+    /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
+    /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
+    Record(services::record::RecordArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -192,6 +199,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             json,
             model,
             script,
+            record,
         } => {
             if let Some(m) = model {
                 cfg.mapper.model = m;
@@ -205,6 +213,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 config: cfg,
                 duration,
                 json,
+                record: record.map(|p| services::record::absolute(&p)),
             };
             let summary = services::up::run(&opts)?;
             if json {
@@ -228,6 +237,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Cmd::Record(args) => services::record::cli(&prefix, &args),
         Cmd::Swap { model, timeout } => {
             let r = services::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -371,6 +381,7 @@ fn main() -> ExitCode {
         Cmd::Bridge { .. } => "bridge",
         Cmd::Demos { .. } => "demos",
         Cmd::Train { .. } => "train",
+        Cmd::Record(_) => "record",
     };
     init_logging();
     let span = tracing::info_span!("scl", role);

@@ -1,0 +1,296 @@
+//! Whole-graph tests of recording: `scl up --record` into MCAP, and a recorder killed
+//! mid-run. Each test runs its own graph under its own prefix, one at a time, and checks
+//! that nothing is left behind.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use ipc_types::{NodeRole, RobotState, state_flags};
+use scl_tests::{
+    ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
+    wait_clean,
+};
+use services::mcap_log::{self, Event, ReadSummary, RobotStateJson};
+
+/// What a recording holds.
+#[derive(Default)]
+struct Contents {
+    summary: ReadSummary,
+    /// Channel topic -> (message encoding, schema encoding).
+    channels: BTreeMap<String, (String, String)>,
+    /// Messages per channel topic.
+    counts: BTreeMap<String, u64>,
+    states: Vec<RobotStateJson>,
+    metadata: BTreeMap<String, BTreeMap<String, String>>,
+}
+
+fn contents(path: &Path) -> Contents {
+    let mut c = Contents::default();
+    c.summary = mcap_log::read_file(path, |ev| {
+        match ev {
+            Event::Channel(ch) => {
+                let schema = ch
+                    .schema
+                    .as_ref()
+                    .map_or(String::new(), |s| s.encoding.clone());
+                c.channels
+                    .insert(ch.topic.clone(), (ch.message_encoding.clone(), schema));
+            }
+            Event::Message {
+                channel,
+                sequence,
+                data,
+                ..
+            } => {
+                *c.counts.entry(channel.topic.clone()).or_default() += 1;
+                if channel.topic == "/robot_state" {
+                    c.states
+                        .push(mcap_log::decode(path, &channel.topic, sequence, data).unwrap());
+                }
+            }
+            Event::Metadata { name, entries } => {
+                c.metadata.insert(name.to_owned(), entries.clone());
+            }
+        }
+        Ok(())
+    })
+    .unwrap();
+    c
+}
+
+/// The recorded states match the test's own recorder's, tick for tick.
+fn assert_same_states(file: &[RobotStateJson], seen: &[RobotState], what: &str) {
+    for s in file {
+        // The bridge's shutdown state repeats its last tick: match the publication time too.
+        let r = seen
+            .iter()
+            .find(|r| r.tick == s.tick && r.t_ns == s.t_ns)
+            .unwrap_or_else(|| {
+                panic!(
+                    "{what}: tick {} at {} ns is not a state the graph published",
+                    s.tick, s.t_ns
+                )
+            });
+        assert_eq!(s.flags, r.flags, "{what}: tick {}", s.tick);
+        assert_eq!(s.q_rad.len(), r.n_joints as usize);
+        for j in 0..s.q_rad.len() {
+            assert!(
+                (s.q_rad[j] - r.q_rad[j]).abs() < 1e-12,
+                "{what}: tick {}",
+                s.tick
+            );
+            assert!((s.qdot_rad_s[j] - r.qdot_rad_s[j]).abs() < 1e-12);
+        }
+    }
+}
+
+#[test]
+fn a_recorded_run_holds_what_the_graph_did() {
+    let _serial = serial();
+    let prefix = unique_prefix("recds");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = temp_dir("rec-dataset");
+    let file = dir.join("run.mcap");
+    let mut rec = Recorder::join(&prefix);
+    let mut up = scl(&prefix);
+    up.args([
+        "up", "--for", "6s", "--json", "--script", "circle", "--record",
+    ])
+    .arg(&file);
+    let out = run_polling(up, &mut rec);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "scl up failed: {stderr}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ticks = summary["ticks"].as_u64().unwrap();
+    assert!(ticks >= 120, "only {ticks} ticks");
+
+    // The file: finished, every topic a JSON channel with a JSON schema, and the robot
+    // states exactly those the graph published, the bridge's last (shutdown) state included:
+    // the recorder started before the bridge and stopped after it.
+    let c = contents(&file);
+    assert!(c.summary.complete, "{:?}", c.summary);
+    assert_eq!(c.channels.len(), mcap_log::Topic::COUNT, "{:?}", c.channels);
+    for (topic, (enc, schema)) in &c.channels {
+        assert_eq!(
+            (enc.as_str(), schema.as_str()),
+            ("json", "jsonschema"),
+            "{topic}"
+        );
+    }
+    let running: Vec<RobotState> = rec
+        .robot_states
+        .iter()
+        .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+        .copied()
+        .collect();
+    assert_eq!(
+        running.len() as u64,
+        ticks,
+        "the test's recorder missed states"
+    );
+    assert_eq!(c.states.len(), rec.robot_states.len());
+    assert_same_states(&c.states, &rec.robot_states, "recording");
+    assert!(c.states.last().unwrap().flags & state_flags::SHUTDOWN != 0);
+    assert_eq!(c.counts["/safe_command"], rec.safe_commands.len() as u64);
+    assert!(c.counts["/mapper_command"] >= ticks && c.counts["/joystick"] >= ticks);
+    // Heartbeats of the four nodes and of the recorder itself.
+    assert!(c.counts["/status"] >= 4 * ticks, "{:?}", c.counts);
+    // Clean stop: the end metadata counts everything, nothing dropped.
+    let start = &c.metadata[mcap_log::START_METADATA];
+    assert_eq!(start["prefix"], prefix.as_str());
+    let end = &c.metadata[mcap_log::END_METADATA];
+    assert_eq!(end["dropped_total"], "0", "{end:?}");
+    assert_eq!(end["robot_state_gaps"], "0", "{end:?}");
+    assert_eq!(end["written.robot_state"], c.states.len().to_string());
+    assert!(
+        stderr.contains("scl record:") && stderr.contains(" 0 dropped"),
+        "no recorder report: {stderr}"
+    );
+
+    // Nor is a recording.
+    let out = scl(&prefix)
+        .args(["up", "--for", "1s", "--record"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("already exists"));
+
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_killed_recorder_leaves_a_readable_recording() {
+    let _serial = serial();
+    let prefix = unique_prefix("reckill");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = temp_dir("rec-kill");
+    let file = dir.join("cut.mcap");
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = ChildGuard(Some(
+        scl(&prefix)
+            .args(["up", "--record"])
+            .arg(&file)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
+    assert!(
+        rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() >= 40
+            && r.pid_of(NodeRole::Recorder).is_some()),
+        "the graph did not run with a recorder"
+    );
+    // Wait until the recorder has put a few seconds on disk (it closes a chunk a second).
+    let t0 = Instant::now();
+    let on_disk = loop {
+        rec.poll();
+        let n = contents(&file).states.len();
+        if n >= 80 {
+            break n;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "only {n} states on disk"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let pid = rec.pid_of(NodeRole::Recorder).unwrap();
+    // SAFETY: signalling a process of our own graph.
+    unsafe {
+        libc::kill(pid as libc::pid_t, libc::SIGKILL);
+    }
+    // The recorder's restart policy is `never`: the graph stops, bridge first, naming it.
+    let t0 = Instant::now();
+    while guard.child().try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "scl up did not exit"
+        );
+    }
+    rec.poll();
+    let out = guard.take().wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!("the recorder process (pid {pid})")) && stderr.contains("SIGKILL"),
+        "{stderr}"
+    );
+
+    // The cut file reads up to its last complete chunk (the writer closes one a second).
+    let cut = contents(&file);
+    assert!(!cut.summary.complete, "{:?}", cut.summary);
+    assert!(cut.summary.stopped.is_some());
+    assert!(!cut.metadata.contains_key(mcap_log::END_METADATA));
+    assert!(
+        cut.states.len() >= on_disk,
+        "only {} of the {on_disk} states on disk before the kill are readable",
+        cut.states.len()
+    );
+    // What is there is the start of what the graph did, without a gap.
+    let first = rec.robot_states[0].tick;
+    let ticks: Vec<u64> = cut.states.iter().map(|s| s.tick).collect();
+    assert_eq!(
+        ticks,
+        (first..first + ticks.len() as u64).collect::<Vec<_>>()
+    );
+    assert_same_states(&cut.states, &rec.robot_states, "cut recording");
+
+    // `scl record --recover` makes a finished copy of exactly that prefix.
+    let fixed = dir.join("fixed.mcap");
+    let out = scl(&prefix)
+        .args(["record", "--recover"])
+        .arg(&file)
+        .arg("--out")
+        .arg(&fixed)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains(&format!("recovered {} messages", cut.summary.messages)),
+        "{stdout}"
+    );
+    let rec_fixed = contents(&fixed);
+    assert!(rec_fixed.summary.complete, "{:?}", rec_fixed.summary);
+    assert_eq!(rec_fixed.summary.messages, cut.summary.messages);
+    assert_eq!(rec_fixed.channels, cut.channels);
+    assert_eq!(rec_fixed.counts, cut.counts);
+    assert_eq!(rec_fixed.states, cut.states);
+    assert!(
+        rec_fixed
+            .metadata
+            .contains_key(mcap_log::RECOVERED_METADATA)
+    );
+    assert!(rec_fixed.metadata.contains_key(mcap_log::START_METADATA));
+    // Recovering again over the result is refused.
+    let again = scl(&prefix)
+        .args(["record", "--recover"])
+        .arg(&file)
+        .arg("--out")
+        .arg(&fixed)
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2));
+
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
