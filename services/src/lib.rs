@@ -5,7 +5,8 @@
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
 //! TOML, [`signals`] the shutdown flag every loop polls. The read-only observer [`record`]
-//! (`scl record`) writes MCAP in the [`mcap_log`] format.
+//! (`scl record`) writes MCAP in the [`mcap_log`] format; [`to_dataset`] (`scl dataset`) turns
+//! recordings into training data.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
@@ -19,6 +20,7 @@ pub mod rt;
 pub mod safety_node;
 pub mod signals;
 pub mod stats;
+pub mod to_dataset;
 pub mod tools;
 pub mod up;
 

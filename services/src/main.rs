@@ -51,6 +51,8 @@ enum Cmd {
     /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
     /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
     Record(services::record::RecordArgs),
+    /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
+    Dataset(services::to_dataset::DatasetArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -238,6 +240,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Record(args) => services::record::cli(&prefix, &args),
+        Cmd::Dataset(args) => services::to_dataset::cli(&args),
         Cmd::Swap { model, timeout } => {
             let r = services::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -382,6 +385,7 @@ fn main() -> ExitCode {
         Cmd::Demos { .. } => "demos",
         Cmd::Train { .. } => "train",
         Cmd::Record(_) => "record",
+        Cmd::Dataset(_) => "dataset",
     };
     init_logging();
     let span = tracing::info_span!("scl", role);

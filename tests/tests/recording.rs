@@ -1,5 +1,5 @@
-//! Whole-graph tests of recording: `scl up --record` into MCAP, and a recorder killed
-//! mid-run. Each test runs its own graph under its own prefix, one at a time, and checks
+//! Whole-graph tests of recording: `scl up --record` into MCAP and back out as a training
+//! data set, and a recorder killed mid-run. Each test runs its own graph under its own prefix, one at a time, and checks
 //! that nothing is left behind.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
@@ -87,8 +87,13 @@ fn assert_same_states(file: &[RobotStateJson], seen: &[RobotState], what: &str) 
     }
 }
 
+fn first_tick(name: &str) -> u64 {
+    let at = name.rfind("-tick").unwrap();
+    name[at + 5..].trim_end_matches(".csv").parse().unwrap()
+}
+
 #[test]
-fn a_recorded_run_holds_what_the_graph_did() {
+fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
     let _serial = serial();
     let prefix = unique_prefix("recds");
     let _domain = DomainGuard(prefix.clone());
@@ -150,6 +155,82 @@ fn a_recorded_run_holds_what_the_graph_did() {
         "no recorder report: {stderr}"
     );
 
+    // Into a data set: every tick's tuple once, in 1 s trajectories, a quarter of them in
+    // val/, each row the state of its tick and the velocity of the next.
+    let data = dir.join("data");
+    let out = scl(&prefix)
+        .arg("dataset")
+        .arg(&file)
+        .arg("--out")
+        .arg(&data)
+        .args([
+            "--val-fraction",
+            "0.25",
+            "--max-length-s",
+            "1",
+            "--rest-s",
+            "0",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ds = mapper::dataset::load_dir(&data).unwrap();
+    let n_traj = ds.train.len() + ds.val.len();
+    assert!(n_traj >= 4, "{n_traj} trajectories");
+    assert_eq!(ds.val.len(), n_traj / 4, "val gets a quarter");
+    let by_tick: BTreeMap<u64, &RobotState> = running.iter().map(|s| (s.tick, s)).collect();
+    let mut covered = Vec::new();
+    for t in ds.train.iter().chain(&ds.val) {
+        let k0 = first_tick(&t.name);
+        assert_eq!(t.n_joints(), 6);
+        for r in 0..t.len() {
+            let k = k0 + r as u64;
+            covered.push(k);
+            let (now, next) = (by_tick[&k], by_tick[&(k + 1)]);
+            let t_s = (now.t_ns - by_tick[&k0].t_ns) as f64 / 1e9;
+            assert!((t.t[r] - t_s).abs() < 1e-4, "{}: row {r}", t.name);
+            for j in 0..6 {
+                assert!(
+                    (t.q[r][j] - now.q_rad[j]).abs() < 1e-6,
+                    "{}: row {r}",
+                    t.name
+                );
+                assert!(
+                    (t.qdot[r][j] - next.qdot_rad_s[j]).abs() < 1e-6,
+                    "{}: row {r}",
+                    t.name
+                );
+            }
+            assert!((t.c[r] - now.gripper).abs() < 1e-6);
+        }
+    }
+    covered.sort_unstable();
+    // Every tick but the last running one (it has no successor) exactly once.
+    let expected: Vec<u64> = running[..running.len() - 1]
+        .iter()
+        .map(|s| s.tick)
+        .collect();
+    assert_eq!(covered, expected);
+    assert_eq!(ds.n_train() + ds.n_val(), ticks as usize - 1);
+
+    // Never overwritten: a second conversion into the same place is refused and changes
+    // nothing.
+    let before = mapper::dataset::load_dir(&data).unwrap().hash;
+    let again = scl(&prefix)
+        .arg("dataset")
+        .arg(&file)
+        .arg("--out")
+        .arg(&data)
+        .args(["--max-length-s", "1", "--rest-s", "0"])
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("already exists"));
+    assert_eq!(mapper::dataset::load_dir(&data).unwrap().hash, before);
     // Nor is a recording.
     let out = scl(&prefix)
         .args(["up", "--for", "1s", "--record"])
@@ -286,6 +367,21 @@ fn a_killed_recorder_leaves_a_readable_recording() {
         .output()
         .unwrap();
     assert_eq!(again.status.code(), Some(2));
+
+    // `scl dataset` reads the cut file as it is, saying so.
+    let out = scl(&prefix)
+        .arg("dataset")
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("data"))
+        .args(["--rest-s", "0", "--max-length-s", "1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("the recording is cut"), "{stderr}");
+    let ds = mapper::dataset::load_dir(&dir.join("data")).unwrap();
+    assert_eq!(ds.n_train() + ds.n_val(), cut.states.len() - 1);
 
     drop(rec);
     assert_eq!(
