@@ -4,9 +4,9 @@
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls. The read-only observer [`record`]
-//! (`scl record`) writes MCAP in the [`mcap_log`] format; [`to_dataset`] (`scl dataset`) turns
-//! recordings into training data.
+//! TOML, [`signals`] the shutdown flag every loop polls. The read-only observers:
+//! [`record`] (`scl record`, MCAP in the [`mcap_log`] format), [`to_dataset`] (`scl dataset`,
+//! recordings to training data) and [`top`] (`scl top`, the terminal dashboard).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
@@ -22,6 +22,7 @@ pub mod signals;
 pub mod stats;
 pub mod to_dataset;
 pub mod tools;
+pub mod top;
 pub mod up;
 
 /// Errors that end a process, each with the message a user sees.
@@ -45,6 +46,9 @@ pub enum SclError {
     /// A recording could not be written, read or recovered.
     #[error(transparent)]
     Record(#[from] mcap_log::RecordError),
+    /// The dashboard could not run.
+    #[error(transparent)]
+    Top(#[from] top::TopError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

@@ -53,6 +53,8 @@ enum Cmd {
     Record(services::record::RecordArgs),
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
     Dataset(services::to_dataset::DatasetArgs),
+    /// A terminal dashboard of a running graph (works over SSH in 80x24).
+    Top(services::top::TopArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -241,6 +243,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Record(args) => services::record::cli(&prefix, &args),
         Cmd::Dataset(args) => services::to_dataset::cli(&args),
+        Cmd::Top(args) => services::top::cli(&prefix, &args),
         Cmd::Swap { model, timeout } => {
             let r = services::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -386,6 +389,7 @@ fn main() -> ExitCode {
         Cmd::Train { .. } => "train",
         Cmd::Record(_) => "record",
         Cmd::Dataset(_) => "dataset",
+        Cmd::Top(_) => "top",
     };
     init_logging();
     let span = tracing::info_span!("scl", role);

@@ -1,5 +1,6 @@
-//! Whole-graph tests of recording: `scl up --record` into MCAP and back out as a training
-//! data set, and a recorder killed mid-run. Each test runs its own graph under its own prefix, one at a time, and checks
+//! Whole-graph tests of recording and watching: `scl up --record` into MCAP and back out as a
+//! training data set, a recorder killed mid-run, and `scl top` / `scl record` attached to a
+//! running graph. Each test runs its own graph under its own prefix, one at a time, and checks
 //! that nothing is left behind.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
@@ -383,6 +384,156 @@ fn a_killed_recorder_leaves_a_readable_recording() {
     let ds = mapper::dataset::load_dir(&dir.join("data")).unwrap();
     assert_eq!(ds.n_train() + ds.n_val(), cut.states.len() - 1);
 
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn top_and_a_standalone_recorder_attach_to_a_running_graph() {
+    let _serial = serial();
+    let prefix = unique_prefix("rectop");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = temp_dir("rec-top");
+    let file = dir.join("two-topics.mcap");
+    let mut rec = Recorder::join(&prefix);
+    let mut graph = ChildGuard(Some(
+        scl(&prefix)
+            .args(["up", "--for", "30s"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
+    assert!(rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() >= 40));
+    // A recorder of two topics, started by hand beside the graph.
+    let mut recorder = ChildGuard(Some(
+        scl(&prefix)
+            .args([
+                "record",
+                "--json",
+                "--topics",
+                "robot_state,safe_command",
+                "--out",
+            ])
+            .arg(&file)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
+    assert!(
+        rec.poll_until(Duration::from_secs(30), |r| r
+            .pid_of(NodeRole::Recorder)
+            .is_some()),
+        "the recorder sent no heartbeat"
+    );
+
+    // One dashboard frame, as text.
+    let n = rec.robot_states.len();
+    assert!(rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() >= n + 40));
+    let out = scl(&prefix).args(["top", "--once"]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 24, "{text}");
+    assert!(lines.iter().all(|l| l.chars().count() <= 80), "{text}");
+    assert!(lines[0].contains(&format!("graph `{prefix}`")), "{text}");
+    assert!(lines[0].contains("mapper 1"), "{text}");
+    for role in ["joystick", "mapper", "safety", "bridge", "recorder"] {
+        let row = lines
+            .iter()
+            .find(|l| l.starts_with(role))
+            .unwrap_or_else(|| panic!("no {role} row:\n{text}"));
+        let cols: Vec<&str> = row.split_whitespace().collect();
+        assert_eq!(cols[3], "yes", "{role} not alive:\n{text}");
+        let hz: f64 = cols[4]
+            .parse()
+            .unwrap_or_else(|_| panic!("{role} has no rate:\n{text}"));
+        assert!(hz > 0.0, "{text}");
+    }
+    let timing = lines.iter().find(|l| l.starts_with("e2e p50 ")).unwrap();
+    assert!(timing.contains(" µs") || timing.contains(" ms"), "{text}");
+    let joint_rows = lines
+        .iter()
+        .filter(|l| l.starts_with('j') && l[1..].starts_with(|c: char| c.is_ascii_digit()))
+        .filter(|l| l.contains('●'))
+        .count();
+    assert_eq!(joint_rows, 6, "{text}");
+
+    // Stop the recorder (SIGTERM, as Ctrl-C would): it finishes the file and reports.
+    let mut child = recorder.take();
+    // SAFETY: signalling our own child.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+    }
+    let t0 = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "scl record did not stop"
+        );
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["dropped"], 0, "{report}");
+    assert_eq!(report["written"], report["received"], "{report}");
+    let topics: Vec<&str> = report["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["topic"].as_str().unwrap())
+        .collect();
+    assert_eq!(topics, vec!["robot_state", "safe_command"]);
+    let c = contents(&file);
+    assert!(c.summary.complete);
+    assert_eq!(
+        c.channels.keys().collect::<Vec<_>>(),
+        vec!["/robot_state", "/safe_command"]
+    );
+    assert_eq!(
+        c.summary.messages,
+        report["written"].as_u64().unwrap(),
+        "{report}"
+    );
+    assert_eq!(
+        report["topics"][0]["written"].as_u64().unwrap(),
+        c.states.len() as u64
+    );
+    assert!(c.states.len() >= 40);
+    assert_same_states(&c.states, &rec.robot_states, "standalone recording");
+    // A late joiner starts where it joined and then misses nothing.
+    let ticks: Vec<u64> = c.states.iter().map(|s| s.tick).collect();
+    assert_eq!(
+        ticks,
+        (ticks[0]..ticks[0] + ticks.len() as u64).collect::<Vec<_>>()
+    );
+
+    // The graph goes on until stopped; it stops cleanly.
+    // SAFETY: signalling our own child.
+    unsafe {
+        libc::kill(graph.child().id() as libc::pid_t, libc::SIGTERM);
+    }
+    let out = graph.take().wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     drop(rec);
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(5)),
