@@ -10,7 +10,7 @@ use iceoryx2::port::client::Client;
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 
-use crate::graph::{Graph, Ipc, IpcError};
+use crate::graph::{Graph, Ipc, IpcError, TopicSubscriber};
 
 /// Capacity of the text fields of control messages (bytes).
 pub const TEXT_CAP: usize = 512;
@@ -235,6 +235,21 @@ impl Graph {
         })
     }
 
+    /// A read-only observer of the active-mapper switches (recorder, dashboard): the same
+    /// topic as [`Graph::safety_control_subscriber`], drained like any other topic.
+    pub fn safety_control_observer(&self) -> Result<TopicSubscriber<SafetyControl>, IpcError> {
+        let (service, f) = self.safety_control_service()?;
+        let sub = f
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "subscriber",
+                reason: e.to_string(),
+            })?;
+        Ok(TopicSubscriber::without_listener(service, sub))
+    }
+
     fn estop_service(
         &self,
     ) -> Result<
@@ -285,6 +300,20 @@ impl Graph {
             port: "subscriber",
             reason: e.to_string(),
         })
+    }
+
+    /// A read-only observer of e-stop commands (recorder).
+    pub fn estop_observer(&self) -> Result<TopicSubscriber<EstopCommand>, IpcError> {
+        let (service, f) = self.estop_service()?;
+        let sub = f
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "subscriber",
+                reason: e.to_string(),
+            })?;
+        Ok(TopicSubscriber::without_listener(service, sub))
     }
 
     fn control_service(&self) -> Result<(String, ControlFactory), IpcError> {

@@ -562,6 +562,18 @@ pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> 
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
+    /// Wraps a subscriber of a topic opened elsewhere in this crate (the control topics),
+    /// without a wake-up listener.
+    pub(crate) fn without_listener(service: String, subscriber: Subscriber<Ipc, T, ()>) -> Self {
+        Self {
+            service,
+            inner: SubInner::Iox {
+                subscriber,
+                listener: None,
+            },
+        }
+    }
+
     /// Calls `f` with every buffered message, oldest first.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
         let err = |reason: String| IpcError::Io {

@@ -330,6 +330,8 @@ pub enum NodeRole {
     Safety = 3,
     /// The hardware bridge (the clock).
     Bridge = 4,
+    /// The recorder (`scl record`): an observer that publishes nothing but its heartbeat.
+    Recorder = 5,
 }
 
 impl NodeRole {
@@ -340,6 +342,7 @@ impl NodeRole {
             2 => Some(Self::Mapper),
             3 => Some(Self::Safety),
             4 => Some(Self::Bridge),
+            5 => Some(Self::Recorder),
             _ => None,
         }
     }
@@ -351,6 +354,7 @@ impl NodeRole {
             Self::Mapper => "mapper",
             Self::Safety => "safety",
             Self::Bridge => "bridge",
+            Self::Recorder => "recorder",
         }
     }
 }
@@ -462,6 +466,7 @@ mod tests {
             NodeRole::Mapper,
             NodeRole::Safety,
             NodeRole::Bridge,
+            NodeRole::Recorder,
         ] {
             assert_eq!(NodeRole::from_u32(r as u32), Some(r));
         }

@@ -86,6 +86,9 @@ impl RestartPolicies {
             ipc_types::NodeRole::Mapper => self.mapper,
             ipc_types::NodeRole::Safety => self.safety,
             ipc_types::NodeRole::Bridge => self.bridge,
+            // A recorder is not restarted (its file is not reopened): if it dies, the graph
+            // stops, so no run goes unrecorded.
+            ipc_types::NodeRole::Recorder => RestartPolicy::Never,
         }
     }
 }

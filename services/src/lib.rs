@@ -5,7 +5,9 @@
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
 //! TOML, [`signals`] the shutdown flag every loop polls. [`tools`] and [`plot`] are the offline
-//! commands (`demos`, `train`, `plot`); [`bench`] runs the latency benchmark.
+//! commands (`demos`, `train`, `plot`); [`bench`] runs the latency benchmark. The read-only
+//! observers: [`record`] (`scl record`, MCAP in the [`mcap_log`] format), [`to_dataset`]
+//! (`scl dataset`, recordings to training data) and [`top`] (`scl top`, the terminal dashboard).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bench;
@@ -14,12 +16,16 @@ pub mod config;
 pub mod control;
 pub mod joystick;
 pub mod mapper_node;
+pub mod mcap_log;
 pub mod plot;
+pub mod record;
 pub mod rt;
 pub mod safety_node;
 pub mod signals;
 pub mod stats;
+pub mod to_dataset;
 pub mod tools;
+pub mod top;
 pub mod up;
 
 /// Errors that end a process, each with the message a user sees.
@@ -46,6 +52,12 @@ pub enum SclError {
     /// Drawing a plot failed.
     #[error(transparent)]
     Plot(#[from] plot::PlotError),
+    /// A recording could not be written, read or recovered.
+    #[error(transparent)]
+    Record(#[from] mcap_log::RecordError),
+    /// The dashboard could not run.
+    #[error(transparent)]
+    Top(#[from] top::TopError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

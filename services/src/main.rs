@@ -43,7 +43,18 @@ enum Cmd {
         /// Joystick script instead of the config's: `circle` or `step`.
         #[arg(long)]
         script: Option<String>,
+        /// Record every message of the graph to this MCAP file (a supervised `scl record`,
+        /// started before the bridge and stopped last).
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
     },
+    /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
+    /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
+    Record(services::record::RecordArgs),
+    /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
+    Dataset(services::to_dataset::DatasetArgs),
+    /// A terminal dashboard of a running graph (works over SSH in 80x24).
+    Top(services::top::TopArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -252,6 +263,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             json,
             model,
             script,
+            record,
         } => {
             if let Some(m) = model {
                 cfg.mapper.model = m;
@@ -265,6 +277,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 config: cfg,
                 duration,
                 json,
+                record: record.map(|p| services::record::absolute(&p)),
             };
             let summary = services::up::run(&opts)?;
             if json {
@@ -288,6 +301,9 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Cmd::Record(args) => services::record::cli(&prefix, &args),
+        Cmd::Dataset(args) => services::to_dataset::cli(&args),
+        Cmd::Top(args) => services::top::cli(&prefix, &args),
         Cmd::Swap { model, timeout } => {
             let r = services::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -498,6 +514,9 @@ fn main() -> ExitCode {
         Cmd::Demos { .. } => "demos",
         Cmd::Plot { .. } => "plot",
         Cmd::Train { .. } => "train",
+        Cmd::Record(_) => "record",
+        Cmd::Dataset(_) => "dataset",
+        Cmd::Top(_) => "top",
     };
     init_logging();
     let span = tracing::info_span!("scl", role);

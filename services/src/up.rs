@@ -49,6 +49,9 @@ pub struct UpOptions {
     pub duration: Option<Duration>,
     /// Print the summary as JSON on stdout.
     pub json: bool,
+    /// Record the graph to this MCAP file: `scl record` as a supervised child, started first
+    /// and stopped last.
+    pub record: Option<PathBuf>,
 }
 
 /// The end-of-run summary (`--json`).
@@ -631,8 +634,11 @@ impl<'a> Supervisor<'a> {
 pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     let cfg = &opts.config;
     cfg.validate()?;
-    // Refuse a bad model before anything starts.
+    // Refuse a bad model, or a recording over an existing file, before anything starts.
     crate::mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id)?;
+    if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
+        return Err(crate::mcap_log::RecordError::Exists(p.clone()).into());
+    }
     let cleaned = ipc_types::graph::cleanup_dead_nodes(&opts.prefix)?;
     if cleaned > 0 {
         tracing::info!(
@@ -668,7 +674,14 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
     // Reaping and holding the arm must not wait behind other load; below the control path.
     crate::rt::elevate(&cfg.graph, crate::config::RtRole::Supervisor);
     let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
-    let plan = [
+    let mut plan = Vec::new();
+    if let Some(path) = &opts.record {
+        // The recorder first: it sees the graph from its first message on.
+        let mut args = sv.child_args("record");
+        args.extend(["--out".to_owned(), path.display().to_string()]);
+        plan.push((NodeRole::Recorder, 0, args));
+    }
+    plan.extend([
         (NodeRole::Joystick, 0, sv.child_args("joystick")),
         (
             NodeRole::Mapper,
@@ -677,7 +690,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         ),
         (NodeRole::Safety, 0, sv.child_args("safety")),
         (NodeRole::Bridge, 0, sv.child_args("bridge")),
-    ];
+    ]);
     let mut failure: Option<String> = None;
     'start: for (role, id, args) in plan {
         let i = sv.push(role, id, args);
@@ -777,12 +790,14 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         sv.finish_swap(Err("the graph is shutting down".into()));
     }
 
-    // Bridge first: it stops the arm at once and publishes a final state.
+    // Bridge first: it stops the arm at once and publishes a final state. The recorder
+    // last, so the file holds everything up to the end.
     for role in [
         NodeRole::Bridge,
         NodeRole::Safety,
         NodeRole::Mapper,
         NodeRole::Joystick,
+        NodeRole::Recorder,
     ] {
         for p in sv.procs.iter_mut().filter(|p| p.role == role) {
             signal_and_wait(p, Duration::from_secs(3));
