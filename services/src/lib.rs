@@ -3,11 +3,13 @@
 //! Each process module is a thin loop (wait, read, step, publish) around a pure step function
 //! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes. [`config`] is the graph
-//! TOML, [`signals`] the shutdown flag every loop polls.
+//! TOML, [`signals`] the shutdown flag every loop polls. [`fake_kortex`] serves a fake Gen3 lite
+//! over the Kortex protocol on loopback (`scl fake-kortex`).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bridge_node;
 pub mod config;
+pub mod fake_kortex;
 pub mod joystick;
 pub mod mapper_node;
 pub mod safety_node;
@@ -34,6 +36,15 @@ pub enum SclError {
     /// Fitting PCA failed.
     #[error(transparent)]
     Fit(#[from] mapper::pca::FitError),
+    /// The robot failed (Kortex: connection, session, an error from the robot).
+    #[error(transparent)]
+    Robot(#[from] hw_bridge::RobotError),
+    /// The Kortex credentials could not be found or read (the message never holds them).
+    #[error("{0}")]
+    Credentials(String),
+    /// The fake Kortex robot could not start.
+    #[error(transparent)]
+    FakeKortex(#[from] hw_bridge::kortex::fake::FakeError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

@@ -63,9 +63,29 @@ enum Cmd {
     Safety,
     /// The hardware bridge: the robot and the graph's clock.
     Bridge {
-        /// Robot backend: `mock`.
+        /// Robot backend: `mock` or `kortex` (a Gen3 lite over the Kortex API).
         #[arg(long)]
         robot: Option<String>,
+        /// Kortex: the robot's IP address (instead of bridge.kortex.address).
+        #[arg(long, value_name = "IP")]
+        address: Option<String>,
+        /// Kortex: the robot's TCP port (instead of bridge.kortex.port).
+        #[arg(long)]
+        port: Option<u16>,
+        /// Kortex: user name (else bridge.kortex.credentials_file).
+        #[arg(long, env = services::bridge_node::USER_ENV, hide_env_values = true)]
+        user: Option<String>,
+        /// Kortex: password; prefer the environment variable or the credentials file, since a
+        /// command line is visible to other users.
+        #[arg(long, env = services::bridge_node::PASSWORD_ENV, hide_env_values = true)]
+        password: Option<String>,
+    },
+    /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
+    /// admin), for trying `bridge --robot kortex` without an arm.
+    FakeKortex {
+        /// TCP port on 127.0.0.1 (0: a free one; the first line on stdout names it).
+        #[arg(long, default_value_t = hw_bridge::kortex::DEFAULT_PORT)]
+        port: u16,
     },
     /// Generate demonstrations as CSV trajectories.
     Demos {
@@ -210,12 +230,29 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             services::safety_node::run(&prefix, &cfg.safety)?;
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Bridge { robot } => {
+        Cmd::Bridge {
+            robot,
+            address,
+            port,
+            user,
+            password,
+        } => {
             if let Some(r) = robot {
                 cfg.bridge.robot = r;
             }
+            if let Some(a) = address {
+                cfg.bridge.kortex.address = a;
+            }
+            if let Some(p) = port {
+                cfg.bridge.kortex.port = p;
+            }
             cfg.validate()?;
-            services::bridge_node::run(&prefix, &cfg.bridge)?;
+            let creds = services::bridge_node::CredentialArgs { user, password };
+            services::bridge_node::run(&prefix, &cfg.bridge, &creds)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::FakeKortex { port } => {
+            services::fake_kortex::run(port)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {
@@ -263,6 +300,7 @@ fn main() -> ExitCode {
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",
         Cmd::Bridge { .. } => "bridge",
+        Cmd::FakeKortex { .. } => "fake-kortex",
         Cmd::Demos { .. } => "demos",
         Cmd::Train { .. } => "train",
     };
