@@ -241,6 +241,7 @@ impl<R: Robot> BridgeCore<R> {
 mod tests {
     use super::*;
     use crate::mock::{MockArm, MockConfig};
+    use crate::{Reading, Robot, RobotError};
     use kinematics::gen3_lite;
     use proptest::prelude::*;
 
@@ -390,6 +391,79 @@ mod tests {
         }
         let expect = 40.0 * DT * (0.2f64.powi(2) + 0.1f64.powi(2)).sqrt();
         assert!((b.joint_travel_rad() - expect).abs() < 1e-9);
+    }
+
+    /// A mock arm whose calls fail while `fail` is set.
+    struct Failing {
+        arm: MockArm,
+        fail: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    }
+
+    impl Failing {
+        fn check(&self) -> Result<(), RobotError> {
+            if self.fail.load(std::sync::atomic::Ordering::SeqCst) {
+                Err(crate::kortex::KortexError::SessionClosed.into())
+            } else {
+                Ok(())
+            }
+        }
+    }
+
+    impl Robot for Failing {
+        fn n_joints(&self) -> usize {
+            6
+        }
+        fn advance(&mut self, dt: f64) -> Result<Reading, RobotError> {
+            self.check()?;
+            self.arm.advance(dt)
+        }
+        fn command(&mut self, v: &[f64], g: f64) -> Result<(), RobotError> {
+            self.check()?;
+            self.arm.command(v, g)
+        }
+        fn stop(&mut self) -> Result<(), RobotError> {
+            self.check()?;
+            self.arm.stop()
+        }
+        fn shutdown(&mut self) -> Result<Reading, RobotError> {
+            self.check()?;
+            self.arm.shutdown()
+        }
+        fn is_mock(&self) -> bool {
+            true
+        }
+    }
+
+    #[test]
+    fn robot_errors_reach_the_caller_and_shutdown_keeps_the_last_reading() {
+        let fail = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let set = |v: bool| fail.store(v, std::sync::atomic::Ordering::SeqCst);
+        let robot = Failing {
+            arm: MockArm::new(MockConfig::default()).unwrap(),
+            fail: fail.clone(),
+        };
+        let mut b = BridgeCore::new(robot, DT, gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec());
+        b.begin_tick(0).unwrap();
+        b.finish_tick(Some(&cmd(0, 0.2))).unwrap();
+        let s1 = b.begin_tick(1).unwrap();
+        assert_eq!(s1.applied_tick, 0);
+        // A command the robot did not take is not reported as executed.
+        set(true);
+        assert!(b.finish_tick(Some(&cmd(1, 0.2))).is_err());
+        set(false);
+        let s2 = b.begin_tick(2).unwrap();
+        assert_eq!(s2.applied_tick, NO_TICK);
+        // A miss whose stop fails is still counted, and the error reaches the caller.
+        set(true);
+        assert!(b.finish_tick(None).is_err());
+        assert_eq!(b.missed(), 1);
+        assert!(b.begin_tick(3).is_err());
+        // The robot cannot be reached: the final state is the last reading, flagged.
+        let (last, result) = b.shutdown(4);
+        assert!(result.is_err());
+        assert!(last.flags & state_flags::SHUTDOWN != 0);
+        assert_eq!(last.applied_tick, NO_TICK);
+        assert_eq!(last.q_rad, s2.q_rad);
     }
 
     proptest! {
