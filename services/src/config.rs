@@ -321,6 +321,21 @@ mod tests {
     }
 
     #[test]
+    fn kortex_example_is_valid_and_points_at_loopback() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/kortex-fake.toml"
+        ));
+        let cfg = GraphConfig::load(Some(path)).unwrap();
+        cfg.validate().unwrap();
+        assert_eq!(cfg.bridge.robot, "kortex");
+        assert_eq!(
+            cfg.bridge.kortex.socket_addr().unwrap(),
+            "127.0.0.1:10000".parse().unwrap()
+        );
+    }
+
+    #[test]
     fn unknown_keys_and_bad_values_are_named() {
         let dir = std::env::temp_dir().join(format!("scl-cfg-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
