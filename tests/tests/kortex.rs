@@ -42,10 +42,11 @@ fn fake() -> FakeKortex {
 }
 
 /// Writes the graph config pointing the bridge at `fake`; with `creds_file` the credentials
-/// go in a file next to it, else the caller passes them in the environment.
-fn write_config(dir: &Path, fake: &FakeKortex, creds_file: bool) -> PathBuf {
+/// go in a file next to it, else the caller passes them in the environment. `extra` lines go
+/// into `[bridge.kortex]`.
+fn write_config(dir: &Path, fake: &FakeKortex, creds_file: bool, extra: &str) -> PathBuf {
     let mut text = format!(
-        "[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\naddress = \"127.0.0.1\"\nport = {}\n",
+        "[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\naddress = \"127.0.0.1\"\nport = {}\n{extra}",
         fake.addr().port()
     );
     if creds_file {
@@ -123,7 +124,9 @@ fn the_graph_drives_the_fake_kortex_arm_for_400_ticks_without_a_miss() {
     let _serial = serial();
     let fake = fake();
     let dir = TempDir::new("run");
-    let config = write_config(&dir.0, &fake, true);
+    // The fake robot shares two cores with the graph and the test: a reply it is slow to send
+    // is counted late rather than ending the run (the connection timeout stays at 200 ms).
+    let config = write_config(&dir.0, &fake, true, "reply_timeout_ms = 1000\n");
     let log = dir.0.join("up.log");
     let prefix = unique_prefix("kortex");
     let _domain = DomainGuard(prefix.clone());
@@ -226,7 +229,7 @@ fn killing_the_bridge_lets_the_robot_stop_the_arm_on_its_connection_timeout() {
     let _serial = serial();
     let fake = fake();
     let dir = TempDir::new("kill");
-    let config = write_config(&dir.0, &fake, false);
+    let config = write_config(&dir.0, &fake, false, "");
     let log = dir.0.join("up.log");
     let prefix = unique_prefix("kxkill");
     let _domain = DomainGuard(prefix.clone());
@@ -295,7 +298,7 @@ fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
     let _serial = serial();
     let fake = fake();
     let dir = TempDir::new("fault");
-    let config = write_config(&dir.0, &fake, false);
+    let config = write_config(&dir.0, &fake, false, "");
     let log = dir.0.join("up.log");
     let prefix = unique_prefix("kxfault");
     let _domain = DomainGuard(prefix.clone());

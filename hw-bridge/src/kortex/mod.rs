@@ -14,6 +14,26 @@
 //!
 //! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
 //! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
+//!
+//! ```
+//! use hw_bridge::Robot;
+//! use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, KortexArm, KortexConfig};
+//!
+//! // A fake Gen3 lite on a free port of 127.0.0.1, and the client on it.
+//! let fake = FakeKortex::start(FakeConfig::default())?;
+//! let cfg = KortexConfig {
+//!     address: "127.0.0.1".into(),
+//!     port: fake.addr().port(),
+//!     ..KortexConfig::default()
+//! };
+//! let mut arm = KortexArm::connect(&cfg, &Credentials::new("admin", "admin"))?;
+//! let reading = arm.advance(0.025)?; // the newest feedback; asks for the next one
+//! assert!((reading.q_rad[2] - 1.309).abs() < 1e-4); // the fake starts at home
+//! arm.command(&[0.1, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0)?; // rad/s, sent as deg/s, not awaited
+//! arm.shutdown()?; // Stop, a last feedback, CloseSession: each awaited
+//! assert!(!fake.snapshot().commanded_to_move());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod arm;
 pub mod fake;

@@ -10,6 +10,25 @@
 //!
 //! This file depends on `prost` and `thiserror` only, so the fuzz target
 //! (`hw-bridge/fuzz`) compiles it on its own.
+//!
+//! ```
+//! use hw_bridge::kortex::wire::{Decoded, Frame, FrameDecoder, FrameType};
+//!
+//! // Base.Stop (function uid 0x20070), message id 5 of session 0x1234, empty payload.
+//! let stop = Frame::new(FrameType::Request, 0x1234, 5, 0x2_0070, Vec::new())?;
+//! let mut bytes = Vec::new();
+//! stop.encode_tcp(&mut bytes)?;
+//! assert_eq!(bytes[..12], [0x07, 0x78, 0x45, 0x74, 0x52, 0x6F, 0x4B, 0x07, 0, 0, 0, 0x11]);
+//!
+//! // Bytes that do not start with the magic are skipped up to the next frame.
+//! let mut d = FrameDecoder::new();
+//! d.push(b"noise");
+//! d.push(&bytes);
+//! assert_eq!(d.next_frame(), Some(Ok(Decoded::Skipped(5))));
+//! assert_eq!(d.next_frame(), Some(Ok(Decoded::Frame(stop))));
+//! assert_eq!(d.next_frame(), None);
+//! # Ok::<(), hw_bridge::kortex::wire::WireError>(())
+//! ```
 
 use prost::Message as _;
 
