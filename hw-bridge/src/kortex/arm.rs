@@ -8,11 +8,13 @@
 //!
 //! The 40 Hz loop is pipelined and never waits on the socket: a reader thread owns the
 //! receiving half of the socket, decodes frames and hands them to the control loop through a
-//! crossbeam channel. At tick k, [`Robot::advance`] takes whatever replies arrived (matched by
-//! message id; one that arrives after the tick it was due in is counted late), returns the
-//! newest feedback and asks for the next; [`Robot::command`] sends JointSpeeds (and a gripper
-//! position when the target moved) without waiting for the replies. The state published at
-//! tick k is therefore the feedback asked for at tick k-1.
+//! crossbeam channel. At tick k, [`Robot::advance`] only takes whatever replies arrived
+//! (matched by message id; one that arrives after the tick it was due in is counted late) and
+//! returns the newest feedback, so the state goes out at once; [`Robot::command`] (or
+//! [`Robot::stop`]) then sends JointSpeeds (a gripper position when the target moved) and the
+//! request for the next feedback in one write, without waiting for any reply. The state
+//! published at tick k is therefore the feedback asked for right after the command of tick
+//! k-1.
 //!
 //! No KeepAlive is ever sent: if the control loop freezes or dies, frames stop, and the robot
 //! stops the arm when `connection_timeout_ms` passes.
@@ -142,6 +144,7 @@ pub struct KortexArm {
     speed_limit_rad_s: [f64; MAX_JOINTS],
     reading: Reading,
     feedback_pending: Option<u16>,
+    feedback_requested_tick: Option<u64>,
     gripper_target: f64,
     gripper_sent: f64,
     stats: KortexStats,
@@ -211,6 +214,7 @@ impl KortexArm {
                 at_limit: false,
             },
             feedback_pending: None,
+            feedback_requested_tick: None,
             gripper_target: 0.0,
             gripper_sent: 0.0,
             stats: KortexStats::default(),
@@ -307,6 +311,14 @@ impl KortexArm {
 
     /// Sends a request without waiting; returns its message id.
     fn send(&mut self, function: Function, payload: Vec<u8>) -> Result<u16, KortexError> {
+        let id = self.queue(function, payload)?;
+        self.flush()?;
+        Ok(id)
+    }
+
+    /// Encodes a request into the output buffer (sent by [`Self::flush`]) and books it as
+    /// waiting for its reply; returns its message id.
+    fn queue(&mut self, function: Function, payload: Vec<u8>) -> Result<u16, KortexError> {
         if !self.connected {
             return Err(KortexError::SessionClosed);
         }
@@ -331,21 +343,12 @@ impl KortexArm {
             function: function.name(),
             source,
         })?;
-        self.out.clear();
         frame
             .encode_tcp(&mut self.out)
             .map_err(|source| KortexError::Encode {
                 function: function.name(),
                 source,
             })?;
-        if let Err(source) = self.stream.write_all(&self.out) {
-            self.connected = false;
-            return Err(KortexError::Io {
-                addr: self.addr,
-                during: "sending a request",
-                source,
-            });
-        }
         self.stats.requests += 1;
         self.pending.push(Pending {
             message_id,
@@ -354,6 +357,32 @@ impl KortexArm {
             sent_at: Instant::now(),
         });
         Ok(message_id)
+    }
+
+    /// Writes the queued requests in one write.
+    fn flush(&mut self) -> Result<(), KortexError> {
+        if self.out.is_empty() {
+            return Ok(());
+        }
+        let r = self.stream.write_all(&self.out);
+        self.out.clear();
+        r.map_err(|source| {
+            self.connected = false;
+            KortexError::Io {
+                addr: self.addr,
+                during: "sending a request",
+                source,
+            }
+        })
+    }
+
+    /// Queues the next feedback request unless one is still waiting for its reply.
+    fn queue_feedback_request(&mut self) -> Result<(), KortexError> {
+        if self.feedback_pending.is_none() {
+            self.feedback_pending = Some(self.queue(Function::RefreshFeedback, Vec::new())?);
+            self.feedback_requested_tick = Some(self.tick);
+        }
+        Ok(())
     }
 
     /// Sends a request and waits for its reply (start-up and shutdown only).
@@ -664,12 +693,15 @@ impl Robot for KortexArm {
         self.dt = dt;
         let r = self.drain();
         self.in_loop(r)?;
+        let previous = self.tick;
         self.tick += 1;
         if self.feedback_pending.is_some() {
+            // The feedback asked for in the previous tick has not arrived.
             self.stats.stale_readings += 1;
-        } else {
-            let r = self.send(Function::RefreshFeedback, Vec::new());
-            self.feedback_pending = Some(self.in_loop(r)?);
+        } else if self.feedback_requested_tick != Some(previous) {
+            // No command or stop asked for one in the previous tick (the first tick): ask now.
+            let r = self.queue_feedback_request().and_then(|()| self.flush());
+            self.in_loop(r)?;
         }
         Ok(self.reading)
     }
@@ -685,27 +717,31 @@ impl Robot for KortexArm {
             self.stats.clamped_commands += 1;
         }
         let payload = joint_speeds_msg(&v[..n]).encode_to_vec();
-        let r = self.send(Function::SendJointSpeedsCommand, payload);
+        let r = self.queue(Function::SendJointSpeedsCommand, payload);
         self.in_loop(r)?;
         if gripper_rate.is_finite() {
             self.gripper_target = (self.gripper_target + gripper_rate * self.dt).clamp(0.0, 1.0);
         }
         if (self.gripper_target - self.gripper_sent).abs() > GRIPPER_EPS {
             let payload = gripper_position_msg(self.gripper_target).encode_to_vec();
-            let r = self.send(Function::SendGripperCommand, payload);
+            let r = self.queue(Function::SendGripperCommand, payload);
             self.in_loop(r)?;
             self.gripper_sent = self.gripper_target;
             self.stats.gripper_commands += 1;
         }
-        Ok(())
+        // The next tick's feedback, in the same write.
+        let r = self.queue_feedback_request().and_then(|()| self.flush());
+        self.in_loop(r)
     }
 
     fn stop(&mut self) -> Result<(), RobotError> {
         let r = self.ensure_open();
         self.in_loop(r)?;
-        let r = self.send(Function::Stop, Vec::new());
-        self.in_loop(r)?;
-        Ok(())
+        let r = self
+            .queue(Function::Stop, Vec::new())
+            .and_then(|_| self.queue_feedback_request())
+            .and_then(|()| self.flush());
+        self.in_loop(r)
     }
 
     fn shutdown(&mut self) -> Result<Reading, RobotError> {
