@@ -1,12 +1,17 @@
 //! [`FakeKortex`]: a fake Gen3 lite that speaks the Kortex protocol on loopback, for tests and
 //! for trying the bridge without an arm (`scl fake-kortex`).
 //!
-//! It listens on `127.0.0.1` only, keeps a kinematic simulation of the arm
-//! ([`MockArm`], stepped every 5 ms by its own thread, since a real robot moves by itself),
+//! It listens on `127.0.0.1` only, keeps a kinematic simulation of the arm ([`MockArm`],
+//! brought up to the present whenever it is looked at, since a real robot moves by itself),
 //! checks the credentials, serves the calls the bridge makes, and enforces the session's
-//! connection inactivity timeout: when no frame has arrived for that long it stops the arm, as
-//! the robot does. A closed connection alone does not stop the arm (the worst case: only the
-//! timeout does). The session itself ends after the session inactivity timeout.
+//! connection inactivity timeout: a watchdog thread sleeps until the deadline and, if no frame
+//! has arrived for that long, stops the arm, as the robot does. A closed connection alone does
+//! not stop the arm (the worst case: only the timeout does). The session itself ends after the
+//! session inactivity timeout.
+//!
+//! Threads: the watchdog, a blocking accept loop, and one thread per connection that reads,
+//! answers, and holds delayed replies until they are due. They sleep unless something happens,
+//! so the fake takes little from the processes it is tested with.
 //!
 //! Faults can be injected ([`FakeKortex::inject`]): drop or delay a reply, close the
 //! connection, answer with an error frame, send garbage before a reply, damage a reply's magic,
@@ -20,7 +25,6 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crossbeam_channel::{Receiver, Sender};
 use ipc_types::MAX_JOINTS;
 use kinematics::gen3_lite;
 use prost::Message as _;
@@ -30,8 +34,8 @@ use super::{Credentials, Function, angle_rad_to_wire_deg, msg};
 use crate::Reading;
 use crate::mock::{MockArm, MockConfig, MockConfigError};
 
-/// Simulation step of the fake arm.
-const SIM_STEP: Duration = Duration::from_millis(5);
+/// The longest the watchdog sleeps (so that shutting down is prompt).
+const WATCHDOG_MAX_SLEEP: Duration = Duration::from_millis(50);
 
 /// Joint speed commands kept in the log (about eight minutes at 40 Hz).
 const LOG_CAPACITY: usize = 20_000;
@@ -192,6 +196,7 @@ struct Session {
 struct State {
     arm: MockArm,
     reading: Reading,
+    last_step: Instant,
     session: Option<Session>,
     next_session_id: u16,
     faults: VecDeque<(Option<Function>, Fault)>,
@@ -206,11 +211,25 @@ struct Shared {
     next_conn: AtomicU64,
     state: Mutex<State>,
     threads: Mutex<Vec<JoinHandle<()>>>,
+    /// A handle on every open connection, to shut them down when the fake stops.
+    conns: Mutex<Vec<(u64, TcpStream)>>,
 }
 
 impl Shared {
+    /// The state, with the simulated arm brought up to now.
     fn state(&self) -> MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+        let mut st = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        let now = Instant::now();
+        let dt = now.duration_since(st.last_step).as_secs_f64();
+        if dt > 0.0 {
+            st.reading = st.arm.step(dt);
+            st.last_step = now;
+        }
+        st
+    }
+
+    fn conns(&self) -> MutexGuard<'_, Vec<(u64, TcpStream)>> {
+        self.conns.lock().unwrap_or_else(PoisonError::into_inner)
     }
 }
 
@@ -244,7 +263,6 @@ impl FakeKortex {
             source,
         };
         let addr = listener.local_addr().map_err(bind_err)?;
-        listener.set_nonblocking(true).map_err(bind_err)?;
         let shared = Arc::new(Shared {
             cfg,
             stop: AtomicBool::new(false),
@@ -252,6 +270,7 @@ impl FakeKortex {
             state: Mutex::new(State {
                 arm,
                 reading,
+                last_step: Instant::now(),
                 session: None,
                 next_session_id: 0x1234,
                 faults: VecDeque::new(),
@@ -260,10 +279,11 @@ impl FakeKortex {
                 log: VecDeque::new(),
             }),
             threads: Mutex::new(Vec::new()),
+            conns: Mutex::new(Vec::new()),
         });
         let fake = Self { addr, shared };
         let sh = fake.shared.clone();
-        fake.spawn("fake-kortex-sim", move || sim_loop(sh))?;
+        fake.spawn("fake-kortex-watchdog", move || watchdog_loop(sh))?;
         let sh = fake.shared.clone();
         fake.spawn("fake-kortex-accept", move || accept_loop(sh, listener))?;
         tracing::info!(address = %addr, "fake Kortex robot listening");
@@ -330,6 +350,11 @@ impl FakeKortex {
 impl Drop for FakeKortex {
     fn drop(&mut self) {
         self.shared.stop.store(true, Ordering::SeqCst);
+        // Wake the blocking accept and every blocking read.
+        let _ = TcpStream::connect(self.addr);
+        for (_, c) in self.shared.conns().iter() {
+            let _ = c.shutdown(Shutdown::Both);
+        }
         loop {
             let h = self
                 .shared
@@ -347,65 +372,87 @@ impl Drop for FakeKortex {
     }
 }
 
-fn sim_loop(sh: Arc<Shared>) {
-    let mut last = Instant::now();
+fn watchdog_loop(sh: Arc<Shared>) {
     while !sh.stop.load(Ordering::SeqCst) {
-        std::thread::sleep(SIM_STEP);
-        let now = Instant::now();
-        let dt = now.duration_since(last).as_secs_f64().max(1e-6);
-        last = now;
-        let mut st = sh.state();
-        st.reading = st.arm.step(dt);
-        let Some(s) = st.session.as_mut() else {
-            continue;
+        let sleep = {
+            let mut st = sh.state();
+            let now = Instant::now();
+            let mut next: Option<Instant> = None;
+            if let Some(s) = st.session.as_mut() {
+                let gap = now.duration_since(s.last_frame);
+                if let Some(t) = s.connection_timeout.filter(|_| !s.timed_out) {
+                    if gap > t {
+                        s.timed_out = true;
+                        st.arm.halt();
+                        st.stats.connection_timeouts += 1;
+                        st.last_timeout_gap = Some(gap);
+                        tracing::warn!(
+                            "fake Kortex: no frame for {} ms: connection inactivity timeout, \
+                             arm stopped",
+                            gap.as_millis()
+                        );
+                    } else {
+                        next = Some(s.last_frame + t);
+                    }
+                }
+            }
+            if let Some(s) = st.session.as_ref() {
+                let gap = now.duration_since(s.last_frame);
+                match s.session_timeout {
+                    Some(t) if gap > t => {
+                        st.session = None;
+                        st.stats.sessions_expired += 1;
+                        tracing::warn!("fake Kortex: no frame for {gap:?}: session timed out");
+                    }
+                    Some(t) => {
+                        let due = s.last_frame + t;
+                        next = Some(next.map_or(due, |n| n.min(due)));
+                    }
+                    None => {}
+                }
+            }
+            next.map_or(WATCHDOG_MAX_SLEEP, |n| {
+                // Just past the deadline, so that the gap is over the timeout when it wakes.
+                (n.saturating_duration_since(now) + Duration::from_micros(200))
+                    .min(WATCHDOG_MAX_SLEEP)
+            })
         };
-        let gap = now.duration_since(s.last_frame);
-        let conn_timeout = !s.timed_out && s.connection_timeout.is_some_and(|t| gap > t);
-        let expired = s.session_timeout.is_some_and(|t| gap > t);
-        if conn_timeout {
-            s.timed_out = true;
-        }
-        if expired {
-            st.session = None;
-            st.stats.sessions_expired += 1;
-            tracing::warn!("fake Kortex: no frame for {gap:?}: session timed out");
-        }
-        if conn_timeout {
-            st.arm.halt();
-            st.stats.connection_timeouts += 1;
-            st.last_timeout_gap = Some(gap);
-            tracing::warn!(
-                "fake Kortex: no frame for {} ms: connection inactivity timeout, arm stopped",
-                gap.as_millis()
-            );
-        }
+        std::thread::sleep(sleep);
     }
 }
 
 fn accept_loop(sh: Arc<Shared>, listener: TcpListener) {
     let mut conns: Vec<JoinHandle<()>> = Vec::new();
-    while !sh.stop.load(Ordering::SeqCst) {
-        match listener.accept() {
-            Ok((stream, peer)) => {
-                let conn = sh.next_conn.fetch_add(1, Ordering::SeqCst);
-                sh.state().stats.connections += 1;
-                tracing::info!(%peer, conn, "fake Kortex: connection");
-                let sh2 = sh.clone();
-                match std::thread::Builder::new()
-                    .name("fake-kortex-conn".into())
-                    .spawn(move || serve_connection(sh2, stream, conn))
-                {
-                    Ok(h) => conns.push(h),
-                    Err(e) => tracing::error!("fake Kortex: cannot serve a connection: {e}"),
-                }
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                std::thread::sleep(Duration::from_millis(5));
-            }
+    for stream in listener.incoming() {
+        if sh.stop.load(Ordering::SeqCst) {
+            break;
+        }
+        let stream = match stream {
+            Ok(s) => s,
             Err(e) => {
                 tracing::warn!("fake Kortex: accept failed: {e}");
                 std::thread::sleep(Duration::from_millis(5));
+                continue;
             }
+        };
+        let conn = sh.next_conn.fetch_add(1, Ordering::SeqCst);
+        let peer = stream.peer_addr().ok();
+        sh.state().stats.connections += 1;
+        tracing::info!(?peer, conn, "fake Kortex: connection");
+        match stream.try_clone() {
+            Ok(handle) => sh.conns().push((conn, handle)),
+            Err(e) => {
+                tracing::error!("fake Kortex: cannot serve a connection: {e}");
+                continue;
+            }
+        }
+        let sh2 = sh.clone();
+        match std::thread::Builder::new()
+            .name("fake-kortex-conn".into())
+            .spawn(move || serve_connection(sh2, stream, conn))
+        {
+            Ok(h) => conns.push(h),
+            Err(e) => tracing::error!("fake Kortex: cannot serve a connection: {e}"),
         }
         conns.retain(|h| !h.is_finished());
     }
@@ -414,56 +461,61 @@ fn accept_loop(sh: Arc<Shared>, listener: TcpListener) {
     }
 }
 
+/// What a request produced: bytes to send when due, or closing the connection.
 enum Out {
     Bytes { due: Instant, bytes: Vec<u8> },
     Close { due: Instant },
 }
 
-fn writer_loop(mut stream: TcpStream, rx: Receiver<Out>) {
-    for out in rx {
-        let due = match &out {
-            Out::Bytes { due, .. } | Out::Close { due } => *due,
-        };
-        let wait = due.saturating_duration_since(Instant::now());
-        if !wait.is_zero() {
-            std::thread::sleep(wait);
-        }
-        match out {
-            Out::Bytes { bytes, .. } => {
-                if stream.write_all(&bytes).is_err() {
-                    return;
-                }
-            }
-            Out::Close { .. } => {
-                let _ = stream.shutdown(Shutdown::Both);
-                return;
-            }
+impl Out {
+    fn due(&self) -> Instant {
+        match self {
+            Self::Bytes { due, .. } | Self::Close { due } => *due,
         }
     }
 }
 
 fn serve_connection(sh: Arc<Shared>, stream: TcpStream, conn: u64) {
     let _ = stream.set_nodelay(true);
-    let _ = stream.set_read_timeout(Some(Duration::from_millis(20)));
-    let Ok(wstream) = stream.try_clone() else {
-        return;
-    };
-    let (tx, rx) = crossbeam_channel::unbounded();
-    let writer = std::thread::Builder::new()
-        .name("fake-kortex-write".into())
-        .spawn(move || writer_loop(wstream, rx));
-    read_loop(&sh, stream, conn, &tx);
-    drop(tx);
-    if let Ok(w) = writer {
-        let _ = w.join();
-    }
+    serve(&sh, stream, conn);
+    sh.conns().retain(|(c, _)| *c != conn);
     tracing::info!(conn, "fake Kortex: connection closed");
 }
 
-fn read_loop(sh: &Shared, mut stream: TcpStream, conn: u64, tx: &Sender<Out>) {
+/// Reads frames, answers them, and sends held (delayed) outputs in order when due; blocks in
+/// `read` until a frame or the next due output.
+fn serve(sh: &Shared, mut stream: TcpStream, conn: u64) {
     let mut decoder = FrameDecoder::new();
     let mut buf = [0u8; 4096];
-    while !sh.stop.load(Ordering::SeqCst) {
+    let mut held: VecDeque<Out> = VecDeque::new();
+    loop {
+        // Send what is due, in order.
+        while held.front().is_some_and(|o| o.due() <= Instant::now()) {
+            let Some(out) = held.pop_front() else {
+                break;
+            };
+            let open = match out {
+                Out::Bytes { bytes, .. } => stream.write_all(&bytes).is_ok(),
+                Out::Close { .. } => {
+                    let _ = stream.shutdown(Shutdown::Both);
+                    false
+                }
+            };
+            if !open {
+                return;
+            }
+        }
+        if sh.stop.load(Ordering::SeqCst) {
+            return;
+        }
+        let timeout = held.front().map(|o| {
+            o.due()
+                .saturating_duration_since(Instant::now())
+                .max(Duration::from_micros(100))
+        });
+        if stream.set_read_timeout(timeout).is_err() {
+            return;
+        }
         let n = match stream.read(&mut buf) {
             Ok(0) => return,
             Ok(n) => n,
@@ -482,14 +534,7 @@ fn read_loop(sh: &Shared, mut stream: TcpStream, conn: u64, tx: &Sender<Out>) {
         decoder.push(&buf[..n]);
         while let Some(r) = decoder.next_frame() {
             match r {
-                Ok(Decoded::Frame(frame)) => {
-                    let outs = on_frame(sh, conn, &frame);
-                    for o in outs {
-                        if tx.send(o).is_err() {
-                            return;
-                        }
-                    }
-                }
+                Ok(Decoded::Frame(frame)) => held.extend(on_frame(sh, conn, &frame)),
                 Ok(Decoded::Skipped(k)) => sh.state().stats.skipped_bytes += k as u64,
                 Err(e) => tracing::warn!("fake Kortex: bad frame from the client: {e}"),
             }
