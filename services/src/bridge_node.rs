@@ -28,6 +28,32 @@ pub const USER_ENV: &str = "SCL_KORTEX_USER";
 /// Environment variable with the Kortex password (`scl bridge --password`).
 pub const PASSWORD_ENV: &str = "SCL_KORTEX_PASSWORD";
 
+/// A command-line value that must not show in `Debug` output (the Kortex user name and
+/// password flags).
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(String);
+
+impl Secret {
+    /// The value.
+    pub fn into_inner(self) -> String {
+        self.0
+    }
+}
+
+impl std::str::FromStr for Secret {
+    type Err = std::convert::Infallible;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(Self(s.to_owned()))
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("<redacted>")
+    }
+}
+
 /// Kortex credentials given on the command line or in the environment; they take precedence
 /// over `bridge.kortex.credentials_file`. Never printed.
 #[derive(Clone, Default)]

@@ -74,11 +74,11 @@ enum Cmd {
         port: Option<u16>,
         /// Kortex: user name (else bridge.kortex.credentials_file).
         #[arg(long, env = services::bridge_node::USER_ENV, hide_env_values = true)]
-        user: Option<String>,
+        user: Option<services::bridge_node::Secret>,
         /// Kortex: password; prefer the environment variable or the credentials file, since a
         /// command line is visible to other users.
         #[arg(long, env = services::bridge_node::PASSWORD_ENV, hide_env_values = true)]
-        password: Option<String>,
+        password: Option<services::bridge_node::Secret>,
     },
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
@@ -247,7 +247,10 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 cfg.bridge.kortex.port = p;
             }
             cfg.validate()?;
-            let creds = services::bridge_node::CredentialArgs { user, password };
+            let creds = services::bridge_node::CredentialArgs {
+                user: user.map(services::bridge_node::Secret::into_inner),
+                password: password.map(services::bridge_node::Secret::into_inner),
+            };
             services::bridge_node::run(&prefix, &cfg.bridge, &creds)?;
             Ok(ExitCode::SUCCESS)
         }
@@ -336,5 +339,31 @@ mod tests {
     fn cli_is_consistent() {
         use clap::CommandFactory;
         Cli::command().debug_assert();
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn kortex_credentials_never_show_in_debug_output() {
+        let cli = Cli::try_parse_from([
+            "scl",
+            "bridge",
+            "--robot",
+            "kortex",
+            "--user",
+            "dbg-user-x",
+            "--password",
+            "dbg-pass-y",
+        ])
+        .unwrap();
+        let text = format!("{cli:?}");
+        assert!(text.contains("kortex"), "{text}");
+        assert!(
+            !text.contains("dbg-user-x") && !text.contains("dbg-pass-y"),
+            "{text}"
+        );
+        let Cmd::Bridge { password, .. } = cli.cmd else {
+            panic!("not the bridge")
+        };
+        assert_eq!(password.unwrap().into_inner(), "dbg-pass-y");
     }
 }
