@@ -6,10 +6,14 @@
 //! mis-shaped or non-finite command is never executed; it is counted as a miss and answered
 //! with a controlled stop (deceleration within the acceleration limits, keeping the direction
 //! of motion, then zero).
+//!
+//! A robot error ([`RobotError`]) is passed up to the process loop, which ends the run with
+//! [`BridgeCore::shutdown`]: the arm is stopped as far as the robot can still be reached (and
+//! a Kortex robot stops by itself when its connection inactivity timeout passes).
 
 use ipc_types::{MAX_JOINTS, NO_TICK, RobotState, SafeCommand, safe_flags, state_flags};
 
-use crate::Robot;
+use crate::{Reading, Robot, RobotError};
 
 /// What happened to a tick's command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,6 +51,14 @@ pub fn controlled_stop_step(v: &mut [f64], accel: &[f64], dt: f64) {
     v.iter_mut().for_each(|x| *x *= keep);
 }
 
+/// The reading of a robot that never gave one (all zero).
+const FALLBACK_READING: Reading = Reading {
+    q_rad: [0.0; MAX_JOINTS],
+    qdot_rad_s: [0.0; MAX_JOINTS],
+    gripper: 0.0,
+    at_limit: false,
+};
+
 /// The bridge's state between ticks.
 #[derive(Debug)]
 pub struct BridgeCore<R: Robot> {
@@ -61,6 +73,7 @@ pub struct BridgeCore<R: Robot> {
     safety_stop: bool,
     travel: f64,
     last_q: Option<[f64; MAX_JOINTS]>,
+    last_reading: Option<Reading>,
 }
 
 impl<R: Robot> BridgeCore<R> {
@@ -79,6 +92,7 @@ impl<R: Robot> BridgeCore<R> {
             safety_stop: false,
             travel: 0.0,
             last_q: None,
+            last_reading: None,
         }
     }
 
@@ -126,13 +140,14 @@ impl<R: Robot> BridgeCore<R> {
 
     /// Starts the next tick: lets one period of the command in force pass and returns the
     /// state to publish, stamped `now_ns`.
-    pub fn begin_tick(&mut self, now_ns: u64) -> RobotState {
+    pub fn begin_tick(&mut self, now_ns: u64) -> Result<RobotState, RobotError> {
         self.tick = self.tick.wrapping_add(1);
-        let r = self.robot.advance(self.dt);
-        self.state_from(r, now_ns, 0)
+        let r = self.robot.advance(self.dt)?;
+        self.last_reading = Some(r);
+        Ok(self.state_from(r, now_ns, 0))
     }
 
-    fn state_from(&mut self, r: crate::Reading, now_ns: u64, extra: u32) -> RobotState {
+    fn state_from(&mut self, r: Reading, now_ns: u64, extra: u32) -> RobotState {
         let n = self.robot.n_joints();
         if let Some(prev) = self.last_q {
             self.travel += (0..n)
@@ -167,8 +182,9 @@ impl<R: Robot> BridgeCore<R> {
         }
     }
 
-    /// Ends the current tick with the command that arrived for it, if any.
-    pub fn finish_tick(&mut self, cmd: Option<&SafeCommand>) -> Outcome {
+    /// Ends the current tick with the command that arrived for it, if any. An error means the
+    /// robot failed: the caller ends the run with [`BridgeCore::shutdown`].
+    pub fn finish_tick(&mut self, cmd: Option<&SafeCommand>) -> Result<Outcome, RobotError> {
         let n = self.robot.n_joints();
         let verdict = match cmd {
             None => Err(MissReason::NoCommand),
@@ -186,43 +202,49 @@ impl<R: Robot> BridgeCore<R> {
             Ok(c) => {
                 self.in_force = [0.0; MAX_JOINTS];
                 self.in_force[..n].copy_from_slice(&c.qdot_rad_s[..n]);
-                self.robot.command(&self.in_force[..n], c.gripper_rate);
+                // Marked not executed until the robot took it.
+                self.applied_tick = NO_TICK;
+                self.robot.command(&self.in_force[..n], c.gripper_rate)?;
                 self.applied_tick = self.tick;
                 self.stopping = false;
                 self.safety_stop = c.flags & safe_flags::STOP != 0;
-                Outcome::Executed
+                Ok(Outcome::Executed)
             }
             Err(reason) => {
                 self.missed += 1;
-                self.stop_step();
-                Outcome::Missed(reason)
+                self.stop_step()?;
+                Ok(Outcome::Missed(reason))
             }
         }
     }
 
-    fn stop_step(&mut self) {
+    fn stop_step(&mut self) -> Result<(), RobotError> {
         let n = self.robot.n_joints();
         controlled_stop_step(&mut self.in_force[..n], &self.accel, self.dt);
-        if self.in_force[..n].iter().all(|v| *v == 0.0) {
-            self.robot.stop();
-        } else {
-            self.robot.command(&self.in_force[..n], 0.0);
-        }
         self.applied_tick = NO_TICK;
         self.stopping = true;
         self.safety_stop = false;
+        if self.in_force[..n].iter().all(|v| *v == 0.0) {
+            self.robot.stop()
+        } else {
+            self.robot.command(&self.in_force[..n], 0.0)
+        }
     }
 
-    /// Stops the arm at once (shutdown, or a fault outside the tick) and returns the final
-    /// state to publish, flagged [`state_flags::SHUTDOWN`].
-    pub fn shutdown(&mut self, now_ns: u64) -> RobotState {
-        self.robot.stop();
+    /// Stops the arm at once and releases the robot (shutdown, or after a robot error) and
+    /// returns the final state to publish, flagged [`state_flags::SHUTDOWN`], with the
+    /// outcome of the robot's own shutdown. If the robot cannot be reached the state is the
+    /// last reading it gave.
+    pub fn shutdown(&mut self, now_ns: u64) -> (RobotState, Result<(), RobotError>) {
         self.in_force = [0.0; MAX_JOINTS];
         self.stopping = true;
         self.applied_tick = NO_TICK;
-        // Read the final state without letting a period pass.
-        let r = self.robot.advance(1e-9);
-        self.state_from(r, now_ns, state_flags::SHUTDOWN)
+        let (r, result) = match self.robot.shutdown() {
+            Ok(r) => (r, Ok(())),
+            Err(e) => (self.last_reading.unwrap_or(FALLBACK_READING), Err(e)),
+        };
+        self.last_reading = Some(r);
+        (self.state_from(r, now_ns, state_flags::SHUTDOWN), result)
     }
 }
 
@@ -230,6 +252,7 @@ impl<R: Robot> BridgeCore<R> {
 mod tests {
     use super::*;
     use crate::mock::{MockArm, MockConfig};
+    use crate::{Reading, Robot, RobotError};
     use kinematics::gen3_lite;
     use proptest::prelude::*;
 
@@ -270,18 +293,21 @@ mod tests {
     #[test]
     fn executes_only_the_command_of_its_tick() {
         let mut b = core();
-        let s0 = b.begin_tick(10);
+        let s0 = b.begin_tick(10).unwrap();
         assert_eq!((s0.tick, s0.applied_tick), (0, NO_TICK));
-        assert_eq!(b.finish_tick(Some(&cmd(0, 0.2))), Outcome::Executed);
-        let s1 = b.begin_tick(20);
+        assert_eq!(
+            b.finish_tick(Some(&cmd(0, 0.2))).unwrap(),
+            Outcome::Executed
+        );
+        let s1 = b.begin_tick(20).unwrap();
         assert_eq!((s1.tick, s1.applied_tick, s1.missed), (1, 0, 0));
         assert!((s1.q_rad[0] - 0.2 * DT).abs() < 1e-12);
         // A command for the previous tick is never executed.
         assert_eq!(
-            b.finish_tick(Some(&cmd(0, 0.4))),
+            b.finish_tick(Some(&cmd(0, 0.4))).unwrap(),
             Outcome::Missed(MissReason::WrongTick)
         );
-        let s2 = b.begin_tick(30);
+        let s2 = b.begin_tick(30).unwrap();
         assert_eq!((s2.applied_tick, s2.missed), (NO_TICK, 1));
         assert!(s2.flags & state_flags::STOPPING != 0);
         assert!(s2.flags & state_flags::MOCK != 0);
@@ -292,44 +318,50 @@ mod tests {
     fn a_restarted_bridge_continues_the_tick_count() {
         let mut b = core();
         b.start_at(500);
-        let s = b.begin_tick(0);
+        let s = b.begin_tick(0).unwrap();
         assert_eq!((s.tick, s.applied_tick), (500, NO_TICK));
-        assert_eq!(b.finish_tick(Some(&cmd(500, 0.1))), Outcome::Executed);
-        assert_eq!(b.begin_tick(0).applied_tick, 500);
+        assert_eq!(
+            b.finish_tick(Some(&cmd(500, 0.1))).unwrap(),
+            Outcome::Executed
+        );
+        assert_eq!(b.begin_tick(0).unwrap().applied_tick, 500);
     }
 
     #[test]
     fn refuses_non_finite_and_misshaped_commands() {
         let mut b = core();
-        b.begin_tick(0);
+        b.begin_tick(0).unwrap();
         let mut c = cmd(0, 0.1);
         c.qdot_rad_s[3] = f64::NAN;
         assert_eq!(
-            b.finish_tick(Some(&c)),
+            b.finish_tick(Some(&c)).unwrap(),
             Outcome::Missed(MissReason::NonFinite)
         );
-        b.begin_tick(1);
+        b.begin_tick(1).unwrap();
         let mut c = cmd(1, 0.1);
         c.n_joints = 5;
         assert_eq!(
-            b.finish_tick(Some(&c)),
+            b.finish_tick(Some(&c)).unwrap(),
             Outcome::Missed(MissReason::BadShape)
         );
-        b.begin_tick(2);
-        assert_eq!(b.finish_tick(None), Outcome::Missed(MissReason::NoCommand));
+        b.begin_tick(2).unwrap();
+        assert_eq!(
+            b.finish_tick(None).unwrap(),
+            Outcome::Missed(MissReason::NoCommand)
+        );
         assert_eq!(b.missed(), 3);
     }
 
     #[test]
     fn a_miss_starts_a_controlled_stop_that_ends_at_zero() {
         let mut b = core();
-        b.begin_tick(0);
-        b.finish_tick(Some(&cmd(0, 0.48)));
-        let mut last = b.begin_tick(1);
+        b.begin_tick(0).unwrap();
+        b.finish_tick(Some(&cmd(0, 0.48))).unwrap();
+        let mut last = b.begin_tick(1).unwrap();
         let mut ticks = 0;
         loop {
-            b.finish_tick(None);
-            let s = b.begin_tick(0);
+            b.finish_tick(None).unwrap();
+            let s = b.begin_tick(0).unwrap();
             // Deceleration within the limits, direction kept.
             for j in 0..6 {
                 let dv = (s.qdot_rad_s[j] - last.qdot_rad_s[j]).abs();
@@ -351,25 +383,26 @@ mod tests {
     #[test]
     fn a_safety_stop_is_executed_and_reported() {
         let mut b = core();
-        b.begin_tick(0);
+        b.begin_tick(0).unwrap();
         let mut c = cmd(0, 0.0);
         c.flags = safe_flags::STOP | safe_flags::STALE_JOYSTICK;
-        assert_eq!(b.finish_tick(Some(&c)), Outcome::Executed);
-        let s = b.begin_tick(1);
+        assert_eq!(b.finish_tick(Some(&c)).unwrap(), Outcome::Executed);
+        let s = b.begin_tick(1).unwrap();
         assert_eq!(s.applied_tick, 0);
         assert!(s.flags & state_flags::SAFETY_STOP != 0);
         assert!(s.flags & state_flags::STOPPING == 0);
-        b.finish_tick(Some(&cmd(1, 0.1)));
-        assert!(b.begin_tick(2).flags & state_flags::SAFETY_STOP == 0);
+        b.finish_tick(Some(&cmd(1, 0.1))).unwrap();
+        assert!(b.begin_tick(2).unwrap().flags & state_flags::SAFETY_STOP == 0);
     }
 
     #[test]
     fn shutdown_stops_at_once_and_says_so() {
         let mut b = core();
-        b.begin_tick(0);
-        b.finish_tick(Some(&cmd(0, 0.3)));
-        b.begin_tick(1);
-        let s = b.shutdown(2);
+        b.begin_tick(0).unwrap();
+        b.finish_tick(Some(&cmd(0, 0.3))).unwrap();
+        b.begin_tick(1).unwrap();
+        let (s, result) = b.shutdown(2);
+        result.unwrap();
         assert!(s.flags & state_flags::SHUTDOWN != 0);
         assert_eq!(s.applied_tick, NO_TICK);
         assert_eq!(b.robot().command_in_force(), &[0.0; 6]);
@@ -378,13 +411,86 @@ mod tests {
     #[test]
     fn travel_is_the_joint_path_length() {
         let mut b = core();
-        b.begin_tick(0);
+        b.begin_tick(0).unwrap();
         for k in 0..40 {
-            b.finish_tick(Some(&cmd(k, 0.2)));
-            b.begin_tick(0);
+            b.finish_tick(Some(&cmd(k, 0.2))).unwrap();
+            b.begin_tick(0).unwrap();
         }
         let expect = 40.0 * DT * (0.2f64.powi(2) + 0.1f64.powi(2)).sqrt();
         assert!((b.joint_travel_rad() - expect).abs() < 1e-9);
+    }
+
+    /// A mock arm whose calls fail while `fail` is set.
+    struct Failing {
+        arm: MockArm,
+        fail: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    }
+
+    impl Failing {
+        fn check(&self) -> Result<(), RobotError> {
+            if self.fail.load(std::sync::atomic::Ordering::SeqCst) {
+                Err(crate::kortex::KortexError::SessionClosed.into())
+            } else {
+                Ok(())
+            }
+        }
+    }
+
+    impl Robot for Failing {
+        fn n_joints(&self) -> usize {
+            6
+        }
+        fn advance(&mut self, dt: f64) -> Result<Reading, RobotError> {
+            self.check()?;
+            self.arm.advance(dt)
+        }
+        fn command(&mut self, v: &[f64], g: f64) -> Result<(), RobotError> {
+            self.check()?;
+            self.arm.command(v, g)
+        }
+        fn stop(&mut self) -> Result<(), RobotError> {
+            self.check()?;
+            self.arm.stop()
+        }
+        fn shutdown(&mut self) -> Result<Reading, RobotError> {
+            self.check()?;
+            self.arm.shutdown()
+        }
+        fn is_mock(&self) -> bool {
+            true
+        }
+    }
+
+    #[test]
+    fn robot_errors_reach_the_caller_and_shutdown_keeps_the_last_reading() {
+        let fail = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let set = |v: bool| fail.store(v, std::sync::atomic::Ordering::SeqCst);
+        let robot = Failing {
+            arm: MockArm::new(MockConfig::default()).unwrap(),
+            fail: fail.clone(),
+        };
+        let mut b = BridgeCore::new(robot, DT, gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec());
+        b.begin_tick(0).unwrap();
+        b.finish_tick(Some(&cmd(0, 0.2))).unwrap();
+        let s1 = b.begin_tick(1).unwrap();
+        assert_eq!(s1.applied_tick, 0);
+        // A command the robot did not take is not reported as executed.
+        set(true);
+        assert!(b.finish_tick(Some(&cmd(1, 0.2))).is_err());
+        set(false);
+        let s2 = b.begin_tick(2).unwrap();
+        assert_eq!(s2.applied_tick, NO_TICK);
+        // A miss whose stop fails is still counted, and the error reaches the caller.
+        set(true);
+        assert!(b.finish_tick(None).is_err());
+        assert_eq!(b.missed(), 1);
+        assert!(b.begin_tick(3).is_err());
+        // The robot cannot be reached: the final state is the last reading, flagged.
+        let (last, result) = b.shutdown(4);
+        assert!(result.is_err());
+        assert!(last.flags & state_flags::SHUTDOWN != 0);
+        assert_eq!(last.applied_tick, NO_TICK);
+        assert_eq!(last.q_rad, s2.q_rad);
     }
 
     proptest! {

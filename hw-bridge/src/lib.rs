@@ -1,8 +1,10 @@
 //! The hardware side of the graph.
 //!
-//! * [`Robot`]: the backend trait (the mock Gen3 lite now, the Kortex client later).
+//! * [`Robot`]: the backend trait, fallible ([`RobotError`]) because a real robot can fail.
 //! * [`mock::MockArm`]: integrates commanded joint velocities at 40 Hz inside the joint
 //!   limits, with a first-order gripper, and injectable command latency and drops.
+//! * [`kortex`]: the Kortex client for the Gen3 lite ([`kortex::KortexArm`]) and a fake robot
+//!   speaking the same protocol on loopback ([`kortex::FakeKortex`]).
 //! * [`core::BridgeCore`]: the pure tick logic: publish the state of tick k, execute only the
 //!   command for tick k, count a miss and start a controlled stop otherwise.
 //! * [`clock`]: the graph's only clock, an absolute-deadline timer, and the real-time settings
@@ -11,6 +13,7 @@
 
 pub mod clock;
 pub mod core;
+pub mod kortex;
 pub mod mock;
 
 /// What a robot reports at the start of a tick.
@@ -26,18 +29,49 @@ pub struct Reading {
     pub at_limit: bool,
 }
 
+/// Why a robot backend failed. The bridge answers every one by stopping the arm (as far as
+/// the robot can still be reached) and exiting with the message.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    /// The Kortex client failed.
+    #[error(transparent)]
+    Kortex(#[from] kortex::KortexError),
+}
+
+/// Counters of a backend's link to the robot (all zero for the mock).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Requests sent.
+    pub requests: u64,
+    /// Replies that arrived after the tick they were due in.
+    pub late_replies: u64,
+    /// Ticks that reused the previous reading because the newest feedback had not arrived.
+    pub stale_readings: u64,
+    /// Bytes dropped to resynchronise the stream (wrong magic).
+    pub skipped_bytes: u64,
+    /// Commands slowed down (one common factor) to the robot's own speed limits.
+    pub clamped_commands: u64,
+}
+
 /// A robot backend driven once per tick.
 pub trait Robot: Send {
     /// Number of arm joints.
     fn n_joints(&self) -> usize;
     /// Lets `dt` seconds of the current command pass (a real robot moves by itself; the
     /// mock integrates) and returns the state at the new tick.
-    fn advance(&mut self, dt: f64) -> Reading;
+    fn advance(&mut self, dt: f64) -> Result<Reading, RobotError>;
     /// Commands joint velocities (rad/s) and a gripper rate (1/s) that stay in force until
     /// the next command, as on the Gen3 lite.
-    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64);
+    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) -> Result<(), RobotError>;
     /// Stops the arm at once (Kortex `Stop`; the mock zeroes the command).
-    fn stop(&mut self);
+    fn stop(&mut self) -> Result<(), RobotError>;
+    /// Stops the arm and releases the robot (Kortex: Stop, a last feedback, CloseSession);
+    /// returns the last reading. Called once at exit; later calls return the same reading.
+    fn shutdown(&mut self) -> Result<Reading, RobotError>;
     /// Whether this is a simulation.
     fn is_mock(&self) -> bool;
+    /// Counters of the link to the robot.
+    fn link_stats(&self) -> LinkStats {
+        LinkStats::default()
+    }
 }

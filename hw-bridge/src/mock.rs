@@ -7,7 +7,7 @@ use ipc_types::MAX_JOINTS;
 use kinematics::{ArmLimits, gen3_lite};
 use serde::{Deserialize, Serialize};
 
-use crate::{Reading, Robot};
+use crate::{Reading, Robot, RobotError};
 
 /// Settings of the mock: the `[bridge.mock]` table of the graph TOML.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -122,7 +122,7 @@ impl MockArm {
         };
         self.gripper = c;
         self.gripper_target = c;
-        self.stop();
+        self.halt();
         self.qdot = [0.0; MAX_JOINTS];
     }
 
@@ -132,13 +132,10 @@ impl MockArm {
     }
 }
 
-impl Robot for MockArm {
-    fn n_joints(&self) -> usize {
-        self.limits.n_joints()
-    }
-
-    fn advance(&mut self, dt: f64) -> Reading {
-        let n = self.n_joints();
+impl MockArm {
+    /// Lets `dt` seconds of the command in force pass and returns the new state.
+    pub fn step(&mut self, dt: f64) -> Reading {
+        let n = self.limits.n_joints();
         let mut at_limit = false;
         for j in 0..n {
             let before = self.q[j];
@@ -161,7 +158,9 @@ impl Robot for MockArm {
         }
     }
 
-    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) {
+    /// Gives a velocity command (rad/s) and gripper rate (1/s), subject to the configured
+    /// latency and drops.
+    pub fn set_command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) {
         self.commands_seen += 1;
         if self.cfg.drop_every > 0
             && self
@@ -171,7 +170,7 @@ impl Robot for MockArm {
             return;
         }
         let mut c = [0.0; MAX_JOINTS];
-        let n = self.n_joints().min(qdot_rad_s.len());
+        let n = self.limits.n_joints().min(qdot_rad_s.len());
         c[..n].copy_from_slice(&qdot_rad_s[..n]);
         self.pending.push_back((c, gripper_rate));
         while self.pending.len() > self.cfg.latency_ticks as usize {
@@ -182,10 +181,52 @@ impl Robot for MockArm {
         }
     }
 
-    fn stop(&mut self) {
+    /// Zeroes the command at once (pending commands are dropped); the gripper keeps moving
+    /// to its target.
+    pub fn halt(&mut self) {
         self.pending.clear();
         self.cmd = [0.0; MAX_JOINTS];
         self.gripper_rate = 0.0;
+    }
+
+    /// Sets the gripper's target position `0` open .. `1` closed (a position command, as
+    /// the Kortex gripper takes it); the rate stops.
+    pub fn set_gripper_target(&mut self, c: f64) {
+        if c.is_finite() {
+            self.gripper_target = c.clamp(0.0, 1.0);
+        }
+        self.gripper_rate = 0.0;
+    }
+
+    /// The gripper's target position.
+    pub fn gripper_target(&self) -> f64 {
+        self.gripper_target
+    }
+}
+
+impl Robot for MockArm {
+    fn n_joints(&self) -> usize {
+        self.limits.n_joints()
+    }
+
+    fn advance(&mut self, dt: f64) -> Result<Reading, RobotError> {
+        Ok(self.step(dt))
+    }
+
+    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) -> Result<(), RobotError> {
+        self.set_command(qdot_rad_s, gripper_rate);
+        Ok(())
+    }
+
+    fn stop(&mut self) -> Result<(), RobotError> {
+        self.halt();
+        Ok(())
+    }
+
+    fn shutdown(&mut self) -> Result<Reading, RobotError> {
+        self.halt();
+        // The final state, without letting a period pass.
+        Ok(self.step(1e-9))
     }
 
     fn is_mock(&self) -> bool {
@@ -202,13 +243,13 @@ mod tests {
     #[test]
     fn integrates_from_home() {
         let mut arm = MockArm::new(MockConfig::default()).unwrap();
-        let r0 = arm.advance(DT);
+        let r0 = arm.step(DT);
         assert_eq!(&r0.q_rad[..6], &gen3_lite::HOME);
-        arm.command(&[0.4, 0.0, 0.0, 0.0, 0.0, -0.2], 0.0);
+        arm.set_command(&[0.4, 0.0, 0.0, 0.0, 0.0, -0.2], 0.0);
         for _ in 0..40 {
-            arm.advance(DT);
+            arm.step(DT);
         }
-        let r = arm.advance(0.0 + 1e-9);
+        let r = arm.step(1e-9);
         assert!((r.q_rad[0] - 0.4).abs() < 1e-9);
         assert!((r.q_rad[5] + 0.2).abs() < 1e-9);
         assert_eq!(r.q_rad[1], gen3_lite::HOME[1]);
@@ -217,17 +258,17 @@ mod tests {
     #[test]
     fn stops_at_joint_limits() {
         let mut arm = MockArm::new(MockConfig::default()).unwrap();
-        arm.command(&[2.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
-        let mut r = arm.advance(DT);
+        arm.set_command(&[2.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
+        let mut r = arm.step(DT);
         for _ in 0..200 {
-            r = arm.advance(DT);
+            r = arm.step(DT);
         }
         assert_eq!(r.q_rad[0], 2.68);
         assert_eq!(r.qdot_rad_s[0], 0.0);
         assert!(r.at_limit);
         // Motion away from the limit is possible.
-        arm.command(&[-0.5, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
-        let r = arm.advance(DT);
+        arm.set_command(&[-0.5, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
+        let r = arm.step(DT);
         assert!(r.q_rad[0] < 2.68);
         assert!(!r.at_limit);
     }
@@ -235,17 +276,17 @@ mod tests {
     #[test]
     fn gripper_is_a_first_order_lag() {
         let mut arm = MockArm::new(MockConfig::default()).unwrap();
-        arm.command(&[0.0; 6], 10.0); // target reaches 1 within 0.1 s
+        arm.set_command(&[0.0; 6], 10.0); // target reaches 1 within 0.1 s
         let mut prev = 0.0;
-        let mut r = arm.advance(DT);
+        let mut r = arm.step(DT);
         for _ in 0..4 {
-            r = arm.advance(DT);
+            r = arm.step(DT);
             assert!(r.gripper > prev);
             prev = r.gripper;
         }
         assert!(r.gripper < 1.0);
         for _ in 0..80 {
-            r = arm.advance(DT);
+            r = arm.step(DT);
         }
         assert!((r.gripper - 1.0).abs() < 1e-3);
     }
@@ -257,11 +298,11 @@ mod tests {
             ..MockConfig::default()
         };
         let mut arm = MockArm::new(cfg).unwrap();
-        arm.command(&[0.1; 6], 0.0);
+        arm.set_command(&[0.1; 6], 0.0);
         assert_eq!(arm.command_in_force(), &[0.0; 6]);
-        arm.command(&[0.2; 6], 0.0);
+        arm.set_command(&[0.2; 6], 0.0);
         assert_eq!(arm.command_in_force(), &[0.0; 6]);
-        arm.command(&[0.3; 6], 0.0);
+        arm.set_command(&[0.3; 6], 0.0);
         assert_eq!(arm.command_in_force(), &[0.1; 6]);
 
         let cfg = MockConfig {
@@ -269,22 +310,22 @@ mod tests {
             ..MockConfig::default()
         };
         let mut arm = MockArm::new(cfg).unwrap();
-        arm.command(&[0.1; 6], 0.0);
-        arm.command(&[0.2; 6], 0.0); // dropped
+        arm.set_command(&[0.1; 6], 0.0);
+        arm.set_command(&[0.2; 6], 0.0); // dropped
         assert_eq!(arm.command_in_force(), &[0.1; 6]);
-        arm.command(&[0.3; 6], 0.0);
+        arm.set_command(&[0.3; 6], 0.0);
         assert_eq!(arm.command_in_force(), &[0.3; 6]);
-        arm.stop();
+        arm.halt();
         assert_eq!(arm.command_in_force(), &[0.0; 6]);
     }
 
     #[test]
     fn resume_takes_over_a_pose_at_rest() {
         let mut arm = MockArm::new(MockConfig::default()).unwrap();
-        arm.command(&[0.3; 6], 1.0);
+        arm.set_command(&[0.3; 6], 1.0);
         arm.resume(&[0.1, 0.2, 0.3, 0.4, 0.5, 9.0], 0.7);
         assert_eq!(arm.command_in_force(), &[0.0; 6]);
-        let r = arm.advance(DT);
+        let r = arm.step(DT);
         assert_eq!(&r.q_rad[..5], &[0.1, 0.2, 0.3, 0.4, 0.5]);
         assert_eq!(r.q_rad[5], 2.6, "clamped into the limit");
         assert!((r.gripper - 0.7).abs() < 1e-12);

@@ -4,18 +4,141 @@
 //! `command_deadline` into the period for `SafeCommand(k)`, and executes it; anything else is
 //! a counted miss answered by a controlled stop. On shutdown it stops the arm first and
 //! publishes a last state flagged `SHUTDOWN`.
+//!
+//! The robot is the mock (`robot = "mock"`) or a Gen3 lite over Kortex (`robot = "kortex"`,
+//! [`hw_bridge::kortex::KortexArm`]). A robot error ends the run the same way as a shutdown
+//! (stop, last state) and the process exits with the error's message.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use hw_bridge::clock::{Clock, Wake};
 use hw_bridge::core::{BridgeCore, Outcome};
+use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
+use hw_bridge::{Robot, RobotError};
 use ipc_types::{
     Graph, NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns,
 };
+use serde::Deserialize;
 
 use crate::config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
 use crate::{SclError, signals};
+
+/// Environment variable with the Kortex user name (`scl bridge --user`).
+pub const USER_ENV: &str = "SCL_KORTEX_USER";
+/// Environment variable with the Kortex password (`scl bridge --password`).
+pub const PASSWORD_ENV: &str = "SCL_KORTEX_PASSWORD";
+
+/// A command-line value that must not show in `Debug` output (the Kortex user name and
+/// password flags).
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(String);
+
+impl Secret {
+    /// The value.
+    pub fn into_inner(self) -> String {
+        self.0
+    }
+}
+
+impl std::str::FromStr for Secret {
+    type Err = std::convert::Infallible;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(Self(s.to_owned()))
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("<redacted>")
+    }
+}
+
+/// Kortex credentials given on the command line or in the environment; they take precedence
+/// over `bridge.kortex.credentials_file`. Never printed.
+#[derive(Clone, Default)]
+pub struct CredentialArgs {
+    /// `--user` / `SCL_KORTEX_USER`.
+    pub user: Option<String>,
+    /// `--password` / `SCL_KORTEX_PASSWORD`.
+    pub password: Option<String>,
+}
+
+impl std::fmt::Debug for CredentialArgs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CredentialArgs(<redacted>)")
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CredentialsFile {
+    username: Option<String>,
+    password: Option<String>,
+}
+
+fn read_credentials_file(path: &Path) -> Result<CredentialsFile, SclError> {
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        SclError::Credentials(format!(
+            "cannot read credentials file {}: {e}",
+            path.display()
+        ))
+    })?;
+    #[cfg(unix)]
+    if let Ok(meta) = std::fs::metadata(path) {
+        use std::os::unix::fs::PermissionsExt;
+        if meta.permissions().mode() & 0o077 != 0 {
+            tracing::warn!(
+                "credentials file {} can be read by other users; chmod 600 it",
+                path.display()
+            );
+        }
+    }
+    // The parser's own message quotes the offending line, which may hold the password: only
+    // the line number is reported.
+    toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+        SclError::Credentials(format!(
+            "credentials file {}{}: expected `username = \"...\"` and `password = \"...\"` \
+             (TOML strings) and nothing else",
+            path.display(),
+            line.map_or(String::new(), |l| format!(", line {l}"))
+        ))
+    })
+}
+
+/// The credentials for the Kortex session: `--user` / `--password` (or their environment
+/// variables) first, then `credentials_file`. Both must be found.
+pub fn kortex_credentials(
+    cfg: &KortexConfig,
+    args: &CredentialArgs,
+) -> Result<Credentials, SclError> {
+    let mut user = args.user.clone().filter(|s| !s.is_empty());
+    let mut password = args.password.clone().filter(|s| !s.is_empty());
+    if (user.is_none() || password.is_none()) && !cfg.credentials_file.is_empty() {
+        let file = read_credentials_file(&PathBuf::from(&cfg.credentials_file))?;
+        user = user.or(file.username);
+        password = password.or(file.password);
+    }
+    match (user, password) {
+        (Some(u), Some(p)) => Ok(Credentials::new(u, p)),
+        (u, p) => {
+            let missing = match (u.is_none(), p.is_none()) {
+                (true, true) => "user name and password",
+                (true, false) => "user name",
+                _ => "password",
+            };
+            Err(SclError::Credentials(format!(
+                "no Kortex {missing}: set {USER_ENV} and {PASSWORD_ENV}, or \
+                 bridge.kortex.credentials_file (a TOML file with username and password)"
+            )))
+        }
+    }
+}
 
 /// Where a restarted bridge takes over (given by the supervisor from the last state its
 /// predecessor published).
@@ -23,34 +146,78 @@ use crate::{SclError, signals};
 pub struct Resume {
     /// The first tick to publish.
     pub start_tick: Option<u64>,
-    /// The mock arm's pose and gripper state to start from.
+    /// The mock arm's pose and gripper state to start from (a real arm keeps its own).
     pub pose: Option<(Vec<f64>, f64)>,
 }
 
-/// Runs the bridge until a shutdown is requested.
+enum Backend {
+    Mock(Box<MockArm>),
+    Kortex(Credentials),
+}
+
+/// Runs the bridge until a shutdown is requested or the robot fails.
 pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
     cfg: &BridgeConfig,
     faults: &FaultConfig,
     resume: &Resume,
+    creds: &CredentialArgs,
 ) -> Result<(), SclError> {
-    let mut robot =
-        MockArm::new(cfg.mock.clone()).map_err(|e| SclError::Graph(format!("config: {e}")))?;
-    if let Some((q, c)) = &resume.pose {
-        robot.resume(q, *c);
+    // Everything that can be refused without touching the network, first.
+    let backend = match cfg.robot.as_str() {
+        "mock" => {
+            let mut arm = MockArm::new(cfg.mock.clone())
+                .map_err(|e| SclError::Graph(format!("config: {e}")))?;
+            if let Some((q, c)) = &resume.pose {
+                arm.resume(q, *c);
+            }
+            Backend::Mock(Box::new(arm))
+        }
+        "kortex" => Backend::Kortex(kortex_credentials(&cfg.kortex, creds)?),
+        other => {
+            return Err(SclError::Graph(format!(
+                "bridge.robot: `{other}` is not a robot; use mock or kortex"
+            )));
+        }
+    };
+    crate::rt::elevate(graph_cfg, RtRole::Bridge);
+    let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
+    let ctx = Ctx {
+        graph: &graph,
+        cfg,
+        faults,
+        resume,
+    };
+    match backend {
+        Backend::Mock(arm) => tick_loop(&ctx, *arm),
+        Backend::Kortex(credentials) => {
+            // Connect as late as possible: from here on a frame must go out at least every
+            // connection_timeout_ms, and the first tick follows within one period.
+            let arm = KortexArm::connect(&cfg.kortex, &credentials).map_err(RobotError::from)?;
+            tick_loop(&ctx, arm)
+        }
     }
+}
+
+struct Ctx<'a> {
+    graph: &'a Graph,
+    cfg: &'a BridgeConfig,
+    faults: &'a FaultConfig,
+    resume: &'a Resume,
+}
+
+fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), SclError> {
+    let (graph, cfg, faults) = (ctx.graph, ctx.cfg, ctx.faults);
     let period_ns = (1e9 / cfg.rate_hz) as u64;
     let period_s = period_ns as f64 * 1e-9;
     let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
-    crate::rt::elevate(graph_cfg, RtRole::Bridge);
-    let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
     let states = graph.robot_state_publisher()?;
     let commands = graph.safe_command_subscriber(true)?;
     let status = graph.status_publisher()?;
     let reports = graph.tick_report_publisher()?;
     let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
-    if let Some(t) = resume.start_tick {
+    if let Some(t) = ctx.resume.start_tick {
         core.start_at(t);
         tracing::info!(
             start_tick = t,
@@ -65,6 +232,7 @@ pub fn run(
     let mut clock = Clock::new(now_ns() + period_ns, period_ns);
     // Drop whatever commands are left over from an earlier bridge of this graph.
     commands.drain(|_| {})?;
+    let mut failure: Option<RobotError> = None;
     while !signals::stop_requested() {
         let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
             Wake::Interrupted => continue,
@@ -81,7 +249,13 @@ pub fn run(
             tracing::warn!(skipped, "the bridge was held up for more than a period");
             core.add_skipped(skipped);
         }
-        let state = core.begin_tick(now_ns());
+        let state = match core.begin_tick(now_ns()) {
+            Ok(s) => s,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
         let stop_after = faults.bridge_states_stop_after_ticks;
         if stop_after == 0 || st.handled < stop_after {
             states.send(state)?;
@@ -111,7 +285,13 @@ pub fn run(
             }
             commands.wait(Duration::from_nanos(deadline - now))?;
         }
-        let outcome = core.finish_tick(found.as_ref().or(other.as_ref()));
+        let outcome = match core.finish_tick(found.as_ref().or(other.as_ref())) {
+            Ok(o) => o,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
         st.latency_ns = match outcome {
             Outcome::Executed => received_ns - state.t_ns,
             Outcome::Missed(reason) => {
@@ -155,18 +335,114 @@ pub fn run(
             reserved: 0,
         })?;
     }
-    // Stop the arm first, then say so.
-    let last = core.shutdown(now_ns());
+    // Stop the arm first (also after a robot error: as far as the robot can be reached),
+    // then say so.
+    let (last, stopped) = core.shutdown(now_ns());
+    if let Err(e) = stopped {
+        match &failure {
+            None => failure = Some(e),
+            Some(_) => tracing::warn!("while stopping after the failure: {e}"),
+        }
+    }
     states.send(last)?;
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     st.latency_ns = 0;
     status.send(st)?;
+    let link = core.robot().link_stats();
     tracing::info!(
         ticks = st.handled,
         missed = core.missed(),
+        requests = link.requests,
+        late_replies = link.late_replies,
+        stale_readings = link.stale_readings,
+        skipped_bytes = link.skipped_bytes,
+        clamped_commands = link.clamped_commands,
         signal = signals::signal(),
         "arm stopped; bridge exiting"
     );
-    Ok(())
+    match failure {
+        Some(e) => Err(SclError::Robot(e)),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("scl-creds-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn flags_and_environment_come_before_the_file() {
+        let d = dir("order");
+        let f = d.join("kortex.toml");
+        std::fs::write(&f, "username = \"file-user\"\npassword = \"file-pw\"\n").unwrap();
+        let cfg = KortexConfig {
+            credentials_file: f.display().to_string(),
+            ..KortexConfig::default()
+        };
+        let from_file = kortex_credentials(&cfg, &CredentialArgs::default()).unwrap();
+        assert_eq!(from_file, Credentials::new("file-user", "file-pw"));
+        let args = CredentialArgs {
+            user: Some("flag-user".into()),
+            password: None,
+        };
+        assert_eq!(
+            kortex_credentials(&cfg, &args).unwrap(),
+            Credentials::new("flag-user", "file-pw")
+        );
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn missing_or_bad_credentials_are_named_without_the_secret() {
+        let e = kortex_credentials(&KortexConfig::default(), &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("user name and password") && e.contains(USER_ENV),
+            "{e}"
+        );
+        let args = CredentialArgs {
+            user: Some("u".into()),
+            password: None,
+        };
+        let e = kortex_credentials(&KortexConfig::default(), &args)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no Kortex password"), "{e}");
+
+        let d = dir("bad");
+        let f = d.join("kortex.toml");
+        // An unquoted password: the TOML parser would quote the line; the message must not.
+        std::fs::write(&f, "username = \"admin\"\npassword = sup3r-s3cret\n").unwrap();
+        let cfg = KortexConfig {
+            credentials_file: f.display().to_string(),
+            ..KortexConfig::default()
+        };
+        let e = kortex_credentials(&cfg, &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("kortex.toml"), "{e}");
+        assert!(!e.contains("sup3r"), "{e}");
+        let args = CredentialArgs {
+            user: Some("qx-user".into()),
+            password: Some("qz-pass".into()),
+        };
+        let text = format!("{args:?}");
+        assert!(
+            !text.contains("qx-user") && !text.contains("qz-pass"),
+            "{text}"
+        );
+        std::fs::remove_dir_all(&d).unwrap();
+        let e = kortex_credentials(&cfg, &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cannot read credentials file"), "{e}");
+    }
 }

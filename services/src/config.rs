@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use hw_bridge::kortex::KortexConfig;
 use hw_bridge::mock::MockConfig;
 use safety::SafetyConfig;
 use serde::{Deserialize, Serialize};
@@ -247,7 +248,8 @@ impl Default for MapperConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BridgeConfig {
-    /// Robot backend: `mock` (the Kortex client comes with the hardware issue).
+    /// Robot backend: `mock` (the simulation) or `kortex` (a Gen3 lite over the Kortex API,
+    /// settings in `[bridge.kortex]`).
     pub robot: String,
     /// Tick rate (Hz). The Gen3 lite's high-level API runs at 40 Hz.
     pub rate_hz: f64,
@@ -258,6 +260,8 @@ pub struct BridgeConfig {
     pub stop_acceleration_rad_s2: Vec<f64>,
     /// `[bridge.mock]`: the mock arm.
     pub mock: MockConfig,
+    /// `[bridge.kortex]`: the Kortex client (address, port, timeouts, credentials file).
+    pub kortex: KortexConfig,
 }
 
 impl Default for BridgeConfig {
@@ -268,6 +272,7 @@ impl Default for BridgeConfig {
             command_deadline: 0.6,
             stop_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
             mock: MockConfig::default(),
+            kortex: KortexConfig::default(),
         }
     }
 }
@@ -322,6 +327,15 @@ impl GraphConfig {
                 && let Some(dir) = path.parent()
             {
                 cfg.mapper.model = dir.join(p).display().to_string();
+            }
+        }
+        let creds = &mut cfg.bridge.kortex.credentials_file;
+        if !creds.is_empty() {
+            let p = Path::new(creds.as_str());
+            if p.is_relative()
+                && let Some(dir) = path.parent()
+            {
+                *creds = dir.join(p).display().to_string();
             }
         }
         Ok(cfg)
@@ -388,10 +402,10 @@ impl GraphConfig {
             ));
         }
         let b = &self.bridge;
-        if b.robot != "mock" {
+        if b.robot != "mock" && b.robot != "kortex" {
             return Err(err(
                 "bridge.robot",
-                format!("`{}` is not available; use `mock`", b.robot),
+                format!("`{}` is not a robot; use `mock` or `kortex`", b.robot),
             ));
         }
         if !(b.rate_hz.is_finite() && b.rate_hz > 0.0 && b.rate_hz <= 1000.0) {
@@ -422,6 +436,9 @@ impl GraphConfig {
         }
         hw_bridge::mock::MockArm::new(b.mock.clone())
             .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
+        b.kortex
+            .validate(1.0 / b.rate_hz)
+            .map_err(|e| err(&format!("bridge.kortex.{}", e.key), e.reason))?;
         self.safety
             .validate(&kinematics::gen3_lite::limits())
             .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
@@ -474,6 +491,21 @@ mod tests {
     }
 
     #[test]
+    fn kortex_example_is_valid_and_points_at_loopback() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/kortex-fake.toml"
+        ));
+        let cfg = GraphConfig::load(Some(path)).unwrap();
+        cfg.validate().unwrap();
+        assert_eq!(cfg.bridge.robot, "kortex");
+        assert_eq!(
+            cfg.bridge.kortex.socket_addr().unwrap(),
+            "127.0.0.1:10000".parse().unwrap()
+        );
+    }
+
+    #[test]
     fn unknown_keys_and_bad_values_are_named() {
         let dir = std::env::temp_dir().join(format!("scl-cfg-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -502,6 +534,30 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("bridge.mock.initial_pose"), "{e}");
+        std::fs::write(&p, "[bridge]\nrobot = \"ur5\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.robot") && e.contains("kortex"), "{e}");
+        std::fs::write(
+            &p,
+            "[bridge]\nrobot = \"kortex\"\n[bridge.kortex]\naddress = \"127.0.0.1\"\nport = 10123\n\
+             credentials_file = \"creds.toml\"\nconnection_timeout_ms = 20\n",
+        )
+        .unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(cfg.bridge.kortex.port, 10123);
+        assert_eq!(
+            cfg.bridge.kortex.credentials_file,
+            dir.join("creds.toml").display().to_string()
+        );
+        let e = cfg.validate().unwrap_err().to_string();
+        assert!(e.contains("bridge.kortex.connection_timeout_ms"), "{e}");
+        std::fs::write(&p, "[bridge.kortex]\npassword = \"admin\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("unknown field `password`"), "{e}");
         std::fs::write(&p, "[mapper]\nmodel = \"m.safetensors\"\n").unwrap();
         let cfg = GraphConfig::load(Some(&p)).unwrap();
         assert_eq!(

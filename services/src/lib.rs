@@ -8,12 +8,15 @@
 //! commands (`demos`, `train`, `plot`); [`bench`] runs the latency benchmark. The read-only
 //! observers: [`record`] (`scl record`, MCAP in the [`mcap_log`] format), [`to_dataset`]
 //! (`scl dataset`, recordings to training data) and [`top`] (`scl top`, the terminal dashboard).
+//! [`fake_kortex`] serves a fake Gen3 lite over the Kortex protocol on loopback
+//! (`scl fake-kortex`).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bench;
 pub mod bridge_node;
 pub mod config;
 pub mod control;
+pub mod fake_kortex;
 pub mod joystick;
 pub mod mapper_node;
 pub mod mcap_log;
@@ -58,6 +61,15 @@ pub enum SclError {
     /// The dashboard could not run.
     #[error(transparent)]
     Top(#[from] top::TopError),
+    /// The robot failed (Kortex: connection, session, an error from the robot).
+    #[error(transparent)]
+    Robot(#[from] hw_bridge::RobotError),
+    /// The Kortex credentials could not be found or read (the message never holds them).
+    #[error("{0}")]
+    Credentials(String),
+    /// The fake Kortex robot could not start.
+    #[error(transparent)]
+    FakeKortex(#[from] hw_bridge::kortex::fake::FakeError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

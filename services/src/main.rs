@@ -103,7 +103,7 @@ enum Cmd {
     Safety,
     /// The hardware bridge: the robot and the graph's clock.
     Bridge {
-        /// Robot backend: `mock`.
+        /// Robot backend: `mock` or `kortex` (a Gen3 lite over the Kortex API).
         #[arg(long)]
         robot: Option<String>,
         /// First tick number (a restarted bridge continues its predecessor's count).
@@ -116,6 +116,26 @@ enum Cmd {
         /// Mock arm: start with this gripper state (0 open .. 1 closed).
         #[arg(long, default_value_t = 0.0)]
         resume_gripper: f64,
+        /// Kortex: the robot's IP address (instead of bridge.kortex.address).
+        #[arg(long, value_name = "IP")]
+        address: Option<String>,
+        /// Kortex: the robot's TCP port (instead of bridge.kortex.port).
+        #[arg(long)]
+        port: Option<u16>,
+        /// Kortex: user name (else bridge.kortex.credentials_file).
+        #[arg(long, env = services::bridge_node::USER_ENV, hide_env_values = true)]
+        user: Option<services::bridge_node::Secret>,
+        /// Kortex: password; prefer the environment variable or the credentials file, since a
+        /// command line is visible to other users.
+        #[arg(long, env = services::bridge_node::PASSWORD_ENV, hide_env_values = true)]
+        password: Option<services::bridge_node::Secret>,
+    },
+    /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
+    /// admin), for trying `bridge --robot kortex` without an arm.
+    FakeKortex {
+        /// TCP port on 127.0.0.1 (0: a free one; the first line on stdout names it).
+        #[arg(long, default_value_t = hw_bridge::kortex::DEFAULT_PORT)]
+        port: u16,
     },
     /// Generate demonstrations as CSV trajectories.
     Demos {
@@ -438,16 +458,41 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             start_tick,
             resume_q,
             resume_gripper,
+            address,
+            port,
+            user,
+            password,
         } => {
             if let Some(r) = robot {
                 cfg.bridge.robot = r;
+            }
+            if let Some(a) = address {
+                cfg.bridge.kortex.address = a;
+            }
+            if let Some(p) = port {
+                cfg.bridge.kortex.port = p;
             }
             cfg.validate()?;
             let resume = services::bridge_node::Resume {
                 start_tick,
                 pose: resume_q.map(|q| (q, resume_gripper)),
             };
-            services::bridge_node::run(&prefix, &cfg.graph, &cfg.bridge, &cfg.faults, &resume)?;
+            let creds = services::bridge_node::CredentialArgs {
+                user: user.map(services::bridge_node::Secret::into_inner),
+                password: password.map(services::bridge_node::Secret::into_inner),
+            };
+            services::bridge_node::run(
+                &prefix,
+                &cfg.graph,
+                &cfg.bridge,
+                &cfg.faults,
+                &resume,
+                &creds,
+            )?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::FakeKortex { port } => {
+            services::fake_kortex::run(port)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {
@@ -511,6 +556,7 @@ fn main() -> ExitCode {
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",
         Cmd::Bridge { .. } => "bridge",
+        Cmd::FakeKortex { .. } => "fake-kortex",
         Cmd::Demos { .. } => "demos",
         Cmd::Plot { .. } => "plot",
         Cmd::Train { .. } => "train",
@@ -550,5 +596,31 @@ mod tests {
     fn cli_is_consistent() {
         use clap::CommandFactory;
         Cli::command().debug_assert();
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn kortex_credentials_never_show_in_debug_output() {
+        let cli = Cli::try_parse_from([
+            "scl",
+            "bridge",
+            "--robot",
+            "kortex",
+            "--user",
+            "dbg-user-x",
+            "--password",
+            "dbg-pass-y",
+        ])
+        .unwrap();
+        let text = format!("{cli:?}");
+        assert!(text.contains("kortex"), "{text}");
+        assert!(
+            !text.contains("dbg-user-x") && !text.contains("dbg-pass-y"),
+            "{text}"
+        );
+        let Cmd::Bridge { password, .. } = cli.cmd else {
+            panic!("not the bridge")
+        };
+        assert_eq!(password.unwrap().into_inner(), "dbg-pass-y");
     }
 }

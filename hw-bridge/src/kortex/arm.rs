@@ -1,0 +1,783 @@
+//! [`KortexArm`]: the Gen3 lite over one Kortex TCP session, as a [`Robot`].
+//!
+//! Start-up (each call waits for its reply, bounded by `reply_timeout_ms`):
+//! CreateSession (credentials, session and connection inactivity timeouts; the session id is
+//! read from the reply), SetServoingMode(single-level), ClearFaults, GetActuatorCount (must be
+//! 6), GetKinematicHardLimits (the bridge scales every command into the robot's own joint speed
+//! limits), RefreshFeedback (the first reading).
+//!
+//! The 40 Hz loop is pipelined and never waits on the socket: a reader thread owns the
+//! receiving half of the socket, decodes frames and hands them to the control loop through a
+//! crossbeam channel. At tick k, [`Robot::advance`] only takes whatever replies arrived
+//! (matched by message id; one that arrives after the tick it was due in is counted late) and
+//! returns the newest feedback, so the state goes out at once; [`Robot::command`] (or
+//! [`Robot::stop`]) then sends JointSpeeds (a gripper position when the target moved) and the
+//! request for the next feedback in one write, without waiting for any reply. The state
+//! published at tick k is therefore the feedback asked for right after the command of tick
+//! k-1.
+//!
+//! No KeepAlive is ever sent: if the control loop freezes or dies, frames stop, and the robot
+//! stops the arm when `connection_timeout_ms` passes.
+//!
+//! Every fault (an error reply, a reply for an unknown message id, an undecodable frame, a
+//! reply timeout, a closed or reset connection) stops the arm and closes the session as far as
+//! the connection still works, then returns the error; so does [`Robot::shutdown`] and `Drop`.
+
+use std::io::{Read, Write};
+use std::net::{Shutdown, SocketAddr, TcpStream};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TryRecvError};
+use ipc_types::MAX_JOINTS;
+use kinematics::{ArmLimits, gen3_lite};
+use prost::Message as _;
+
+use super::wire::{Decoded, Frame, FrameDecoder, FrameType, WireError};
+use super::{
+    Credentials, Function, KortexConfig, KortexError, function_name, gripper_position_msg,
+    joint_speeds_msg, msg, reading_from_feedback, scale_to_limits,
+};
+use crate::{LinkStats, Reading, Robot, RobotError};
+
+/// How long the TCP connect may take.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// A gripper target that moved less than this since the last position sent is not sent.
+const GRIPPER_EPS: f64 = 1e-4;
+
+/// Counters of the client.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct KortexStats {
+    /// Requests sent.
+    pub requests: u64,
+    /// Replies matched to a request.
+    pub replies: u64,
+    /// Replies that arrived after the tick they were due in.
+    pub late_replies: u64,
+    /// Ticks that reused the previous reading (the newest feedback had not arrived).
+    pub stale_readings: u64,
+    /// Bytes dropped to resynchronise the stream.
+    pub skipped_bytes: u64,
+    /// Frames other than replies (notifications, pings), ignored.
+    pub other_frames: u64,
+    /// Commands slowed down to the robot's speed limits.
+    pub clamped_commands: u64,
+    /// Gripper position commands sent.
+    pub gripper_commands: u64,
+}
+
+/// What the reader thread hands to the control loop.
+enum ReaderEvent {
+    Frame(Frame),
+    Skipped(usize),
+    Bad(WireError),
+    Eof,
+    Truncated { have: usize, need: usize },
+    Failed(std::io::Error),
+}
+
+fn reader_loop(mut stream: TcpStream, tx: Sender<ReaderEvent>) {
+    let mut decoder = FrameDecoder::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = match stream.read(&mut buf) {
+            Ok(0) => {
+                let ev = match decoder.truncated() {
+                    Some((have, need)) => ReaderEvent::Truncated { have, need },
+                    None => ReaderEvent::Eof,
+                };
+                let _ = tx.send(ev);
+                return;
+            }
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => {
+                let _ = tx.send(ReaderEvent::Failed(e));
+                return;
+            }
+        };
+        decoder.push(&buf[..n]);
+        while let Some(r) = decoder.next_frame() {
+            let ev = match r {
+                Ok(Decoded::Frame(f)) => ReaderEvent::Frame(f),
+                Ok(Decoded::Skipped(n)) => ReaderEvent::Skipped(n),
+                Err(e) => ReaderEvent::Bad(e),
+            };
+            if tx.send(ev).is_err() {
+                return;
+            }
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    message_id: u16,
+    function: Function,
+    sent_tick: u64,
+    sent_at: Instant,
+}
+
+/// A reply matched to its request.
+struct Reply {
+    pending: Pending,
+    frame: Frame,
+}
+
+/// The Gen3 lite over a Kortex session. See the module documentation.
+pub struct KortexArm {
+    addr: SocketAddr,
+    stream: TcpStream,
+    events: Receiver<ReaderEvent>,
+    reader: Option<JoinHandle<()>>,
+    reply_timeout: Duration,
+    session_id: u16,
+    session_open: bool,
+    connected: bool,
+    closing: bool,
+    next_message_id: u16,
+    pending: Vec<Pending>,
+    tick: u64,
+    dt: f64,
+    limits: ArmLimits,
+    speed_limit_rad_s: [f64; MAX_JOINTS],
+    reading: Reading,
+    feedback_pending: Option<u16>,
+    feedback_requested_tick: Option<u64>,
+    gripper_target: f64,
+    gripper_sent: f64,
+    stats: KortexStats,
+    out: Vec<u8>,
+}
+
+impl std::fmt::Debug for KortexArm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("KortexArm")
+            .field("addr", &self.addr)
+            .field("session_id", &self.session_id)
+            .field("session_open", &self.session_open)
+            .field("tick", &self.tick)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl KortexArm {
+    /// Connects to the robot of `cfg`, opens a session with `credentials` and prepares it for
+    /// joint speed control (see the module documentation). On any failure the session is
+    /// closed again and the error names what failed.
+    pub fn connect(cfg: &KortexConfig, credentials: &Credentials) -> Result<Self, KortexError> {
+        let addr = cfg.socket_addr()?;
+        let stream = TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT)
+            .map_err(|source| KortexError::Connect { addr, source })?;
+        let io = |during, source| KortexError::Io {
+            addr,
+            during,
+            source,
+        };
+        let reply_timeout = Duration::from_millis(u64::from(cfg.reply_timeout_ms));
+        stream
+            .set_nodelay(true)
+            .map_err(|e| io("setting TCP_NODELAY", e))?;
+        stream
+            .set_write_timeout(Some(reply_timeout))
+            .map_err(|e| io("setting the write timeout", e))?;
+        let rx_stream = stream
+            .try_clone()
+            .map_err(|e| io("cloning the socket for the reader thread", e))?;
+        let (tx, events) = crossbeam_channel::unbounded();
+        let reader = std::thread::Builder::new()
+            .name("kortex-reader".into())
+            .spawn(move || reader_loop(rx_stream, tx))
+            .map_err(|e| io("starting the reader thread", e))?;
+        let limits = gen3_lite::limits();
+        let mut arm = Self {
+            addr,
+            stream,
+            events,
+            reader: Some(reader),
+            reply_timeout,
+            session_id: 0,
+            session_open: false,
+            connected: true,
+            closing: false,
+            next_message_id: 1,
+            pending: Vec::with_capacity(16),
+            tick: 0,
+            dt: 1.0 / gen3_lite::CONTROL_RATE_HZ,
+            speed_limit_rad_s: [0.0; MAX_JOINTS],
+            reading: Reading {
+                q_rad: [0.0; MAX_JOINTS],
+                qdot_rad_s: [0.0; MAX_JOINTS],
+                gripper: 0.0,
+                at_limit: false,
+            },
+            feedback_pending: None,
+            feedback_requested_tick: None,
+            gripper_target: 0.0,
+            gripper_sent: 0.0,
+            stats: KortexStats::default(),
+            out: Vec::with_capacity(256),
+            limits,
+        };
+        match arm.start(cfg, credentials) {
+            Ok(()) => Ok(arm),
+            Err(e) => Err(arm.fault(e)),
+        }
+    }
+
+    fn start(&mut self, cfg: &KortexConfig, credentials: &Credentials) -> Result<(), KortexError> {
+        let info = msg::CreateSessionInfo {
+            username: credentials.username().to_owned(),
+            session_inactivity_timeout: cfg.session_timeout_ms,
+            password: credentials.password().to_owned(),
+            connection_inactivity_timeout: cfg.connection_timeout_ms,
+        };
+        let reply = self.call(Function::CreateSession, info.encode_to_vec())?;
+        self.session_id = reply.frame.header().session_id();
+        self.session_open = true;
+        self.call(
+            Function::SetServoingMode,
+            msg::ServoingModeInformation {
+                servoing_mode: msg::servoing_mode::SINGLE_LEVEL,
+            }
+            .encode_to_vec(),
+        )?;
+        self.call(Function::ClearFaults, Vec::new())?;
+        let reply = self.call(Function::GetActuatorCount, Vec::new())?;
+        let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
+        let n = gen3_lite::N_JOINTS;
+        if count.count as usize != n {
+            return Err(KortexError::ActuatorCount {
+                found: count.count,
+                expected: n,
+            });
+        }
+        let reply = self.call(Function::GetKinematicHardLimits, Vec::new())?;
+        let limits: msg::KinematicLimits = decode(Function::GetKinematicHardLimits, &reply)?;
+        self.speed_limit_rad_s = speed_limits_from(&limits, n)?;
+        let reply = self.call(Function::RefreshFeedback, Vec::new())?;
+        let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
+        self.reading = reading_from_feedback(&fb, n, &self.limits, 0.0).map_err(|reason| {
+            KortexError::Payload {
+                function: Function::RefreshFeedback.name(),
+                reason,
+            }
+        })?;
+        self.gripper_target = self.reading.gripper;
+        self.gripper_sent = self.reading.gripper;
+        let limits_deg: Vec<String> = limits
+            .joint_speed_limits
+            .iter()
+            .map(|v| format!("{v:.1}"))
+            .collect();
+        tracing::info!(
+            address = %self.addr,
+            session = format_args!("{:#06x}", self.session_id),
+            connection_timeout_ms = cfg.connection_timeout_ms,
+            session_timeout_ms = cfg.session_timeout_ms,
+            "Kortex session open; {n} actuators; joint speed hard limits [{}] deg/s",
+            limits_deg.join(", ")
+        );
+        Ok(())
+    }
+
+    /// The client's counters.
+    pub fn stats(&self) -> KortexStats {
+        self.stats
+    }
+
+    /// The session id the robot gave.
+    pub fn session_id(&self) -> u16 {
+        self.session_id
+    }
+
+    /// The robot's joint speed limits the commands are scaled into (rad/s).
+    pub fn speed_limits_rad_s(&self) -> &[f64] {
+        &self.speed_limit_rad_s[..gen3_lite::N_JOINTS]
+    }
+
+    /// Whether the session is open (false after a fault or shutdown).
+    pub fn is_open(&self) -> bool {
+        self.session_open && self.connected
+    }
+
+    fn next_id(&mut self) -> u16 {
+        let id = self.next_message_id;
+        self.next_message_id = if id == u16::MAX { 1 } else { id + 1 };
+        id
+    }
+
+    /// Sends a request without waiting; returns its message id.
+    fn send(&mut self, function: Function, payload: Vec<u8>) -> Result<u16, KortexError> {
+        let id = self.queue(function, payload)?;
+        self.flush()?;
+        Ok(id)
+    }
+
+    /// Encodes a request into the output buffer (sent by [`Self::flush`]) and books it as
+    /// waiting for its reply; returns its message id.
+    fn queue(&mut self, function: Function, payload: Vec<u8>) -> Result<u16, KortexError> {
+        if !self.connected {
+            return Err(KortexError::SessionClosed);
+        }
+        let message_id = self.next_id();
+        if self.pending.iter().any(|p| p.message_id == message_id) {
+            // 65535 requests in flight cannot happen within a reply timeout; refuse anyway.
+            return Err(KortexError::ReplyTimeout {
+                function: function.name(),
+                message_id,
+                waited_ms: self.reply_timeout.as_millis() as u64,
+                note: "; the message id is still in use".into(),
+            });
+        }
+        let frame = Frame::new(
+            FrameType::Request,
+            self.session_id,
+            message_id,
+            function.uid(),
+            payload,
+        )
+        .map_err(|source| KortexError::Encode {
+            function: function.name(),
+            source,
+        })?;
+        frame
+            .encode_tcp(&mut self.out)
+            .map_err(|source| KortexError::Encode {
+                function: function.name(),
+                source,
+            })?;
+        self.stats.requests += 1;
+        self.pending.push(Pending {
+            message_id,
+            function,
+            sent_tick: self.tick,
+            sent_at: Instant::now(),
+        });
+        Ok(message_id)
+    }
+
+    /// Writes the queued requests in one write.
+    fn flush(&mut self) -> Result<(), KortexError> {
+        if self.out.is_empty() {
+            return Ok(());
+        }
+        let r = self.stream.write_all(&self.out);
+        self.out.clear();
+        r.map_err(|source| {
+            self.connected = false;
+            KortexError::Io {
+                addr: self.addr,
+                during: "sending a request",
+                source,
+            }
+        })
+    }
+
+    /// Queues the next feedback request unless one is still waiting for its reply.
+    fn queue_feedback_request(&mut self) -> Result<(), KortexError> {
+        if self.feedback_pending.is_none() {
+            self.feedback_pending = Some(self.queue(Function::RefreshFeedback, Vec::new())?);
+            self.feedback_requested_tick = Some(self.tick);
+        }
+        Ok(())
+    }
+
+    /// Sends a request and waits for its reply (start-up and shutdown only).
+    fn call(&mut self, function: Function, payload: Vec<u8>) -> Result<Reply, KortexError> {
+        let id = self.send(function, payload)?;
+        let deadline = Instant::now() + self.reply_timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let ev = match self.events.recv_timeout(left) {
+                Ok(ev) => ev,
+                Err(RecvTimeoutError::Timeout) => {
+                    return Err(self.timeout_error(function, id));
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    self.connected = false;
+                    return Err(KortexError::Closed { addr: self.addr });
+                }
+            };
+            if let Some(reply) = self.handle(ev)? {
+                if reply.pending.message_id == id {
+                    return Ok(reply);
+                }
+                self.take_reply(reply)?;
+            }
+        }
+    }
+
+    fn timeout_error(&self, function: Function, message_id: u16) -> KortexError {
+        KortexError::ReplyTimeout {
+            function: function.name(),
+            message_id,
+            waited_ms: self.reply_timeout.as_millis() as u64,
+            note: if self.stats.skipped_bytes > 0 {
+                format!(
+                    "; {} bytes of the stream were skipped to resynchronise (wrong magic)",
+                    self.stats.skipped_bytes
+                )
+            } else {
+                String::new()
+            },
+        }
+    }
+
+    /// One event from the reader: a matched reply, nothing (skipped bytes, notifications,
+    /// and while closing anything unexpected), or an error.
+    fn handle(&mut self, ev: ReaderEvent) -> Result<Option<Reply>, KortexError> {
+        let frame = match ev {
+            ReaderEvent::Frame(f) => f,
+            ReaderEvent::Skipped(n) => {
+                self.stats.skipped_bytes += n as u64;
+                tracing::warn!(
+                    bytes = n,
+                    total = self.stats.skipped_bytes,
+                    "wrong magic from the robot: bytes skipped to resynchronise"
+                );
+                return Ok(None);
+            }
+            ReaderEvent::Bad(source) => {
+                if self.closing {
+                    return Ok(None);
+                }
+                return Err(KortexError::Wire {
+                    addr: self.addr,
+                    source,
+                });
+            }
+            ReaderEvent::Eof => {
+                self.connected = false;
+                return Err(KortexError::Closed { addr: self.addr });
+            }
+            ReaderEvent::Truncated { have, need } => {
+                self.connected = false;
+                return Err(KortexError::Truncated {
+                    addr: self.addr,
+                    have,
+                    need,
+                });
+            }
+            ReaderEvent::Failed(source) => {
+                self.connected = false;
+                return Err(KortexError::Io {
+                    addr: self.addr,
+                    during: "reading",
+                    source,
+                });
+            }
+        };
+        let h = frame.header();
+        if h.frame_type() != Some(FrameType::Response) {
+            self.stats.other_frames += 1;
+            tracing::debug!(
+                frame_type = h.frame_type_bits(),
+                function = %function_name(h.function_uid()),
+                "ignoring a frame that is not a reply"
+            );
+            return Ok(None);
+        }
+        let Some(i) = self
+            .pending
+            .iter()
+            .position(|p| p.message_id == h.message_id())
+        else {
+            if self.closing {
+                return Ok(None);
+            }
+            return Err(KortexError::UnknownReply {
+                message_id: h.message_id(),
+                function: function_name(h.function_uid()),
+            });
+        };
+        let pending = self.pending.swap_remove(i);
+        self.stats.replies += 1;
+        if let Some(fault) = frame.error() {
+            return Err(KortexError::Robot {
+                function: pending.function.name(),
+                message_id: pending.message_id,
+                fault,
+            });
+        }
+        Ok(Some(Reply { pending, frame }))
+    }
+
+    /// Books a reply that arrived in the loop: counts it late if it missed its tick, and takes
+    /// a feedback in.
+    fn take_reply(&mut self, reply: Reply) -> Result<(), KortexError> {
+        if reply.pending.sent_tick < self.tick {
+            self.stats.late_replies += 1;
+            if self.stats.late_replies <= 10 || self.stats.late_replies.is_power_of_two() {
+                tracing::warn!(
+                    function = reply.pending.function.name(),
+                    message_id = reply.pending.message_id,
+                    ticks_late = self.tick - reply.pending.sent_tick,
+                    late_replies = self.stats.late_replies,
+                    "late reply from the robot"
+                );
+            }
+        }
+        if reply.pending.function == Function::RefreshFeedback {
+            if self.feedback_pending == Some(reply.pending.message_id) {
+                self.feedback_pending = None;
+            }
+            let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
+            self.reading =
+                reading_from_feedback(&fb, gen3_lite::N_JOINTS, &self.limits, self.reading.gripper)
+                    .map_err(|reason| KortexError::Payload {
+                        function: Function::RefreshFeedback.name(),
+                        reason,
+                    })?;
+        }
+        Ok(())
+    }
+
+    /// Takes in every reply that has arrived, without waiting; then checks reply timeouts.
+    fn drain(&mut self) -> Result<(), KortexError> {
+        loop {
+            match self.events.try_recv() {
+                Ok(ev) => {
+                    if let Some(reply) = self.handle(ev)? {
+                        self.take_reply(reply)?;
+                    }
+                }
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => {
+                    self.connected = false;
+                    return Err(KortexError::Closed { addr: self.addr });
+                }
+            }
+        }
+        if let Some(p) = self
+            .pending
+            .iter()
+            .find(|p| p.sent_at.elapsed() > self.reply_timeout)
+            .copied()
+        {
+            return Err(self.timeout_error(p.function, p.message_id));
+        }
+        Ok(())
+    }
+
+    fn ensure_open(&self) -> Result<(), KortexError> {
+        if self.is_open() {
+            Ok(())
+        } else {
+            Err(KortexError::SessionClosed)
+        }
+    }
+
+    /// Ends the run after `e`: stops the arm and closes the session if the connection still
+    /// works, drops the connection, and returns `e` for the caller to report.
+    fn fault(&mut self, e: KortexError) -> KortexError {
+        if self.session_open && self.connected && e.connection_usable() {
+            tracing::error!("{e}; stopping the arm and closing the session");
+            if let Err(e2) = self.stop_and_close(false) {
+                tracing::warn!(
+                    "could not stop the arm and close the session cleanly ({e2}); the robot \
+                     stops it when the connection timeout passes"
+                );
+            }
+        } else if self.session_open {
+            tracing::error!(
+                "{e}; the robot cannot be reached: it stops the arm when the connection \
+                 timeout passes"
+            );
+        }
+        self.disconnect();
+        e
+    }
+
+    /// Stop, optionally a last feedback, CloseSession; each waits for its reply. Returns the
+    /// first error but tries every step.
+    fn stop_and_close(&mut self, last_feedback: bool) -> Result<(), KortexError> {
+        self.closing = true;
+        // Replies still in flight are of no interest any more.
+        self.pending.clear();
+        self.feedback_pending = None;
+        let mut first_err = None;
+        if let Err(e) = self.call(Function::Stop, Vec::new()) {
+            first_err.get_or_insert(e);
+        }
+        if last_feedback
+            && self.connected
+            && let Ok(reply) = self.call(Function::RefreshFeedback, Vec::new())
+            && let Ok(fb) = decode::<msg::Feedback>(Function::RefreshFeedback, &reply)
+            && let Ok(r) =
+                reading_from_feedback(&fb, gen3_lite::N_JOINTS, &self.limits, self.reading.gripper)
+        {
+            self.reading = r;
+        }
+        if self.connected
+            && let Err(e) = self.call(Function::CloseSession, Vec::new())
+        {
+            first_err.get_or_insert(e);
+        }
+        self.session_open = false;
+        match first_err {
+            None => {
+                tracing::info!(
+                    address = %self.addr,
+                    requests = self.stats.requests,
+                    late_replies = self.stats.late_replies,
+                    stale_readings = self.stats.stale_readings,
+                    skipped_bytes = self.stats.skipped_bytes,
+                    "arm stopped; Kortex session closed"
+                );
+                Ok(())
+            }
+            Some(e) => Err(e),
+        }
+    }
+
+    fn disconnect(&mut self) {
+        self.session_open = false;
+        self.connected = false;
+        let _ = self.stream.shutdown(Shutdown::Both);
+        if let Some(h) = self.reader.take() {
+            let _ = h.join();
+        }
+    }
+
+    fn in_loop<T>(&mut self, r: Result<T, KortexError>) -> Result<T, RobotError> {
+        r.map_err(|e| RobotError::Kortex(self.fault(e)))
+    }
+}
+
+fn decode<M: prost::Message + Default>(
+    function: Function,
+    reply: &Reply,
+) -> Result<M, KortexError> {
+    M::decode(reply.frame.payload.as_slice()).map_err(|e| KortexError::Payload {
+        function: function.name(),
+        reason: e.to_string(),
+    })
+}
+
+fn speed_limits_from(
+    limits: &msg::KinematicLimits,
+    n: usize,
+) -> Result<[f64; MAX_JOINTS], KortexError> {
+    if limits.joint_speed_limits.len() != n {
+        return Err(KortexError::Limits {
+            reason: format!(
+                "{} joint speed limits for {n} joints",
+                limits.joint_speed_limits.len()
+            ),
+        });
+    }
+    let mut out = [0.0; MAX_JOINTS];
+    for (j, v) in limits.joint_speed_limits.iter().enumerate() {
+        let v = f64::from(*v);
+        if !(v.is_finite() && v > 0.0) {
+            return Err(KortexError::Limits {
+                reason: format!("joint {j} speed limit is {v} deg/s"),
+            });
+        }
+        out[j] = v.to_radians();
+    }
+    Ok(out)
+}
+
+impl Robot for KortexArm {
+    fn n_joints(&self) -> usize {
+        gen3_lite::N_JOINTS
+    }
+
+    fn advance(&mut self, dt: f64) -> Result<Reading, RobotError> {
+        let r = self.ensure_open();
+        self.in_loop(r)?;
+        self.dt = dt;
+        let r = self.drain();
+        self.in_loop(r)?;
+        let previous = self.tick;
+        self.tick += 1;
+        if self.feedback_pending.is_some() {
+            // The feedback asked for in the previous tick has not arrived.
+            self.stats.stale_readings += 1;
+        } else if self.feedback_requested_tick != Some(previous) {
+            // No command or stop asked for one in the previous tick (the first tick): ask now.
+            let r = self.queue_feedback_request().and_then(|()| self.flush());
+            self.in_loop(r)?;
+        }
+        Ok(self.reading)
+    }
+
+    fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) -> Result<(), RobotError> {
+        let r = self.ensure_open();
+        self.in_loop(r)?;
+        let n = gen3_lite::N_JOINTS;
+        let mut v = [0.0; MAX_JOINTS];
+        let m = n.min(qdot_rad_s.len());
+        v[..m].copy_from_slice(&qdot_rad_s[..m]);
+        if scale_to_limits(&mut v[..n], &self.speed_limit_rad_s[..n]) < 1.0 {
+            self.stats.clamped_commands += 1;
+        }
+        let payload = joint_speeds_msg(&v[..n]).encode_to_vec();
+        let r = self.queue(Function::SendJointSpeedsCommand, payload);
+        self.in_loop(r)?;
+        if gripper_rate.is_finite() {
+            self.gripper_target = (self.gripper_target + gripper_rate * self.dt).clamp(0.0, 1.0);
+        }
+        if (self.gripper_target - self.gripper_sent).abs() > GRIPPER_EPS {
+            let payload = gripper_position_msg(self.gripper_target).encode_to_vec();
+            let r = self.queue(Function::SendGripperCommand, payload);
+            self.in_loop(r)?;
+            self.gripper_sent = self.gripper_target;
+            self.stats.gripper_commands += 1;
+        }
+        // The next tick's feedback, in the same write.
+        let r = self.queue_feedback_request().and_then(|()| self.flush());
+        self.in_loop(r)
+    }
+
+    fn stop(&mut self) -> Result<(), RobotError> {
+        let r = self.ensure_open();
+        self.in_loop(r)?;
+        let r = self
+            .queue(Function::Stop, Vec::new())
+            .and_then(|_| self.queue_feedback_request())
+            .and_then(|()| self.flush());
+        self.in_loop(r)
+    }
+
+    fn shutdown(&mut self) -> Result<Reading, RobotError> {
+        if !self.is_open() {
+            self.disconnect();
+            return Ok(self.reading);
+        }
+        let r = self.stop_and_close(true);
+        self.disconnect();
+        r?;
+        Ok(self.reading)
+    }
+
+    fn is_mock(&self) -> bool {
+        false
+    }
+
+    fn link_stats(&self) -> LinkStats {
+        LinkStats {
+            requests: self.stats.requests,
+            late_replies: self.stats.late_replies,
+            stale_readings: self.stats.stale_readings,
+            skipped_bytes: self.stats.skipped_bytes,
+            clamped_commands: self.stats.clamped_commands,
+        }
+    }
+}
+
+impl Drop for KortexArm {
+    fn drop(&mut self) {
+        if self.is_open() {
+            tracing::warn!("Kortex client dropped with its session open: stopping the arm");
+            if let Err(e) = self.stop_and_close(false) {
+                tracing::warn!("{e}");
+            }
+        }
+        self.disconnect();
+    }
+}

@@ -1,0 +1,832 @@
+//! [`FakeKortex`]: a fake Gen3 lite that speaks the Kortex protocol on loopback, for tests and
+//! for trying the bridge without an arm (`scl fake-kortex`).
+//!
+//! It listens on `127.0.0.1` only, keeps a kinematic simulation of the arm ([`MockArm`],
+//! brought up to the present whenever it is looked at, since a real robot moves by itself),
+//! checks the credentials, serves the calls the bridge makes, and enforces the session's
+//! connection inactivity timeout: a watchdog thread sleeps until the deadline and, if no frame
+//! has arrived for that long, stops the arm, as the robot does. A closed connection alone does
+//! not stop the arm (the worst case: only the timeout does). The session itself ends after the
+//! session inactivity timeout.
+//!
+//! Threads: the watchdog, a blocking accept loop, and one thread per connection that reads,
+//! answers, and holds delayed replies until they are due. They sleep unless something happens,
+//! so the fake takes little from the processes it is tested with.
+//!
+//! Faults can be injected ([`FakeKortex::inject`]): drop or delay a reply, close the
+//! connection, answer with an error frame, send garbage before a reply, damage a reply's magic,
+//! cut a reply short, answer with an unknown message id.
+
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::net::{Ipv4Addr, Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use ipc_types::MAX_JOINTS;
+use kinematics::gen3_lite;
+use prost::Message as _;
+
+use super::wire::{Decoded, ErrorPayload, Frame, FrameDecoder, FrameType, Header, MAGIC};
+use super::{Credentials, Function, angle_rad_to_wire_deg, msg};
+use crate::Reading;
+use crate::mock::{MockArm, MockConfig, MockConfigError};
+
+/// The longest the watchdog sleeps (so that shutting down is prompt).
+const WATCHDOG_MAX_SLEEP: Duration = Duration::from_millis(50);
+
+/// Joint speed commands kept in the log (about eight minutes at 40 Hz).
+const LOG_CAPACITY: usize = 20_000;
+
+/// Settings of the fake robot.
+#[derive(Debug, Clone)]
+pub struct FakeConfig {
+    /// TCP port on 127.0.0.1; 0 takes a free one ([`FakeKortex::addr`] tells which).
+    pub port: u16,
+    /// The credentials it accepts.
+    pub credentials: Credentials,
+    /// What GetActuatorCount answers (6 for a Gen3 lite; other values test the bridge).
+    pub actuator_count: u32,
+    /// What GetKinematicHardLimits answers for the joint speeds (deg/s).
+    pub joint_speed_limits_deg_s: Vec<f32>,
+    /// What GetKinematicHardLimits answers for the joint accelerations (deg/s²).
+    pub joint_acceleration_limits_deg_s2: Vec<f32>,
+    /// The simulated arm.
+    pub mock: MockConfig,
+}
+
+impl Default for FakeConfig {
+    fn default() -> Self {
+        // The URDF velocity limits of gen3-lite.md, in deg/s.
+        let speed = [1.6f64, 1.6, 1.6, 1.6, 1.6, 3.2];
+        Self {
+            port: 0,
+            credentials: Credentials::new("admin", "admin"),
+            actuator_count: gen3_lite::N_JOINTS as u32,
+            joint_speed_limits_deg_s: speed.iter().map(|v| v.to_degrees() as f32).collect(),
+            joint_acceleration_limits_deg_s2: gen3_lite::DEFAULT_ACCELERATION_RAD_S2
+                .iter()
+                .map(|v| v.to_degrees() as f32)
+                .collect(),
+            mock: MockConfig::default(),
+        }
+    }
+}
+
+/// A fault to inject into the fake's next reply (to the next request of a given function, or
+/// of any function).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Fault {
+    /// The request is executed but not answered.
+    DropReply,
+    /// The reply is sent this much later (the stream behind it waits too).
+    DelayReply(Duration),
+    /// The connection is closed instead of answering (a reset, for the client).
+    CloseConnection,
+    /// The request is not executed; an error frame answers it.
+    ErrorReply {
+        /// Error code (1 protocol server, 2 protocol client, 3 device, 4 internal).
+        code: u8,
+        /// Sub-code (12 invalid session, 15 invalid password, 22 robot in fault, ...).
+        sub_code: u16,
+        /// The error's text.
+        detail: String,
+    },
+    /// These bytes go out before the reply (garbage: a wrong magic for the client).
+    GarbageBefore(Vec<u8>),
+    /// The reply goes out with a damaged magic.
+    CorruptMagic,
+    /// Only the first this-many bytes of the reply go out, then the connection is closed.
+    TruncateReply(usize),
+    /// The reply carries a message id no request had.
+    WrongMessageId,
+}
+
+/// Counters of the fake robot.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FakeStats {
+    /// Connections accepted.
+    pub connections: u64,
+    /// Frames received.
+    pub frames: u64,
+    /// Sessions opened.
+    pub sessions_opened: u64,
+    /// Sessions closed by CloseSession.
+    pub sessions_closed: u64,
+    /// Sessions ended by the session inactivity timeout.
+    pub sessions_expired: u64,
+    /// Times the connection inactivity timeout stopped the arm.
+    pub connection_timeouts: u64,
+    /// Stop (and ApplyEmergencyStop) requests.
+    pub stops: u64,
+    /// Joint speed commands executed.
+    pub joint_speed_commands: u64,
+    /// Gripper commands executed.
+    pub gripper_commands: u64,
+    /// Feedback requests answered.
+    pub feedback_requests: u64,
+    /// Error frames sent.
+    pub error_replies: u64,
+    /// Injected faults applied.
+    pub faults_fired: u64,
+    /// Bytes from clients skipped to resynchronise.
+    pub skipped_bytes: u64,
+}
+
+/// What the fake robot looks like now.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FakeSnapshot {
+    /// Joint angles (rad).
+    pub q_rad: [f64; gen3_lite::N_JOINTS],
+    /// Joint speeds (rad/s).
+    pub qdot_rad_s: [f64; gen3_lite::N_JOINTS],
+    /// Gripper position (0 open .. 1 closed).
+    pub gripper: f64,
+    /// The gripper's commanded position.
+    pub gripper_target: f64,
+    /// The joint speed command in force (rad/s).
+    pub command_in_force: [f64; gen3_lite::N_JOINTS],
+    /// A session exists.
+    pub session_open: bool,
+    /// The counters.
+    pub stats: FakeStats,
+    /// At the last connection timeout: how long it had been since the last frame.
+    pub last_timeout_gap: Option<Duration>,
+    /// Time since the last frame of the session's connection.
+    pub since_last_frame: Option<Duration>,
+}
+
+impl FakeSnapshot {
+    /// Whether a non-zero joint speed command is in force.
+    pub fn commanded_to_move(&self) -> bool {
+        self.command_in_force.iter().any(|v| *v != 0.0)
+    }
+}
+
+/// Why the fake robot could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum FakeError {
+    /// The simulated arm's settings are unusable.
+    #[error(transparent)]
+    Mock(#[from] MockConfigError),
+    /// The port could not be bound.
+    #[error("fake Kortex robot: cannot listen on 127.0.0.1:{port}: {source}")]
+    Bind {
+        /// The port asked for.
+        port: u16,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A thread could not be started.
+    #[error("fake Kortex robot: cannot start a thread: {0}")]
+    Thread(std::io::Error),
+}
+
+struct Session {
+    id: u16,
+    conn: u64,
+    connection_timeout: Option<Duration>,
+    session_timeout: Option<Duration>,
+    last_frame: Instant,
+    timed_out: bool,
+}
+
+struct State {
+    arm: MockArm,
+    reading: Reading,
+    last_step: Instant,
+    session: Option<Session>,
+    next_session_id: u16,
+    faults: VecDeque<(Option<Function>, Fault)>,
+    stats: FakeStats,
+    last_timeout_gap: Option<Duration>,
+    log: VecDeque<[f64; gen3_lite::N_JOINTS]>,
+}
+
+struct Shared {
+    cfg: FakeConfig,
+    stop: AtomicBool,
+    next_conn: AtomicU64,
+    state: Mutex<State>,
+    threads: Mutex<Vec<JoinHandle<()>>>,
+    /// A handle on every open connection, to shut them down when the fake stops.
+    conns: Mutex<Vec<(u64, TcpStream)>>,
+}
+
+impl Shared {
+    /// The state, with the simulated arm brought up to now.
+    fn state(&self) -> MutexGuard<'_, State> {
+        let mut st = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        let now = Instant::now();
+        let dt = now.duration_since(st.last_step).as_secs_f64();
+        if dt > 0.0 {
+            st.reading = st.arm.step(dt);
+            st.last_step = now;
+        }
+        st
+    }
+
+    fn conns(&self) -> MutexGuard<'_, Vec<(u64, TcpStream)>> {
+        self.conns.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// A running fake robot; stops its threads when dropped.
+pub struct FakeKortex {
+    addr: SocketAddr,
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for FakeKortex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FakeKortex")
+            .field("addr", &self.addr)
+            .finish_non_exhaustive()
+    }
+}
+
+impl FakeKortex {
+    /// Starts the fake robot on `127.0.0.1:cfg.port`.
+    pub fn start(cfg: FakeConfig) -> Result<Self, FakeError> {
+        let mut arm = MockArm::new(cfg.mock.clone())?;
+        let reading = arm.step(1e-9);
+        let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, cfg.port)).map_err(|source| {
+            FakeError::Bind {
+                port: cfg.port,
+                source,
+            }
+        })?;
+        let bind_err = |source| FakeError::Bind {
+            port: cfg.port,
+            source,
+        };
+        let addr = listener.local_addr().map_err(bind_err)?;
+        let shared = Arc::new(Shared {
+            cfg,
+            stop: AtomicBool::new(false),
+            next_conn: AtomicU64::new(1),
+            state: Mutex::new(State {
+                arm,
+                reading,
+                last_step: Instant::now(),
+                session: None,
+                next_session_id: 0x1234,
+                faults: VecDeque::new(),
+                stats: FakeStats::default(),
+                last_timeout_gap: None,
+                log: VecDeque::new(),
+            }),
+            threads: Mutex::new(Vec::new()),
+            conns: Mutex::new(Vec::new()),
+        });
+        let fake = Self { addr, shared };
+        let sh = fake.shared.clone();
+        fake.spawn("fake-kortex-watchdog", move || watchdog_loop(sh))?;
+        let sh = fake.shared.clone();
+        fake.spawn("fake-kortex-accept", move || accept_loop(sh, listener))?;
+        tracing::info!(address = %addr, "fake Kortex robot listening");
+        Ok(fake)
+    }
+
+    fn spawn(&self, name: &str, f: impl FnOnce() + Send + 'static) -> Result<(), FakeError> {
+        let h = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(f)
+            .map_err(FakeError::Thread)?;
+        self.shared
+            .threads
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(h);
+        Ok(())
+    }
+
+    /// The address it listens on (always 127.0.0.1).
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Queues `fault` for the next request of `on` (any function if `None`).
+    pub fn inject(&self, fault: Fault, on: Option<Function>) {
+        self.shared.state().faults.push_back((on, fault));
+    }
+
+    /// The arm and the counters now.
+    pub fn snapshot(&self) -> FakeSnapshot {
+        let st = self.shared.state();
+        let n = gen3_lite::N_JOINTS;
+        let mut s = FakeSnapshot {
+            q_rad: [0.0; gen3_lite::N_JOINTS],
+            qdot_rad_s: [0.0; gen3_lite::N_JOINTS],
+            gripper: st.reading.gripper,
+            gripper_target: st.arm.gripper_target(),
+            command_in_force: [0.0; gen3_lite::N_JOINTS],
+            session_open: st.session.is_some(),
+            stats: st.stats,
+            last_timeout_gap: st.last_timeout_gap,
+            since_last_frame: st.session.as_ref().map(|s| s.last_frame.elapsed()),
+        };
+        s.q_rad.copy_from_slice(&st.reading.q_rad[..n]);
+        s.qdot_rad_s.copy_from_slice(&st.reading.qdot_rad_s[..n]);
+        s.command_in_force
+            .copy_from_slice(&st.arm.command_in_force()[..n]);
+        s
+    }
+
+    /// The joint speed commands executed, oldest first (rad/s, as decoded from deg/s), up to
+    /// the last 20 000.
+    pub fn joint_speed_log(&self) -> Vec<[f64; gen3_lite::N_JOINTS]> {
+        self.shared.state().log.iter().copied().collect()
+    }
+
+    /// Stops the fake robot and waits for its threads.
+    pub fn shutdown(self) {
+        drop(self);
+    }
+}
+
+impl Drop for FakeKortex {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        // Wake the blocking accept and every blocking read.
+        let _ = TcpStream::connect(self.addr);
+        for (_, c) in self.shared.conns().iter() {
+            let _ = c.shutdown(Shutdown::Both);
+        }
+        loop {
+            let h = self
+                .shared
+                .threads
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .pop();
+            match h {
+                Some(h) => {
+                    let _ = h.join();
+                }
+                None => break,
+            }
+        }
+    }
+}
+
+fn watchdog_loop(sh: Arc<Shared>) {
+    while !sh.stop.load(Ordering::SeqCst) {
+        let sleep = {
+            let mut st = sh.state();
+            let now = Instant::now();
+            let mut next: Option<Instant> = None;
+            if let Some(s) = st.session.as_mut() {
+                let gap = now.duration_since(s.last_frame);
+                if let Some(t) = s.connection_timeout.filter(|_| !s.timed_out) {
+                    if gap > t {
+                        s.timed_out = true;
+                        st.arm.halt();
+                        st.stats.connection_timeouts += 1;
+                        st.last_timeout_gap = Some(gap);
+                        tracing::warn!(
+                            "fake Kortex: no frame for {} ms: connection inactivity timeout, \
+                             arm stopped",
+                            gap.as_millis()
+                        );
+                    } else {
+                        next = Some(s.last_frame + t);
+                    }
+                }
+            }
+            if let Some(s) = st.session.as_ref() {
+                let gap = now.duration_since(s.last_frame);
+                match s.session_timeout {
+                    Some(t) if gap > t => {
+                        st.session = None;
+                        st.stats.sessions_expired += 1;
+                        tracing::warn!("fake Kortex: no frame for {gap:?}: session timed out");
+                    }
+                    Some(t) => {
+                        let due = s.last_frame + t;
+                        next = Some(next.map_or(due, |n| n.min(due)));
+                    }
+                    None => {}
+                }
+            }
+            next.map_or(WATCHDOG_MAX_SLEEP, |n| {
+                // Just past the deadline, so that the gap is over the timeout when it wakes.
+                (n.saturating_duration_since(now) + Duration::from_micros(200))
+                    .min(WATCHDOG_MAX_SLEEP)
+            })
+        };
+        std::thread::sleep(sleep);
+    }
+}
+
+fn accept_loop(sh: Arc<Shared>, listener: TcpListener) {
+    let mut conns: Vec<JoinHandle<()>> = Vec::new();
+    for stream in listener.incoming() {
+        if sh.stop.load(Ordering::SeqCst) {
+            break;
+        }
+        let stream = match stream {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!("fake Kortex: accept failed: {e}");
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            }
+        };
+        let conn = sh.next_conn.fetch_add(1, Ordering::SeqCst);
+        let peer = stream.peer_addr().ok();
+        sh.state().stats.connections += 1;
+        tracing::info!(?peer, conn, "fake Kortex: connection");
+        match stream.try_clone() {
+            Ok(handle) => sh.conns().push((conn, handle)),
+            Err(e) => {
+                tracing::error!("fake Kortex: cannot serve a connection: {e}");
+                continue;
+            }
+        }
+        let sh2 = sh.clone();
+        match std::thread::Builder::new()
+            .name("fake-kortex-conn".into())
+            .spawn(move || serve_connection(sh2, stream, conn))
+        {
+            Ok(h) => conns.push(h),
+            Err(e) => tracing::error!("fake Kortex: cannot serve a connection: {e}"),
+        }
+        conns.retain(|h| !h.is_finished());
+    }
+    for h in conns {
+        let _ = h.join();
+    }
+}
+
+/// What a request produced: bytes to send when due, or closing the connection.
+enum Out {
+    Bytes { due: Instant, bytes: Vec<u8> },
+    Close { due: Instant },
+}
+
+impl Out {
+    fn due(&self) -> Instant {
+        match self {
+            Self::Bytes { due, .. } | Self::Close { due } => *due,
+        }
+    }
+}
+
+fn serve_connection(sh: Arc<Shared>, stream: TcpStream, conn: u64) {
+    let _ = stream.set_nodelay(true);
+    serve(&sh, stream, conn);
+    sh.conns().retain(|(c, _)| *c != conn);
+    tracing::info!(conn, "fake Kortex: connection closed");
+}
+
+/// Reads frames, answers them, and sends held (delayed) outputs in order when due; blocks in
+/// `read` until a frame or the next due output.
+fn serve(sh: &Shared, mut stream: TcpStream, conn: u64) {
+    let mut decoder = FrameDecoder::new();
+    let mut buf = [0u8; 4096];
+    let mut held: VecDeque<Out> = VecDeque::new();
+    loop {
+        // Send what is due, in order.
+        while held.front().is_some_and(|o| o.due() <= Instant::now()) {
+            let Some(out) = held.pop_front() else {
+                break;
+            };
+            let open = match out {
+                Out::Bytes { bytes, .. } => stream.write_all(&bytes).is_ok(),
+                Out::Close { .. } => {
+                    let _ = stream.shutdown(Shutdown::Both);
+                    false
+                }
+            };
+            if !open {
+                return;
+            }
+        }
+        if sh.stop.load(Ordering::SeqCst) {
+            return;
+        }
+        let timeout = held.front().map(|o| {
+            o.due()
+                .saturating_duration_since(Instant::now())
+                .max(Duration::from_micros(100))
+        });
+        if stream.set_read_timeout(timeout).is_err() {
+            return;
+        }
+        let n = match stream.read(&mut buf) {
+            Ok(0) => return,
+            Ok(n) => n,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::Interrupted
+                ) =>
+            {
+                continue;
+            }
+            Err(_) => return,
+        };
+        decoder.push(&buf[..n]);
+        while let Some(r) = decoder.next_frame() {
+            match r {
+                Ok(Decoded::Frame(frame)) => held.extend(on_frame(sh, conn, &frame)),
+                Ok(Decoded::Skipped(k)) => sh.state().stats.skipped_bytes += k as u64,
+                Err(e) => tracing::warn!("fake Kortex: bad frame from the client: {e}"),
+            }
+        }
+    }
+}
+
+type CallResult = Result<Vec<u8>, (u8, u16, String)>;
+
+fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
+    let now = Instant::now();
+    let mut st = sh.state();
+    st.stats.frames += 1;
+    if let Some(s) = st.session.as_mut()
+        && s.conn == conn
+    {
+        s.last_frame = now;
+    }
+    let h = frame.header();
+    if h.frame_type() != Some(FrameType::Request) {
+        return Vec::new();
+    }
+    let function = Function::from_uid(h.function_uid());
+    let fault = st
+        .faults
+        .iter()
+        .position(|(on, _)| on.is_none() || *on == function)
+        .and_then(|i| st.faults.remove(i))
+        .map(|(_, f)| f);
+    if fault.is_some() {
+        st.stats.faults_fired += 1;
+    }
+    let result = match &fault {
+        Some(Fault::ErrorReply {
+            code,
+            sub_code,
+            detail,
+        }) => Err((*code, *sub_code, detail.clone())),
+        _ => execute(&sh.cfg, &mut st, conn, function, h.function_uid(), frame),
+    };
+    let session_id = st
+        .session
+        .as_ref()
+        .filter(|s| s.conn == conn)
+        .map_or(h.session_id(), |s| s.id);
+    let message_id = match fault {
+        Some(Fault::WrongMessageId) => h.message_id().wrapping_add(0x7000),
+        _ => h.message_id(),
+    };
+    let reply = match result {
+        Ok(payload) => Frame {
+            header: Header::new(
+                FrameType::Response,
+                session_id,
+                message_id,
+                h.function_uid(),
+                payload.len(),
+            )
+            .ok(),
+            payload,
+        },
+        Err((code, sub_code, detail)) => {
+            st.stats.error_replies += 1;
+            let payload = ErrorPayload {
+                error_code: i32::from(code),
+                error_sub_code: u32::from(sub_code),
+                error_sub_string: detail,
+            }
+            .encode_to_vec();
+            Frame {
+                header: Header::new(
+                    FrameType::Response,
+                    session_id,
+                    message_id,
+                    h.function_uid(),
+                    payload.len(),
+                )
+                .ok()
+                .map(|hd| hd.with_error(code, sub_code)),
+                payload,
+            }
+        }
+    };
+    drop(st);
+    let mut bytes = Vec::new();
+    if reply.encode_tcp(&mut bytes).is_err() {
+        return Vec::new();
+    }
+    match fault {
+        Some(Fault::DropReply) => Vec::new(),
+        Some(Fault::DelayReply(d)) => vec![Out::Bytes {
+            due: now + d,
+            bytes,
+        }],
+        Some(Fault::CloseConnection) => vec![Out::Close { due: now }],
+        Some(Fault::GarbageBefore(g)) => vec![
+            Out::Bytes { due: now, bytes: g },
+            Out::Bytes { due: now, bytes },
+        ],
+        Some(Fault::CorruptMagic) => {
+            bytes[..MAGIC.len()].copy_from_slice(b"NOTMAGIC");
+            vec![Out::Bytes { due: now, bytes }]
+        }
+        Some(Fault::TruncateReply(n)) => {
+            bytes.truncate(n);
+            vec![Out::Bytes { due: now, bytes }, Out::Close { due: now }]
+        }
+        _ => vec![Out::Bytes { due: now, bytes }],
+    }
+}
+
+fn decode_req<M: prost::Message + Default>(
+    frame: &Frame,
+    what: &str,
+) -> Result<M, (u8, u16, String)> {
+    M::decode(frame.payload.as_slice()).map_err(|e| (2, 0, format!("cannot decode {what}: {e}")))
+}
+
+fn execute(
+    cfg: &FakeConfig,
+    st: &mut State,
+    conn: u64,
+    function: Option<Function>,
+    uid: u32,
+    frame: &Frame,
+) -> CallResult {
+    let Some(function) = function else {
+        return Err((
+            1,
+            0,
+            format!("function {uid:#x} is not served by this fake robot"),
+        ));
+    };
+    if function == Function::CreateSession {
+        let info: msg::CreateSessionInfo = decode_req(frame, "CreateSessionInfo")?;
+        if info.username != cfg.credentials.username()
+            || info.password != cfg.credentials.password()
+        {
+            return Err((1, 15, "wrong user name or password".into()));
+        }
+        let id = st.next_session_id;
+        st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
+        let ms = |v: u32| (v > 0).then(|| Duration::from_millis(u64::from(v)));
+        st.session = Some(Session {
+            id,
+            conn,
+            connection_timeout: ms(info.connection_inactivity_timeout),
+            session_timeout: ms(info.session_inactivity_timeout),
+            last_frame: Instant::now(),
+            timed_out: false,
+        });
+        st.stats.sessions_opened += 1;
+        tracing::info!(
+            session = format_args!("{id:#06x}"),
+            connection_timeout_ms = info.connection_inactivity_timeout,
+            "fake Kortex: session open"
+        );
+        return Ok(Vec::new());
+    }
+    if st.session.as_ref().is_none_or(|s| s.conn != conn) {
+        return Err((1, 12, "no session on this connection".into()));
+    }
+    let n = gen3_lite::N_JOINTS;
+    match function {
+        Function::CreateSession | Function::KeepAlive | Function::ClearFaults => Ok(Vec::new()),
+        Function::CloseSession => {
+            st.arm.halt();
+            st.session = None;
+            st.stats.sessions_closed += 1;
+            tracing::info!("fake Kortex: session closed");
+            Ok(Vec::new())
+        }
+        Function::Stop | Function::ApplyEmergencyStop => {
+            st.arm.halt();
+            st.stats.stops += 1;
+            Ok(Vec::new())
+        }
+        Function::SetServoingMode => {
+            let m: msg::ServoingModeInformation = decode_req(frame, "ServoingModeInformation")?;
+            if m.servoing_mode != msg::servoing_mode::SINGLE_LEVEL {
+                return Err((
+                    3,
+                    0,
+                    "this fake robot serves single-level servoing only".into(),
+                ));
+            }
+            Ok(Vec::new())
+        }
+        Function::GetActuatorCount => Ok(msg::ActuatorInformation {
+            count: cfg.actuator_count,
+        }
+        .encode_to_vec()),
+        Function::GetArmState => Ok(msg::ArmStateInformation {
+            active_state: msg::arm_state::SERVOING_READY,
+        }
+        .encode_to_vec()),
+        Function::GetKinematicHardLimits => Ok(msg::KinematicLimits {
+            control_mode: 0,
+            twist_linear: 0.3,
+            twist_angular: 0.85f32.to_degrees(),
+            joint_speed_limits: cfg.joint_speed_limits_deg_s.clone(),
+            joint_acceleration_limits: cfg.joint_acceleration_limits_deg_s2.clone(),
+        }
+        .encode_to_vec()),
+        Function::GetMeasuredJointAngles => Ok(msg::JointAngles {
+            joint_angles: (0..n)
+                .map(|j| msg::JointAngle {
+                    joint_identifier: j as u32,
+                    value: angle_rad_to_wire_deg(st.reading.q_rad[j]) as f32,
+                })
+                .collect(),
+        }
+        .encode_to_vec()),
+        Function::RefreshFeedback => {
+            st.stats.feedback_requests += 1;
+            Ok(feedback(&st.reading, n).encode_to_vec())
+        }
+        Function::SendJointSpeedsCommand => {
+            let m: msg::JointSpeeds = decode_req(frame, "JointSpeeds")?;
+            let mut v = [0.0; MAX_JOINTS];
+            let mut seen = [false; MAX_JOINTS];
+            for s in &m.joint_speeds {
+                let j = s.joint_identifier as usize;
+                let value = f64::from(s.value);
+                if j >= n || seen[j] || !value.is_finite() {
+                    return Err((3, 0, format!("bad joint speed entry {s:?}")));
+                }
+                let limit = cfg.joint_speed_limits_deg_s.get(j).copied().unwrap_or(0.0);
+                if value.abs() > f64::from(limit) * 1.0001 {
+                    return Err((
+                        3,
+                        0,
+                        format!("joint {j}: {value} deg/s is above the limit {limit} deg/s"),
+                    ));
+                }
+                seen[j] = true;
+                v[j] = value.to_radians();
+            }
+            if !seen[..n].iter().all(|s| *s) {
+                return Err((3, 0, "joint speed commands must name every joint".into()));
+            }
+            st.arm.set_command(&v[..n], 0.0);
+            st.stats.joint_speed_commands += 1;
+            let mut entry = [0.0; gen3_lite::N_JOINTS];
+            entry.copy_from_slice(&v[..n]);
+            if st.log.len() == LOG_CAPACITY {
+                st.log.pop_front();
+            }
+            st.log.push_back(entry);
+            Ok(Vec::new())
+        }
+        Function::SendGripperCommand => {
+            let m: msg::GripperCommand = decode_req(frame, "GripperCommand")?;
+            let finger = m
+                .gripper
+                .as_ref()
+                .and_then(|g| g.finger.first())
+                .filter(|f| f.finger_identifier == msg::GRIPPER_FINGER_ID);
+            match (m.mode, finger) {
+                (msg::gripper_mode::POSITION, Some(f)) if (0.0..=1.0).contains(&f.value) => {
+                    st.arm.set_gripper_target(f64::from(f.value));
+                    st.stats.gripper_commands += 1;
+                    Ok(Vec::new())
+                }
+                _ => Err((3, 0, format!("unsupported gripper command {m:?}"))),
+            }
+        }
+    }
+}
+
+fn feedback(r: &Reading, n: usize) -> msg::Feedback {
+    msg::Feedback {
+        frame_id: 0,
+        base: Some(msg::BaseFeedback {
+            active_state: msg::arm_state::SERVOING_READY,
+            ..Default::default()
+        }),
+        actuators: (0..n)
+            .map(|j| msg::ActuatorFeedback {
+                position: angle_rad_to_wire_deg(r.q_rad[j]) as f32,
+                velocity: r.qdot_rad_s[j].to_degrees() as f32,
+                ..Default::default()
+            })
+            .collect(),
+        interconnect: Some(msg::InterconnectFeedback {
+            gripper_feedback: Some(msg::GripperFeedback {
+                motor: vec![msg::MotorFeedback {
+                    motor_id: 1,
+                    position: (r.gripper * 100.0) as f32,
+                    velocity: 0.0,
+                }],
+            }),
+        }),
+    }
+}

@@ -1,0 +1,831 @@
+//! The Kortex backend: a clean-room client of Kinova's Kortex API for the Gen3 lite, written
+//! from the protocol facts in `shared/reference/kortex-protocol.md`.
+//!
+//! * [`wire`]: TCP framing and the protobuf envelope (`Frame`, `Header`), the streaming
+//!   decoder that resynchronises on a wrong magic.
+//! * [`msg`]: the project's own prost definitions of the messages the bridge exchanges.
+//! * [`arm::KortexArm`]: the [`crate::Robot`] over one TCP session: start-up (session with
+//!   both inactivity timeouts, servoing mode, clear faults, actuator count, kinematic hard
+//!   limits), then a pipelined 40 Hz exchange (joint speeds, gripper position, feedback; replies
+//!   matched by message id on a socket reader thread), and Stop + CloseSession on exit and on
+//!   every fault.
+//! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol, for tests and
+//!   for trying the bridge without an arm.
+//!
+//! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
+//! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
+//!
+//! ```
+//! use hw_bridge::Robot;
+//! use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, KortexArm, KortexConfig};
+//!
+//! // A fake Gen3 lite on a free port of 127.0.0.1, and the client on it.
+//! let fake = FakeKortex::start(FakeConfig::default())?;
+//! let cfg = KortexConfig {
+//!     address: "127.0.0.1".into(),
+//!     port: fake.addr().port(),
+//!     ..KortexConfig::default()
+//! };
+//! let mut arm = KortexArm::connect(&cfg, &Credentials::new("admin", "admin"))?;
+//! let reading = arm.advance(0.025)?; // the newest feedback; asks for the next one
+//! assert!((reading.q_rad[2] - 1.309).abs() < 1e-4); // the fake starts at home
+//! arm.command(&[0.1, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0)?; // rad/s, sent as deg/s, not awaited
+//! arm.shutdown()?; // Stop, a last feedback, CloseSession: each awaited
+//! assert!(!fake.snapshot().commanded_to_move());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub mod arm;
+pub mod fake;
+pub mod msg;
+pub mod wire;
+
+use std::net::{IpAddr, SocketAddr};
+
+use serde::{Deserialize, Serialize};
+
+pub use arm::{KortexArm, KortexStats};
+pub use fake::{FakeConfig, FakeKortex, FakeSnapshot, FakeStats, Fault};
+
+/// The functions of the Kortex API the bridge (and the fake robot) use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Function {
+    /// `Session.CreateSession`.
+    CreateSession,
+    /// `Session.CloseSession`.
+    CloseSession,
+    /// `Session.KeepAlive` (never sent by the bridge: a frozen loop must let the session
+    /// time out).
+    KeepAlive,
+    /// `Base.Stop`.
+    Stop,
+    /// `Base.GetMeasuredJointAngles`.
+    GetMeasuredJointAngles,
+    /// `Base.SendJointSpeedsCommand`.
+    SendJointSpeedsCommand,
+    /// `Base.SendGripperCommand`.
+    SendGripperCommand,
+    /// `Base.ApplyEmergencyStop`.
+    ApplyEmergencyStop,
+    /// `Base.ClearFaults`.
+    ClearFaults,
+    /// `Base.SetServoingMode`.
+    SetServoingMode,
+    /// `Base.GetActuatorCount`.
+    GetActuatorCount,
+    /// `Base.GetArmState`.
+    GetArmState,
+    /// `BaseCyclic.RefreshFeedback`.
+    RefreshFeedback,
+    /// `ControlConfig.GetKinematicHardLimits`.
+    GetKinematicHardLimits,
+}
+
+impl Function {
+    /// Every function, for look-ups.
+    pub const ALL: [Function; 14] = [
+        Self::CreateSession,
+        Self::CloseSession,
+        Self::KeepAlive,
+        Self::Stop,
+        Self::GetMeasuredJointAngles,
+        Self::SendJointSpeedsCommand,
+        Self::SendGripperCommand,
+        Self::ApplyEmergencyStop,
+        Self::ClearFaults,
+        Self::SetServoingMode,
+        Self::GetActuatorCount,
+        Self::GetArmState,
+        Self::RefreshFeedback,
+        Self::GetKinematicHardLimits,
+    ];
+
+    /// Function UID: `(service id << 16) | function id`.
+    pub fn uid(self) -> u32 {
+        match self {
+            Self::CreateSession => 0x1_0001,
+            Self::CloseSession => 0x1_0002,
+            Self::KeepAlive => 0x1_0003,
+            Self::Stop => 0x2_0070,
+            Self::GetMeasuredJointAngles => 0x2_007E,
+            Self::SendJointSpeedsCommand => 0x2_0084,
+            Self::SendGripperCommand => 0x2_0088,
+            Self::ApplyEmergencyStop => 0x2_0091,
+            Self::ClearFaults => 0x2_0092,
+            Self::SetServoingMode => 0x2_0098,
+            Self::GetActuatorCount => 0x2_00AB,
+            Self::GetArmState => 0x2_00AF,
+            Self::RefreshFeedback => 0x3_0003,
+            Self::GetKinematicHardLimits => 0x10_0012,
+        }
+    }
+
+    /// `Service.Function`, as Kinova names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::CreateSession => "Session.CreateSession",
+            Self::CloseSession => "Session.CloseSession",
+            Self::KeepAlive => "Session.KeepAlive",
+            Self::Stop => "Base.Stop",
+            Self::GetMeasuredJointAngles => "Base.GetMeasuredJointAngles",
+            Self::SendJointSpeedsCommand => "Base.SendJointSpeedsCommand",
+            Self::SendGripperCommand => "Base.SendGripperCommand",
+            Self::ApplyEmergencyStop => "Base.ApplyEmergencyStop",
+            Self::ClearFaults => "Base.ClearFaults",
+            Self::SetServoingMode => "Base.SetServoingMode",
+            Self::GetActuatorCount => "Base.GetActuatorCount",
+            Self::GetArmState => "Base.GetArmState",
+            Self::RefreshFeedback => "BaseCyclic.RefreshFeedback",
+            Self::GetKinematicHardLimits => "ControlConfig.GetKinematicHardLimits",
+        }
+    }
+
+    /// The function of a UID, if the bridge knows it.
+    pub fn from_uid(uid: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| f.uid() == uid)
+    }
+}
+
+/// The name of the function of `uid`, or the UID in hex.
+pub fn function_name(uid: u32) -> String {
+    Function::from_uid(uid).map_or_else(|| format!("function {uid:#x}"), |f| f.name().to_owned())
+}
+
+/// Settings of the Kortex client: the `[bridge.kortex]` table of the graph TOML.
+/// Credentials are not here: they come from the environment or from `credentials_file`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KortexConfig {
+    /// The robot's IP address.
+    pub address: String,
+    /// The robot's TCP port.
+    pub port: u16,
+    /// A TOML file with `username` and `password` (empty: the environment only). A relative
+    /// path is relative to the config file's directory.
+    pub credentials_file: String,
+    /// The robot stops the arm after this long without a frame from the bridge (ms): the
+    /// robot-side watchdog that stops the arm if the bridge freezes or dies.
+    pub connection_timeout_ms: u32,
+    /// The robot ends the session after this long without a frame (ms).
+    pub session_timeout_ms: u32,
+    /// A request without a reply for this long is a fault (ms).
+    pub reply_timeout_ms: u32,
+}
+
+/// The robot's default address (never contacted unless a configuration names it).
+pub const DEFAULT_ADDRESS: &str = "192.168.1.10";
+
+/// The robot's TCP port for everything high level.
+pub const DEFAULT_PORT: u16 = 10000;
+
+impl Default for KortexConfig {
+    fn default() -> Self {
+        Self {
+            address: DEFAULT_ADDRESS.into(),
+            port: DEFAULT_PORT,
+            credentials_file: String::new(),
+            connection_timeout_ms: 200,
+            session_timeout_ms: 60_000,
+            reply_timeout_ms: 200,
+        }
+    }
+}
+
+/// Why a Kortex configuration was refused.
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
+#[error("bridge.kortex.{key}: {reason}")]
+pub struct KortexConfigError {
+    /// The key under `[bridge.kortex]`.
+    pub key: &'static str,
+    /// What is wrong.
+    pub reason: String,
+}
+
+impl KortexConfig {
+    /// Checks the settings for a bridge ticking every `period_s` seconds.
+    pub fn validate(&self, period_s: f64) -> Result<(), KortexConfigError> {
+        self.socket_addr()?;
+        let err = |key, reason| Err(KortexConfigError { key, reason });
+        if self.port == 0 {
+            return err("port", "0 is not a port".into());
+        }
+        let period_ms = period_s * 1e3;
+        let conn = f64::from(self.connection_timeout_ms);
+        if conn < 2.0 * period_ms {
+            return err(
+                "connection_timeout_ms",
+                format!(
+                    "{} ms is shorter than two periods ({:.0} ms): the session would time out \
+                     between two ticks",
+                    self.connection_timeout_ms,
+                    2.0 * period_ms
+                ),
+            );
+        }
+        if self.session_timeout_ms < self.connection_timeout_ms {
+            return err(
+                "session_timeout_ms",
+                format!(
+                    "{} ms is shorter than connection_timeout_ms ({} ms)",
+                    self.session_timeout_ms, self.connection_timeout_ms
+                ),
+            );
+        }
+        if f64::from(self.reply_timeout_ms) < period_ms {
+            return err(
+                "reply_timeout_ms",
+                format!(
+                    "{} ms is shorter than one period ({period_ms:.0} ms)",
+                    self.reply_timeout_ms
+                ),
+            );
+        }
+        Ok(())
+    }
+
+    /// The robot's socket address.
+    pub fn socket_addr(&self) -> Result<SocketAddr, KortexConfigError> {
+        let ip: IpAddr = self.address.parse().map_err(|_| KortexConfigError {
+            key: "address",
+            reason: format!("`{}` is not an IP address", self.address),
+        })?;
+        Ok(SocketAddr::new(ip, self.port))
+    }
+}
+
+/// A user name and password for `CreateSession`. Neither appears in `Debug` output, logs or
+/// error messages.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Credentials {
+    username: String,
+    password: String,
+}
+
+impl Credentials {
+    /// Credentials from a user name and a password.
+    pub fn new(username: impl Into<String>, password: impl Into<String>) -> Self {
+        Self {
+            username: username.into(),
+            password: password.into(),
+        }
+    }
+
+    pub(crate) fn username(&self) -> &str {
+        &self.username
+    }
+
+    pub(crate) fn password(&self) -> &str {
+        &self.password
+    }
+}
+
+impl std::fmt::Debug for Credentials {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Credentials(<redacted>)")
+    }
+}
+
+/// What went wrong talking to the robot. Every variant names the robot's address or the call.
+#[derive(Debug, thiserror::Error)]
+pub enum KortexError {
+    /// The configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] KortexConfigError),
+    /// The TCP connection could not be made.
+    #[error("cannot connect to the Kortex robot at {addr}: {source}")]
+    Connect {
+        /// The robot's address.
+        addr: SocketAddr,
+        /// The OS error (refused, unreachable, timed out, ...).
+        source: std::io::Error,
+    },
+    /// Reading or writing the socket failed (reset, broken pipe, write timeout).
+    #[error("the connection to the Kortex robot at {addr} failed while {during}: {source}")]
+    Io {
+        /// The robot's address.
+        addr: SocketAddr,
+        /// What the bridge was doing.
+        during: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The robot closed the connection between two frames.
+    #[error("the Kortex robot at {addr} closed the connection")]
+    Closed {
+        /// The robot's address.
+        addr: SocketAddr,
+    },
+    /// The robot closed the connection inside a frame.
+    #[error(
+        "the Kortex robot at {addr} closed the connection inside a frame \
+         (truncated frame: {have} of {need} bytes)"
+    )]
+    Truncated {
+        /// The robot's address.
+        addr: SocketAddr,
+        /// Bytes of the frame received.
+        have: usize,
+        /// Bytes the frame needed (at least).
+        need: usize,
+    },
+    /// A frame from the robot could not be decoded.
+    #[error("bad frame from the Kortex robot at {addr}: {source}")]
+    Wire {
+        /// The robot's address.
+        addr: SocketAddr,
+        /// The decoder's error.
+        source: wire::WireError,
+    },
+    /// A request could not be encoded.
+    #[error("cannot encode {function}: {source}")]
+    Encode {
+        /// The call.
+        function: &'static str,
+        /// The encoder's error.
+        source: wire::WireError,
+    },
+    /// The robot answered a call with an error.
+    #[error("the robot refused {function} (message {message_id}): {fault}")]
+    Robot {
+        /// The call.
+        function: &'static str,
+        /// The request's message id.
+        message_id: u16,
+        /// The decoded error code, sub-code and text.
+        fault: wire::RobotFault,
+    },
+    /// A reply came for a message id no request is waiting for.
+    #[error(
+        "the robot sent a reply for message id {message_id} ({function}) that no request is \
+         waiting for"
+    )]
+    UnknownReply {
+        /// The reply's message id.
+        message_id: u16,
+        /// The function named in the reply.
+        function: String,
+    },
+    /// A request had no reply in time.
+    #[error("no reply to {function} (message {message_id}) within {waited_ms} ms{note}")]
+    ReplyTimeout {
+        /// The call.
+        function: &'static str,
+        /// The request's message id.
+        message_id: u16,
+        /// How long the bridge waited.
+        waited_ms: u64,
+        /// What else is known (bytes skipped to resynchronise the stream).
+        note: String,
+    },
+    /// A reply's payload did not decode as the message it should be.
+    #[error("cannot decode the reply to {function}: {reason}")]
+    Payload {
+        /// The call.
+        function: &'static str,
+        /// What was wrong.
+        reason: String,
+    },
+    /// The robot is not a Gen3 lite.
+    #[error("the robot reports {found} actuators; a Gen3 lite has {expected}")]
+    ActuatorCount {
+        /// What the robot reported.
+        found: u32,
+        /// What the bridge drives.
+        expected: usize,
+    },
+    /// The robot's kinematic hard limits are unusable.
+    #[error("the robot's kinematic hard limits are unusable: {reason}")]
+    Limits {
+        /// What was wrong.
+        reason: String,
+    },
+    /// The session is closed (after a fault or shutdown).
+    #[error("the Kortex session is closed")]
+    SessionClosed,
+}
+
+impl KortexError {
+    /// Whether frames can still be sent after this error (to stop the arm and close the
+    /// session).
+    pub fn connection_usable(&self) -> bool {
+        !matches!(
+            self,
+            Self::Connect { .. }
+                | Self::Io { .. }
+                | Self::Closed { .. }
+                | Self::Truncated { .. }
+                | Self::SessionClosed
+        )
+    }
+}
+
+/// Wraps an angle in degrees to `(-180, 180]` (the robot reports `[0, 360)`).
+pub fn wrap_deg(deg: f64) -> f64 {
+    let x = deg.rem_euclid(360.0);
+    if x > 180.0 { x - 360.0 } else { x }
+}
+
+/// Angle (deg, any range) to radians in `(-pi, pi]`.
+pub fn angle_deg_to_rad(deg: f64) -> f64 {
+    wrap_deg(deg).to_radians()
+}
+
+/// Angle (rad) to degrees in `[0, 360)`, as the robot reports it.
+pub fn angle_rad_to_wire_deg(rad: f64) -> f64 {
+    let d = rad.to_degrees().rem_euclid(360.0);
+    // rem_euclid can round up to exactly 360 for tiny negative inputs.
+    if d >= 360.0 { 0.0 } else { d }
+}
+
+/// Scales `v` by one common factor so that every `|v[j]| <= limit[j]`, keeping its direction.
+/// Returns the factor (1 when nothing was too fast).
+pub fn scale_to_limits(v: &mut [f64], limit: &[f64]) -> f64 {
+    let mut k: f64 = 1.0;
+    for (x, l) in v.iter().zip(limit) {
+        if x.abs() > *l {
+            k = k.min(l / x.abs());
+        }
+    }
+    if k < 1.0 {
+        v.iter_mut().for_each(|x| *x *= k);
+    }
+    k
+}
+
+/// The JointSpeeds message for joint velocities in rad/s (every joint named, 0-based).
+pub fn joint_speeds_msg(qdot_rad_s: &[f64]) -> msg::JointSpeeds {
+    msg::JointSpeeds {
+        joint_speeds: qdot_rad_s
+            .iter()
+            .enumerate()
+            .map(|(j, v)| msg::JointSpeed {
+                joint_identifier: j as u32,
+                value: v.to_degrees() as f32,
+                duration: 0,
+            })
+            .collect(),
+        duration: 0,
+    }
+}
+
+/// The GripperCommand message for a position `0` open .. `1` closed.
+pub fn gripper_position_msg(position: f64) -> msg::GripperCommand {
+    msg::GripperCommand {
+        mode: msg::gripper_mode::POSITION,
+        gripper: Some(msg::Gripper {
+            finger: vec![msg::Finger {
+                finger_identifier: msg::GRIPPER_FINGER_ID,
+                value: position.clamp(0.0, 1.0) as f32,
+            }],
+        }),
+        duration: 0,
+    }
+}
+
+/// The stack's reading from a Feedback message of an arm of `n` joints: angles wrapped and in
+/// radians, speeds in rad/s, the gripper from percent to `[0, 1]` (`gripper_fallback` when
+/// the feedback has no gripper). `limits` flags a joint within 0.01 rad of its limit.
+pub fn reading_from_feedback(
+    fb: &msg::Feedback,
+    n: usize,
+    limits: &kinematics::ArmLimits,
+    gripper_fallback: f64,
+) -> Result<crate::Reading, String> {
+    if fb.actuators.len() != n {
+        return Err(format!(
+            "feedback has {} actuators, expected {n}",
+            fb.actuators.len()
+        ));
+    }
+    let mut r = crate::Reading {
+        q_rad: [0.0; ipc_types::MAX_JOINTS],
+        qdot_rad_s: [0.0; ipc_types::MAX_JOINTS],
+        gripper: gripper_fallback,
+        at_limit: false,
+    };
+    for (j, a) in fb.actuators.iter().enumerate() {
+        let (p, v) = (f64::from(a.position), f64::from(a.velocity));
+        if !(p.is_finite() && v.is_finite()) {
+            return Err(format!(
+                "actuator {j} reports a non-finite angle or speed ({p} deg, {v} deg/s)"
+            ));
+        }
+        r.q_rad[j] = angle_deg_to_rad(p);
+        r.qdot_rad_s[j] = v.to_radians();
+        if let (Some(lo), Some(hi)) = (limits.lower_rad.get(j), limits.upper_rad.get(j))
+            && (r.q_rad[j] <= lo + 0.01 || r.q_rad[j] >= hi - 0.01)
+        {
+            r.at_limit = true;
+        }
+    }
+    if let Some(m) = fb
+        .interconnect
+        .as_ref()
+        .and_then(|i| i.gripper_feedback.as_ref())
+        .and_then(|g| g.motor.first())
+    {
+        let c = f64::from(m.position) / 100.0;
+        if c.is_finite() {
+            r.gripper = c.clamp(0.0, 1.0);
+        }
+    }
+    Ok(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::msg::*;
+    use super::wire::*;
+    use super::*;
+    use prost::Message as _;
+
+    fn hex(s: &str) -> Vec<u8> {
+        s.split_whitespace()
+            .map(|b| u8::from_str_radix(b, 16).unwrap())
+            .collect()
+    }
+
+    fn tcp(session: u16, id: u16, f: Function, payload: Vec<u8>) -> Vec<u8> {
+        let frame = Frame::new(FrameType::Request, session, id, f.uid(), payload).unwrap();
+        let mut out = Vec::new();
+        frame.encode_tcp(&mut out).unwrap();
+        out
+    }
+
+    fn admin_session() -> CreateSessionInfo {
+        CreateSessionInfo {
+            username: "admin".into(),
+            session_inactivity_timeout: 60_000,
+            password: "admin".into(),
+            connection_inactivity_timeout: 2000,
+        }
+    }
+
+    // The "Expected encodings (hex)" of kortex-protocol.md, every one of them.
+
+    #[test]
+    fn encoding_create_session_info_payload() {
+        assert_eq!(
+            admin_session().encode_to_vec(),
+            hex("0a 05 61 64 6d 69 6e 10 e0 d4 03 1a 05 61 64 6d 69 6e 20 d0 0f")
+        );
+    }
+
+    #[test]
+    fn encoding_create_session_request() {
+        assert_eq!(
+            tcp(
+                0,
+                1,
+                Function::CreateSession,
+                admin_session().encode_to_vec()
+            ),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 2d 0a 14 0d 00 00 00 11 15 01 00 00 00 1d 01 00 \
+                 01 10 25 15 00 00 00 12 15 0a 05 61 64 6d 69 6e 10 e0 d4 03 1a 05 61 64 6d 69 6e \
+                 20 d0 0f"
+            )
+        );
+    }
+
+    #[test]
+    fn encoding_set_servoing_mode_request() {
+        let payload = ServoingModeInformation {
+            servoing_mode: servoing_mode::SINGLE_LEVEL,
+        }
+        .encode_to_vec();
+        assert_eq!(
+            tcp(0x1234, 2, Function::SetServoingMode, payload),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 1a 0a 14 0d 00 00 00 11 15 02 00 34 12 1d 98 00 \
+                 02 10 25 02 00 00 00 12 02 08 02"
+            )
+        );
+    }
+
+    #[test]
+    fn encoding_send_joint_speeds_request() {
+        // From rad/s, as the bridge builds it: [10, -5, 0, 0, 0, 20] deg/s.
+        let qdot: Vec<f64> = [10.0f64, -5.0, 0.0, 0.0, 0.0, 20.0]
+            .iter()
+            .map(|d| d.to_radians())
+            .collect();
+        let payload = joint_speeds_msg(&qdot).encode_to_vec();
+        assert_eq!(
+            tcp(0x1234, 3, Function::SendJointSpeedsCommand, payload),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 3d 0a 14 0d 00 00 00 11 15 03 00 34 12 1d 84 00 \
+                 02 10 25 25 00 00 00 12 25 0a 05 15 00 00 20 41 0a 07 08 01 15 00 00 a0 c0 0a 02 \
+                 08 02 0a 02 08 03 0a 02 08 04 0a 07 08 05 15 00 00 a0 41"
+            )
+        );
+    }
+
+    #[test]
+    fn encoding_get_measured_joint_angles_request() {
+        assert_eq!(
+            tcp(0x1234, 4, Function::GetMeasuredJointAngles, Vec::new()),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 11 0a 0f 0d 00 00 00 11 15 04 00 34 12 1d 7e 00 \
+                 02 10"
+            )
+        );
+    }
+
+    #[test]
+    fn encoding_stop_request() {
+        assert_eq!(
+            tcp(0x1234, 5, Function::Stop, Vec::new()),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 11 0a 0f 0d 00 00 00 11 15 05 00 34 12 1d 70 00 \
+                 02 10"
+            )
+        );
+    }
+
+    #[test]
+    fn encoding_gripper_command_payload() {
+        assert_eq!(
+            gripper_position_msg(0.5).encode_to_vec(),
+            hex("08 03 12 09 0a 07 08 01 15 00 00 00 3f")
+        );
+    }
+
+    #[test]
+    fn encoding_refresh_feedback_udp_bare_frame() {
+        let frame = Frame::new(
+            FrameType::Request,
+            0x1234,
+            6,
+            Function::RefreshFeedback.uid(),
+            Vec::new(),
+        )
+        .unwrap();
+        assert_eq!(
+            frame.encode_bare(),
+            hex("0a 0f 0d 00 00 00 11 15 06 00 34 12 1d 03 00 03 10")
+        );
+    }
+
+    #[test]
+    fn encoding_keep_alive_request() {
+        assert_eq!(
+            tcp(0x1234, 7, Function::KeepAlive, Vec::new()),
+            hex(
+                "07 78 45 74 52 6f 4b 07 00 00 00 11 0a 0f 0d 00 00 00 11 15 07 00 34 12 1d 03 00 \
+                 01 10"
+            )
+        );
+    }
+
+    #[test]
+    fn expected_frames_decode_to_what_they_say() {
+        let bytes = hex(
+            "07 78 45 74 52 6f 4b 07 00 00 00 1a 0a 14 0d 00 00 00 11 15 02 00 34 12 1d 98 00 02 \
+             10 25 02 00 00 00 12 02 08 02",
+        );
+        let mut d = FrameDecoder::new();
+        d.push(&bytes);
+        let Some(Ok(Decoded::Frame(f))) = d.next_frame() else {
+            panic!("no frame")
+        };
+        let h = f.header();
+        assert_eq!(h.frame_type(), Some(FrameType::Request));
+        assert_eq!((h.session_id(), h.message_id()), (0x1234, 2));
+        assert_eq!(
+            Function::from_uid(h.function_uid()),
+            Some(Function::SetServoingMode)
+        );
+        assert_eq!(h.payload_len(), 2);
+        let m = ServoingModeInformation::decode(f.payload.as_slice()).unwrap();
+        assert_eq!(m.servoing_mode, servoing_mode::SINGLE_LEVEL);
+    }
+
+    #[test]
+    fn function_uids_and_names() {
+        for f in Function::ALL {
+            assert_eq!(Function::from_uid(f.uid()), Some(f));
+            assert!(f.name().contains('.'));
+        }
+        assert_eq!(function_name(0x2_0084), "Base.SendJointSpeedsCommand");
+        assert_eq!(function_name(0x9_9999), "function 0x99999");
+    }
+
+    #[test]
+    fn angles_wrap_into_minus_180_to_180() {
+        for (d, w) in [
+            (0.0, 0.0),
+            (90.0, 90.0),
+            (180.0, 180.0),
+            (180.5, -179.5),
+            (359.5, -0.5),
+            (360.0, 0.0),
+            (-180.0, 180.0),
+            (-190.0, 170.0),
+            (720.0 + 45.0, 45.0),
+        ] {
+            assert!((wrap_deg(d) - w).abs() < 1e-9, "{d} -> {}", wrap_deg(d));
+        }
+        for q in [-3.1, -1.0, -1e-12, 0.0, 0.5, 2.68, std::f64::consts::PI] {
+            let wire = angle_rad_to_wire_deg(q);
+            assert!((0.0..360.0).contains(&wire), "{q} -> {wire}");
+            let back = angle_deg_to_rad(wire);
+            assert!((back - q).abs() < 1e-9, "{q} -> {wire} -> {back}");
+        }
+    }
+
+    #[test]
+    fn scaling_to_limits_keeps_the_direction() {
+        let mut v = [1.0, -0.5, 0.1];
+        let k = scale_to_limits(&mut v, &[0.5, 0.5, 0.5]);
+        assert_eq!(k, 0.5);
+        assert_eq!(v, [0.5, -0.25, 0.05]);
+        let mut v = [0.2, -0.3];
+        assert_eq!(scale_to_limits(&mut v, &[0.5, 0.5]), 1.0);
+        assert_eq!(v, [0.2, -0.3]);
+    }
+
+    #[test]
+    fn feedback_becomes_a_reading() {
+        let limits = kinematics::gen3_lite::limits();
+        let mut fb = Feedback::default();
+        for (p, v) in [
+            (350.0, -10.0),
+            (10.0, 5.0),
+            (180.0, 0.0),
+            (0.0, 0.0),
+            (153.9, 0.0),
+            (0.0, 0.0),
+        ] {
+            fb.actuators.push(ActuatorFeedback {
+                position: p,
+                velocity: v,
+                ..Default::default()
+            });
+        }
+        let r = reading_from_feedback(&fb, 6, &limits, 0.3).unwrap();
+        assert!((r.q_rad[0] + 10f64.to_radians()).abs() < 1e-6);
+        assert!((r.qdot_rad_s[0] + 10f64.to_radians()).abs() < 1e-6);
+        assert!((r.q_rad[2] - std::f64::consts::PI).abs() < 1e-6);
+        assert!(r.at_limit, "joint 3 at 180 deg is past its limit");
+        assert_eq!(r.gripper, 0.3, "no gripper in the feedback: the fallback");
+        fb.interconnect = Some(InterconnectFeedback {
+            gripper_feedback: Some(GripperFeedback {
+                motor: vec![MotorFeedback {
+                    position: 40.0,
+                    ..Default::default()
+                }],
+            }),
+        });
+        assert!((reading_from_feedback(&fb, 6, &limits, 0.3).unwrap().gripper - 0.4).abs() < 1e-6);
+        let e = reading_from_feedback(&fb, 7, &limits, 0.0).unwrap_err();
+        assert!(e.contains("6 actuators, expected 7"), "{e}");
+        fb.actuators[1].position = f32::NAN;
+        assert!(reading_from_feedback(&fb, 6, &limits, 0.0).is_err());
+    }
+
+    #[test]
+    fn config_defaults_are_valid_and_bad_values_are_named() {
+        let period = 0.025;
+        KortexConfig::default().validate(period).unwrap();
+        let bad = |c: KortexConfig| c.validate(period).unwrap_err().to_string();
+        let e = bad(KortexConfig {
+            address: "robot.local".into(),
+            ..Default::default()
+        });
+        assert!(e.starts_with("bridge.kortex.address:"), "{e}");
+        let e = bad(KortexConfig {
+            connection_timeout_ms: 30,
+            ..Default::default()
+        });
+        assert!(
+            e.contains("connection_timeout_ms") && e.contains("two periods"),
+            "{e}"
+        );
+        let e = bad(KortexConfig {
+            session_timeout_ms: 100,
+            ..Default::default()
+        });
+        assert!(e.contains("session_timeout_ms"), "{e}");
+        let e = bad(KortexConfig {
+            port: 0,
+            ..Default::default()
+        });
+        assert!(e.contains("port"), "{e}");
+        let e = bad(KortexConfig {
+            reply_timeout_ms: 10,
+            ..Default::default()
+        });
+        assert!(e.contains("reply_timeout_ms"), "{e}");
+    }
+
+    #[test]
+    fn credentials_never_show_in_debug() {
+        let c = Credentials::new("the-user", "pa55word");
+        let text = format!("{c:?} {c:#?}");
+        assert!(
+            !text.contains("the-user") && !text.contains("pa55word"),
+            "{text}"
+        );
+    }
+}

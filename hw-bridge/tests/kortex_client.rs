@@ -1,0 +1,520 @@
+//! The Kortex client against the fake robot over TCP on loopback: start-up, the pipelined
+//! loop, the gripper, the robot's limits, and every bad input ending in a stopped arm and a
+//! clear message. Each test runs its own fake robot on a free port of 127.0.0.1.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+use std::net::TcpListener;
+use std::time::{Duration, Instant};
+
+use hw_bridge::core::BridgeCore;
+use hw_bridge::kortex::{
+    Credentials, FakeConfig, FakeKortex, Fault, Function, KortexArm, KortexConfig, KortexError,
+};
+use hw_bridge::{Robot, RobotError};
+use ipc_types::{MAX_JOINTS, NO_TICK, SafeCommand, state_flags};
+use kinematics::gen3_lite;
+
+const DT: f64 = 0.025;
+const PERIOD: Duration = Duration::from_millis(25);
+const MOVE: [f64; 6] = [0.2, -0.1, 0.0, 0.0, 0.0, 0.3];
+
+fn start_fake(cfg: FakeConfig) -> FakeKortex {
+    FakeKortex::start(cfg).unwrap()
+}
+
+fn client_cfg(fake: &FakeKortex) -> KortexConfig {
+    KortexConfig {
+        address: "127.0.0.1".into(),
+        port: fake.addr().port(),
+        ..KortexConfig::default()
+    }
+}
+
+fn admin() -> Credentials {
+    Credentials::new("admin", "admin")
+}
+
+fn connect(fake: &FakeKortex) -> KortexArm {
+    KortexArm::connect(&client_cfg(fake), &admin()).unwrap()
+}
+
+/// One tick of the bridge's loop: advance, command, then the rest of the period.
+fn tick(arm: &mut KortexArm, v: &[f64], gripper_rate: f64) -> Result<(), RobotError> {
+    arm.advance(DT)?;
+    arm.command(v, gripper_rate)?;
+    std::thread::sleep(PERIOD);
+    Ok(())
+}
+
+fn kortex(e: RobotError) -> KortexError {
+    match e {
+        RobotError::Kortex(k) => k,
+    }
+}
+
+/// Ticks until the client fails (at most `max` ticks).
+fn tick_until_error(arm: &mut KortexArm, max: usize) -> KortexError {
+    for _ in 0..max {
+        if let Err(e) = tick(arm, &MOVE, 0.0) {
+            return kortex(e);
+        }
+    }
+    panic!("no error within {max} ticks");
+}
+
+fn wait_until(
+    fake: &FakeKortex,
+    what: &str,
+    pred: impl Fn(&hw_bridge::kortex::FakeSnapshot) -> bool,
+) {
+    let t0 = Instant::now();
+    while !pred(&fake.snapshot()) {
+        assert!(t0.elapsed() < Duration::from_secs(10), "never: {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// The arm was moving as commanded, then a fault: it must end stopped, by the client's Stop
+/// (and CloseSession) when the connection still works.
+fn assert_stopped_by_the_client(fake: &FakeKortex) {
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move(), "the arm still moves: {s:?}");
+    assert!(s.stats.stops >= 1, "no Stop reached the robot: {s:?}");
+    assert_eq!(
+        s.stats.sessions_closed, 1,
+        "the session was not closed: {s:?}"
+    );
+    assert_eq!(s.stats.connection_timeouts, 0);
+}
+
+/// The connection is gone: the robot's connection inactivity timeout must stop the arm.
+fn assert_stopped_by_the_timeout(fake: &FakeKortex) {
+    wait_until(fake, "the connection timeout stops the arm", |s| {
+        s.stats.connection_timeouts == 1
+    });
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move(), "{s:?}");
+    assert!(s.last_timeout_gap.unwrap() >= Duration::from_millis(200));
+}
+
+fn moving(fake: &FakeKortex, arm: &mut KortexArm) {
+    for _ in 0..4 {
+        tick(arm, &MOVE, 0.0).unwrap();
+    }
+    wait_until(fake, "the arm moves", |s| s.commanded_to_move());
+}
+
+#[test]
+fn start_up_then_the_arm_moves_as_commanded_and_shutdown_stops_and_closes() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    assert_eq!(arm.session_id(), 0x1234);
+    assert_eq!(arm.n_joints(), 6);
+    assert!(!arm.is_mock());
+    let first = arm.advance(DT).unwrap();
+    for j in 0..6 {
+        assert!((first.q_rad[j] - gen3_lite::HOME[j]).abs() < 1e-5, "{j}");
+    }
+    let q0 = fake.snapshot().q_rad;
+    for _ in 0..40 {
+        tick(&mut arm, &MOVE, 0.0).unwrap();
+    }
+    let reading = arm.advance(DT).unwrap();
+    let s = fake.snapshot();
+    // Every command reached the robot as sent (deg/s on the wire, rad/s here).
+    let log = fake.joint_speed_log();
+    assert_eq!(log.len(), 40);
+    for cmd in &log {
+        for j in 0..6 {
+            assert!((cmd[j] - MOVE[j]).abs() < 1e-6, "{cmd:?}");
+        }
+    }
+    // The arm moved along the command: joint 1 twice as far as joint 2, the other way.
+    let d: Vec<f64> = (0..6).map(|j| s.q_rad[j] - q0[j]).collect();
+    assert!(d[0] > 0.1, "{d:?}");
+    assert!((d[1] / d[0] + 0.5).abs() < 0.01, "{d:?}");
+    assert!((d[5] / d[0] - 1.5).abs() < 0.01, "{d:?}");
+    assert_eq!(d[2], 0.0);
+    // The reading is the robot's feedback, wrapped back to radians (one period old at most).
+    assert!(reading.q_rad[0] > q0[0] + 0.1 && reading.q_rad[0] <= s.q_rad[0] + 1e-6);
+    assert!((reading.qdot_rad_s[0] - 0.2).abs() < 1e-3, "{reading:?}");
+    arm.shutdown().unwrap();
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move());
+    assert_eq!((s.stats.stops, s.stats.sessions_closed), (1, 1));
+    // Nothing but the client's own requests reached the robot (no KeepAlive thread).
+    assert_eq!(s.stats.frames, arm.stats().requests);
+    assert!(arm.advance(DT).is_err(), "the session is closed");
+}
+
+#[test]
+fn the_gripper_rate_is_integrated_into_position_commands() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    // 2 /s for 10 ticks of 25 ms: the target closes to 0.5.
+    for _ in 0..10 {
+        tick(&mut arm, &[0.0; 6], 2.0).unwrap();
+    }
+    wait_until(&fake, "ten gripper commands", |s| {
+        s.stats.gripper_commands == 10
+    });
+    assert!((fake.snapshot().gripper_target - 0.5).abs() < 1e-6);
+    // No rate, no gripper command.
+    for _ in 0..3 {
+        tick(&mut arm, &[0.0; 6], 0.0).unwrap();
+    }
+    assert_eq!(arm.stats().gripper_commands, 10);
+    // Opening fast stops at 0 (fully open).
+    for _ in 0..4 {
+        tick(&mut arm, &[0.0; 6], -10.0).unwrap();
+    }
+    wait_until(&fake, "the gripper opens", |s| s.gripper_target == 0.0);
+    assert_eq!(arm.stats().gripper_commands, 12);
+    // The reading follows the fake gripper's feedback.
+    wait_until(&fake, "the gripper is open", |s| s.gripper < 0.05);
+    tick(&mut arm, &[0.0; 6], 0.0).unwrap();
+    assert!(arm.advance(DT).unwrap().gripper < 0.1);
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn commands_are_scaled_into_the_robots_own_hard_limits() {
+    let fake = start_fake(FakeConfig {
+        joint_speed_limits_deg_s: vec![10.0; 6],
+        ..FakeConfig::default()
+    });
+    let mut arm = connect(&fake);
+    for l in arm.speed_limits_rad_s() {
+        assert!((l - 10f64.to_radians()).abs() < 1e-6);
+    }
+    // 1 rad/s is 57 deg/s: the fake refuses anything above 10 deg/s with an error frame, so
+    // the run only goes on if the client scaled the command down.
+    for _ in 0..5 {
+        tick(&mut arm, &[1.0, -0.5, 0.0, 0.0, 0.0, 0.0], 0.0).unwrap();
+    }
+    let log = fake.joint_speed_log();
+    assert_eq!(log.len(), 5);
+    for cmd in log {
+        assert!((cmd[0] - 10f64.to_radians()).abs() < 1e-6, "{cmd:?}");
+        assert!((cmd[1] + 5f64.to_radians()).abs() < 1e-6, "{cmd:?}");
+    }
+    assert_eq!(arm.stats().clamped_commands, 5);
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn the_loop_is_pipelined_and_late_replies_are_counted() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    // The reply to one command comes 80 ms late (and the stream behind it with it); the
+    // client keeps sending a command every tick without waiting for it.
+    fake.inject(
+        Fault::DelayReply(Duration::from_millis(80)),
+        Some(Function::SendJointSpeedsCommand),
+    );
+    for _ in 0..12 {
+        tick(&mut arm, &MOVE, 0.0).unwrap();
+    }
+    let stats = arm.stats();
+    assert!(stats.late_replies >= 1, "{stats:?}");
+    assert!(stats.stale_readings >= 1, "{stats:?}");
+    wait_until(&fake, "every command arrived", |s| {
+        s.stats.joint_speed_commands == 4 + 12
+    });
+    assert!(arm.is_open());
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn a_wrong_password_is_refused_by_name_and_not_repeated() {
+    let fake = start_fake(FakeConfig::default());
+    let e = KortexArm::connect(
+        &client_cfg(&fake),
+        &Credentials::new("admin", "wr0ng-pw-123"),
+    )
+    .unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("Session.CreateSession") && text.contains("invalid password (sub-code 15)"),
+        "{text}"
+    );
+    assert!(
+        !text.contains("wr0ng") && !format!("{e:?}").contains("wr0ng"),
+        "{text}"
+    );
+    assert_eq!(fake.snapshot().stats.sessions_opened, 0);
+}
+
+#[test]
+fn a_robot_that_is_not_a_gen3_lite_is_refused_and_its_session_closed() {
+    let fake = start_fake(FakeConfig {
+        actuator_count: 7,
+        ..FakeConfig::default()
+    });
+    let e = KortexArm::connect(&client_cfg(&fake), &admin()).unwrap_err();
+    assert!(
+        matches!(e, KortexError::ActuatorCount { found: 7, .. }),
+        "{e}"
+    );
+    assert_eq!(
+        e.to_string(),
+        "the robot reports 7 actuators; a Gen3 lite has 6"
+    );
+    let s = fake.snapshot();
+    assert_eq!((s.stats.sessions_opened, s.stats.sessions_closed), (1, 1));
+}
+
+#[test]
+fn a_refused_connection_is_a_clear_error() {
+    let port = {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let cfg = KortexConfig {
+        address: "127.0.0.1".into(),
+        port,
+        ..KortexConfig::default()
+    };
+    let e = KortexArm::connect(&cfg, &admin()).unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.starts_with(&format!(
+            "cannot connect to the Kortex robot at 127.0.0.1:{port}"
+        )),
+        "{text}"
+    );
+    assert!(text.to_lowercase().contains("refused"), "{text}");
+}
+
+#[test]
+fn an_error_frame_is_reported_by_name_and_stops_the_arm() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(
+        Fault::ErrorReply {
+            code: 3,
+            sub_code: 22,
+            detail: "joint 2 over current".into(),
+        },
+        Some(Function::SendJointSpeedsCommand),
+    );
+    let e = tick_until_error(&mut arm, 10);
+    let text = e.to_string();
+    assert!(
+        text.starts_with("the robot refused Base.SendJointSpeedsCommand (message ")
+            && text.ends_with(
+                "device error (code 3), robot in fault (sub-code 22): joint 2 over current"
+            ),
+        "{text}"
+    );
+    assert_stopped_by_the_client(&fake);
+    assert!(!arm.is_open());
+}
+
+#[test]
+fn a_reply_for_an_unknown_message_id_stops_the_arm() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(
+        Fault::WrongMessageId,
+        Some(Function::SendJointSpeedsCommand),
+    );
+    let e = tick_until_error(&mut arm, 10);
+    assert!(matches!(e, KortexError::UnknownReply { .. }), "{e}");
+    assert!(
+        e.to_string()
+            .contains("(Base.SendJointSpeedsCommand) that no request is waiting for"),
+        "{e}"
+    );
+    assert_stopped_by_the_client(&fake);
+}
+
+#[test]
+fn a_damaged_magic_is_resynchronised_and_the_lost_reply_ends_in_a_stop() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(Fault::CorruptMagic, Some(Function::SendJointSpeedsCommand));
+    let e = tick_until_error(&mut arm, 40);
+    let text = e.to_string();
+    assert!(
+        matches!(
+            e,
+            KortexError::ReplyTimeout {
+                function: "Base.SendJointSpeedsCommand",
+                ..
+            }
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("within 200 ms") && text.contains("skipped to resynchronise"),
+        "{text}"
+    );
+    // The stream was resynchronised: the frames after the damaged one were decoded (the
+    // loop went on until the timeout), and the Stop and CloseSession got their replies.
+    assert!(arm.stats().skipped_bytes > 0);
+    assert_stopped_by_the_client(&fake);
+}
+
+#[test]
+fn garbage_between_frames_is_skipped_and_the_loop_goes_on() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    let garbage = b"\x00\x07\x78garbage\x07".to_vec();
+    fake.inject(
+        Fault::GarbageBefore(garbage.clone()),
+        Some(Function::RefreshFeedback),
+    );
+    for _ in 0..10 {
+        tick(&mut arm, &MOVE, 0.0).unwrap();
+    }
+    assert_eq!(arm.stats().skipped_bytes, garbage.len() as u64);
+    assert!(arm.is_open());
+    assert!(fake.snapshot().commanded_to_move());
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn a_dropped_reply_ends_in_a_reply_timeout_and_a_stop() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(Fault::DropReply, Some(Function::RefreshFeedback));
+    let e = tick_until_error(&mut arm, 40);
+    assert_eq!(
+        e.to_string().split(" (message").next().unwrap(),
+        "no reply to BaseCyclic.RefreshFeedback"
+    );
+    assert!(arm.stats().stale_readings >= 1);
+    assert_stopped_by_the_client(&fake);
+}
+
+#[test]
+fn a_truncated_reply_is_reported_and_the_connection_timeout_stops_the_arm() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(
+        Fault::TruncateReply(20),
+        Some(Function::SendJointSpeedsCommand),
+    );
+    let e = tick_until_error(&mut arm, 10);
+    assert!(matches!(e, KortexError::Truncated { have: 20, .. }), "{e}");
+    assert!(e.to_string().contains("truncated frame: 20 of"), "{e}");
+    // The connection is gone: no Stop could be sent; the robot's watchdog stops the arm.
+    assert_stopped_by_the_timeout(&fake);
+    assert_eq!(fake.snapshot().stats.stops, 0);
+}
+
+#[test]
+fn a_reset_connection_is_reported_and_the_connection_timeout_stops_the_arm() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    fake.inject(
+        Fault::CloseConnection,
+        Some(Function::SendJointSpeedsCommand),
+    );
+    let e = tick_until_error(&mut arm, 10);
+    assert!(
+        matches!(e, KortexError::Closed { .. } | KortexError::Io { .. }),
+        "{e}"
+    );
+    assert!(e.to_string().contains("127.0.0.1"), "{e}");
+    assert_stopped_by_the_timeout(&fake);
+    assert_eq!(fake.snapshot().stats.stops, 0);
+}
+
+#[test]
+fn a_frozen_loop_lets_the_connection_time_out_and_the_robot_stops_the_arm() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    // The control loop freezes: no frame goes out, and no thread of the client keeps the
+    // session alive.
+    assert_stopped_by_the_timeout(&fake);
+    assert_eq!(fake.snapshot().stats.stops, 0);
+    // The session itself lives on (session timeout 60 s): the loop resumes.
+    for _ in 0..4 {
+        tick(&mut arm, &MOVE, 0.0).unwrap();
+    }
+    wait_until(&fake, "the arm moves again", |s| s.commanded_to_move());
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn dropping_the_client_stops_the_arm_and_closes_the_session() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    moving(&fake, &mut arm);
+    drop(arm);
+    assert_stopped_by_the_client(&fake);
+}
+
+fn safe_command(tick: u64, v: &[f64]) -> SafeCommand {
+    let mut q = [0.0; MAX_JOINTS];
+    q[..v.len()].copy_from_slice(v);
+    SafeCommand {
+        tick,
+        t_ns: 0,
+        state_t_ns: 0,
+        state_rx_ns: 0,
+        joystick_t_ns: 0,
+        joystick_rx_ns: 0,
+        mapper_t_ns: 0,
+        mapper_rx_ns: 0,
+        mapper_compute_ns: 0,
+        compute_ns: 0,
+        mapper_id: 1,
+        n_joints: 6,
+        flags: 0,
+        reserved: 0,
+        qdot_rad_s: q,
+        gripper_rate: 0.0,
+    }
+}
+
+#[test]
+fn the_bridge_core_drives_the_robot_and_a_miss_ends_in_a_stop() {
+    let fake = start_fake(FakeConfig::default());
+    let arm = connect(&fake);
+    let mut core = BridgeCore::new(arm, DT, gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec());
+    for _ in 0..8 {
+        let s = core.begin_tick(0).unwrap();
+        assert_eq!(s.flags & state_flags::MOCK, 0, "a real robot");
+        core.finish_tick(Some(&safe_command(s.tick, &[0.3, 0.0, 0.0, 0.0, 0.0, 0.0])))
+            .unwrap();
+        std::thread::sleep(PERIOD);
+    }
+    // Commands stop coming: a controlled stop (0.3 rad/s at 1 rad/s² takes 12 ticks), then
+    // a Stop.
+    let mut ticks = 0;
+    while fake.snapshot().stats.stops == 0 {
+        let s = core.begin_tick(0).unwrap();
+        if ticks > 0 {
+            assert!(s.flags & state_flags::STOPPING != 0);
+            assert_eq!(s.applied_tick, NO_TICK);
+        }
+        core.finish_tick(None).unwrap();
+        std::thread::sleep(PERIOD);
+        ticks += 1;
+        assert!(ticks < 40, "no Stop after {ticks} missed ticks");
+    }
+    let log = fake.joint_speed_log();
+    let decel: Vec<f64> = log[8..].iter().map(|c| c[0]).collect();
+    assert!(decel.len() >= 10, "{decel:?}");
+    for w in decel.windows(2) {
+        assert!(w[1] < w[0] && w[0] - w[1] <= 1.0 * DT + 1e-6, "{decel:?}");
+    }
+    let (last, result) = core.shutdown(0);
+    result.unwrap();
+    assert!(last.flags & state_flags::SHUTDOWN != 0);
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move());
+    assert_eq!(s.stats.sessions_closed, 1);
+}

@@ -1,0 +1,358 @@
+//! Whole-graph tests on the Kortex backend: `scl up` with `[bridge] robot = "kortex"`, its four
+//! real processes over real shared memory, the bridge talking TCP on loopback to a fake
+//! Gen3 lite that runs inside the test (`hw_bridge::kortex::FakeKortex`, a free port of
+//! 127.0.0.1), so the test sees both sides: what the graph published and what the robot did.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, Fault, Function};
+use ipc_types::{NodeRole, state_flags};
+use scl_tests::{ChildGuard, DomainGuard, Recorder, scl_binary, serial, unique_prefix, wait_clean};
+
+const USER: &str = "kx-operator";
+const PASSWORD: &str = "kx-s3cret-pw";
+
+/// A temporary directory removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("scl-kortex-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn fake() -> FakeKortex {
+    FakeKortex::start(FakeConfig {
+        credentials: Credentials::new(USER, PASSWORD),
+        ..FakeConfig::default()
+    })
+    .unwrap()
+}
+
+/// Writes the graph config pointing the bridge at `fake`; with `creds_file` the credentials
+/// go in a file next to it, else the caller passes them in the environment. `extra` lines go
+/// into `[bridge.kortex]`.
+fn write_config(dir: &Path, fake: &FakeKortex, creds_file: bool, extra: &str) -> PathBuf {
+    let mut text = format!(
+        "[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\naddress = \"127.0.0.1\"\nport = {}\n{extra}",
+        fake.addr().port()
+    );
+    if creds_file {
+        let f = dir.join("kortex-credentials.toml");
+        std::fs::write(
+            &f,
+            format!("username = \"{USER}\"\npassword = \"{PASSWORD}\"\n"),
+        )
+        .unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)).unwrap();
+        text.push_str("credentials_file = \"kortex-credentials.toml\"\n");
+    }
+    let p = dir.join("graph.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// `scl up --config FILE --for 60s --json`, stderr (debug logs of every process) to `log`.
+fn up(prefix: &ipc_types::Prefix, config: &Path, log: &Path, creds_env: bool) -> ChildGuard {
+    let mut c = Command::new(scl_binary());
+    c.args([
+        "up",
+        "--config",
+        config.to_str().unwrap(),
+        "--for",
+        "60s",
+        "--json",
+    ])
+    .env("SCL_PREFIX", prefix.as_str())
+    .env("SCL_LOG", "debug")
+    .env_remove("SCL_KORTEX_USER")
+    .env_remove("SCL_KORTEX_PASSWORD")
+    .stdout(Stdio::piped())
+    .stderr(std::fs::File::create(log).unwrap());
+    if creds_env {
+        c.env("SCL_KORTEX_USER", USER)
+            .env("SCL_KORTEX_PASSWORD", PASSWORD);
+    }
+    ChildGuard(Some(c.spawn().unwrap()))
+}
+
+fn running_states(rec: &Recorder) -> usize {
+    rec.robot_states
+        .iter()
+        .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+        .count()
+}
+
+fn wait_for_exit(rec: &mut Recorder, guard: &mut ChildGuard) -> std::process::Output {
+    let t0 = Instant::now();
+    while guard.child().try_wait().unwrap().is_none() {
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "scl up did not exit"
+        );
+    }
+    rec.poll();
+    guard.take().wait_with_output().unwrap()
+}
+
+fn assert_no_credentials(log: &str) {
+    assert!(
+        log.contains("Kortex session open"),
+        "the log does not show the bridge's session: {log}"
+    );
+    assert!(!log.contains(PASSWORD), "the password is in the logs");
+    assert!(!log.contains(USER), "the user name is in the logs");
+}
+
+#[test]
+fn the_graph_drives_the_fake_kortex_arm_for_400_ticks_without_a_miss() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("run");
+    // The fake robot shares two cores with the graph and the test: a reply it is slow to send
+    // is counted late rather than ending the run (the connection timeout stays at 200 ms).
+    let config = write_config(&dir.0, &fake, true, "reply_timeout_ms = 1000\n");
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kortex");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up(&prefix, &config, &log, false);
+    let started = rec.poll_until(Duration::from_secs(60), |r| running_states(r) >= 410);
+    // Stop the graph (SIGTERM: bridge first) whether or not it got there.
+    // SAFETY: signalling our own child.
+    unsafe {
+        libc::kill(guard.child().id() as libc::pid_t, libc::SIGTERM);
+    }
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(started, "fewer than 410 ticks: {log_text}");
+    assert!(out.status.success(), "scl up failed: {log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ticks = summary["ticks"].as_u64().unwrap();
+    assert!(ticks >= 400, "{summary}");
+    let misses: Vec<&str> = log_text
+        .lines()
+        .filter(|l| l.contains("missed tick") || l.contains("late reply"))
+        .collect();
+    assert_eq!(
+        summary["missed"].as_u64(),
+        Some(0),
+        "{summary}\n{misses:#?}"
+    );
+    assert!(summary["failure"].is_null(), "{summary}");
+
+    // The graph's view: every tick in turn, each executing its own command, no miss, a real
+    // robot (no MOCK flag).
+    let states: Vec<_> = rec
+        .robot_states
+        .iter()
+        .filter(|s| s.flags & state_flags::SHUTDOWN == 0)
+        .copied()
+        .collect();
+    assert!(states.len() >= 400);
+    for w in states.windows(2) {
+        assert_eq!(w[1].tick, w[0].tick + 1, "gap in ticks");
+        assert_eq!(
+            w[1].applied_tick, w[0].tick,
+            "tick {} not executed",
+            w[0].tick
+        );
+        assert_eq!(w[1].missed, 0);
+        assert_eq!(w[1].flags & state_flags::MOCK, 0);
+    }
+
+    // The robot's view: it received exactly the commands safety let through, in order,
+    // converted to deg/s and back.
+    let log = fake.joint_speed_log();
+    let safe = &rec.safe_commands;
+    assert!(
+        log.len() >= states.len() - 1 && log.len() <= safe.len(),
+        "robot got {} commands, graph executed {} ticks, safety sent {}",
+        log.len(),
+        states.len(),
+        safe.len()
+    );
+    for (k, (got, sent)) in log.iter().zip(safe.iter()).enumerate() {
+        for j in 0..6 {
+            assert!(
+                (got[j] - sent.qdot_rad_s[j]).abs() < 1e-6,
+                "command {k} (tick {}), joint {j}: robot got {} rad/s, safety sent {}",
+                sent.tick,
+                got[j],
+                sent.qdot_rad_s[j]
+            );
+        }
+    }
+    let travel = summary["joint_travel_rad"].as_f64().unwrap();
+    assert!(travel > 0.5, "the arm hardly moved: {travel} rad");
+
+    // The arm stopped and the session closed at the end; the last state published is the
+    // robot's own, after the stop.
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move());
+    assert_eq!(s.stats.sessions_closed, 1);
+    assert!(s.stats.stops >= 1);
+    assert_eq!(s.stats.connection_timeouts, 0);
+    let last = rec.robot_states.last().unwrap();
+    assert!(last.flags & state_flags::SHUTDOWN != 0);
+    for j in 0..6 {
+        assert!((last.q_rad[j] - s.q_rad[j]).abs() < 1e-5, "joint {j}");
+    }
+    assert_no_credentials(&log_text);
+    let late = log_text
+        .lines()
+        .rev()
+        .find(|l| l.contains("bridge exiting"))
+        .unwrap_or_default()
+        .to_owned();
+    eprintln!(
+        "kortex graph: {ticks} ticks, {} missed, {} commands executed by the fake robot; {late}",
+        summary["missed"],
+        log.len()
+    );
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+#[test]
+fn killing_the_bridge_lets_the_robot_stop_the_arm_on_its_connection_timeout() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("kill");
+    let config = write_config(&dir.0, &fake, false, "");
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxkill");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up(&prefix, &config, &log, true);
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| running_states(r) >= 80),
+        "the graph did not start: {}",
+        std::fs::read_to_string(&log).unwrap()
+    );
+    let before = fake.snapshot();
+    assert!(
+        before.commanded_to_move(),
+        "the arm is not moving: {before:?}"
+    );
+    let pid = rec.pid_of(NodeRole::Bridge).unwrap();
+    // SAFETY: signalling a process of the graph under test.
+    unsafe {
+        libc::kill(pid as libc::pid_t, libc::SIGKILL);
+    }
+    // Nobody stops the arm but the robot's own watchdog.
+    let t0 = Instant::now();
+    while fake.snapshot().stats.connection_timeouts == 0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the connection timeout never stopped the arm: {:?}",
+            fake.snapshot()
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let after = fake.snapshot();
+    assert!(!after.commanded_to_move(), "{after:?}");
+    assert_eq!(
+        after.stats.stops, before.stats.stops,
+        "a Stop came from a dead bridge"
+    );
+    assert_eq!(after.stats.sessions_closed, 0);
+    let gap = after.last_timeout_gap.unwrap();
+    assert!(gap >= Duration::from_millis(200), "stopped after {gap:?}");
+    // The arm stays stopped.
+    let q = after.q_rad;
+    std::thread::sleep(Duration::from_millis(100));
+    assert_eq!(fake.snapshot().q_rad, q);
+
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(out.status.code(), Some(1), "{log_text}");
+    assert!(
+        log_text.contains("the bridge process") && log_text.contains("SIGKILL"),
+        "{log_text}"
+    );
+    assert_no_credentials(&log_text);
+    eprintln!(
+        "kortex kill: the fake robot stopped the arm {} ms after the bridge's last frame",
+        gap.as_millis()
+    );
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+#[test]
+fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("fault");
+    let config = write_config(&dir.0, &fake, false, "");
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxfault");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up(&prefix, &config, &log, true);
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| running_states(r) >= 40),
+        "the graph did not start: {}",
+        std::fs::read_to_string(&log).unwrap()
+    );
+    assert!(fake.snapshot().commanded_to_move());
+    fake.inject(
+        Fault::ErrorReply {
+            code: 3,
+            sub_code: 22,
+            detail: "actuator 4 over temperature".into(),
+        },
+        Some(Function::SendJointSpeedsCommand),
+    );
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(out.status.code(), Some(1), "{log_text}");
+    assert!(
+        log_text.contains("the robot refused Base.SendJointSpeedsCommand (message")
+            && log_text.contains(
+                "device error (code 3), robot in fault (sub-code 22): actuator 4 over temperature"
+            ),
+        "{log_text}"
+    );
+    assert!(
+        log_text.contains("the bridge process") && log_text.contains("exited with status 2"),
+        "{log_text}"
+    );
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move(), "{s:?}");
+    assert!(s.stats.stops >= 1, "{s:?}");
+    assert_eq!(s.stats.sessions_closed, 1);
+    let last = rec.robot_states.last().unwrap();
+    assert!(
+        last.flags & state_flags::SHUTDOWN != 0,
+        "the bridge did not publish its stop"
+    );
+    assert_no_credentials(&log_text);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
