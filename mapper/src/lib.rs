@@ -15,6 +15,7 @@
 pub mod dataset;
 pub mod demos;
 pub mod model;
+pub mod nn;
 pub mod pca;
 pub mod rng;
 pub mod step;
