@@ -1,0 +1,586 @@
+//! The network models, SCL and CAE: their file representation ([`NetworkModel`]) and their
+//! serving maps ([`SclMap`], [`CaeMap`]).
+//!
+//! Both condition on the observation `o = (q, c)` (or `q` alone, [`ObsInputs`]), normalised
+//! as `x = (o − μ) / σ` with the header's `input_mean` / `input_std`, and work in units of
+//! the speed scale: the network's output `y` is `qdot / s`, and the mapper multiplies by `s`.
+//!
+//! * SCL (the paper's method): the decoder `h(x)` outputs the `m × d` matrix `H` (row-major,
+//!   `H[i][j]` at output `i·d + j`); with `gram_schmidt` its columns are orthonormalised
+//!   ([`crate::nn::gram_schmidt`]), and `map(o, a) = H' a`.
+//! * CAE (the conditional-autoencoder baseline): the decoder `g(x, a)` outputs `y` directly
+//!   from the concatenated normalised observation and action; it is affine, so `a = 0` may
+//!   still move the arm (the behaviour the paper reports).
+//!
+//! Serving evaluates the decoder in f32 with [`crate::nn::kernel`] into buffers allocated once
+//! at load: `eval` never allocates.
+
+use std::path::{Path, PathBuf};
+
+use safetensors::SafeTensors;
+
+use crate::ActionMap;
+use crate::model::{self, EncoderKind, ModelError, ModelHeader, ModelKind, NetworkInfo, ObsInputs};
+use crate::nn::gram_schmidt::{self, MAX_COLUMNS};
+use crate::nn::{Kernel, Mlp};
+
+/// Tensor name prefix of the decoder layers.
+pub const DECODER: &str = "decoder";
+/// Tensor name prefix of the encoder layers.
+pub const ENCODER: &str = "encoder";
+/// Widest hidden layer a model file may declare.
+pub const MAX_HIDDEN: usize = 4096;
+
+/// `x = (v − mean) / std`, computed in f64 and rounded to f32, identically in training and
+/// serving.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Normaliser {
+    /// Per-input mean.
+    pub mean: Vec<f32>,
+    /// Per-input scale (strictly positive).
+    pub std: Vec<f32>,
+}
+
+impl Normaliser {
+    /// Mean and standard deviation of each column of `rows`; a column whose spread is below
+    /// `1e-6` (e.g. a gripper that never moved) gets scale 1 so it is only centred.
+    pub fn fit(rows: &[Vec<f64>]) -> Self {
+        let w = rows.first().map_or(0, Vec::len);
+        let n = rows.len().max(1) as f64;
+        let mut mean = vec![0.0f64; w];
+        for r in rows {
+            for (m, v) in mean.iter_mut().zip(r) {
+                *m += v / n;
+            }
+        }
+        let mut var = vec![0.0f64; w];
+        for r in rows {
+            for ((s, v), m) in var.iter_mut().zip(r).zip(&mean) {
+                *s += (v - m).powi(2) / n;
+            }
+        }
+        Self {
+            mean: mean.iter().map(|v| *v as f32).collect(),
+            std: var
+                .iter()
+                .map(|v| {
+                    let s = v.sqrt();
+                    if s < 1e-6 { 1.0 } else { s as f32 }
+                })
+                .collect(),
+        }
+    }
+
+    /// The identity (mean 0, scale 1) on `n` inputs.
+    pub fn identity(n: usize) -> Self {
+        Self {
+            mean: vec![0.0; n],
+            std: vec![1.0; n],
+        }
+    }
+
+    /// From a header's f64 lists.
+    pub fn from_lists(mean: &[f64], std: &[f64]) -> Self {
+        Self {
+            mean: mean.iter().map(|v| *v as f32).collect(),
+            std: std.iter().map(|v| *v as f32).collect(),
+        }
+    }
+
+    /// The mean as f64 (exactly the f32 values) for a header.
+    pub fn mean_list(&self) -> Vec<f64> {
+        self.mean.iter().map(|v| f64::from(*v)).collect()
+    }
+
+    /// The scale as f64 for a header.
+    pub fn std_list(&self) -> Vec<f64> {
+        self.std.iter().map(|v| f64::from(*v)).collect()
+    }
+
+    /// `1 / std`, the row scaling that turns a first layer into its effect on raw inputs.
+    pub fn inv_std(&self) -> Vec<f32> {
+        self.std.iter().map(|s| 1.0 / s).collect()
+    }
+
+    /// Writes the normalised `v` into `out[..v.len()]`.
+    #[inline]
+    pub fn apply(&self, v: &[f64], out: &mut [f32]) {
+        for (((o, x), m), s) in out.iter_mut().zip(v).zip(&self.mean).zip(&self.std) {
+            *o = ((x - f64::from(*m)) / f64::from(*s)) as f32;
+        }
+    }
+}
+
+/// Writes the observation `(q, c)` or `q` into `out` as f64 (`out` holds `m + 1`).
+#[inline]
+pub fn observation(inputs: ObsInputs, q: &[f64], c: f64, out: &mut [f64]) -> usize {
+    let m = q.len();
+    out[..m].copy_from_slice(q);
+    match inputs {
+        ObsInputs::JointsAndGripper => {
+            out[m] = c;
+            m + 1
+        }
+        ObsInputs::Joints => m,
+    }
+}
+
+/// A network model as stored in a file: header and weights, checked to agree.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NetworkModel {
+    header: ModelHeader,
+    info: NetworkInfo,
+    decoder: Mlp,
+    encoder: Option<Mlp>,
+}
+
+/// Widths of the decoder of a `kind` model.
+pub fn decoder_widths(kind: ModelKind, info: &NetworkInfo, m: usize, d: usize) -> Vec<usize> {
+    let n_obs = info.inputs.width(m);
+    let mut w = vec![if kind == ModelKind::Cae {
+        n_obs + d
+    } else {
+        n_obs
+    }];
+    w.extend(&info.hidden);
+    w.push(if kind == ModelKind::Cae { m } else { m * d });
+    w
+}
+
+/// Widths of the MLP encoder of a model: input `(o, qdot)`, output `d`.
+pub fn encoder_widths(info: &NetworkInfo, m: usize, d: usize) -> Vec<usize> {
+    let mut w = vec![info.inputs.width(m) + m];
+    w.extend(&info.hidden);
+    w.push(d);
+    w
+}
+
+impl NetworkModel {
+    /// The header (kind SCL or CAE).
+    pub fn header(&self) -> &ModelHeader {
+        &self.header
+    }
+
+    /// The network section of the header.
+    pub fn info(&self) -> &NetworkInfo {
+        &self.info
+    }
+
+    /// The decoder (`h` for SCL, `g` for CAE).
+    pub fn decoder(&self) -> &Mlp {
+        &self.decoder
+    }
+
+    /// The training encoder `f(o, qdot) -> a`, when it is an MLP.
+    pub fn encoder(&self) -> Option<&Mlp> {
+        self.encoder.as_ref()
+    }
+
+    /// Replaces the provenance section of the header.
+    pub fn set_training(&mut self, training: model::TrainingInfo) {
+        self.header.training = training;
+    }
+
+    /// A model from its parts, checked as a loaded file would be.
+    pub fn new(
+        header: ModelHeader,
+        decoder: Mlp,
+        encoder: Option<Mlp>,
+    ) -> Result<Self, ModelError> {
+        let path = PathBuf::from("<in memory>");
+        let info = check_info(&header, &path)?.clone();
+        let me = Self {
+            header,
+            info,
+            decoder,
+            encoder,
+        };
+        let info = me.info();
+        let (m, d) = (me.header.n_joints, me.header.latent_dim);
+        let bad = |name: &str, reason: String| ModelError::BadTensor {
+            path: path.clone(),
+            name: name.to_owned(),
+            reason,
+        };
+        if me.decoder.widths() != decoder_widths(me.header.kind, info, m, d) {
+            return Err(bad(
+                DECODER,
+                format!(
+                    "widths {:?}, the header needs {:?}",
+                    me.decoder.widths(),
+                    decoder_widths(me.header.kind, info, m, d)
+                ),
+            ));
+        }
+        match (&me.encoder, info.encoder) {
+            (Some(e), EncoderKind::Mlp) if e.widths() == encoder_widths(info, m, d) => {}
+            (None, EncoderKind::Projection | EncoderKind::None) => {}
+            _ => {
+                return Err(bad(
+                    ENCODER,
+                    format!("does not match the header's encoder `{:?}`", info.encoder),
+                ));
+            }
+        }
+        Ok(me)
+    }
+
+    /// Reads the weights of a checked header from a file's tensors.
+    pub fn from_tensors(
+        st: &SafeTensors<'_>,
+        header: ModelHeader,
+        path: &Path,
+    ) -> Result<Self, ModelError> {
+        let info = check_info(&header, path)?.clone();
+        let (m, d) = (header.n_joints, header.latent_dim);
+        let decoder =
+            Mlp::from_tensors(st, DECODER, &decoder_widths(header.kind, &info, m, d), path)?;
+        let encoder = match info.encoder {
+            EncoderKind::Mlp => Some(Mlp::from_tensors(
+                st,
+                ENCODER,
+                &encoder_widths(&info, m, d),
+                path,
+            )?),
+            EncoderKind::Projection | EncoderKind::None => None,
+        };
+        Ok(Self {
+            header,
+            info,
+            decoder,
+            encoder,
+        })
+    }
+
+    /// Parses and checks a network model file's bytes; `path` names it in errors.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ModelError> {
+        let st = SafeTensors::deserialize(bytes).map_err(|e| ModelError::NotSafetensors {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        let header = model::read_header(bytes, path)?;
+        Self::from_tensors(&st, header, path)
+    }
+
+    /// Loads a network model file.
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// The file bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, ModelError> {
+        let mut tensors = self.decoder.tensors(DECODER);
+        if let Some(e) = &self.encoder {
+            tensors.extend(e.tensors(ENCODER));
+        }
+        let borrowed: Vec<(&str, Vec<usize>, Vec<f32>)> = tensors
+            .iter()
+            .map(|(n, s, v)| (n.as_str(), s.clone(), v.clone()))
+            .collect();
+        model::to_bytes(&self.header, &borrowed)
+    }
+
+    /// The decoder's input normalisation (observation part).
+    pub fn obs_normaliser(&self) -> Normaliser {
+        let info = self.info();
+        Normaliser::from_lists(&info.input_mean, &info.input_std)
+    }
+
+    /// The encoder's input normalisation (`(o, qdot)`), if it has an MLP encoder.
+    pub fn encoder_normaliser(&self) -> Option<Normaliser> {
+        let info = self.info();
+        (info.encoder == EncoderKind::Mlp)
+            .then(|| Normaliser::from_lists(&info.encoder_input_mean, &info.encoder_input_std))
+    }
+
+    /// The serving map.
+    pub fn into_map(self) -> Box<dyn ActionMap> {
+        match self.header.kind {
+            ModelKind::Cae => Box::new(CaeMap::new(&self)),
+            _ => Box::new(SclMap::new(&self)),
+        }
+    }
+
+    /// The SCL serving map (also for a CAE file's decoder it would be wrong: SCL only).
+    pub fn scl_map(&self) -> Option<SclMap> {
+        (self.header.kind == ModelKind::Scl).then(|| SclMap::new(self))
+    }
+
+    /// The latent action the training encoder assigns to `(q, c, qdot)` (speed-scale units),
+    /// written to `a[..d]`. `None` when the file has no encoder to run.
+    pub fn encode(&self, q: &[f64], c: f64, qdot: &[f64], a: &mut [f64]) -> Option<()> {
+        let info = self.info();
+        let (m, d) = (self.header.n_joints, self.header.latent_dim);
+        let s = self.header.speed_scale_rad_s;
+        match info.encoder {
+            EncoderKind::Mlp => {
+                let enc = self.encoder.as_ref()?;
+                let norm = self.encoder_normaliser()?;
+                let mut raw = vec![0.0f64; m + 1 + m];
+                let n_obs = observation(info.inputs, q, c, &mut raw);
+                raw[n_obs..n_obs + m].copy_from_slice(qdot);
+                let mut x = vec![0.0f32; n_obs + m];
+                norm.apply(&raw[..n_obs + m], &mut x);
+                let w = enc.widest_hidden();
+                let (mut sa, mut sb) = (vec![0.0; w], vec![0.0; w]);
+                let mut out = vec![0.0f32; d];
+                enc.forward_one(Kernel::detect(), &x, &mut sa, &mut sb, &mut out);
+                for (ai, o) in a.iter_mut().zip(&out) {
+                    *ai = f64::from(*o);
+                }
+                Some(())
+            }
+            EncoderKind::Projection => {
+                let mut map = self.scl_map()?;
+                let h = map.matrix(q, c).to_vec();
+                for (j, aj) in a.iter_mut().enumerate().take(d) {
+                    *aj = (0..m).map(|i| f64::from(h[i * d + j]) * qdot[i] / s).sum();
+                }
+                Some(())
+            }
+            EncoderKind::None => None,
+        }
+    }
+}
+
+fn check_info<'h>(header: &'h ModelHeader, path: &Path) -> Result<&'h NetworkInfo, ModelError> {
+    let bad = |reason: String| ModelError::BadHeader {
+        path: path.to_owned(),
+        reason,
+    };
+    let Some(info) = &header.network else {
+        return Err(bad(format!(
+            "a {} model needs a `network` section",
+            header.kind
+        )));
+    };
+    let (m, d) = (header.n_joints, header.latent_dim);
+    let n_obs = info.inputs.width(m);
+    if info.input_mean.len() != n_obs || info.input_std.len() != n_obs {
+        return Err(bad(format!(
+            "input_mean / input_std have {} / {} values, the {:?} input needs {n_obs}",
+            info.input_mean.len(),
+            info.input_std.len(),
+            info.inputs
+        )));
+    }
+    check_norm("input", &info.input_mean, &info.input_std).map_err(bad)?;
+    if info.hidden.is_empty() || info.hidden.iter().any(|h| *h == 0 || *h > MAX_HIDDEN) {
+        return Err(bad(format!(
+            "hidden is {:?}, expected one or more widths in 1..={MAX_HIDDEN}",
+            info.hidden
+        )));
+    }
+    if !(info.gs_epsilon.is_finite() && info.gs_epsilon >= 0.0) {
+        return Err(bad(format!("gs_epsilon is {}", info.gs_epsilon)));
+    }
+    if d > MAX_COLUMNS {
+        return Err(bad(format!("latent_dim {d} exceeds {MAX_COLUMNS}")));
+    }
+    match header.kind {
+        ModelKind::Cae if info.gram_schmidt => {
+            return Err(bad("gram_schmidt is for scl models only".into()));
+        }
+        ModelKind::Cae if info.encoder == EncoderKind::Projection => {
+            return Err(bad("the projection encoder is for scl models only".into()));
+        }
+        ModelKind::Scl if info.li_losses.is_some() => {
+            return Err(bad("li_losses are for cae models only".into()));
+        }
+        _ => {}
+    }
+    if info.encoder == EncoderKind::Mlp {
+        let n = n_obs + m;
+        if info.encoder_input_mean.len() != n || info.encoder_input_std.len() != n {
+            return Err(bad(format!(
+                "encoder_input_mean / encoder_input_std need {n} values each"
+            )));
+        }
+        check_norm(
+            "encoder input",
+            &info.encoder_input_mean,
+            &info.encoder_input_std,
+        )
+        .map_err(bad)?;
+    }
+    Ok(info)
+}
+
+fn check_norm(what: &str, mean: &[f64], std: &[f64]) -> Result<(), String> {
+    if let Some(i) = mean.iter().position(|v| !v.is_finite()) {
+        return Err(format!("{what} mean {i} is {}", mean[i]));
+    }
+    if let Some(i) = std
+        .iter()
+        .position(|v| !(v.is_finite() && *v > 0.0 && (*v as f32) > 0.0))
+    {
+        return Err(format!(
+            "{what} std {i} is {}, expected a positive number",
+            std[i]
+        ));
+    }
+    Ok(())
+}
+
+/// The SCL map served by the mapper: `map(o, a) = GS(h(o)) a` (or `h(o) a`).
+#[derive(Debug, Clone)]
+pub struct SclMap {
+    m: usize,
+    d: usize,
+    inputs: ObsInputs,
+    norm: Normaliser,
+    decoder: Mlp,
+    gram_schmidt: bool,
+    eps: f32,
+    kernel: Kernel,
+    obs: Vec<f64>,
+    x: Vec<f32>,
+    scratch_a: Vec<f32>,
+    scratch_b: Vec<f32>,
+    h: Vec<f32>,
+    norms: [f32; MAX_COLUMNS],
+}
+
+impl SclMap {
+    /// The map of a checked model, with its buffers.
+    pub fn new(model: &NetworkModel) -> Self {
+        let info = model.info();
+        let (m, d) = (model.header.n_joints, model.header.latent_dim);
+        let w = model.decoder.widest_hidden();
+        Self {
+            m,
+            d,
+            inputs: info.inputs,
+            norm: model.obs_normaliser(),
+            decoder: model.decoder.clone(),
+            gram_schmidt: info.gram_schmidt,
+            eps: info.gs_epsilon as f32,
+            kernel: Kernel::detect(),
+            obs: vec![0.0; m + 1],
+            x: vec![0.0; m + 1],
+            scratch_a: vec![0.0; w],
+            scratch_b: vec![0.0; w],
+            h: vec![0.0; m * d],
+            norms: [0.0; MAX_COLUMNS],
+        }
+    }
+
+    /// Evaluates `H'(o)` (row-major `m × d`, orthonormalised when the model says so).
+    pub fn matrix(&mut self, q: &[f64], c: f64) -> &[f32] {
+        let n = observation(self.inputs, &q[..self.m], c, &mut self.obs);
+        self.norm.apply(&self.obs[..n], &mut self.x);
+        self.decoder.forward_one(
+            self.kernel,
+            &self.x[..n],
+            &mut self.scratch_a,
+            &mut self.scratch_b,
+            &mut self.h,
+        );
+        if self.gram_schmidt {
+            gram_schmidt::orthonormalise(&mut self.h, self.m, self.d, self.eps, &mut self.norms);
+        }
+        &self.h
+    }
+
+    /// Guarded column norms of the last Gram-Schmidt (a column whose norm is near
+    /// `sqrt(ε)` had collapsed into the span of the earlier ones and now moves almost nothing).
+    pub fn column_norms(&self) -> &[f32] {
+        &self.norms[..self.d]
+    }
+
+    /// Uses the given kernel instead of the detected one (benchmarks, tests).
+    pub fn set_kernel(&mut self, kernel: Kernel) {
+        self.kernel = kernel;
+    }
+}
+
+impl ActionMap for SclMap {
+    fn kind(&self) -> ModelKind {
+        ModelKind::Scl
+    }
+    fn n_joints(&self) -> usize {
+        self.m
+    }
+    fn latent_dim(&self) -> usize {
+        self.d
+    }
+    fn eval(&mut self, q: &[f64], c: f64, a: &[f64], out: &mut [f64]) {
+        let d = self.d;
+        self.matrix(q, c);
+        for (i, o) in out.iter_mut().enumerate().take(self.m) {
+            let row = &self.h[i * d..(i + 1) * d];
+            *o = row.iter().zip(a).map(|(h, a)| f64::from(*h) * a).sum();
+        }
+    }
+}
+
+/// The CAE decoder served by the mapper: `map(o, a) = g(x, a)`.
+#[derive(Debug, Clone)]
+pub struct CaeMap {
+    m: usize,
+    d: usize,
+    inputs: ObsInputs,
+    norm: Normaliser,
+    decoder: Mlp,
+    kernel: Kernel,
+    obs: Vec<f64>,
+    x: Vec<f32>,
+    scratch_a: Vec<f32>,
+    scratch_b: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl CaeMap {
+    /// The map of a checked model, with its buffers.
+    pub fn new(model: &NetworkModel) -> Self {
+        let info = model.info();
+        let (m, d) = (model.header.n_joints, model.header.latent_dim);
+        let w = model.decoder.widest_hidden();
+        Self {
+            m,
+            d,
+            inputs: info.inputs,
+            norm: model.obs_normaliser(),
+            decoder: model.decoder.clone(),
+            kernel: Kernel::detect(),
+            obs: vec![0.0; m + 1],
+            x: vec![0.0; m + 1 + d],
+            scratch_a: vec![0.0; w],
+            scratch_b: vec![0.0; w],
+            y: vec![0.0; m],
+        }
+    }
+}
+
+impl ActionMap for CaeMap {
+    fn kind(&self) -> ModelKind {
+        ModelKind::Cae
+    }
+    fn n_joints(&self) -> usize {
+        self.m
+    }
+    fn latent_dim(&self) -> usize {
+        self.d
+    }
+    fn eval(&mut self, q: &[f64], c: f64, a: &[f64], out: &mut [f64]) {
+        let n = observation(self.inputs, &q[..self.m], c, &mut self.obs);
+        self.norm.apply(&self.obs[..n], &mut self.x);
+        for (x, a) in self.x[n..n + self.d].iter_mut().zip(a) {
+            *x = *a as f32;
+        }
+        self.decoder.forward_one(
+            self.kernel,
+            &self.x[..n + self.d],
+            &mut self.scratch_a,
+            &mut self.scratch_b,
+            &mut self.y,
+        );
+        for (o, y) in out.iter_mut().zip(&self.y) {
+            *o = f64::from(*y);
+        }
+    }
+}
