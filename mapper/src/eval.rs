@@ -25,7 +25,8 @@ use crate::ActionMap;
 use crate::dataset::Trajectory;
 use crate::model::{self, EncoderKind, ModelError, ModelHeader, ModelKind};
 use crate::network::{self, NetworkModel, Normaliser, SclMap};
-use crate::nn::Kernel;
+use crate::nn::kernel::{self, Packed};
+use crate::nn::{Kernel, Mlp};
 use crate::pca::{self, PcaMap};
 use crate::rng::Rng;
 
@@ -156,6 +157,7 @@ pub fn reconstruction_mse(
 /// A network model's training encoder, with its buffers.
 struct Encoder<'a> {
     net: &'a NetworkModel,
+    packed: Option<Packed>,
     norm: Option<Normaliser>,
     scl: Option<SclMap>,
     raw: Vec<f64>,
@@ -168,7 +170,8 @@ struct Encoder<'a> {
 impl<'a> Encoder<'a> {
     fn new(net: &'a NetworkModel) -> Option<Self> {
         let (m, d) = (net.header().n_joints, net.header().latent_dim);
-        let w = net.encoder().map_or(0, |e| e.widest_hidden());
+        let packed = net.encoder().map(Mlp::packed);
+        let w = packed.as_ref().map_or(0, Packed::scratch_len);
         let scl = match net.info().encoder {
             EncoderKind::Mlp => None,
             EncoderKind::Projection => Some(net.scl_map()?),
@@ -176,6 +179,7 @@ impl<'a> Encoder<'a> {
         };
         Some(Self {
             net,
+            packed,
             norm: net.encoder_normaliser(),
             scl,
             raw: vec![0.0; 2 * m + 1],
@@ -196,14 +200,15 @@ impl<'a> Encoder<'a> {
             }
             return;
         }
-        let (Some(enc), Some(norm)) = (self.net.encoder(), &self.norm) else {
+        let (Some(enc), Some(norm)) = (&self.packed, &self.norm) else {
             return;
         };
         let n_obs = network::observation(self.net.info().inputs, q, c, &mut self.raw);
         self.raw[n_obs..n_obs + m].copy_from_slice(qdot);
         norm.apply(&self.raw[..n_obs + m], &mut self.x);
-        enc.forward_one(
+        kernel::forward(
             Kernel::detect(),
+            enc,
             &self.x[..n_obs + m],
             &mut self.sa,
             &mut self.sb,
@@ -356,7 +361,6 @@ pub fn states_uniform(lower: &[f64], upper: &[f64], n: usize, rng: &mut Rng) -> 
 mod tests {
     use super::*;
     use crate::model::{FORMAT, NetworkInfo, ObsInputs, TrainingInfo, VERSION};
-    use crate::nn::Mlp;
     use crate::nn::gram_schmidt::GS_EPSILON;
     use crate::nn::lipschitz;
     use crate::rng::Rng;

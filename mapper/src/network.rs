@@ -22,6 +22,7 @@ use safetensors::SafeTensors;
 use crate::ActionMap;
 use crate::model::{self, EncoderKind, ModelError, ModelHeader, ModelKind, NetworkInfo, ObsInputs};
 use crate::nn::gram_schmidt::{self, MAX_COLUMNS};
+use crate::nn::kernel::{self, Packed};
 use crate::nn::{Kernel, Mlp};
 
 /// Tensor name prefix of the decoder layers.
@@ -309,42 +310,6 @@ impl NetworkModel {
     pub fn scl_map(&self) -> Option<SclMap> {
         (self.header.kind == ModelKind::Scl).then(|| SclMap::new(self))
     }
-
-    /// The latent action the training encoder assigns to `(q, c, qdot)` (speed-scale units),
-    /// written to `a[..d]`. `None` when the file has no encoder to run.
-    pub fn encode(&self, q: &[f64], c: f64, qdot: &[f64], a: &mut [f64]) -> Option<()> {
-        let info = self.info();
-        let (m, d) = (self.header.n_joints, self.header.latent_dim);
-        let s = self.header.speed_scale_rad_s;
-        match info.encoder {
-            EncoderKind::Mlp => {
-                let enc = self.encoder.as_ref()?;
-                let norm = self.encoder_normaliser()?;
-                let mut raw = vec![0.0f64; m + 1 + m];
-                let n_obs = observation(info.inputs, q, c, &mut raw);
-                raw[n_obs..n_obs + m].copy_from_slice(qdot);
-                let mut x = vec![0.0f32; n_obs + m];
-                norm.apply(&raw[..n_obs + m], &mut x);
-                let w = enc.widest_hidden();
-                let (mut sa, mut sb) = (vec![0.0; w], vec![0.0; w]);
-                let mut out = vec![0.0f32; d];
-                enc.forward_one(Kernel::detect(), &x, &mut sa, &mut sb, &mut out);
-                for (ai, o) in a.iter_mut().zip(&out) {
-                    *ai = f64::from(*o);
-                }
-                Some(())
-            }
-            EncoderKind::Projection => {
-                let mut map = self.scl_map()?;
-                let h = map.matrix(q, c).to_vec();
-                for (j, aj) in a.iter_mut().enumerate().take(d) {
-                    *aj = (0..m).map(|i| f64::from(h[i * d + j]) * qdot[i] / s).sum();
-                }
-                Some(())
-            }
-            EncoderKind::None => None,
-        }
-    }
 }
 
 fn check_info<'h>(header: &'h ModelHeader, path: &Path) -> Result<&'h NetworkInfo, ModelError> {
@@ -433,7 +398,7 @@ pub struct SclMap {
     d: usize,
     inputs: ObsInputs,
     norm: Normaliser,
-    decoder: Mlp,
+    decoder: Packed,
     gram_schmidt: bool,
     eps: f32,
     kernel: Kernel,
@@ -450,13 +415,14 @@ impl SclMap {
     pub fn new(model: &NetworkModel) -> Self {
         let info = model.info();
         let (m, d) = (model.header.n_joints, model.header.latent_dim);
-        let w = model.decoder.widest_hidden();
+        let decoder = model.decoder.packed();
+        let w = decoder.scratch_len();
         Self {
             m,
             d,
             inputs: info.inputs,
             norm: model.obs_normaliser(),
-            decoder: model.decoder.clone(),
+            decoder,
             gram_schmidt: info.gram_schmidt,
             eps: info.gs_epsilon as f32,
             kernel: Kernel::detect(),
@@ -473,8 +439,9 @@ impl SclMap {
     pub fn matrix(&mut self, q: &[f64], c: f64) -> &[f32] {
         let n = observation(self.inputs, &q[..self.m], c, &mut self.obs);
         self.norm.apply(&self.obs[..n], &mut self.x);
-        self.decoder.forward_one(
+        kernel::forward(
             self.kernel,
+            &self.decoder,
             &self.x[..n],
             &mut self.scratch_a,
             &mut self.scratch_b,
@@ -525,7 +492,7 @@ pub struct CaeMap {
     d: usize,
     inputs: ObsInputs,
     norm: Normaliser,
-    decoder: Mlp,
+    decoder: Packed,
     kernel: Kernel,
     obs: Vec<f64>,
     x: Vec<f32>,
@@ -539,13 +506,14 @@ impl CaeMap {
     pub fn new(model: &NetworkModel) -> Self {
         let info = model.info();
         let (m, d) = (model.header.n_joints, model.header.latent_dim);
-        let w = model.decoder.widest_hidden();
+        let decoder = model.decoder.packed();
+        let w = decoder.scratch_len();
         Self {
             m,
             d,
             inputs: info.inputs,
             norm: model.obs_normaliser(),
-            decoder: model.decoder.clone(),
+            decoder,
             kernel: Kernel::detect(),
             obs: vec![0.0; m + 1],
             x: vec![0.0; m + 1 + d],
@@ -572,8 +540,9 @@ impl ActionMap for CaeMap {
         for (x, a) in self.x[n..n + self.d].iter_mut().zip(a) {
             *x = *a as f32;
         }
-        self.decoder.forward_one(
+        kernel::forward(
             self.kernel,
+            &self.decoder,
             &self.x[..n + self.d],
             &mut self.scratch_a,
             &mut self.scratch_b,

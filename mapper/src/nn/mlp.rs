@@ -10,7 +10,7 @@ use std::path::Path;
 
 use safetensors::SafeTensors;
 
-use super::kernel::{self, Kernel};
+use super::kernel;
 use super::tanh::tanh_in_place;
 use crate::model::{ModelError, tensor_f32};
 use crate::rng::Rng;
@@ -198,15 +198,9 @@ impl Mlp {
         self.layers.last().map_or(0, |l| l.n_out)
     }
 
-    /// Widest hidden layer (the scratch size of [`Mlp::forward_one`]).
-    pub fn widest_hidden(&self) -> usize {
-        let n = self.layers.len();
-        self.layers
-            .iter()
-            .take(n.saturating_sub(1))
-            .map(|l| l.n_out)
-            .max()
-            .unwrap_or(0)
+    /// Widest layer output (a scratch size for single-sample evaluation).
+    pub fn widest(&self) -> usize {
+        self.layers.iter().map(|l| l.n_out).max().unwrap_or(0)
     }
 
     /// Number of parameters.
@@ -214,16 +208,9 @@ impl Mlp {
         self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
     }
 
-    /// One sample through the network into `out` (see [`kernel::forward`]); allocation-free.
-    pub fn forward_one(
-        &self,
-        kernel: Kernel,
-        x: &[f32],
-        scratch_a: &mut [f32],
-        scratch_b: &mut [f32],
-        out: &mut [f32],
-    ) {
-        kernel::forward(kernel, &self.layers, x, scratch_a, scratch_b, out);
+    /// The layers rearranged for single-sample evaluation ([`kernel::Packed`]).
+    pub fn packed(&self) -> kernel::Packed {
+        kernel::Packed::new(&self.layers)
     }
 
     /// One sample in f64 with `f64::tanh` (a reference for tests and analyses, not the
@@ -504,11 +491,22 @@ pub(crate) mod tests {
         let x: Vec<f32> = (0..batch * 7).map(|_| r.normal() as f32).collect();
         let mut cache = BatchCache::new(&mlp, 16);
         mlp.forward_batch(&x, batch, &mut cache);
-        let (mut a, mut b) = (vec![0.0; 64], vec![0.0; 64]);
+        let packed = mlp.packed();
+        let (mut a, mut b) = (
+            vec![0.0; packed.scratch_len()],
+            vec![0.0; packed.scratch_len()],
+        );
         let mut out = vec![0.0; 12];
         for s in 0..batch {
             let xs = &x[s * 7..(s + 1) * 7];
-            mlp.forward_one(Kernel::detect(), xs, &mut a, &mut b, &mut out);
+            kernel::forward(
+                kernel::Kernel::detect(),
+                &packed,
+                xs,
+                &mut a,
+                &mut b,
+                &mut out,
+            );
             let reference = mlp.forward_f64(&xs.iter().map(|v| f64::from(*v)).collect::<Vec<_>>());
             for j in 0..12 {
                 let batched = cache.output()[s * 12 + j];
