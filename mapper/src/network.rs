@@ -553,3 +553,190 @@ impl ActionMap for CaeMap {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::LoadedModel;
+    use crate::model::{FORMAT, TrainingInfo, VERSION};
+    use crate::rng::Rng;
+
+    fn header(kind: ModelKind, m: usize, d: usize) -> ModelHeader {
+        ModelHeader {
+            format: FORMAT.into(),
+            version: VERSION,
+            kind,
+            n_joints: m,
+            latent_dim: d,
+            joint_names: (1..=m).map(|i| format!("joint_{i}")).collect(),
+            speed_scale_rad_s: 0.5,
+            lipschitz_bound: Some(1.0),
+            network: Some(NetworkInfo {
+                inputs: ObsInputs::JointsAndGripper,
+                input_mean: vec![0.0; m + 1],
+                input_std: vec![1.0; m + 1],
+                hidden: vec![8, 8],
+                gram_schmidt: kind == ModelKind::Scl,
+                gs_epsilon: 1e-8,
+                encoder: EncoderKind::Mlp,
+                encoder_input_mean: vec![0.0; 2 * m + 1],
+                encoder_input_std: vec![1.0; 2 * m + 1],
+                li_losses: None,
+            }),
+            training: TrainingInfo::default(),
+        }
+    }
+
+    fn model(kind: ModelKind, m: usize, d: usize) -> NetworkModel {
+        let h = header(kind, m, d);
+        let mut r = Rng::new(1);
+        let info = h.network.clone().unwrap();
+        let dec = Mlp::init(&decoder_widths(kind, &info, m, d), &mut r);
+        let enc = Mlp::init(&encoder_widths(&info, m, d), &mut r);
+        NetworkModel::new(h, dec, Some(enc)).unwrap()
+    }
+
+    fn load(bytes: &[u8]) -> Result<LoadedModel, ModelError> {
+        LoadedModel::from_bytes(bytes, Path::new("net.safetensors"))
+    }
+
+    #[test]
+    fn round_trips_and_checks_dimensions() {
+        for kind in [ModelKind::Scl, ModelKind::Cae] {
+            let m = model(kind, 6, 2);
+            let bytes = m.to_bytes().unwrap();
+            let back = NetworkModel::from_bytes(&bytes, Path::new("x")).unwrap();
+            assert_eq!(back, m);
+            let loaded = load(&bytes).unwrap();
+            assert_eq!(loaded.map.kind(), kind);
+            loaded.expect_dims(6, 2).unwrap();
+            // A 7-joint robot or a 3-axis joystick is refused at load, naming the file.
+            let e = loaded.expect_dims(7, 2).unwrap_err().to_string();
+            assert!(
+                e.contains("net.safetensors") && e.contains("joint count"),
+                "{e}"
+            );
+            let e = loaded.expect_dims(6, 3).unwrap_err().to_string();
+            assert!(e.contains("latent"), "{e}");
+        }
+        // Another robot's model is refused by the mapper step at construction.
+        let bytes = model(ModelKind::Scl, 7, 2).to_bytes().unwrap();
+        assert!(crate::step::MapperStep::new(1, load(&bytes).unwrap(), 6).is_err());
+    }
+
+    #[test]
+    fn refuses_corrupt_or_inconsistent_files() {
+        let m = model(ModelKind::Scl, 6, 2);
+        let bytes = m.to_bytes().unwrap();
+        for cut in [10, bytes.len() / 3, bytes.len() - 7] {
+            assert!(matches!(
+                load(&bytes[..cut]),
+                Err(ModelError::NotSafetensors { .. })
+            ));
+        }
+        let with = |f: &dyn Fn(&mut ModelHeader)| {
+            let mut h = m.header().clone();
+            f(&mut h);
+            let mut t = m.decoder().tensors(DECODER);
+            t.extend(m.encoder().unwrap().tensors(ENCODER));
+            let b: Vec<(&str, Vec<usize>, Vec<f32>)> = t
+                .iter()
+                .map(|(n, s, v)| (n.as_str(), s.clone(), v.clone()))
+                .collect();
+            load(&model::to_bytes(&h, &b).unwrap())
+        };
+        let reason = |r: Result<LoadedModel, ModelError>| r.unwrap_err().to_string();
+        assert!(reason(with(&|h| h.network = None)).contains("needs a `network` section"));
+        assert!(reason(with(&|h| h.version = 1)).contains("version 2"));
+        assert!(
+            reason(with(&|h| h.network.as_mut().unwrap().hidden = vec![8, 9])).contains("shape")
+        );
+        assert!(
+            reason(with(&|h| h.network.as_mut().unwrap().hidden = vec![8]))
+                .contains("decoder.1.weight")
+        );
+        assert!(
+            reason(with(&|h| h.network.as_mut().unwrap().input_std[3] = 0.0))
+                .contains("input std 3")
+        );
+        assert!(
+            reason(with(&|h| h
+                .network
+                .as_mut()
+                .unwrap()
+                .input_mean
+                .pop()
+                .map(|_| ())
+                .unwrap_or(())))
+            .contains("input_mean")
+        );
+        assert!(
+            reason(with(
+                &|h| h.network.as_mut().unwrap().inputs = ObsInputs::Joints
+            ))
+            .contains("7 values")
+        );
+        assert!(reason(with(&|h| h.lipschitz_bound = Some(-1.0))).contains("lipschitz_bound"));
+        assert!(reason(with(&|h| h.kind = ModelKind::Cae)).contains("gram_schmidt"));
+        assert!(reason(with(&|h| h.n_joints = 5)).contains("joint names"));
+        // Non-finite weights.
+        let mut dec = m.decoder().clone();
+        dec.layers[1].w[17] = f32::NAN;
+        let mut t = dec.tensors(DECODER);
+        t.extend(m.encoder().unwrap().tensors(ENCODER));
+        let b: Vec<(&str, Vec<usize>, Vec<f32>)> = t
+            .iter()
+            .map(|(n, s, v)| (n.as_str(), s.clone(), v.clone()))
+            .collect();
+        let e = reason(load(&model::to_bytes(m.header(), &b).unwrap()));
+        assert!(e.contains("decoder.1.weight") && e.contains("NaN"), "{e}");
+        // Missing encoder tensors.
+        let t = m.decoder().tensors(DECODER);
+        let b: Vec<(&str, Vec<usize>, Vec<f32>)> = t
+            .iter()
+            .map(|(n, s, v)| (n.as_str(), s.clone(), v.clone()))
+            .collect();
+        let e = reason(load(&model::to_bytes(m.header(), &b).unwrap()));
+        assert!(
+            e.contains("encoder.0.weight") && e.contains("missing"),
+            "{e}"
+        );
+        // A PCA header with a network section.
+        let e = reason(with(&|h| {
+            h.kind = ModelKind::Pca;
+        }));
+        assert!(e.contains("pca model has no `network`"), "{e}");
+    }
+
+    #[test]
+    fn a_collapsed_column_moves_nothing_instead_of_nan() {
+        // A decoder whose two columns are always equal: H' keeps one unit column and a
+        // near-zero second one.
+        let mut m = model(ModelKind::Scl, 6, 2);
+        let mut dec = m.decoder().clone();
+        let last = dec.layers.len() - 1;
+        let l = &mut dec.layers[last];
+        for k in 0..l.n_in {
+            for i in 0..6 {
+                l.w[k * 12 + i * 2 + 1] = l.w[k * 12 + i * 2];
+            }
+        }
+        for i in 0..6 {
+            l.b[i * 2 + 1] = l.b[i * 2];
+        }
+        m = NetworkModel::new(m.header().clone(), dec, m.encoder().cloned()).unwrap();
+        let mut map = m.scl_map().unwrap();
+        let mut out = [0.0; 6];
+        map.eval(&[0.2; 6], 0.0, &[0.0, 1.0], &mut out);
+        assert!(out.iter().all(|v| v.is_finite()));
+        let n: f64 = out.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!(n < 1e-2, "second direction moves {n}");
+        assert!(map.column_norms()[1] < 1e-3);
+        map.eval(&[0.2; 6], 0.0, &[1.0, 0.0], &mut out);
+        let n: f64 = out.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!(
+            (n - 1.0).abs() < 1e-5,
+            "first direction is a unit vector: {n}"
+        );
+    }
+}

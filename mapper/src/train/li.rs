@@ -16,7 +16,9 @@
 //!   `w` is a constant, no gradient flows through it). Pairs far apart count little; `γ` is
 //!   the temperature.
 //! * **Proportionality** (scaling the action scales the motion): with `α_b` uniform in
-//!   `[α_min, α_max]`, `L = mean_b (|g(o_b, α_b a_b)| − α_b |g(o_b, a_b)|)²`.
+//!   `[α_min, α_max]`, `L = mean_b (|g(o_b, α_b a_b)| − α_b |g(o_b, a_b)|)²`. (With a single
+//!   `α = 1` the term vanishes identically, so the paper's "α = 1.0" is read as the upper end
+//!   of the sampling range; the default range is `[0.1, 1]`.)
 //! * **Reversibility** (undoing an action returns the arm): with the one-step transition
 //!   `T(q, a) = q + Δ · s · g(o, a)` (`Δ` = [`LiLosses::step_s`], one control period by
 //!   default) and `o' = (T(q, a_b), c_b)`, returning with `−a_b` gives back `q` exactly when
