@@ -301,8 +301,11 @@ pub fn plot_losses(
             .build_cartesian_2d(1f64..epochs as f64, (lo..hi).log_scale())
             .map_err(|e| perr(&e))?;
         let mut mesh = chart.configure_mesh();
+        let integer = |x: &f64| format!("{x:.0}");
         if text {
-            mesh.x_desc("epoch").y_desc("MSE (rad/s)²");
+            mesh.x_desc("epoch")
+                .y_desc("MSE (rad/s)²")
+                .x_label_formatter(&integer);
         } else {
             mesh.x_labels(0).y_labels(0);
         }
@@ -519,4 +522,87 @@ pub fn eval_reversibility(
     }
     out.push_str("\nratio = |q_back - q_0| / |q_forward - q_0|; held = ratio < 1. Trials whose forward action did not move the arm are not counted.\n");
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("scl-learning-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn train_writes_model_log_and_picture_and_refuses_to_overwrite() {
+        let dir = temp_dir("train");
+        let data = dir.join("data");
+        dataset::write_dir(&data, &mapper::demos::joint_reach(2, 1, 3)).unwrap();
+        let out = dir.join("m.safetensors");
+        let cfg = TrainConfig {
+            hidden: vec![8, 8],
+            epochs: 3,
+            seeds: 2,
+            ..TrainConfig::default()
+        };
+        let outcome = train_network(&cfg, &data, &out, false, "scl train test").unwrap();
+        let model = model::LoadedModel::load(out.to_str().unwrap()).unwrap();
+        assert_eq!(model.header.kind, ModelKind::Scl);
+        assert_eq!(model.header.training.command, "scl train test");
+        let log = std::fs::read_to_string(loss_log_path(&out)).unwrap();
+        let lines: Vec<&str> = log.lines().collect();
+        assert_eq!(lines[0], "seed,epoch,train_loss,val_loss");
+        assert_eq!(lines.len(), 1 + 2 * 3);
+        assert!(lines[1].starts_with("0,1,"));
+        let png = std::fs::read(loss_plot_path(&out)).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        assert_eq!(outcome.runs.len(), 2);
+        // Every file is protected without --force, and replaced with it.
+        let e = train_network(&cfg, &data, &out, false, "t").unwrap_err();
+        assert!(e.to_string().contains("--force"), "{e}");
+        std::fs::remove_file(&out).unwrap();
+        let e = train_network(&cfg, &data, &out, false, "t").unwrap_err();
+        assert!(e.to_string().contains("loss.csv"), "{e}");
+        train_network(&cfg, &data, &out, true, "t").unwrap();
+        // The table and the reversibility report run on the result.
+        let table = eval_reconstruction(&data, std::slice::from_ref(&out)).unwrap();
+        assert!(table.contains("| m.safetensors | scl | 2 |"), "{table}");
+        assert!(table.contains("this data"), "{table}");
+        let rev = eval_reversibility(&out, Some(&data), 20, 1, 0.025).unwrap();
+        assert!(
+            rev.contains("data states") && rev.contains("uniform in limits"),
+            "{rev}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn option_parsers_name_the_option() {
+        assert_eq!(
+            parse_list::<usize>("256, 128", "--hidden").unwrap(),
+            vec![256, 128]
+        );
+        let e = parse_list::<usize>("256,x", "--hidden")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--hidden") && e.contains("`x`"), "{e}");
+        assert_eq!(parse_inputs("q").unwrap(), ObsInputs::Joints);
+        assert!(
+            parse_inputs("qq")
+                .unwrap_err()
+                .to_string()
+                .contains("--inputs")
+        );
+        assert_eq!(
+            parse_encoder("projection").unwrap(),
+            EncoderKind::Projection
+        );
+        assert!(
+            parse_encoder("x")
+                .unwrap_err()
+                .to_string()
+                .contains("--encoder")
+        );
+    }
 }
