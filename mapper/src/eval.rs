@@ -47,7 +47,9 @@ pub enum EvalError {
         data: usize,
     },
     /// The model has no encoder to reconstruct with.
-    #[error("{0}: the file has no encoder (imported weights), so it cannot reconstruct data")]
+    #[error(
+        "{0}: the file has no encoder (imported weights) and no Gram-Schmidt to project with, so it cannot reconstruct data"
+    )]
     NoEncoder(PathBuf),
     /// Nothing to evaluate on.
     #[error("no tuples to evaluate on")]
@@ -109,7 +111,9 @@ impl AnyModel {
 
 /// Mean squared reconstruction error of `qdot` ((rad/s)², over tuples and joints) of a model on
 /// the tuples of `trajs`: PCA projects (`Σ Σᵀ qdot`); SCL and CAE encode with their training
-/// encoder and decode with the serving map, times the speed scale.
+/// encoder and decode with the serving map, times the speed scale. An SCL file without an
+/// encoder (imported) but with Gram-Schmidt is evaluated with the projection `a = H'ᵀ qdot/s`;
+/// a CAE file without one cannot be evaluated.
 pub fn reconstruction_mse(
     model: &AnyModel,
     path: &Path,
@@ -175,6 +179,9 @@ impl<'a> Encoder<'a> {
         let scl = match net.info().encoder {
             EncoderKind::Mlp => None,
             EncoderKind::Projection => Some(net.scl_map()?),
+            // Imported SCL weights: with orthonormal columns the projection is the best
+            // encoder there is, so it stands in for the missing one.
+            EncoderKind::None if net.info().gram_schmidt => Some(net.scl_map()?),
             EncoderKind::None => return None,
         };
         Some(Self {

@@ -290,6 +290,11 @@ mod tests {
         let model = build(back, &opts(ModelKind::Scl), Path::new("w.json")).unwrap();
         assert_eq!(model.info().inputs, ObsInputs::JointsAndGripper);
         let bytes = model.to_bytes().unwrap();
+        // Without an encoder, an SCL file with Gram-Schmidt is evaluated by projection.
+        let ds = crate::demos::joint_reach(1, 1, 2);
+        let any = crate::eval::AnyModel::Net(Box::new(model.clone()));
+        let mse = crate::eval::reconstruction_mse(&any, Path::new("m"), &ds.val).unwrap();
+        assert!(mse.is_finite() && mse > 0.0);
         let mut loaded = crate::LoadedModel::from_bytes(&bytes, Path::new("m")).unwrap();
         loaded.expect_dims(6, 2).unwrap();
         // The served map equals GS(h(q, c)) a computed from the JSON weights in f64.
@@ -351,6 +356,10 @@ mod tests {
         let m = build(net, &opts(ModelKind::Cae), p).unwrap();
         assert_eq!(m.header().kind, ModelKind::Cae);
         assert!(!m.info().gram_schmidt);
+        let ds = crate::demos::joint_reach(1, 1, 2);
+        let any = crate::eval::AnyModel::Net(Box::new(m.clone()));
+        let e = crate::eval::reconstruction_mse(&any, Path::new("c.safetensors"), &ds.val);
+        assert!(matches!(e, Err(crate::eval::EvalError::NoEncoder(_))));
         let mut map = m.into_map();
         let mut out = [0.0; 6];
         map.eval(&[0.0; 6], 0.0, &[0.0, 0.0], &mut out);
