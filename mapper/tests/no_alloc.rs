@@ -69,7 +69,7 @@ fn allocations(f: impl FnOnce()) -> usize {
     COUNT.with(|c| c.get())
 }
 
-fn network(kind: ModelKind, gram_schmidt: bool) -> LoadedModel {
+fn network_model(kind: ModelKind, gram_schmidt: bool) -> NetworkModel {
     let (m, d) = (6, 2);
     let mut rng = Rng::new(7);
     let sizes: Vec<usize> = match kind {
@@ -99,7 +99,11 @@ fn network(kind: ModelKind, gram_schmidt: bool) -> LoadedModel {
         }),
         training: TrainingInfo::default(),
     };
-    let model = NetworkModel::new(header, Mlp::init(&sizes, &mut rng), None).unwrap();
+    NetworkModel::new(header, Mlp::init(&sizes, &mut rng), None).unwrap()
+}
+
+fn network(kind: ModelKind, gram_schmidt: bool) -> LoadedModel {
+    let model = network_model(kind, gram_schmidt);
     LoadedModel::from_bytes(&model.to_bytes().unwrap(), Path::new("test")).unwrap()
 }
 
@@ -153,5 +157,24 @@ fn mapper_step_never_allocates() {
         });
         assert_eq!(n, 0, "{name}: {n} allocations in 200 steps");
         assert!(moved > 0.0, "{name}: the map produced no motion");
+    }
+}
+
+#[test]
+fn both_kernels_evaluate_without_allocating() {
+    use mapper::ActionMap;
+    use mapper::nn::Kernel;
+    for kernel in [Kernel::Portable, Kernel::detect()] {
+        let mut map = network_model(ModelKind::Scl, true).scl_map().unwrap();
+        map.set_kernel(kernel);
+        let mut out = [0.0; 6];
+        let n = allocations(|| {
+            for i in 0..100 {
+                let q = [0.01 * i as f64, 0.2, -0.3, 0.4, 0.0, 0.1];
+                map.eval(&q, 0.5, &[0.3, -0.4], &mut out);
+            }
+        });
+        assert_eq!(n, 0, "{kernel:?}: {n} allocations");
+        assert!(out.iter().any(|v| *v != 0.0));
     }
 }
