@@ -16,11 +16,16 @@
 
 pub mod dataset;
 pub mod demos;
+pub mod eval;
+pub mod import;
 pub mod model;
+pub mod network;
+pub mod nn;
 pub mod pca;
 pub mod rng;
 pub mod step;
 pub mod tasks;
+pub mod train;
 
 pub use model::{LoadedModel, ModelError, ModelHeader, ModelKind};
 

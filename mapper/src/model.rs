@@ -3,8 +3,13 @@
 //!
 //! A file is checked completely when it is loaded (format, version, kind, shapes, finiteness,
 //! agreement between header and tensors), so a bad file is an error at start-up and never at
-//! tick time. Later model kinds (SCL, CAE) add tensors and header fields; the reader dispatches
-//! on [`ModelHeader::kind`].
+//! tick time. The reader dispatches on [`ModelHeader::kind`].
+//!
+//! Versions: 1 is PCA only (a `basis` tensor). Version 2 adds [`ModelHeader::network`] (the
+//! architecture and input normalisation of the SCL and CAE networks, whose tensors are
+//! `decoder.{l}.weight` / `.bias` and, when trained here, `encoder.{l}.*`; see
+//! [`crate::network`]) and [`TrainingInfo::settings`]. PCA files are still written as version
+//! 1, byte for byte as before, so older readers keep loading them.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -13,6 +18,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 
 use crate::ActionMap;
+use crate::network::NetworkModel;
 use crate::pca::PcaMap;
 
 /// Metadata key that holds the JSON header.
@@ -20,7 +26,9 @@ pub const HEADER_KEY: &str = "scl";
 /// Value of [`ModelHeader::format`].
 pub const FORMAT: &str = "scl-model";
 /// Highest header version this reader understands.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
+/// The version written for PCA files (which need nothing newer).
+pub const PCA_VERSION: u32 = 1;
 
 /// The model bundled into the `scl` binary: PCA fitted on the generated joint-space reaching
 /// demonstrations (regenerate with `scripts/regenerate-bundled-model.sh`).
@@ -65,6 +73,107 @@ pub struct TrainingInfo {
     pub seed: u64,
     /// The command that produced the file.
     pub command: String,
+    /// How a network was trained (version 2; absent for PCA).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settings: Option<TrainSettings>,
+}
+
+/// The optimisation settings and outcome of a network's training run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSettings {
+    /// Epochs per seed.
+    pub epochs: usize,
+    /// Mini-batch size.
+    pub batch: usize,
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// Seeds trained; the file holds the best by validation loss.
+    pub seeds: usize,
+    /// Epoch (1-based) of the kept weights: the best validation loss of the best seed.
+    pub best_epoch: usize,
+    /// Power iterations per optimiser step of the Lipschitz projection (0: none).
+    pub power_iterations: usize,
+    /// Wall time of the training (all seeds), seconds.
+    pub train_seconds: f64,
+}
+
+/// What the network conditions on (its observation input, before normalisation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObsInputs {
+    /// Joint angles and gripper state `(q, c)`: `m + 1` values.
+    JointsAndGripper,
+    /// Joint angles only: `m` values (the paper's `h: R^m -> R^{m×d}`).
+    Joints,
+}
+
+impl ObsInputs {
+    /// Number of observation values for an `m`-joint arm.
+    pub fn width(self, m: usize) -> usize {
+        match self {
+            Self::JointsAndGripper => m + 1,
+            Self::Joints => m,
+        }
+    }
+}
+
+/// How the training encoder produced the latent action.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EncoderKind {
+    /// An MLP `f(o, qdot) -> a`, stored as `encoder.*` tensors (the paper's method).
+    Mlp,
+    /// The analytic `a = H'ᵀ qdot` (SCL only): no parameters.
+    Projection,
+    /// No encoder in the file (weights imported from elsewhere).
+    None,
+}
+
+/// The Li et al. (2020) loss terms a CAE was trained with (see [`crate::train::li`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LiLosses {
+    /// Consistency, with this temperature `γ`.
+    pub consistency_gamma: Option<f64>,
+    /// Proportionality, with `α` drawn uniformly from this range.
+    pub proportionality_alpha: Option<[f64; 2]>,
+    /// Reversibility.
+    pub reversibility: bool,
+    /// Weight of each term added to the reconstruction loss.
+    pub weight: f64,
+    /// Time step (s) of the transition `T(q, a) = q + step · s · g(o, a)` in the
+    /// reversibility term.
+    pub step_s: f64,
+}
+
+/// Architecture and input preprocessing of a network model (SCL or CAE).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkInfo {
+    /// The observation the decoder conditions on.
+    pub inputs: ObsInputs,
+    /// Mean subtracted from the observation before the network (rad; 1 for `c`).
+    pub input_mean: Vec<f64>,
+    /// Scale the observation is divided by after the mean (strictly positive).
+    pub input_std: Vec<f64>,
+    /// Hidden layer widths of the decoder (and encoder).
+    pub hidden: Vec<usize>,
+    /// Orthonormalise `H`'s columns (SCL only).
+    pub gram_schmidt: bool,
+    /// The guard `ε` of the Gram-Schmidt normalisation.
+    pub gs_epsilon: f64,
+    /// The training encoder.
+    pub encoder: EncoderKind,
+    /// Mean of the encoder's raw input `(o, qdot)` (empty without an MLP encoder).
+    #[serde(default)]
+    pub encoder_input_mean: Vec<f64>,
+    /// Scale of the encoder's raw input.
+    #[serde(default)]
+    pub encoder_input_std: Vec<f64>,
+    /// Li et al. loss terms (CAE only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub li_losses: Option<LiLosses>,
 }
 
 /// The JSON header of a model file.
@@ -86,9 +195,13 @@ pub struct ModelHeader {
     /// Speed scale `s` (rad/s): `qdot = s * map(o, a)`, so a full deflection of an
     /// orthonormal map moves the joints at `s` in norm.
     pub speed_scale_rad_s: f64,
-    /// Lipschitz bound of the network, where one was enforced.
+    /// Lipschitz bound of the decoder network with respect to the raw observation, where one
+    /// was enforced (certified from the exact spectral norms after training).
     #[serde(default)]
     pub lipschitz_bound: Option<f64>,
+    /// The network of an SCL or CAE model (version 2; absent for PCA).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub network: Option<NetworkInfo>,
     /// Provenance.
     #[serde(default)]
     pub training: TrainingInfo,
@@ -221,11 +334,8 @@ impl LoadedModel {
         let header = read_header(bytes, path)?;
         let map: Box<dyn ActionMap> = match header.kind {
             ModelKind::Pca => Box::new(PcaMap::from_tensors(&st, &header, path)?),
-            kind => {
-                return Err(ModelError::Unsupported {
-                    path: path.to_owned(),
-                    kind,
-                });
+            ModelKind::Scl | ModelKind::Cae => {
+                NetworkModel::from_tensors(&st, header.clone(), path)?.into_map()
             }
         };
         Ok(Self {
@@ -315,6 +425,31 @@ pub fn read_header(bytes: &[u8], path: &Path) -> Result<ModelHeader, ModelError>
         return Err(bad(format!(
             "speed_scale_rad_s is {}, expected a positive number",
             header.speed_scale_rad_s
+        )));
+    }
+    match (header.kind, &header.network) {
+        (ModelKind::Pca, Some(_)) => {
+            return Err(bad("a pca model has no `network` section".into()));
+        }
+        (ModelKind::Scl | ModelKind::Cae, None) => {
+            return Err(bad(format!(
+                "a {} model needs a `network` section (header version 2)",
+                header.kind
+            )));
+        }
+        (ModelKind::Scl | ModelKind::Cae, Some(_)) if header.version < 2 => {
+            return Err(bad(format!(
+                "a {} model needs header version 2, the file says {}",
+                header.kind, header.version
+            )));
+        }
+        _ => {}
+    }
+    if let Some(b) = header.lipschitz_bound
+        && !(b.is_finite() && b > 0.0)
+    {
+        return Err(bad(format!(
+            "lipschitz_bound is {b}, expected a positive number"
         )));
     }
     Ok(header)

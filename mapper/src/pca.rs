@@ -190,20 +190,21 @@ pub fn reconstruction_mse(map: &PcaMap, qdot: &[Vec<f64>]) -> f64 {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::model::{FORMAT, ModelHeader, TrainingInfo, VERSION};
+    use crate::model::{FORMAT, ModelHeader, PCA_VERSION, TrainingInfo};
     use crate::rng::Rng;
     use proptest::prelude::*;
 
     pub(crate) fn sample_header() -> ModelHeader {
         ModelHeader {
             format: FORMAT.to_owned(),
-            version: VERSION,
+            version: PCA_VERSION,
             kind: ModelKind::Pca,
             n_joints: 6,
             latent_dim: 2,
             joint_names: (1..=6).map(|i| format!("joint_{i}")).collect(),
             speed_scale_rad_s: 0.4,
             lipschitz_bound: None,
+            network: None,
             training: TrainingInfo::default(),
         }
     }

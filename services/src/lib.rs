@@ -10,6 +10,7 @@
 //! (`scl dataset`, recordings to training data) and [`top`] (`scl top`, the terminal dashboard).
 //! [`fake_kortex`] serves a fake Gen3 lite over the Kortex protocol on loopback
 //! (`scl fake-kortex`).
+//! [`learning`] (network training, import, offline evaluation) joins [`tools`] offline.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bench;
@@ -18,6 +19,7 @@ pub mod config;
 pub mod control;
 pub mod fake_kortex;
 pub mod joystick;
+pub mod learning;
 pub mod mapper_node;
 pub mod mcap_log;
 pub mod plot;
@@ -70,6 +72,18 @@ pub enum SclError {
     /// The fake Kortex robot could not start.
     #[error(transparent)]
     FakeKortex(#[from] hw_bridge::kortex::fake::FakeError),
+    /// Training a network failed.
+    #[error(transparent)]
+    Train(#[from] mapper::train::TrainError),
+    /// Importing weights failed.
+    #[error(transparent)]
+    Import(#[from] mapper::import::ImportError),
+    /// An offline evaluation failed.
+    #[error(transparent)]
+    Eval(#[from] mapper::eval::EvalError),
+    /// Writing training artefacts or reading learning options failed.
+    #[error(transparent)]
+    Learning(#[from] learning::LearningError),
     /// The supervisor's graph failed (a child died, did not start, ...).
     #[error("{0}")]
     Graph(String),

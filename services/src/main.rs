@@ -6,6 +6,8 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use ipc_types::Prefix;
+use mapper::model::ModelKind;
+use mapper::train::TrainConfig;
 use services::config::GraphConfig;
 use services::{SclError, signals};
 
@@ -179,20 +181,36 @@ enum Cmd {
         #[arg(long)]
         force: bool,
     },
-    /// Fit a model on demonstrations and write a model file.
-    Train {
-        /// Model kind: `pca` (SCL and CAE come with the learning issue).
-        #[arg(long, default_value = "pca")]
+    /// Fit a model on demonstrations and write a model file (with, for networks, a loss log
+    /// `<out>.loss.csv` and loss curves `<out>.loss.png` next to it).
+    Train(Box<TrainArgs>),
+    /// Build a model file from network weights trained elsewhere (the SCL authors' JSON
+    /// layout `{"linear_1": [W, b], ...}`, W shaped (in, out)).
+    Import {
+        /// The JSON weights of the decoder.
+        #[arg(long, value_name = "FILE")]
+        json: PathBuf,
+        /// Model kind: `scl` (decoder outputs m*d, reshaped row-major) or `cae`.
+        #[arg(long, default_value = "scl")]
         kind: String,
-        /// Data set: a directory (train/*.csv, val/*.csv; *.json too) or one CSV / JSON file.
-        #[arg(long, value_name = "DIR")]
-        data: PathBuf,
+        /// Joints m.
+        #[arg(long, default_value_t = 6)]
+        joints: usize,
         /// Action dimension d.
         #[arg(long, default_value_t = 2)]
         latent_dim: usize,
-        /// Speed scale s in rad/s (default: 95th percentile of the demonstrated speed).
+        /// Speed scale s in rad/s the network's output is multiplied by.
         #[arg(long)]
-        speed_scale: Option<f64>,
+        speed_scale: f64,
+        /// Serve H without Gram-Schmidt (scl).
+        #[arg(long)]
+        no_gram_schmidt: bool,
+        /// Input normalisation mean, comma-separated (default: none).
+        #[arg(long, value_name = "LIST", requires = "input_std")]
+        input_mean: Option<String>,
+        /// Input normalisation scale, comma-separated.
+        #[arg(long, value_name = "LIST", requires = "input_mean")]
+        input_std: Option<String>,
         /// Model file to write.
         #[arg(long, value_name = "FILE")]
         out: PathBuf,
@@ -200,6 +218,176 @@ enum Cmd {
         #[arg(long)]
         force: bool,
     },
+    /// Evaluate model files offline.
+    Eval {
+        #[command(subcommand)]
+        what: EvalCmd,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum EvalCmd {
+    /// Reconstruction MSE of qdot of each model on a data set's validation split, as a
+    /// Markdown table.
+    Reconstruction {
+        /// Data set directory (train/*.csv, val/*.csv).
+        #[arg(long, value_name = "DIR")]
+        data: PathBuf,
+        /// Model files.
+        #[arg(required = true, value_name = "MODEL")]
+        models: Vec<PathBuf>,
+    },
+    /// Soft-reversibility experiments (the paper's theorem and its 1-second experiment).
+    Reversibility {
+        /// Model file.
+        #[arg(long, value_name = "FILE")]
+        model: PathBuf,
+        /// Also sample states from this data set.
+        #[arg(long, value_name = "DIR")]
+        data: Option<PathBuf>,
+        /// States per set.
+        #[arg(long, default_value_t = 2000)]
+        samples: usize,
+        /// Random seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+/// `scl train`: every option, with the paper's defaults.
+#[derive(clap::Args, Debug)]
+struct TrainArgs {
+    /// Model kind: `pca`, `scl` or `cae`.
+    #[arg(long, default_value = "pca")]
+    kind: String,
+    /// Data set directory (train/*.csv, val/*.csv).
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// Action dimension d.
+    #[arg(long, default_value_t = 2)]
+    latent_dim: usize,
+    /// Speed scale s in rad/s (default: 95th percentile of the demonstrated speed).
+    #[arg(long)]
+    speed_scale: Option<f64>,
+    /// Model file to write.
+    #[arg(long, value_name = "FILE")]
+    out: PathBuf,
+    /// Overwrite an existing model file (and its loss log and picture).
+    #[arg(long)]
+    force: bool,
+    /// Epochs per seed (scl, cae).
+    #[arg(long, default_value_t = 200)]
+    epochs: usize,
+    /// Seeds to train; the best by validation loss is kept (scl, cae).
+    #[arg(long, default_value_t = 10)]
+    seeds: usize,
+    /// Seed of the first run; run i uses seed + i.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Seeds trained at once, one thread each (0: one per CPU).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Mini-batch size.
+    #[arg(long, default_value_t = 256)]
+    batch: usize,
+    /// Adam learning rate.
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Hidden layer widths, comma-separated.
+    #[arg(long, default_value = "256,256")]
+    hidden: String,
+    /// Lipschitz bound L of the decoder w.r.t. the raw (q, c) (default 1 for scl, none for
+    /// cae).
+    #[arg(long, conflicts_with = "no_lipschitz")]
+    lipschitz: Option<f64>,
+    /// Train the SCL decoder without a Lipschitz bound.
+    #[arg(long)]
+    no_lipschitz: bool,
+    /// Power iterations per optimiser step of the Lipschitz projection.
+    #[arg(long, default_value_t = 1)]
+    power_iterations: usize,
+    /// Train and serve SCL without Gram-Schmidt.
+    #[arg(long)]
+    no_gram_schmidt: bool,
+    /// Training encoder: `mlp` (the paper's) or `projection` (a = H'^T qdot, scl only).
+    #[arg(long, default_value = "mlp")]
+    encoder: String,
+    /// Decoder input: `q-c` (joint angles and gripper) or `q`.
+    #[arg(long, default_value = "q-c")]
+    inputs: String,
+    /// Li et al. loss terms for cae, comma-separated: consistency, proportionality,
+    /// reversibility.
+    #[arg(long, value_name = "TERMS")]
+    li_losses: Option<String>,
+    /// Weight of each Li term.
+    #[arg(long, default_value_t = 1.0)]
+    li_weight: f64,
+    /// Temperature gamma of the consistency term.
+    #[arg(long, default_value_t = mapper::train::li::DEFAULT_GAMMA)]
+    li_gamma: f64,
+    /// Sampling range of alpha in the proportionality term, `lo,hi`.
+    #[arg(long, default_value = "0.1,1.0")]
+    li_alpha: String,
+    /// Time step (s) of the reversibility term's transition.
+    #[arg(long, default_value_t = mapper::train::li::DEFAULT_STEP_S)]
+    li_step: f64,
+}
+
+impl TrainArgs {
+    /// The training configuration of a network kind.
+    fn config(&self, kind: ModelKind) -> Result<TrainConfig, SclError> {
+        use services::learning::{parse_encoder, parse_inputs, parse_list};
+        let mut li = match &self.li_losses {
+            Some(list) => mapper::train::li::parse_terms(list).map_err(|reason| {
+                services::learning::LearningError::Option {
+                    option: "--li-losses",
+                    reason,
+                }
+            })?,
+            None => None,
+        };
+        if let Some(li) = &mut li {
+            li.weight = self.li_weight;
+            li.step_s = self.li_step;
+            if li.consistency_gamma.is_some() {
+                li.consistency_gamma = Some(self.li_gamma);
+            }
+            if li.proportionality_alpha.is_some() {
+                let r: Vec<f64> = parse_list(&self.li_alpha, "--li-alpha")?;
+                let [lo, hi] = r[..] else {
+                    return Err(services::learning::LearningError::Option {
+                        option: "--li-alpha",
+                        reason: format!("`{}`: expected two numbers `lo,hi`", self.li_alpha),
+                    }
+                    .into());
+                };
+                li.proportionality_alpha = Some([lo, hi]);
+            }
+        }
+        Ok(TrainConfig {
+            kind,
+            latent_dim: self.latent_dim,
+            hidden: parse_list(&self.hidden, "--hidden")?,
+            epochs: self.epochs,
+            batch: self.batch,
+            learning_rate: self.lr,
+            seeds: self.seeds,
+            base_seed: self.seed,
+            threads: self.threads,
+            // The paper bounds the SCL decoder with L = 1; a CAE is bounded only when asked.
+            lipschitz: match kind {
+                _ if self.no_lipschitz => None,
+                ModelKind::Scl => Some(self.lipschitz.unwrap_or(1.0)),
+                _ => self.lipschitz,
+            },
+            power_iterations: self.power_iterations,
+            gram_schmidt: kind == ModelKind::Scl && !self.no_gram_schmidt,
+            encoder: parse_encoder(&self.encoder)?,
+            inputs: parse_inputs(&self.inputs)?,
+            speed_scale: self.speed_scale,
+            li,
+        })
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -516,28 +704,101 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             services::tools::plot(&data, &out, title.as_deref(), font.as_deref(), force)?;
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Train {
+        Cmd::Train(t) => {
+            let command = std::env::args().collect::<Vec<_>>().join(" ");
+            match t.kind.as_str() {
+                "pca" => {
+                    services::tools::train_pca(&services::tools::TrainOptions {
+                        data: &t.data,
+                        out: &t.out,
+                        latent_dim: t.latent_dim,
+                        speed_scale: t.speed_scale,
+                        force: t.force,
+                        command,
+                    })?;
+                }
+                "scl" | "cae" => {
+                    let kind = if t.kind == "scl" {
+                        ModelKind::Scl
+                    } else {
+                        ModelKind::Cae
+                    };
+                    let cfg = t.config(kind)?;
+                    services::learning::train_network(&cfg, &t.data, &t.out, t.force, &command)?;
+                }
+                other => {
+                    return Err(SclError::Graph(format!(
+                        "--kind {other}: expected pca, scl or cae"
+                    )));
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Import {
+            json,
             kind,
-            data,
+            joints,
             latent_dim,
             speed_scale,
+            no_gram_schmidt,
+            input_mean,
+            input_std,
             out,
             force,
         } => {
-            if kind != "pca" {
+            use services::learning::parse_list;
+            let kind = match kind.as_str() {
+                "scl" => ModelKind::Scl,
+                "cae" => ModelKind::Cae,
+                other => {
+                    return Err(SclError::Graph(format!(
+                        "--kind {other}: expected scl or cae"
+                    )));
+                }
+            };
+            if !(speed_scale.is_finite() && speed_scale > 0.0) {
                 return Err(SclError::Graph(format!(
-                    "--kind {kind}: this build trains `pca` only"
+                    "--speed-scale {speed_scale}: expected a positive number (rad/s)"
                 )));
             }
-            let command = std::env::args().collect::<Vec<_>>().join(" ");
-            services::tools::train_pca(&services::tools::TrainOptions {
-                data: &data,
-                out: &out,
+            let normalisation = match (input_mean, input_std) {
+                (Some(m), Some(s)) => Some((
+                    parse_list(&m, "--input-mean")?,
+                    parse_list(&s, "--input-std")?,
+                )),
+                _ => None,
+            };
+            let opts = mapper::import::ImportOptions {
+                kind,
+                n_joints: joints,
                 latent_dim,
                 speed_scale,
-                force,
-                command,
-            })?;
+                gram_schmidt: !no_gram_schmidt,
+                normalisation,
+                command: std::env::args().collect::<Vec<_>>().join(" "),
+            };
+            services::learning::import_weights(&json, &opts, &out, force)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Eval { what } => {
+            let text = match what {
+                EvalCmd::Reconstruction { data, models } => {
+                    services::learning::eval_reconstruction(&data, &models)?
+                }
+                EvalCmd::Reversibility {
+                    model,
+                    data,
+                    samples,
+                    seed,
+                } => services::learning::eval_reversibility(
+                    &model,
+                    data.as_deref(),
+                    samples,
+                    seed,
+                    period_s,
+                )?,
+            };
+            println!("{text}");
             Ok(ExitCode::SUCCESS)
         }
     }
@@ -559,10 +820,12 @@ fn main() -> ExitCode {
         Cmd::FakeKortex { .. } => "fake-kortex",
         Cmd::Demos { .. } => "demos",
         Cmd::Plot { .. } => "plot",
-        Cmd::Train { .. } => "train",
         Cmd::Record(_) => "record",
         Cmd::Dataset(_) => "dataset",
         Cmd::Top(_) => "top",
+        Cmd::Train(_) => "train",
+        Cmd::Import { .. } => "import",
+        Cmd::Eval { .. } => "eval",
     };
     init_logging();
     let span = tracing::info_span!("scl", role);

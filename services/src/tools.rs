@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use mapper::dataset;
-use mapper::model::{self, FORMAT, ModelHeader, ModelKind, TrainingInfo, VERSION};
+use mapper::model::{self, FORMAT, ModelHeader, ModelKind, PCA_VERSION, TrainingInfo};
 use mapper::pca;
 use mapper::tasks::Task;
 
@@ -154,13 +154,14 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, SclError> {
     };
     let header = ModelHeader {
         format: FORMAT.into(),
-        version: VERSION,
+        version: PCA_VERSION,
         kind: ModelKind::Pca,
         n_joints: m,
         latent_dim: o.latent_dim,
         joint_names: names,
         speed_scale_rad_s: speed,
         lipschitz_bound: None,
+        network: None,
         training: TrainingInfo {
             data_hash: ds.hash.clone(),
             n_train: ds.n_train(),
@@ -168,6 +169,7 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, SclError> {
             validation_loss,
             seed: 0,
             command: o.command.clone(),
+            settings: None,
         },
     };
     let bytes = model::to_bytes(

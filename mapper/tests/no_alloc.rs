@@ -1,0 +1,180 @@
+//! The mapper's tick never touches the heap: `MapperStep::step` with every kind of model
+//! (SCL with and without Gram-Schmidt, CAE, PCA) is run under a counting global allocator.
+//! The allocator counts only on the test's own thread and only while counting is switched on.
+#![allow(missing_docs, clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+
+use ipc_types::{JoystickInput, RobotState};
+use mapper::LoadedModel;
+use mapper::model::{
+    EncoderKind, FORMAT, ModelHeader, ModelKind, NetworkInfo, ObsInputs, TrainingInfo, VERSION,
+};
+use mapper::network::NetworkModel;
+use mapper::nn::Mlp;
+use mapper::rng::Rng;
+use mapper::step::MapperStep;
+
+struct Counting;
+
+thread_local! {
+    static ACTIVE: Cell<bool> = const { Cell::new(false) };
+    static COUNT: Cell<usize> = const { Cell::new(0) };
+}
+
+fn note() {
+    // `try_with`: the allocator may run while thread-locals are being torn down.
+    let _ = ACTIVE.try_with(|a| {
+        if a.get() {
+            let _ = COUNT.try_with(|c| c.set(c.get() + 1));
+        }
+    });
+}
+
+// SAFETY: every call is forwarded unchanged to the system allocator; the bookkeeping only
+// touches const-initialised thread-locals, which never allocate.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as ours.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as ours.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as ours.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note();
+        // SAFETY: same contract as ours.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Allocations made by `f` on this thread.
+fn allocations(f: impl FnOnce()) -> usize {
+    COUNT.with(|c| c.set(0));
+    ACTIVE.with(|a| a.set(true));
+    f();
+    ACTIVE.with(|a| a.set(false));
+    COUNT.with(|c| c.get())
+}
+
+fn network_model(kind: ModelKind, gram_schmidt: bool) -> NetworkModel {
+    let (m, d) = (6, 2);
+    let mut rng = Rng::new(7);
+    let sizes: Vec<usize> = match kind {
+        ModelKind::Cae => vec![m + 1 + d, 256, 256, m],
+        _ => vec![m + 1, 256, 256, m * d],
+    };
+    let header = ModelHeader {
+        format: FORMAT.into(),
+        version: VERSION,
+        kind,
+        n_joints: m,
+        latent_dim: d,
+        joint_names: (1..=m).map(|i| format!("joint_{i}")).collect(),
+        speed_scale_rad_s: 0.5,
+        lipschitz_bound: None,
+        network: Some(NetworkInfo {
+            inputs: ObsInputs::JointsAndGripper,
+            input_mean: vec![0.0; m + 1],
+            input_std: vec![1.0; m + 1],
+            hidden: vec![256, 256],
+            gram_schmidt,
+            gs_epsilon: 1e-8,
+            encoder: EncoderKind::None,
+            encoder_input_mean: Vec::new(),
+            encoder_input_std: Vec::new(),
+            li_losses: None,
+        }),
+        training: TrainingInfo::default(),
+    };
+    NetworkModel::new(header, Mlp::init(&sizes, &mut rng), None).unwrap()
+}
+
+fn network(kind: ModelKind, gram_schmidt: bool) -> LoadedModel {
+    let model = network_model(kind, gram_schmidt);
+    LoadedModel::from_bytes(&model.to_bytes().unwrap(), Path::new("test")).unwrap()
+}
+
+fn joystick(i: usize) -> JoystickInput {
+    let t = i as f32 * 0.01;
+    JoystickInput {
+        tick: i as u64,
+        t_ns: 0,
+        seq: i as u64,
+        // Some samples beyond the unit disc, so the clamping path runs too.
+        axes: [1.3 * t.cos(), 1.3 * t.sin()],
+        gripper: 0.2,
+        buttons: 0,
+    }
+}
+
+#[test]
+fn the_counter_sees_allocations() {
+    // Without this the test below could pass with a broken counter.
+    let n = allocations(|| {
+        let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(4));
+        drop(v);
+    });
+    assert_eq!(n, 1);
+}
+
+#[test]
+fn mapper_step_never_allocates() {
+    let models = [
+        ("scl", network(ModelKind::Scl, true)),
+        ("scl without Gram-Schmidt", network(ModelKind::Scl, false)),
+        ("cae", network(ModelKind::Cae, false)),
+        (
+            "pca (bundled)",
+            LoadedModel::load(mapper::model::BUNDLED_NAME).unwrap(),
+        ),
+    ];
+    for (name, model) in models {
+        let mut step = MapperStep::new(1, model, 6).unwrap();
+        let mut state = RobotState::at_rest(0, 0, 6);
+        let mut moved = 0.0;
+        let n = allocations(|| {
+            for i in 0..100 {
+                state.tick = i as u64;
+                state.q_rad[0] = (i as f64 * 0.01).sin();
+                let cmd = step.step(&state, Some(&joystick(i)));
+                moved += cmd.qdot_rad_s.iter().map(|v| v.abs()).sum::<f64>();
+                // No input and a bad state take their own paths.
+                std::hint::black_box(step.step(&state, None));
+            }
+        });
+        assert_eq!(n, 0, "{name}: {n} allocations in 200 steps");
+        assert!(moved > 0.0, "{name}: the map produced no motion");
+    }
+}
+
+#[test]
+fn both_kernels_evaluate_without_allocating() {
+    use mapper::ActionMap;
+    use mapper::nn::Kernel;
+    for kernel in [Kernel::Portable, Kernel::detect()] {
+        let mut map = network_model(ModelKind::Scl, true).scl_map().unwrap();
+        map.set_kernel(kernel);
+        let mut out = [0.0; 6];
+        let n = allocations(|| {
+            for i in 0..100 {
+                let q = [0.01 * i as f64, 0.2, -0.3, 0.4, 0.0, 0.1];
+                map.eval(&q, 0.5, &[0.3, -0.4], &mut out);
+            }
+        });
+        assert_eq!(n, 0, "{kernel:?}: {n} allocations");
+        assert!(out.iter().any(|v| *v != 0.0));
+    }
+}
