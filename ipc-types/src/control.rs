@@ -96,6 +96,15 @@ pub struct EstopCommand {
 /// Topic name of [`EstopCommand`].
 pub const ESTOP: &str = "estop";
 
+/// Settings of the [`EstopCommand`] topic.
+pub const ESTOP_TOPIC: crate::graph::TopicSettings = crate::graph::TopicSettings {
+    name: ESTOP,
+    history: 1,
+    buffer: 8,
+    max_publishers: 8,
+    max_subscribers: 8,
+};
+
 /// What a [`ControlRequest`] asks for.
 pub mod request_kind {
     /// Swap the active mapper for a new one serving the model at `path`.
@@ -156,6 +165,15 @@ impl ControlResponse {
 
 /// Topic name of [`SafetyControl`].
 pub const SAFETY_CONTROL: &str = "safety_control";
+
+/// Settings of the [`SafetyControl`] topic: the newest switch kept for a restarted safety.
+pub const SAFETY_CONTROL_TOPIC: crate::graph::TopicSettings = crate::graph::TopicSettings {
+    name: SAFETY_CONTROL,
+    history: 1,
+    buffer: 8,
+    max_publishers: 2,
+    max_subscribers: 8,
+};
 /// Service name of the supervisor's request-response service.
 pub const SUPERVISOR: &str = "supervisor";
 
@@ -191,26 +209,7 @@ impl Graph {
         ),
         IpcError,
     > {
-        let full = self.prefix().service(SAFETY_CONTROL);
-        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
-            service: full.clone(),
-            reason: format!("{e:?}"),
-        })?;
-        let f = self
-            .node()
-            .service_builder(&name)
-            .publish_subscribe::<SafetyControl>()
-            .history_size(1)
-            .subscriber_max_buffer_size(8)
-            .enable_safe_overflow(true)
-            .max_publishers(2)
-            .max_subscribers(8)
-            .open_or_create()
-            .map_err(|e| IpcError::Open {
-                service: full.clone(),
-                reason: e.to_string(),
-            })?;
-        Ok((full, f))
+        self.pubsub(&SAFETY_CONTROL_TOPIC)
     }
 
     /// Publisher of active-mapper switches (the supervisor).
@@ -259,26 +258,7 @@ impl Graph {
         ),
         IpcError,
     > {
-        let full = self.prefix().service(ESTOP);
-        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
-            service: full.clone(),
-            reason: format!("{e:?}"),
-        })?;
-        let f = self
-            .node()
-            .service_builder(&name)
-            .publish_subscribe::<EstopCommand>()
-            .history_size(1)
-            .subscriber_max_buffer_size(8)
-            .enable_safe_overflow(true)
-            .max_publishers(8)
-            .max_subscribers(8)
-            .open_or_create()
-            .map_err(|e| IpcError::Open {
-                service: full.clone(),
-                reason: e.to_string(),
-            })?;
-        Ok((full, f))
+        self.pubsub(&ESTOP_TOPIC)
     }
 
     /// A publisher of e-stop commands. Keep it alive until the command took effect: a sample

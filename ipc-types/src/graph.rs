@@ -244,7 +244,7 @@ impl Graph {
         &self.node
     }
 
-    fn pubsub<T: ZeroCopySend + core::fmt::Debug + Copy>(
+    pub(crate) fn pubsub<T: ZeroCopySend + core::fmt::Debug + Copy>(
         &self,
         s: &TopicSettings,
     ) -> Result<(String, publish_subscribe::PortFactory<Ipc, T, ()>), IpcError> {
