@@ -224,8 +224,9 @@ impl Default for JoystickConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MapperConfig {
-    /// Model file, or `bundled` for the model built into `scl`. A relative path is taken
-    /// relative to the config file's directory.
+    /// Model file, `bundled` for the model built into `scl`, or `modeswitch` (optionally
+    /// `modeswitch:key=value,...`) for the Cartesian mode-switching map. A relative path is
+    /// taken relative to the config file's directory.
     pub model: String,
     /// Id of the mapper process started by `scl up`; safety forwards this id.
     pub id: u32,
@@ -313,7 +314,7 @@ impl GraphConfig {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
-        if cfg.mapper.model != mapper::model::BUNDLED_NAME {
+        if !mapper::model::is_builtin(&cfg.mapper.model) {
             let p = Path::new(&cfg.mapper.model);
             if p.is_relative()
                 && let Some(dir) = path.parent()

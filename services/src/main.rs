@@ -37,7 +37,8 @@ enum Cmd {
         /// Print one JSON summary object on stdout at the end.
         #[arg(long)]
         json: bool,
-        /// Serve this model file (or `bundled`) instead of the config's.
+        /// Serve this model file (or `bundled`, or `modeswitch` for Cartesian mode switching)
+        /// instead of the config's.
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
         /// Joystick script instead of the config's: `circle` or `step`.
@@ -51,7 +52,7 @@ enum Cmd {
     /// it at a tick boundary, then stops the old one. A model that does not load is refused
     /// and the old mapper keeps running.
     Swap {
-        /// Model file, or `bundled`.
+        /// Model file, `bundled` or `modeswitch`.
         model: String,
         /// How long to wait for the switch-over.
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
@@ -81,7 +82,7 @@ enum Cmd {
     },
     /// A mapper process serving one model.
     Mapper {
-        /// Model file, or `bundled`.
+        /// Model file, `bundled` or `modeswitch[:key=value,...]`.
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
         /// Mapper id (safety forwards only the active id).
