@@ -74,12 +74,9 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// The joystick process (scripted source).
-    Joystick {
-        /// Script: `circle` or `step`.
-        #[arg(long)]
-        script: Option<String>,
-    },
+    /// The joystick process: a script, a joystick or gamepad (evdev), the keyboard, or a
+    /// recorded input file; `--list` shows the input devices attached.
+    Joystick(services::joystick::JoystickArgs),
     /// A mapper process serving one model.
     Mapper {
         /// Model file, `bundled` or `modeswitch[:key=value,...]`.
@@ -396,11 +393,8 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Joystick { script } => {
-            if let Some(s) = script {
-                cfg.joystick.script = s;
-            }
-            services::joystick::run(&prefix, &cfg.graph, &cfg.joystick, &cfg.faults, period_s)?;
+        Cmd::Joystick(args) => {
+            services::joystick::main(&prefix, &mut cfg, &args)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Mapper { model, id } => {
@@ -492,7 +486,7 @@ fn main() -> ExitCode {
         Cmd::Estop => "estop",
         Cmd::Bench { .. } => "bench",
         Cmd::Reset => "reset",
-        Cmd::Joystick { .. } => "joystick",
+        Cmd::Joystick(_) => "joystick",
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",
         Cmd::Bridge { .. } => "bridge",
