@@ -1037,4 +1037,18 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
         resolve_paths(&mut j, Path::new("/etc/scl"));
         assert_eq!(j.mapping, "xbox");
     }
+
+    #[test]
+    fn the_shipped_graph_configs_load() {
+        let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/joystick"));
+        for (name, source) in [
+            ("gamepad-graph.toml", "evdev"),
+            ("keyboard-graph.toml", "keyboard"),
+        ] {
+            let cfg = GraphConfig::load(Some(&dir.join(name))).unwrap();
+            cfg.validate().unwrap();
+            assert_eq!(cfg.joystick.source, source);
+            assert_eq!(cfg.mapper.model, "modeswitch");
+        }
+    }
 }
