@@ -31,6 +31,9 @@ pub mod buttons {
     pub const ESTOP: u32 = 1 << 2;
     /// The gripper button is held (close while held).
     pub const GRIPPER: u32 = 1 << 3;
+    /// The input device is gone (unplugged, or not found yet): the sample is neutral and the
+    /// joystick process is waiting for the device to come back.
+    pub const NO_DEVICE: u32 = 1 << 4;
 }
 
 /// One sample of the operator's input device.
@@ -408,6 +411,11 @@ pub struct NodeStatus {
     pub safety_state: u32,
     /// Safety: how many ticks each rule of [`safe_flags`] acted, by bit.
     pub rule_counts: [u32; 16],
+    /// Mapper: the map's current mode plus one (mode switching: 1 x-y, 2 z-yaw,
+    /// 3 roll-pitch); 0 for a map without modes.
+    pub mode: u32,
+    /// Mapper: mode switches since the mapper started (presses of the mode button).
+    pub mode_switches: u32,
 }
 
 impl NodeStatus {
@@ -427,6 +435,8 @@ impl NodeStatus {
             mapper_id: 0,
             safety_state: 0,
             rule_counts: [0; 16],
+            mode: 0,
+            mode_switches: 0,
         }
     }
 }
@@ -456,7 +466,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<MapperCommand>(), 160);
         assert_eq!(std::mem::size_of::<SafeCommand>(), 168);
         assert_eq!(std::mem::size_of::<TickReport>(), 120);
-        assert_eq!(std::mem::size_of::<NodeStatus>(), 144);
+        assert_eq!(std::mem::size_of::<NodeStatus>(), 152);
     }
 
     #[test]

@@ -1,9 +1,11 @@
 //! Action maps: from a 2-D joystick action `a` (`|a| <= 1`) and the robot observation
 //! `o = (q, c)` to a joint-velocity command `qdot = s * map(o, a)`.
 //!
-//! * [`ActionMap`]: the one trait every map implements (PCA now; SCL, CAE and mode switching
-//!   join it). Evaluation writes into a caller's buffer and never allocates.
+//! * [`ActionMap`]: the one trait every map implements (PCA and mode switching now; SCL and
+//!   CAE join it). Evaluation writes into a caller's buffer and never allocates.
 //! * [`pca`]: the paper's linear baseline `qdot = Σ a`, and its fit from demonstrations.
+//! * [`modeswitch`]: Cartesian mode switching (x-y, z-yaw, roll-pitch) by damped least squares
+//!   on the Gen3 lite's Jacobian, with Cartesian speed limits and a slowdown near singularities.
 //! * [`model`]: the model file (`*.safetensors` with a JSON header in its metadata) and the
 //!   reader that turns a file into a ready [`ActionMap`], refusing bad files at load time.
 //! * [`dataset`]: demonstrations as CSV trajectories of `(t, q, c, qdot, cdot)`.
@@ -19,6 +21,7 @@ pub mod demos;
 pub mod eval;
 pub mod import;
 pub mod model;
+pub mod modeswitch;
 pub mod network;
 pub mod nn;
 pub mod pca;
@@ -42,4 +45,23 @@ pub trait ActionMap: Send {
     fn latent_dim(&self) -> usize;
     /// Writes `map(o, a)` into `out[..n_joints]`, where `o = (q, c)`.
     fn eval(&mut self, q: &[f64], c: f64, a: &[f64], out: &mut [f64]);
+    /// Takes the joystick buttons pressed since the previous tick (the rising edges of
+    /// [`ipc_types::buttons`] bits), before this tick's `eval`. Maps without modes ignore
+    /// them. Must not allocate.
+    fn press(&mut self, _pressed: u32) {}
+    /// The current mode, for maps that have modes (mode switching); `None` otherwise.
+    fn mode(&self) -> Option<MapMode> {
+        None
+    }
+}
+
+/// The operating mode of a map that has modes, as the mapper's status reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MapMode {
+    /// Index of the current mode, from 0.
+    pub index: u32,
+    /// Its name (`x-y`, `z-yaw`, `roll-pitch` for mode switching).
+    pub name: &'static str,
+    /// Mode switches since the map was loaded.
+    pub switches: u32,
 }

@@ -36,6 +36,13 @@ pub const BUNDLED: &[u8] = include_bytes!("../../models/default.safetensors");
 /// The name by which configs and the CLI refer to [`BUNDLED`].
 pub const BUNDLED_NAME: &str = "bundled";
 
+/// Whether `spec` names a map built into the binary ([`BUNDLED_NAME`], the mode-switching
+/// spec) rather than a file, so configs and clients leave it as it is instead of resolving it
+/// as a path.
+pub fn is_builtin(spec: &str) -> bool {
+    spec == BUNDLED_NAME || crate::modeswitch::is_spec(spec)
+}
+
 /// The kind of map a file holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -46,6 +53,8 @@ pub enum ModelKind {
     Scl,
     /// Conditional autoencoder decoder.
     Cae,
+    /// Cartesian mode switching ([`crate::modeswitch`]): header only, no tensors.
+    ModeSwitch,
 }
 
 impl std::fmt::Display for ModelKind {
@@ -54,6 +63,7 @@ impl std::fmt::Display for ModelKind {
             Self::Pca => "pca",
             Self::Scl => "scl",
             Self::Cae => "cae",
+            Self::ModeSwitch => "modeswitch",
         })
     }
 }
@@ -282,6 +292,14 @@ pub enum ModelError {
         /// What requires it.
         against: &'static str,
     },
+    /// A built-in map's parameters (from its spec or its file's metadata) are unusable.
+    #[error("model {model}: {reason}")]
+    Parameters {
+        /// The spec or file.
+        model: String,
+        /// Which parameter and what is wrong with it.
+        reason: String,
+    },
     /// The header declares a kind this build cannot serve yet.
     #[error("model file {path}: models of kind `{kind}` are not supported by this build")]
     Unsupported {
@@ -312,10 +330,19 @@ impl std::fmt::Debug for LoadedModel {
 }
 
 impl LoadedModel {
-    /// Loads `spec`: a path, or [`BUNDLED_NAME`] for the model built into the binary.
+    /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary, or
+    /// `modeswitch[:key=value,...]` for the mode-switching map ([`crate::modeswitch::SPEC`]).
     pub fn load(spec: &str) -> Result<Self, ModelError> {
         if spec == BUNDLED_NAME {
             return Self::from_bytes(BUNDLED, Path::new(BUNDLED_NAME));
+        }
+        if crate::modeswitch::is_spec(spec) {
+            let (header, map) = crate::modeswitch::ModeSwitchMap::from_spec(spec)?;
+            return Ok(Self {
+                source: spec.to_owned(),
+                header,
+                map: Box::new(map),
+            });
         }
         let path = Path::new(spec);
         let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
@@ -337,6 +364,9 @@ impl LoadedModel {
             ModelKind::Scl | ModelKind::Cae => {
                 NetworkModel::from_tensors(&st, header.clone(), path)?.into_map()
             }
+            ModelKind::ModeSwitch => Box::new(crate::modeswitch::ModeSwitchMap::from_file(
+                bytes, &header, path,
+            )?),
         };
         Ok(Self {
             source: path.display().to_string(),

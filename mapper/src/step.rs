@@ -6,6 +6,7 @@ use ipc_types::{
     ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, RobotState, mapper_flags,
 };
 
+use crate::MapMode;
 use crate::model::{LoadedModel, ModelError};
 
 /// Gripper rate at full gripper input (1/s on the `c` scale): open to closed in 1 s.
@@ -17,6 +18,8 @@ pub struct MapperStep {
     id: u32,
     model: LoadedModel,
     gripper_rate: f64,
+    /// Buttons of the last usable joystick sample, for press (rising-edge) detection.
+    held: u32,
     out: [f64; MAX_JOINTS],
 }
 
@@ -29,6 +32,7 @@ impl MapperStep {
             id,
             model,
             gripper_rate: DEFAULT_GRIPPER_RATE,
+            held: 0,
             out: [0.0; MAX_JOINTS],
         })
     }
@@ -43,12 +47,21 @@ impl MapperStep {
         &self.model
     }
 
+    /// The map's current mode, for maps that have modes (see [`crate::ActionMap::mode`]).
+    pub fn mode(&self) -> Option<MapMode> {
+        self.model.map.mode()
+    }
+
     /// Computes the command for `state`'s tick from the newest joystick sample `joy`.
     ///
     /// The action is zero when there is no sample or a non-finite one, and clamped radially to
     /// `|a| <= 1`. A non-finite model output or an unusable state gives a zero command. Each
     /// case sets its bit in [`MapperCommand::flags`]. Times (`t_ns`, `compute_ns`) are left at
     /// 0 for the caller to stamp.
+    ///
+    /// Buttons pressed since the last usable sample (rising edges, so a button held over many
+    /// ticks is one press) go to the map before it is evaluated ([`crate::ActionMap::press`]);
+    /// a missing, non-finite or stale sample leaves the held buttons as they were.
     pub fn step(&mut self, state: &RobotState, joy: Option<&JoystickInput>) -> MapperCommand {
         let m = self.model.header.n_joints;
         let mut flags = 0;
@@ -63,6 +76,11 @@ impl MapperStep {
                 flags |= mapper_flags::INPUT_STALE;
             }
             Some(j) => {
+                let pressed = j.buttons & !self.held;
+                self.held = j.buttons;
+                if pressed != 0 {
+                    self.model.map.press(pressed);
+                }
                 for (ai, v) in a.iter_mut().zip(j.axes) {
                     *ai = f64::from(v);
                 }

@@ -193,7 +193,8 @@ impl Default for GraphSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct JoystickConfig {
-    /// Input source: `script` (devices come with the joystick issue).
+    /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` (a person at the
+    /// terminal) or `replay` (a recorded input file).
     pub source: String,
     /// Script: `circle` (a slow circle), `step` (+x, +y, -x, -y holds with rests) or
     /// `constant` (`constant_axes` held).
@@ -208,6 +209,27 @@ pub struct JoystickConfig {
     pub step_rest_s: f64,
     /// Constant: the axes held (scaled by `amplitude`).
     pub constant_axes: [f64; 2],
+    /// evdev: the device: a path (`/dev/input/event5`), part of its name (`xbox`), or empty
+    /// for the first joystick or gamepad that has the mapping's axes.
+    pub device: String,
+    /// evdev: the mapping of axes and buttons: `xbox` or `generic` (built in) or a mapping
+    /// file (TOML; a relative path is relative to the config file's directory).
+    pub mapping: String,
+    /// evdev: how often an unplugged or missing device is looked for again (ms).
+    pub reconnect_interval_ms: u64,
+    /// Keyboard: time from rest to full deflection (s).
+    pub keyboard_ramp_s: f64,
+    /// Keyboard: a key counts as held this long after its first press (ms); terminals
+    /// report auto-repeats but rarely releases.
+    pub keyboard_first_hold_ms: u64,
+    /// Keyboard: ... and this long after each auto-repeat (ms).
+    pub keyboard_repeat_hold_ms: u64,
+    /// Replay: the recorded input file (CSV `t_s,a0,a1,gripper,buttons`), played with its
+    /// original timing from the first robot tick.
+    pub replay_file: String,
+    /// Any source: also record the published input to this file (same CSV; an existing file
+    /// is refused); empty: off.
+    pub record_input: String,
 }
 
 impl Default for JoystickConfig {
@@ -220,6 +242,14 @@ impl Default for JoystickConfig {
             step_hold_s: 2.0,
             step_rest_s: 0.5,
             constant_axes: [1.0, 0.0],
+            device: String::new(),
+            mapping: "xbox".into(),
+            reconnect_interval_ms: 500,
+            keyboard_ramp_s: 0.5,
+            keyboard_first_hold_ms: 600,
+            keyboard_repeat_hold_ms: 150,
+            replay_file: String::new(),
+            record_input: String::new(),
         }
     }
 }
@@ -228,8 +258,9 @@ impl Default for JoystickConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MapperConfig {
-    /// Model file, or `bundled` for the model built into `scl`. A relative path is taken
-    /// relative to the config file's directory.
+    /// Model file, `bundled` for the model built into `scl`, or `modeswitch` (optionally
+    /// `modeswitch:key=value,...`) for the Cartesian mode-switching map. A relative path is
+    /// taken relative to the config file's directory.
     pub model: String,
     /// Id of the mapper process started by `scl up`; safety forwards this id.
     pub id: u32,
@@ -321,7 +352,10 @@ impl GraphConfig {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
-        if cfg.mapper.model != mapper::model::BUNDLED_NAME {
+        if let Some(dir) = path.parent() {
+            crate::joystick::resolve_paths(&mut cfg.joystick, dir);
+        }
+        if !mapper::model::is_builtin(&cfg.mapper.model) {
             let p = Path::new(&cfg.mapper.model);
             if p.is_relative()
                 && let Some(dir) = path.parent()
@@ -365,42 +399,7 @@ impl GraphConfig {
                 ),
             ));
         }
-        let j = &self.joystick;
-        if j.source != "script" {
-            return Err(err(
-                "joystick.source",
-                format!("`{}` is not available; use `script`", j.source),
-            ));
-        }
-        if crate::joystick::Script::from_config(j).is_none() {
-            return Err(err(
-                "joystick.script",
-                format!(
-                    "`{}` is not a script; use `circle`, `step` or `constant`",
-                    j.script
-                ),
-            ));
-        }
-        if !(j.amplitude > 0.0 && j.amplitude <= 1.0) {
-            return Err(err(
-                "joystick.amplitude",
-                format!("{} is outside (0, 1]", j.amplitude),
-            ));
-        }
-        for (key, v) in [
-            ("joystick.circle_period_s", j.circle_period_s),
-            ("joystick.step_hold_s", j.step_hold_s),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(err(key, format!("{v} must be a positive number")));
-            }
-        }
-        if !(j.step_rest_s.is_finite() && j.step_rest_s >= 0.0) {
-            return Err(err(
-                "joystick.step_rest_s",
-                "must be zero or positive".into(),
-            ));
-        }
+        crate::joystick::validate(&self.joystick)?;
         let b = &self.bridge;
         if b.robot != "mock" && b.robot != "kortex" {
             return Err(err(

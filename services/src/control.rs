@@ -15,7 +15,7 @@ use crate::SclError;
 /// (a path, made absolute here since the supervisor's working directory may differ, or
 /// `bundled`).
 pub fn swap(prefix: &Prefix, model: &str, timeout: Duration) -> Result<ControlResponse, SclError> {
-    let spec = if model == mapper::model::BUNDLED_NAME {
+    let spec = if mapper::model::is_builtin(model) {
         model.to_owned()
     } else {
         let p = Path::new(model);
@@ -102,6 +102,10 @@ pub struct NodeRow {
     pub alive: bool,
     /// Safety: how many ticks each rule acted (only rules that did).
     pub rules: Vec<(String, u32)>,
+    /// Mapper with modes (mode switching): the current mode's name.
+    pub mode: Option<String>,
+    /// Mapper with modes: mode switches since it started.
+    pub mode_switches: Option<u32>,
 }
 
 /// The graph as `scl status` shows it.
@@ -181,6 +185,8 @@ pub fn status(
                 .filter(|(_, c)| *c > 0)
                 .map(|(n, c)| ((*n).to_owned(), c))
                 .collect(),
+            mode: (s.mode > 0).then(|| mode_name(s.mode)),
+            mode_switches: (s.mode > 0).then_some(s.mode_switches),
         };
         if row.alive {
             match role {
@@ -199,6 +205,14 @@ pub fn status(
         .filter(|(name, pid)| *name != me && !latest.iter().any(|s| s.pid == *pid))
         .collect();
     Ok(out)
+}
+
+/// The name of a heartbeat's [`NodeStatus::mode`] (mode plus one; the mode-switching map's
+/// modes are the only ones so far).
+fn mode_name(mode: u32) -> String {
+    let index = (mode as usize).saturating_sub(1);
+    mapper::modeswitch::Mode::from_index(index)
+        .map_or_else(|| format!("mode {index}"), |m| m.name().to_owned())
 }
 
 /// The table `scl status` prints.
@@ -246,6 +260,15 @@ pub fn render(st: &GraphStatus) -> String {
             n.pid,
             rules.join(", ")
         );
+    }
+    for n in &st.nodes {
+        if let (Some(mode), Some(switches)) = (&n.mode, n.mode_switches) {
+            let _ = writeln!(
+                s,
+                "{} {} (pid {}): mode {mode}, {switches} mode switches",
+                n.role, n.mapper_id, n.pid
+            );
+        }
     }
     for (name, pid) in &st.other_nodes {
         let _ = writeln!(

@@ -1,7 +1,8 @@
 //! The processes of an SCL graph and the tools around them, wired into the `scl` command.
 //!
 //! Each process module is a thin loop (wait, read, step, publish) around a pure step function
-//! from a library crate: [`joystick`] (script source), [`mapper_node`], [`safety_node`],
+//! from a library crate: [`joystick`] (script, evdev, keyboard and replay sources),
+//! [`mapper_node`], [`safety_node`],
 //! [`bridge_node`]. [`up`] supervises the four as child processes and serves live swaps;
 //! [`control`] is the client side (`scl swap`, `scl status`). [`config`] is the graph
 //! TOML, [`signals`] the shutdown flag every loop polls. [`tools`] and [`plot`] are the offline
@@ -54,6 +55,9 @@ pub enum SclError {
     /// Generating task demonstrations failed.
     #[error(transparent)]
     Tasks(#[from] mapper::tasks::TaskError),
+    /// An input source (device mapping, recorded input, terminal) could not be set up.
+    #[error(transparent)]
+    Joystick(#[from] joystick::JoystickError),
     /// Drawing a plot failed.
     #[error(transparent)]
     Plot(#[from] plot::PlotError),

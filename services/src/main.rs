@@ -39,7 +39,8 @@ enum Cmd {
         /// Print one JSON summary object on stdout at the end.
         #[arg(long)]
         json: bool,
-        /// Serve this model file (or `bundled`) instead of the config's.
+        /// Serve this model file (or `bundled`, or `modeswitch` for Cartesian mode switching)
+        /// instead of the config's.
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
         /// Joystick script instead of the config's: `circle` or `step`.
@@ -64,7 +65,7 @@ enum Cmd {
     /// it at a tick boundary, then stops the old one. A model that does not load is refused
     /// and the old mapper keeps running.
     Swap {
-        /// Model file, or `bundled`.
+        /// Model file, `bundled` or `modeswitch`.
         model: String,
         /// How long to wait for the switch-over.
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
@@ -86,15 +87,12 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// The joystick process (scripted source).
-    Joystick {
-        /// Script: `circle` or `step`.
-        #[arg(long)]
-        script: Option<String>,
-    },
+    /// The joystick process: a script, a joystick or gamepad (evdev), the keyboard, or a
+    /// recorded input file; `--list` shows the input devices attached.
+    Joystick(services::joystick::JoystickArgs),
     /// A mapper process serving one model.
     Mapper {
-        /// Model file, or `bundled`.
+        /// Model file, `bundled` or `modeswitch[:key=value,...]`.
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
         /// Mapper id (safety forwards only the active id).
@@ -619,11 +617,8 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Joystick { script } => {
-            if let Some(s) = script {
-                cfg.joystick.script = s;
-            }
-            services::joystick::run(&prefix, &cfg.graph, &cfg.joystick, &cfg.faults, period_s)?;
+        Cmd::Joystick(args) => {
+            services::joystick::main(&prefix, &mut cfg, &args)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Mapper { model, id } => {
@@ -813,7 +808,7 @@ fn main() -> ExitCode {
         Cmd::Estop => "estop",
         Cmd::Bench { .. } => "bench",
         Cmd::Reset => "reset",
-        Cmd::Joystick { .. } => "joystick",
+        Cmd::Joystick(_) => "joystick",
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",
         Cmd::Bridge { .. } => "bridge",

@@ -36,6 +36,7 @@ pub fn run(
     crate::rt::elevate(graph_cfg, RtRole::Mapper);
     let mut st = NodeStatus::new(NodeRole::Mapper, phase::READY, now_ns());
     st.mapper_id = id;
+    set_mode(&mut st, &step);
     status.send(st)?;
     let h = &step.model().header;
     tracing::info!(
@@ -82,10 +83,31 @@ pub fn run(
         if cmd.flags != 0 {
             st.faults += 1;
         }
+        if set_mode(&mut st, &step) {
+            tracing::info!(
+                id,
+                tick = state.tick,
+                mode = step.mode().map_or("-", |m| m.name),
+                switches = st.mode_switches,
+                "mode switch"
+            );
+        }
         status.send(st)?;
     }
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     status.send(st)?;
     Ok(())
+}
+
+/// Copies the map's mode into the heartbeat (see [`NodeStatus::mode`]); returns whether the
+/// switch count changed.
+fn set_mode(st: &mut NodeStatus, step: &MapperStep) -> bool {
+    let Some(m) = step.mode() else {
+        return false;
+    };
+    let changed = st.mode_switches != m.switches;
+    st.mode = m.index + 1;
+    st.mode_switches = m.switches;
+    changed
 }

@@ -1,15 +1,9 @@
-//! The joystick process, with the scripted source: a slow circle or a step pattern,
-//! evaluated at the tick the sample answers, so a scripted run is deterministic.
-//!
-//! The process publishes one sample at start and one on every robot tick (the heartbeat that
-//! keeps the sample's age known downstream).
+//! The scripted source: a slow circle, a step pattern or a constant input, evaluated at the
+//! tick the sample answers, so a scripted run is deterministic.
 
-use std::time::Duration;
+use ipc_types::{JoystickInput, NO_TICK};
 
-use ipc_types::{Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
-
-use crate::config::{FaultConfig, GraphSection, JoystickConfig, RtRole};
-use crate::{SclError, signals};
+use crate::config::JoystickConfig;
 
 /// A scripted input: `a(t)` with `|a| <= amplitude`.
 #[derive(Debug, Clone, PartialEq)]
@@ -108,58 +102,6 @@ impl Script {
             buttons: 0,
         }
     }
-}
-
-/// Runs the joystick process until a shutdown is requested.
-pub fn run(
-    prefix: &Prefix,
-    graph_cfg: &GraphSection,
-    cfg: &JoystickConfig,
-    faults: &FaultConfig,
-    period_s: f64,
-) -> Result<(), SclError> {
-    let script = Script::from_config(cfg).ok_or_else(|| {
-        SclError::Graph(format!(
-            "joystick.script `{}` is not a script; use `circle` or `step`",
-            cfg.script
-        ))
-    })?;
-    let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
-    let publisher = graph.joystick_publisher()?;
-    let states = graph.robot_state_subscriber(true)?;
-    let status = graph.status_publisher()?;
-    crate::rt::elevate(graph_cfg, RtRole::Joystick);
-    let mut seq = 0;
-    publisher.send(script.sample(NO_TICK, period_s, seq, now_ns()))?;
-    status.send(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
-    tracing::info!(script = %cfg.script, "publishing on {}", publisher.service());
-    let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
-    while !signals::stop_requested() {
-        if !states.wait(Duration::from_millis(100))? {
-            continue;
-        }
-        let Some(state) = states.latest()? else {
-            continue;
-        };
-        let silent = faults.joystick_silent_after_ticks;
-        if silent == 0 || st.handled < silent {
-            seq += 1;
-            publisher.send(script.sample(state.tick, period_s, seq, now_ns()))?;
-        } else if st.handled == silent {
-            tracing::warn!(
-                tick = state.tick,
-                "fault injection: the joystick goes silent"
-            );
-        }
-        st.t_ns = now_ns();
-        st.tick = state.tick;
-        st.handled += 1;
-        status.send(st)?;
-    }
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    status.send(st)?;
-    Ok(())
 }
 
 #[cfg(test)]

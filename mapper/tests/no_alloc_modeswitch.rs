@@ -1,0 +1,93 @@
+//! The mapper's step with the mode-switching map allocates nothing per tick: the Jacobian,
+//! the condition number, the damped least-squares solve and the mode presses all stay on the
+//! stack, counted by a global allocator that counts this thread's allocations.
+//!
+//! One test in this file, so no other test shares the process's allocator while it counts.
+#![allow(clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use ipc_types::{JoystickInput, RobotState, buttons};
+use kinematics::gen3_lite;
+use mapper::LoadedModel;
+use mapper::step::MapperStep;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+// SAFETY: every call is forwarded unchanged to the system allocator; the counter is a
+// thread-local `Cell<usize>` with a const initialiser, which itself never allocates.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as ours.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as ours.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as ours.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
+
+#[test]
+fn the_mode_switching_step_does_not_allocate() {
+    // Set-up may allocate: load the map (parses the URDF once), build the step.
+    let mut step = MapperStep::new(1, LoadedModel::load("modeswitch").unwrap(), 6).unwrap();
+    let mut state = RobotState::at_rest(0, 1, 6);
+    state.q_rad[..6].copy_from_slice(&gen3_lite::HOME);
+
+    // The counter sees allocations (so a zero below means something).
+    let before = allocations();
+    drop(std::hint::black_box(Vec::<u64>::with_capacity(16)));
+    assert_eq!(allocations(), before + 1);
+
+    let before = allocations();
+    let mut moved = 0.0;
+    for k in 0..3000u64 {
+        let th = k as f32 * 0.01;
+        let j = JoystickInput {
+            tick: k,
+            t_ns: 1,
+            seq: k,
+            axes: [th.cos(), th.sin()],
+            gripper: 0.0,
+            // The mode button pressed every 100 ticks for 5 ticks: 30 switches.
+            buttons: if k % 100 < 5 { buttons::MODE } else { 0 },
+        };
+        state.tick = k;
+        let c = step.step(&state, Some(&j));
+        for i in 0..6 {
+            state.q_rad[i] += c.qdot_rad_s[i] * 0.001;
+            moved += c.qdot_rad_s[i].abs();
+        }
+    }
+    // Including the singular zero pose.
+    state.q_rad = [0.0; 8];
+    let c = step.step(&state, None);
+    let after = allocations();
+    let mode = step.mode().unwrap();
+    assert!(moved > 0.0 && c.qdot_rad_s.iter().all(|v| v.is_finite()));
+    assert_eq!(mode.switches, 30);
+    assert_eq!(
+        after - before,
+        0,
+        "the mapper step allocated {} times",
+        after - before
+    );
+}

@@ -1,0 +1,332 @@
+//! Linux input devices through evdev: listing them (`scl joystick --list`), choosing one (by
+//! path, by name, or the first joystick or gamepad that has the mapping's axes), and the
+//! reading thread that hands its events to the joystick loop over a channel, reports an
+//! unplugged device and reopens it when it comes back.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::Sender;
+
+use super::Waker;
+use super::mapping::{Code, Mapping};
+use super::pad::{AxisInfo, RawEvent, Snapshot};
+
+/// Where the device nodes live.
+pub const INPUT_DIR: &str = "/dev/input";
+
+/// What the reading thread hands to the loop.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DeviceMsg {
+    /// A device was opened; its state now.
+    Connected(Snapshot),
+    /// One event.
+    Event(RawEvent),
+    /// The open device failed (unplugged): why.
+    Lost(String),
+    /// No device could be opened: why (said once until one is found).
+    Missing(String),
+}
+
+/// A device found in [`INPUT_DIR`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceRow {
+    /// Its node.
+    pub path: PathBuf,
+    /// Its name (empty if it has none).
+    pub name: String,
+    /// Number of absolute axes.
+    pub axes: usize,
+    /// Number of keys and buttons.
+    pub keys: usize,
+    /// Whether it looks like a joystick or gamepad (absolute X and Y axes and a joystick or
+    /// gamepad button).
+    pub joystick: bool,
+}
+
+/// Buttons of the kernel's joystick and gamepad ranges (`BTN_TRIGGER` .. `BTN_THUMBR` and
+/// the unnamed ones up to 0x13f).
+fn is_joystick_button(code: u16) -> bool {
+    (0x120..=0x13f).contains(&code)
+}
+
+fn row_of(path: &Path, dev: &evdev::Device) -> DeviceRow {
+    let abs: Vec<u16> = dev
+        .supported_absolute_axes()
+        .map(|s| s.iter().map(|c| c.0).collect())
+        .unwrap_or_default();
+    let keys: Vec<u16> = dev
+        .supported_keys()
+        .map(|s| s.iter().map(|k| k.code()).collect())
+        .unwrap_or_default();
+    DeviceRow {
+        path: path.to_owned(),
+        name: dev.name().unwrap_or_default().to_owned(),
+        axes: abs.len(),
+        keys: keys.len(),
+        joystick: abs.contains(&0)
+            && abs.contains(&1)
+            && keys.iter().any(|k| is_joystick_button(*k)),
+    }
+}
+
+/// The device nodes `eventN` in [`INPUT_DIR`], in number order.
+fn nodes() -> Vec<PathBuf> {
+    let Ok(rd) = std::fs::read_dir(INPUT_DIR) else {
+        return Vec::new();
+    };
+    let mut v: Vec<(u32, PathBuf)> = rd
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let n = name.strip_prefix("event")?.parse().ok()?;
+            Some((n, e.path()))
+        })
+        .collect();
+    v.sort();
+    v.into_iter().map(|(_, p)| p).collect()
+}
+
+/// Every input device that could be opened, and the nodes that could not (with the error).
+pub fn list() -> (Vec<DeviceRow>, Vec<(PathBuf, std::io::Error)>) {
+    let mut rows = Vec::new();
+    let mut refused = Vec::new();
+    for p in nodes() {
+        match evdev::Device::open(&p) {
+            Ok(d) => rows.push(row_of(&p, &d)),
+            Err(e) => refused.push((p, e)),
+        }
+    }
+    (rows, refused)
+}
+
+/// The text `scl joystick --list` prints.
+pub fn render_list(rows: &[DeviceRow], refused: &[(PathBuf, std::io::Error)]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    if rows.is_empty() && refused.is_empty() {
+        let _ = writeln!(
+            s,
+            "no input devices in {INPUT_DIR} (none attached, or not visible here); the keyboard \
+             source needs none: scl joystick --source keyboard"
+        );
+        return s;
+    }
+    let _ = writeln!(
+        s,
+        "{:<22} {:>5} {:>5}  {:<9} NAME",
+        "DEVICE", "AXES", "KEYS", "KIND"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{:<22} {:>5} {:>5}  {:<9} {}",
+            r.path.display(),
+            r.axes,
+            r.keys,
+            if r.joystick { "joystick" } else { "-" },
+            r.name
+        );
+    }
+    if !refused.is_empty() {
+        let denied = refused
+            .iter()
+            .filter(|(_, e)| e.kind() == std::io::ErrorKind::PermissionDenied)
+            .count();
+        let _ = writeln!(
+            s,
+            "{} more device(s) could not be opened{}",
+            refused.len(),
+            if denied > 0 {
+                " (permission denied: add yourself to the `input` group, or use a udev rule)"
+            } else {
+                ""
+            }
+        );
+    }
+    s
+}
+
+/// Finds the device `selector` names: a path (starts with `/`), a name (case-insensitive
+/// substring), or, when empty, the first joystick or gamepad with the mapping's two axes.
+pub fn open(selector: &str, mapping: &Mapping) -> Result<(PathBuf, evdev::Device), String> {
+    if selector.starts_with('/') {
+        return evdev::Device::open(selector)
+            .map(|d| (PathBuf::from(selector), d))
+            .map_err(|e| format!("cannot open {selector}: {e}"));
+    }
+    let want = selector.to_lowercase();
+    let axes = [mapping.axes[0].code, mapping.axes[1].code];
+    let mut refused = 0;
+    let mut seen = 0;
+    for p in nodes() {
+        seen += 1;
+        let d = match evdev::Device::open(&p) {
+            Ok(d) => d,
+            Err(_) => {
+                refused += 1;
+                continue;
+            }
+        };
+        let ok = if want.is_empty() {
+            let has_axes = d
+                .supported_absolute_axes()
+                .is_some_and(|s| axes.iter().all(|a| s.contains(evdev::AbsoluteAxisCode(*a))));
+            let has_button = d
+                .supported_keys()
+                .is_some_and(|s| s.iter().any(|k| is_joystick_button(k.code())));
+            has_axes && has_button
+        } else {
+            d.name().is_some_and(|n| n.to_lowercase().contains(&want))
+        };
+        if ok {
+            return Ok((p, d));
+        }
+    }
+    let what = if want.is_empty() {
+        "no joystick or gamepad".to_owned()
+    } else {
+        format!("no device named like `{selector}`")
+    };
+    let hint = if refused > 0 {
+        format!(
+            " ({refused} of {seen} devices could not be opened: permission denied? see `scl joystick --list`)"
+        )
+    } else if seen == 0 {
+        format!(" ({INPUT_DIR} has no devices)")
+    } else {
+        " (see `scl joystick --list`)".to_owned()
+    };
+    Err(format!("{what} found{hint}"))
+}
+
+/// The device's state now, for [`super::pad::Pad::connect`].
+pub fn snapshot(path: &Path, dev: &evdev::Device) -> Snapshot {
+    let axes = dev
+        .get_absinfo()
+        .map(|it| {
+            it.map(|(c, info)| AxisInfo {
+                code: c.0,
+                min: info.minimum(),
+                max: info.maximum(),
+                value: info.value(),
+            })
+            .collect()
+        })
+        .unwrap_or_default();
+    let keys = dev
+        .supported_keys()
+        .map(|s| s.iter().map(|k| k.code()).collect())
+        .unwrap_or_default();
+    let keys_down = dev
+        .get_key_state()
+        .map(|s| s.iter().map(|k| k.code()).collect())
+        .unwrap_or_default();
+    Snapshot {
+        name: dev.name().unwrap_or_default().to_owned(),
+        path: path.display().to_string(),
+        axes,
+        keys,
+        keys_down,
+    }
+}
+
+/// Waits up to `timeout` for `fd` to become readable (or report an error).
+fn wait_readable(fd: i32, timeout: Duration) -> bool {
+    let mut p = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
+    // SAFETY: one valid pollfd for the duration of the call.
+    unsafe { libc::poll(&mut p, 1, ms) > 0 }
+}
+
+/// Starts the thread that reads the device `selector` names (see [`open`]) and hands its
+/// events to the loop, waking it. When the device fails it says so and looks for it again
+/// every `reconnect`; it ends when `stop` is set or the loop is gone.
+pub fn spawn_reader(
+    selector: String,
+    mapping: Mapping,
+    reconnect: Duration,
+    tx: Sender<DeviceMsg>,
+    waker: Arc<Waker>,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("evdev".into())
+        .spawn(move || {
+            let send = |m: DeviceMsg| {
+                let ok = tx.send(m).is_ok();
+                waker.notify();
+                ok
+            };
+            let mut said_missing = false;
+            while !stop.load(Ordering::Relaxed) {
+                let (path, mut dev) = match open(&selector, &mapping) {
+                    Ok(found) => found,
+                    Err(reason) => {
+                        if !said_missing && !send(DeviceMsg::Missing(reason)) {
+                            return;
+                        }
+                        said_missing = true;
+                        let t0 = Instant::now();
+                        while t0.elapsed() < reconnect && !stop.load(Ordering::Relaxed) {
+                            std::thread::sleep(Duration::from_millis(20));
+                        }
+                        continue;
+                    }
+                };
+                said_missing = false;
+                if let Err(e) = dev.set_nonblocking(true) {
+                    tracing::warn!("{}: cannot set non-blocking reads: {e}", path.display());
+                }
+                if !send(DeviceMsg::Connected(snapshot(&path, &dev))) {
+                    return;
+                }
+                let fd = std::os::fd::AsRawFd::as_raw_fd(&dev);
+                loop {
+                    if stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    if !wait_readable(fd, Duration::from_millis(100)) {
+                        continue;
+                    }
+                    match dev.fetch_events() {
+                        Ok(events) => {
+                            for e in events {
+                                let ev = RawEvent {
+                                    kind: e.event_type().0,
+                                    code: e.code(),
+                                    value: e.value(),
+                                };
+                                if tx.send(DeviceMsg::Event(ev)).is_err() {
+                                    return;
+                                }
+                            }
+                            waker.notify();
+                        }
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                        Err(e) => {
+                            if !send(DeviceMsg::Lost(format!("{}: {e}", path.display()))) {
+                                return;
+                            }
+                            break;
+                        }
+                    }
+                }
+            }
+        })
+}
+
+/// The device inputs the mapping needs that a device lacks, as a readable list.
+pub fn describe_missing(missing: &[(&'static str, Code)]) -> String {
+    missing
+        .iter()
+        .map(|(role, c)| format!("{role} ({})", c.name()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
