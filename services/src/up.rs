@@ -682,7 +682,12 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         plan.push((NodeRole::Recorder, 0, args));
     }
     plan.extend([
-        (NodeRole::Joystick, 0, sv.child_args("joystick")),
+        (NodeRole::Joystick, 0, {
+            // `scl up --script` overrides the config file the child reads.
+            let mut a = sv.child_args("joystick");
+            a.extend(["--script".to_owned(), cfg.joystick.script.clone()]);
+            a
+        }),
         (
             NodeRole::Mapper,
             cfg.mapper.id,
