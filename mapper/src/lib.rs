@@ -12,6 +12,8 @@
 //! * [`demos`]: generated demonstrations (a joint-space reaching set for the bundled model).
 //! * [`tasks`]: generated demonstrations of the paper's tasks (table cleaning, pick and place,
 //!   pouring on the Gen3 lite; the 5-DOF planar reach) by Cartesian waypoints and DLS.
+//! * [`rollout`]: closed-loop forward-then-reverse runs of a map on a simulated arm (the
+//!   proportionality and soft-reversibility experiment).
 //! * [`step`]: the mapper process's pure step function, `(RobotState, JoystickInput) ->
 //!   MapperCommand`.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
@@ -26,6 +28,7 @@ pub mod network;
 pub mod nn;
 pub mod pca;
 pub mod rng;
+pub mod rollout;
 pub mod step;
 pub mod tasks;
 pub mod train;

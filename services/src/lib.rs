@@ -11,13 +11,15 @@
 //! (`scl dataset`, recordings to training data) and [`top`] (`scl top`, the terminal dashboard).
 //! [`fake_kortex`] serves a fake Gen3 lite over the Kortex protocol on loopback
 //! (`scl fake-kortex`).
-//! [`learning`] (network training, import, offline evaluation) joins [`tools`] offline.
+//! [`learning`] (network training, import, offline evaluation) joins [`tools`] offline;
+//! [`experiments`] runs the paper's experiments end to end (`scl eval EXPERIMENT --out DIR`).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod bench;
 pub mod bridge_node;
 pub mod config;
 pub mod control;
+pub mod experiments;
 pub mod fake_kortex;
 pub mod joystick;
 pub mod learning;
@@ -85,6 +87,9 @@ pub enum SclError {
     /// An offline evaluation failed.
     #[error(transparent)]
     Eval(#[from] mapper::eval::EvalError),
+    /// An experiment (`scl eval EXPERIMENT`) could not run.
+    #[error(transparent)]
+    Experiment(#[from] experiments::ExperimentError),
     /// Writing training artefacts or reading learning options failed.
     #[error(transparent)]
     Learning(#[from] learning::LearningError),

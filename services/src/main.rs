@@ -223,33 +223,23 @@ enum Cmd {
     },
 }
 
+/// `scl eval EXPERIMENT --out DIR`: the paper's experiments (docs/experiments.md).
+///
+/// Every experiment shares the options of `services::experiments::CommonArgs` (--out, --seeds,
+/// --epochs, --threads, --data, --models, --hidden); a new experiment (e.g. `greedy-user`)
+/// flattens them into its own arguments as these do.
 #[derive(Subcommand, Debug)]
 enum EvalCmd {
-    /// Reconstruction MSE of qdot of each model on a data set's validation split, as a
-    /// Markdown table.
-    Reconstruction {
-        /// Data set directory (train/*.csv, val/*.csv).
-        #[arg(long, value_name = "DIR")]
-        data: PathBuf,
-        /// Model files.
-        #[arg(required = true, value_name = "MODEL")]
-        models: Vec<PathBuf>,
-    },
-    /// Soft-reversibility experiments (the paper's theorem and its 1-second experiment).
-    Reversibility {
-        /// Model file.
-        #[arg(long, value_name = "FILE")]
-        model: PathBuf,
-        /// Also sample states from this data set.
-        #[arg(long, value_name = "DIR")]
-        data: Option<PathBuf>,
-        /// States per set.
-        #[arg(long, default_value_t = 2000)]
-        samples: usize,
-        /// Random seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-    },
+    /// Proportionality and soft reversibility on the mock Gen3 lite (the paper's figure):
+    /// a for 1 s, stop, -a for 1 s, 10 models per kind (SCL, CAE, PCA) x 10 start states.
+    Reversibility(services::experiments::reversibility::ReversibilityArgs),
+    /// The soft-reversibility inequality over sampled states and actions, for SCL without
+    /// Gram-Schmidt (the theorem: must always hold), with Gram-Schmidt, and CAE.
+    /// `--models FILE...` checks given files (the former `scl eval reversibility --model`).
+    Theorem(services::experiments::theorem::TheoremArgs),
+    /// Validation reconstruction loss of every kind on the three Gen3 lite tasks (with
+    /// `--models FILE... --data DIR`: of given files on one data set).
+    Reconstruction(services::experiments::reconstruction::ReconstructionArgs),
 }
 
 /// `scl train`: every option, with the paper's defaults.
@@ -776,24 +766,41 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Eval { what } => {
-            let text = match what {
-                EvalCmd::Reconstruction { data, models } => {
-                    services::learning::eval_reconstruction(&data, &models)?
+            let command = std::env::args().collect::<Vec<_>>().join(" ");
+            use services::experiments as ex;
+            let (out, verdict) = match what {
+                EvalCmd::Reversibility(args) => {
+                    let o = ex::reversibility::run(&args, period_s, &command)?;
+                    let failed: Vec<_> = o.checks.iter().filter(|c| !c.holds).collect();
+                    (
+                        o.out,
+                        if failed.is_empty() {
+                            "the expected shape holds".to_owned()
+                        } else {
+                            format!("{} expected-shape statement(s) do not hold", failed.len())
+                        },
+                    )
                 }
-                EvalCmd::Reversibility {
-                    model,
-                    data,
-                    samples,
-                    seed,
-                } => services::learning::eval_reversibility(
-                    &model,
-                    data.as_deref(),
-                    samples,
-                    seed,
-                    period_s,
-                )?,
+                EvalCmd::Theorem(args) => {
+                    let o = ex::theorem::run(&args, period_s, &command)?;
+                    if !o.theorem_holds {
+                        eprintln!(
+                            "scl eval theorem: the inequality FAILED where the theorem applies (a bug); see {}",
+                            o.out.join("summary.md").display()
+                        );
+                        return Ok(ExitCode::from(1));
+                    }
+                    (
+                        o.out,
+                        "the inequality held wherever the theorem applies".to_owned(),
+                    )
+                }
+                EvalCmd::Reconstruction(args) => {
+                    let o = ex::reconstruction::run(&args, &command)?;
+                    (o.out, format!("{} models evaluated", o.entries.len()))
+                }
             };
-            println!("{text}");
+            eprintln!("{verdict}; summary: {}", out.join("summary.md").display());
             Ok(ExitCode::SUCCESS)
         }
     }

@@ -1,0 +1,275 @@
+//! Quick versions of the experiments on tiny settings: they check the direction of each
+//! result, that a second run resumes from the cached models, and that a mismatching or
+//! corrupt cached model is a clear error.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::SystemTime;
+
+use mapper::model::ModelKind;
+use mapper::tasks::Task;
+
+use super::reconstruction::ReconstructionArgs;
+use super::reversibility::ReversibilityArgs;
+use super::theorem::TheoremArgs;
+use super::*;
+
+/// A small pick-and-place data set (2 train, 1 val trajectories), generated once.
+fn data() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("scl-exp-data-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        let ds = mapper::tasks::generate(Task::PickAndPlace, 2, 1, 1).unwrap();
+        dataset::write_dir(&d.join("pick-and-place"), &ds).unwrap();
+        d
+    })
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("scl-exp-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn common(out: &Path, seeds: usize, epochs: usize) -> CommonArgs {
+    CommonArgs {
+        out: out.to_owned(),
+        seeds,
+        epochs: Some(epochs),
+        threads: 2,
+        data: Some(data().to_owned()),
+        models: Vec::new(),
+        hidden: "16,16".into(),
+    }
+}
+
+fn mtimes(dir: &Path) -> Vec<(PathBuf, SystemTime)> {
+    let mut v = Vec::new();
+    let mut stack = vec![dir.to_owned()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "safetensors") {
+                let t = std::fs::metadata(&p).unwrap().modified().unwrap();
+                v.push((p, t));
+            }
+        }
+    }
+    v.sort();
+    v
+}
+
+fn mean_reverse(c: &[reversibility::Point]) -> f64 {
+    let moving: Vec<_> = c.iter().filter(|p| p.alpha > 0.0).collect();
+    moving.iter().map(|p| p.reverse_mean).sum::<f64>() / moving.len() as f64
+}
+
+#[test]
+fn reversibility_quick_has_the_expected_direction_and_resumes() {
+    let out = out_dir("rev");
+    let mut args = ReversibilityArgs {
+        common: common(&out, 2, 5),
+        task: "pick-and-place".into(),
+        states: 3,
+        alphas: 3,
+        seed: 1,
+    };
+    let o = reversibility::run(&args, 0.025, "test").unwrap();
+    let scl = o.curve(ModelKind::Scl).unwrap();
+    let cae = o.curve(ModelKind::Cae).unwrap();
+    let pca = o.curve(ModelKind::Pca).unwrap();
+    assert_eq!(scl.len(), 3);
+    assert_eq!(scl[2].n, 2 * 3);
+    // PCA returns exactly; SCL moves and comes back closer than CAE.
+    // (Runs that reach a joint limit are clamped by the mock and excluded.)
+    assert!(pca.iter().all(|p| p.reverse_max_inside < 1e-9), "{pca:?}");
+    assert!(pca.iter().all(|p| p.limited < p.n), "{pca:?}");
+    assert!(pca[2].forward_mean > 0.01 && scl[2].forward_mean > 0.01);
+    assert!(
+        mean_reverse(scl) < mean_reverse(cae),
+        "scl {scl:?}\ncae {cae:?}"
+    );
+    // Proportionality: PCA's forward distance doubles from alpha 0.5 to 1.
+    assert!((pca[1].forward_mean / 0.5 - pca[2].forward_mean).abs() < 0.05 * pca[2].forward_mean);
+    for f in [
+        "runs.csv",
+        "curves.csv",
+        "summary.md",
+        "reversibility.png",
+        "reversibility.svg",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let runs = std::fs::read_to_string(out.join("runs.csv")).unwrap();
+    assert_eq!(runs.lines().count(), 1 + 3 * 2 * 3 * 3);
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(summary.contains("PCA returns exactly") && summary.contains("identical"));
+    let models = out.join("models/pick-and-place");
+    assert!(models.join("scl/seed-1.safetensors").is_file());
+    // A second run trains nothing and measures the same.
+    let before = mtimes(&out);
+    assert_eq!(before.len(), 3 * 2);
+    let again = reversibility::run(&args, 0.025, "test").unwrap();
+    assert_eq!(mtimes(&out), before);
+    assert_eq!(again.curves, o.curves);
+    // Other settings against the cache: a clear error naming the file, nothing replaced.
+    args.common.epochs = Some(6);
+    let e = reversibility::run(&args, 0.025, "test")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("seed-0.safetensors") && e.contains("pick another --out"),
+        "{e}"
+    );
+    assert_eq!(mtimes(&out), before);
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn theorem_quick_holds_without_gram_schmidt() {
+    let out = out_dir("theorem");
+    let args = TheoremArgs {
+        common: common(&out, 2, 5),
+        task: "pick-and-place".into(),
+        samples: 300,
+        seed: 1,
+    };
+    let o = theorem::run(&args, 0.025, "test").unwrap();
+    assert!(o.theorem_holds);
+    let no_gs: Vec<_> = o.rows.iter().filter(|r| r.group == "scl-no-gs").collect();
+    assert_eq!(no_gs.len(), 4);
+    for r in &no_gs {
+        assert!(r.theorem_applies, "{r:?}");
+        assert!(r.fraction.total > 500, "{r:?}");
+        assert_eq!(r.fraction.held, r.fraction.total, "{r:?}");
+        assert!(r.fraction.worst_ratio < 1.0);
+    }
+    // CAE is not soft-reversible: somewhere the inequality fails.
+    let cae_fails = o
+        .rows
+        .iter()
+        .filter(|r| r.group == "cae")
+        .any(|r| r.fraction.held < r.fraction.total);
+    assert!(cae_fails, "{:?}", o.rows);
+    assert!(
+        o.rows
+            .iter()
+            .filter(|r| r.group != "scl-no-gs")
+            .all(|r| !r.theorem_applies)
+    );
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(summary.contains("as it must"), "{summary}");
+    // The same check on a given file (the former `scl eval reversibility --model`).
+    let file = out.join("models/pick-and-place/scl-no-gs/seed-0.safetensors");
+    let given = TheoremArgs {
+        common: CommonArgs {
+            models: vec![file],
+            data: Some(data().join("pick-and-place")),
+            ..common(&out_dir("theorem-given"), 2, 5)
+        },
+        ..args
+    };
+    let g = theorem::run(&given, 0.025, "test").unwrap();
+    assert!(g.theorem_holds && g.rows.len() == 4 && g.rows.iter().all(|r| r.theorem_applies));
+    std::fs::remove_dir_all(&out).unwrap();
+    std::fs::remove_dir_all(&given.common.out).unwrap();
+}
+
+#[test]
+fn reconstruction_reuses_prepopulated_models_and_refuses_bad_ones() {
+    let out = out_dir("recon");
+    let models = out.join("models/pick-and-place");
+    std::fs::create_dir_all(&models).unwrap();
+    // As scripts/learning-table.sh leaves it.
+    let pca = models.join("pca.safetensors");
+    crate::tools::train_pca(&crate::tools::TrainOptions {
+        data: &data().join("pick-and-place"),
+        out: &pca,
+        latent_dim: 2,
+        speed_scale: None,
+        force: false,
+        command: "scl train --kind pca".into(),
+    })
+    .unwrap();
+    let t0 = std::fs::metadata(&pca).unwrap().modified().unwrap();
+    let args = ReconstructionArgs {
+        common: CommonArgs {
+            ..common(&out, 1, 30)
+        },
+        tasks: "pick-and-place".into(),
+    };
+    let o = reconstruction::run(&args, "test").unwrap();
+    assert_eq!(std::fs::metadata(&pca).unwrap().modified().unwrap(), t0);
+    let names: Vec<&str> = o.entries.iter().map(|e| e.variant.as_str()).collect();
+    assert_eq!(names, Variant::ALL.map(Variant::name));
+    // Every model reconstructs better than the zero map (the mean square of qdot).
+    let ds = dataset::load_dir(&data().join("pick-and-place")).unwrap();
+    let zero: f64 = ds.val_qdot().iter().flatten().map(|v| v * v).sum::<f64>()
+        / ds.val_qdot().iter().flatten().count() as f64;
+    for e in &o.entries {
+        assert!(e.val_mse > 0.0 && e.val_mse < zero, "{e:?} vs {zero}");
+    }
+    assert!(models.join("scl.loss.png").is_file());
+    for f in [
+        "reconstruction.csv",
+        "reconstruction.md",
+        "reconstruction.png",
+        "reconstruction.svg",
+        "summary.md",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let csv = std::fs::read_to_string(out.join("reconstruction.csv")).unwrap();
+    assert!(
+        csv.lines()
+            .nth(2)
+            .unwrap()
+            .starts_with("pick-and-place,scl,\"scl, hidden 16x16, GS"),
+        "{csv}"
+    );
+    // A corrupt cached model is named.
+    std::fs::write(models.join("cae.safetensors"), b"not a model").unwrap();
+    let e = reconstruction::run(&args, "test").unwrap_err().to_string();
+    assert!(
+        e.contains("cae.safetensors") && e.contains("unusable"),
+        "{e}"
+    );
+    // Data without a validation split is refused, naming it.
+    let bad = out.join("no-val");
+    dataset::write_dir(
+        &bad.join("pick-and-place"),
+        &dataset::Dataset {
+            val: Vec::new(),
+            ..ds.clone()
+        },
+    )
+    .unwrap();
+    let e = reconstruction::run(
+        &ReconstructionArgs {
+            common: CommonArgs {
+                data: Some(bad.clone()),
+                ..args.common.clone()
+            },
+            ..args.clone()
+        },
+        "test",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no-val") && e.contains("validation"), "{e}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn a_file_in_place_of_the_output_directory_is_refused() {
+    let f = out_dir("file");
+    std::fs::write(&f, b"x").unwrap();
+    let e = Run::new("t", &common(&f, 1, 1), 1, "t")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--out") && e.contains("not a directory"), "{e}");
+    std::fs::remove_file(&f).unwrap();
+}
