@@ -109,6 +109,48 @@ fn reversibility_quick_has_the_expected_direction_and_resumes() {
     assert!(summary.contains("PCA returns exactly") && summary.contains("identical"));
     let models = out.join("models/pick-and-place");
     assert!(models.join("scl/seed-1.safetensors").is_file());
+    // The rollout's command is the served path's: MapperStep on the same model file.
+    let file = models.join("scl/seed-0.safetensors");
+    let any = load_model(&file).unwrap();
+    let mut map = any.map();
+    let mut step = mapper::step::MapperStep::new(
+        1,
+        mapper::LoadedModel::load(file.to_str().unwrap()).unwrap(),
+        6,
+    )
+    .unwrap();
+    let ds = dataset::load_dir(&data().join("pick-and-place")).unwrap();
+    for (k, a) in [[0.5f32, -0.75], [1.5, 2.0], [0.0, 0.0]].iter().enumerate() {
+        let t = &ds.val[0];
+        let mut state = ipc_types::RobotState::at_rest(10, 0, 6);
+        state.q_rad[..6].copy_from_slice(&t.q[k * 7]);
+        state.gripper = t.c[k * 7];
+        let joy = ipc_types::JoystickInput {
+            tick: ipc_types::NO_TICK,
+            t_ns: 0,
+            seq: 1,
+            axes: *a,
+            gripper: 0.0,
+            buttons: 0,
+        };
+        let served = step.step(&state, Some(&joy));
+        let mut out = [0.0; 6];
+        let s = any.header().speed_scale_rad_s;
+        mapper::rollout::served_command(
+            map.as_mut(),
+            s,
+            &t.q[k * 7],
+            t.c[k * 7],
+            &[f64::from(a[0]), f64::from(a[1])],
+            &mut out,
+        );
+        for i in 0..6 {
+            assert!(
+                (served.qdot_rad_s[i] - out[i]).abs() < 1e-12,
+                "{a:?}: {served:?} vs {out:?}"
+            );
+        }
+    }
     // A second run trains nothing and measures the same.
     let before = mtimes(&out);
     assert_eq!(before.len(), 3 * 2);
