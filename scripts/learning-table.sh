@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Trains PCA, SCL and CAE (with and without the paper's variations) on one data set and prints
-# the validation reconstruction MSE of each as a Markdown table (scl eval reconstruction).
+# the validation reconstruction MSE of each as a Markdown table (scl eval reconstruction, which
+# also writes CSV, a bar chart and summary.md to OUT_DIR/eval).
 # The same command works for any data set in the project's CSV layout (train/, val/), e.g. the
 # Gen3 lite task sets once they exist:
 #
@@ -31,7 +32,7 @@ net=(--data "$data" --latent-dim 2 --epochs "$EPOCHS" --seeds "$SEEDS" --force)
     --out "$out/cae-li-prop-rev.safetensors"
 "$scl" train --kind cae "${net[@]}" --li-losses consistency,proportionality,reversibility \
     --out "$out/cae-li-all.safetensors"
-"$scl" eval reconstruction --data "$data" \
+"$scl" eval reconstruction --out "$out/eval" --data "$data" --models \
     "$out"/pca.safetensors "$out"/scl.safetensors "$out"/scl-no-gs.safetensors \
     "$out"/scl-no-lipschitz.safetensors "$out"/scl-projection.safetensors \
     "$out"/cae.safetensors "$out"/cae-li-prop-rev.safetensors "$out"/cae-li-all.safetensors
