@@ -480,9 +480,9 @@ fn summary(
         let _ = writeln!(
             s,
             "| {} | {} | {} |",
-            c.statement,
+            c.statement.replace('|', "\\|"),
             if c.holds { "yes" } else { "**no**" },
-            c.detail
+            c.detail.replace('|', "\\|")
         );
     }
     s.push_str("\n## Distances (mean ± std over models × states, rad)\n\n| alpha |");
