@@ -1,6 +1,7 @@
 //! Generated demonstrations.
 //!
-//! [`joint_reach`] makes the small data set the bundled PCA model is fitted on: reaches from
+//! [`joint_reach`] makes a small data set that PCA fits almost exactly (the tests use such a
+//! model for its known, state-independent directions): reaches from
 //! the Gen3 lite's home pose to targets spread over two joint-space directions (a forward /
 //! back reach of the shoulder, elbow and wrist, and a sideways turn of the base with the wrist
 //! compensating) and back, with minimum-jerk speed profiles, varied durations and a little

@@ -30,8 +30,9 @@ pub const VERSION: u32 = 2;
 /// The version written for PCA files (which need nothing newer).
 pub const PCA_VERSION: u32 = 1;
 
-/// The model bundled into the `scl` binary: PCA fitted on the generated joint-space reaching
-/// demonstrations (regenerate with `scripts/regenerate-bundled-model.sh`).
+/// The model bundled into the `scl` binary: SCL (the paper's defaults, speed scale 0.6 rad/s)
+/// trained on the generated pick-and-place demonstrations in `data/pick-and-place`
+/// (regenerate with `scripts/regenerate-bundled-model.sh`).
 pub const BUNDLED: &[u8] = include_bytes!("../../models/default.safetensors");
 /// The name by which configs and the CLI refer to [`BUNDLED`].
 pub const BUNDLED_NAME: &str = "bundled";

@@ -158,7 +158,8 @@ mod tests {
         let model = LoadedModel::load(BUNDLED_NAME).unwrap();
         let s = model.header.speed_scale_rad_s;
         let step = MapperStep::new(7, model, 6).unwrap();
-        // The bundled model is PCA: recover its basis through the map itself.
+        // Recover the bundled map's basis at this state through the map itself (the map is
+        // linear in the action at a fixed state; every state here has the same joints).
         let mut probe = MapperStep::new(7, LoadedModel::load(BUNDLED_NAME).unwrap(), 6).unwrap();
         let mut b = DMatrix::zeros(6, 2);
         for j in 0..2 {

@@ -137,7 +137,7 @@ fn mapper_step_never_allocates() {
         ("scl without Gram-Schmidt", network(ModelKind::Scl, false)),
         ("cae", network(ModelKind::Cae, false)),
         (
-            "pca (bundled)",
+            "bundled (scl)",
             LoadedModel::load(mapper::model::BUNDLED_NAME).unwrap(),
         ),
     ];

@@ -2,14 +2,15 @@
 //! recorder of the graph's topics, and the check that a graph left nothing behind.
 #![allow(clippy::unwrap_used)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use ipc_types::{
-    Graph, JoystickInput, NodeStatus, Prefix, RobotState, SafeCommand, TopicSubscriber,
+    Graph, JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand,
+    TopicSubscriber,
 };
 
 /// Path of the `scl` binary of this build, built once per test process. `cargo test` does
@@ -81,12 +82,13 @@ pub fn wait_clean(prefix: &Prefix, timeout: Duration) -> Vec<String> {
     }
 }
 
-/// A read-only observer of a graph: every robot state, joystick sample, executed command and
-/// heartbeat, with the monotonic time it was seen.
+/// A read-only observer of a graph: every robot state, joystick sample, mapper command,
+/// executed command and heartbeat, with the monotonic time it was seen.
 pub struct Recorder {
     states: TopicSubscriber<RobotState>,
     joystick: TopicSubscriber<JoystickInput>,
     safe: TopicSubscriber<SafeCommand>,
+    mapper: TopicSubscriber<MapperCommand>,
     status: TopicSubscriber<NodeStatus>,
     /// Robot states, in order.
     pub robot_states: Vec<RobotState>,
@@ -94,6 +96,8 @@ pub struct Recorder {
     pub joystick_samples: Vec<JoystickInput>,
     /// Commands sent to the bridge, in order.
     pub safe_commands: Vec<SafeCommand>,
+    /// Commands of every mapper, in order.
+    pub mapper_commands: Vec<MapperCommand>,
     /// Heartbeats, in order.
     pub statuses: Vec<NodeStatus>,
     // Declared last: dropped after its ports.
@@ -108,10 +112,12 @@ impl Recorder {
             states: graph.robot_state_subscriber(false).unwrap(),
             joystick: graph.joystick_subscriber(false).unwrap(),
             safe: graph.safe_command_subscriber(false).unwrap(),
+            mapper: graph.mapper_command_subscriber(false).unwrap(),
             status: graph.status_subscriber().unwrap(),
             robot_states: Vec::new(),
             joystick_samples: Vec::new(),
             safe_commands: Vec::new(),
+            mapper_commands: Vec::new(),
             statuses: Vec::new(),
             _graph: graph,
         }
@@ -124,6 +130,9 @@ impl Recorder {
             .drain(|m| self.joystick_samples.push(*m))
             .unwrap();
         self.safe.drain(|m| self.safe_commands.push(*m)).unwrap();
+        self.mapper
+            .drain(|m| self.mapper_commands.push(*m))
+            .unwrap();
         self.status.drain(|m| self.statuses.push(*m)).unwrap();
     }
 
@@ -243,6 +252,29 @@ pub fn scl(prefix: &Prefix) -> Command {
     let mut c = Command::new(scl_binary());
     c.env("SCL_PREFIX", prefix.as_str()).env("SCL_LOG", "warn");
     c
+}
+
+/// A PCA model trained by `scl train` on the shipped joint-space reaching demonstrations
+/// (`data/joint-reach`), at `speed_scale_rad_s` or the default speed scale, written into
+/// `dir`. Tests that need known map directions (a joint limit reached by a constant input,
+/// the table plane) use it instead of the bundled model, whose directions change whenever it
+/// is retrained.
+pub fn joint_reach_pca(dir: &Path, speed_scale_rad_s: Option<f64>) -> PathBuf {
+    let name = speed_scale_rad_s.map_or("pca".to_owned(), |s| format!("pca-{s}"));
+    let out = dir.join(format!("{name}.safetensors"));
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/joint-reach");
+    let mut cmd = Command::new(scl_binary());
+    cmd.args(["train", "--kind", "pca", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .stderr(Stdio::null());
+    if let Some(s) = speed_scale_rad_s {
+        cmd.args(["--speed-scale", &s.to_string()]);
+    }
+    let st = cmd.status().expect("run scl train");
+    assert!(st.success(), "scl train --kind pca on {}", data.display());
+    out
 }
 
 /// A fresh temporary directory for one test.

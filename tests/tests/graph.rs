@@ -5,7 +5,7 @@
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use ipc_types::{NO_TICK, NodeRole, state_flags, time::now_ns};
+use ipc_types::{NO_TICK, NodeRole, mapper_flags, safe_flags, state_flags, time::now_ns};
 use mapper::LoadedModel;
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, scl_binary, serial,
@@ -110,49 +110,87 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
         }
     }
 
-    // Closed loop, map side: over every second in which the safety filter passed the
-    // commands unchanged, the arm moved along s·Σ·Σa·dt, the displacement the bundled map
-    // predicts for the scripted input. (The first second has the acceleration ramp from
-    // rest; the slow circle is smooth enough that the filter does not act after it.)
+    // Closed loop, map side, tick by tick: the joystick sample the mapper used is one the
+    // joystick published; the mapper's command is s·map(q_k, c_k, a) of the bundled model at
+    // the state of its tick; safety passed it unchanged, or scaled it uniformly to the joint
+    // speed limits (the direction kept). The bundled SCL map at full deflection asks for more
+    // than the big joints' 0.48 rad/s, so both cases occur.
     let mut model = LoadedModel::load("bundled").unwrap();
     let s = model.header.speed_scale_rad_s;
-    let a_at = |tick: u64| {
-        rec.joystick_samples
+    let (mut unchanged, mut scaled, mut moving) = (0, 0, 0);
+    for st in &states {
+        let Some(mc) = rec
+            .mapper_commands
             .iter()
-            .rev()
-            .find(|j| j.tick != NO_TICK && j.tick <= tick)
-            .map(|j| [f64::from(j.axes[0]), f64::from(j.axes[1])])
-    };
-    let mut checked = 0;
-    for window in states.chunks(40) {
-        let (first, last) = (window[0], window[window.len() - 1]);
-        let filtered = window[..window.len() - 1]
-            .iter()
-            .any(|st| cmd_at(st.tick).is_some_and(|c| c.flags != 0));
-        if filtered {
+            .find(|c| c.tick == st.tick && c.mapper_id == 1)
+        else {
             continue;
-        }
-        let mut predicted = [0.0; 6];
-        for st in &window[..window.len() - 1] {
-            let Some(a) = a_at(st.tick) else { continue };
-            let mut out = [0.0; 6];
-            model.map.eval(st.q(), st.gripper, &a, &mut out);
-            for j in 0..6 {
-                predicted[j] += s * out[j] * DT;
+        };
+        if mc.flags == mapper_flags::NO_INPUT {
+            // Before the joystick's first sample: a zero action.
+            assert!(st.tick < 5 && mc.action == [0.0; 2], "tick {}", st.tick);
+        } else {
+            // The unit circle in f32 can poke out of |a| <= 1 by a rounding error: clamped.
+            assert_eq!(
+                mc.flags & !mapper_flags::INPUT_CLAMPED,
+                0,
+                "tick {}",
+                st.tick
+            );
+            let sample = rec
+                .joystick_samples
+                .iter()
+                .find(|j| j.seq == mc.joystick_seq)
+                .expect("the mapper used a sample the joystick published");
+            for i in 0..2 {
+                assert!(
+                    (sample.axes[i] - mc.action[i]).abs() < 1e-6,
+                    "tick {}: sample {:?}, action {:?}",
+                    st.tick,
+                    sample.axes,
+                    mc.action
+                );
             }
         }
-        let actual: Vec<f64> = (0..6).map(|j| last.q_rad[j] - first.q_rad[j]).collect();
-        let pn: f64 = predicted.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if pn < 0.05 {
-            continue;
+        let a = [f64::from(mc.action[0]), f64::from(mc.action[1])];
+        let mut out = [0.0; 6];
+        model.map.eval(st.q(), st.gripper, &a, &mut out);
+        for j in 0..6 {
+            assert!(
+                (mc.qdot_rad_s[j] - s * out[j]).abs() < 1e-5,
+                "tick {} joint {j}: mapper {} against the map's {}",
+                st.tick,
+                mc.qdot_rad_s[j],
+                s * out[j]
+            );
         }
-        let an: f64 = actual.iter().map(|v| v * v).sum::<f64>().sqrt();
-        let cos = cosine(&actual, &predicted);
-        assert!(cos > 0.95, "ticks {}..{}: cos {cos}", first.tick, last.tick);
-        assert!(an > 0.5 * pn && an < 1.1 * pn, "moved {an}, predicted {pn}");
-        checked += 1;
+        let sc = cmd_at(st.tick).unwrap();
+        let (m, e) = (&mc.qdot_rad_s[..6], &sc.qdot_rad_s[..6]);
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm(m) > 1e-3 {
+            moving += 1;
+        }
+        if sc.flags == 0 {
+            assert_eq!(m, e, "tick {}: changed without a flag", st.tick);
+            unchanged += 1;
+        } else if sc.flags == safe_flags::VELOCITY_SCALED {
+            assert!(
+                cosine(m, e) > 1.0 - 1e-9 && norm(e) < norm(m),
+                "tick {}: not a uniform scale-down: {m:?} -> {e:?}",
+                st.tick
+            );
+            scaled += 1;
+        }
     }
-    assert!(checked >= 4, "only {checked} windows with motion");
+    // The rest were limited in acceleration: the first ticks ramp up from rest, and the
+    // circle (one turn in 8 s at full deflection) turns the command of the slowest joints
+    // (0.4-0.5 rad/s²) about as fast as they may change. The safety tests check that rule.
+    assert!(
+        unchanged >= 40 && unchanged + scaled >= states.len() / 3,
+        "only {unchanged} + {scaled} of {} commands passed through safety",
+        states.len()
+    );
+    assert!(moving >= states.len() / 2, "only {moving} moving commands");
     drop(rec);
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(5)),

@@ -9,8 +9,8 @@ use std::time::Duration;
 use ipc_types::{NodeRole, Prefix, RobotState, SafeCommand, phase, safe_flags, state_flags};
 use kinematics::gen3_lite::{DEFAULT_ACCELERATION_RAD_S2, DEFAULT_VELOCITY_RAD_S};
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
-    wait_clean,
+    ChildGuard, DomainGuard, Recorder, joint_reach_pca, run_polling, scl, serial, temp_dir,
+    unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
@@ -67,6 +67,8 @@ fn run_graph(
     let domain = DomainGuard(prefix.clone());
     let dir = temp_dir(tag);
     let cfg = dir.join("graph.toml");
+    // `@PCA@` stands for a model with known directions (see `joint_reach_pca`).
+    let config = config.replace("@PCA@", &joint_reach_pca(&dir, None).display().to_string());
     std::fs::write(&cfg, config).unwrap();
     let mut rec = Recorder::join(&prefix);
     let mut up = scl(&prefix);
@@ -132,7 +134,7 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
     let _serial = serial();
     let run = run_graph(
         "limit",
-        "[joystick]\nscript = \"constant\"\n",
+        "[mapper]\nmodel = \"@PCA@\"\n[joystick]\nscript = \"constant\"\n",
         14,
         30,
         |prefix, rec| {
@@ -378,7 +380,7 @@ fn driving_into_the_table_stops_at_the_plane() {
     let _serial = serial();
     let run = run_graph(
         "table",
-        "[joystick]\nscript = \"constant\"\nconstant_axes = [0.0, -1.0]\n",
+        "[mapper]\nmodel = \"@PCA@\"\n[joystick]\nscript = \"constant\"\nconstant_axes = [0.0, -1.0]\n",
         10,
         0,
         |_, _| {},

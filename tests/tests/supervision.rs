@@ -3,31 +3,21 @@
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use ipc_types::{NO_TICK, NodeRole, Prefix, phase, state_flags, time::now_ns};
 use kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, run_polling, scl, scl_binary,
-    serial, temp_dir, unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, joint_reach_pca, run_polling,
+    scl, serial, temp_dir, unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
 
-/// A second, different model: PCA on the same data with a lower speed scale.
+/// A second, different model: PCA on the joint-reach data with a lower speed scale.
 fn slow_model(dir: &Path) -> PathBuf {
-    let out = dir.join("slow.safetensors");
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/joint-reach");
-    let st = Command::new(scl_binary())
-        .args(["train", "--kind", "pca", "--speed-scale", "0.3", "--data"])
-        .arg(&data)
-        .arg("--out")
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(st.success());
-    out
+    joint_reach_pca(dir, Some(0.3))
 }
 
 /// Parses `swapped: mapper A -> B at tick T, X ms after the request, M ticks missed`.
