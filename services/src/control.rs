@@ -149,10 +149,29 @@ pub fn status(
         std::thread::sleep(Duration::from_millis(10));
     }
     let alive = graph.alive_nodes();
-    let now = now_ns();
+    Ok(status_from_heartbeats(
+        prefix.as_str(),
+        latest,
+        alive,
+        &me,
+        now_ns(),
+    ))
+}
+
+/// The graph as `scl status` shows it, from the newest heartbeat of each node (`latest`),
+/// the graph's live iceoryx2 nodes (`alive`: name and pid; `me`, the asking process, is left
+/// out) at monotonic time `now`: a pure function, so what `scl status` prints is testable
+/// without a graph.
+pub fn status_from_heartbeats(
+    prefix: &str,
+    mut latest: Vec<NodeStatus>,
+    alive: Vec<(String, u32)>,
+    me: &str,
+    now: u64,
+) -> GraphStatus {
     latest.sort_by_key(|s| (s.role, s.mapper_id, s.pid));
     let mut out = GraphStatus {
-        prefix: prefix.to_string(),
+        prefix: prefix.to_owned(),
         nodes: Vec::new(),
         other_nodes: Vec::new(),
         active_mapper: None,
@@ -204,12 +223,12 @@ pub fn status(
         .into_iter()
         .filter(|(name, pid)| *name != me && !latest.iter().any(|s| s.pid == *pid))
         .collect();
-    Ok(out)
+    out
 }
 
 /// The name of a heartbeat's [`NodeStatus::mode`] (mode plus one; the mode-switching map's
-/// modes are the only ones so far).
-fn mode_name(mode: u32) -> String {
+/// modes are the only ones so far): `x-y`, `z-yaw`, `roll-pitch`, else `mode N`.
+pub fn mode_name(mode: u32) -> String {
     let index = (mode as usize).saturating_sub(1);
     mapper::modeswitch::Mode::from_index(index)
         .map_or_else(|| format!("mode {index}"), |m| m.name().to_owned())
@@ -283,4 +302,126 @@ pub fn render(st: &GraphStatus) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ipc_types::safe_flags;
+
+    fn hb(role: NodeRole, pid: u32, mapper_id: u32, t_ms: u64) -> NodeStatus {
+        let mut s = NodeStatus::new(role, phase::RUNNING, t_ms * 1_000_000);
+        s.pid = pid;
+        s.mapper_id = mapper_id;
+        s.tick = 400;
+        s.handled = 400;
+        s
+    }
+
+    /// A running graph with a mode-switching mapper (z-yaw after 3 switches), a PCA mapper
+    /// without modes, and a safety whose rules acted.
+    fn graph() -> GraphStatus {
+        let mut mapper = hb(NodeRole::Mapper, 2001, 1, 990);
+        mapper.mode = 2;
+        mapper.mode_switches = 3;
+        let pca = hb(NodeRole::Mapper, 2002, 2, 990);
+        let mut safety = hb(NodeRole::Safety, 2003, 1, 995);
+        safety.rule_counts[safe_flags::NAMES
+            .iter()
+            .position(|n| *n == "velocity")
+            .unwrap()] = 120;
+        safety.rule_counts[safe_flags::NAMES.iter().position(|n| *n == "stop").unwrap()] = 7;
+        let mut bridge = hb(NodeRole::Bridge, 2004, 1, 998);
+        bridge.latency_ns = 85_500;
+        bridge.joint_travel_rad = 1.25;
+        let alive = [2001, 2002, 2003, 2004, 2005, 2006]
+            .into_iter()
+            .map(|p| (format!("node-{p}"), p))
+            .chain([("status-1".to_owned(), 1)])
+            .collect();
+        status_from_heartbeats(
+            "lab2",
+            vec![bridge, safety, pca, mapper],
+            alive,
+            "status-1",
+            1_000_000_000,
+        )
+    }
+
+    #[test]
+    fn status_shows_the_mode_its_switches_and_the_rules_that_acted() {
+        let st = graph();
+        assert_eq!(st.active_mapper, Some(1));
+        assert_eq!(st.bridge_latency_us, Some(85.5));
+        let text = render(&st);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[0], "graph `lab2`: 4 of 4 nodes alive, active mapper 1",
+            "{text}"
+        );
+        // Rows by role: mappers, safety, bridge.
+        let roles: Vec<&str> = lines[2..6]
+            .iter()
+            .map(|l| l.split_whitespace().next().unwrap())
+            .collect();
+        assert_eq!(roles, ["mapper", "mapper", "safety", "bridge"], "{text}");
+        assert!(lines.iter().all(|l| !l.contains("gone")), "{text}");
+        // The mode-switching mapper's mode and switch count; none for the map without modes.
+        assert!(
+            text.contains("mapper 1 (pid 2001): mode z-yaw, 3 mode switches"),
+            "{text}"
+        );
+        assert!(!text.contains("(pid 2002): mode"), "{text}");
+        // The safety rules that acted, with their counts (the others are left out).
+        assert!(
+            text.contains("safety (pid 2003) rules acted: velocity 120, stop 7\n"),
+            "{text}"
+        );
+        assert_eq!(text.matches("rules acted").count(), 1, "{text}");
+        // Live nodes without heartbeats (supervisor, observers), but not the asker.
+        assert!(
+            text.contains("node-2005     2005   (no heartbeat"),
+            "{text}"
+        );
+        assert!(!text.contains("status-1"), "{text}");
+        assert!(
+            text.contains("last end-to-end latency 85.5 µs, joint travel 1.250 rad"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_stale_or_dead_node_is_gone_and_names_no_active_mapper() {
+        let safety = hb(NodeRole::Safety, 3001, 4, 0);
+        // Heartbeat 1 s old: gone, so no active mapper.
+        let st = status_from_heartbeats(
+            "g",
+            vec![safety],
+            vec![("s".into(), 3001)],
+            "me",
+            1e9 as u64,
+        );
+        assert_eq!(st.active_mapper, None);
+        assert!(render(&st).contains("gone"));
+        // Fresh, but its process is no longer a node of the graph: gone too.
+        let st = status_from_heartbeats("g", vec![safety], vec![], "me", 100_000_000);
+        assert_eq!(st.active_mapper, None);
+        // Fresh and listed: alive.
+        let st = status_from_heartbeats(
+            "g",
+            vec![safety],
+            vec![("s".into(), 3001)],
+            "me",
+            100_000_000,
+        );
+        assert_eq!(st.active_mapper, Some(4));
+    }
+
+    #[test]
+    fn mode_names_follow_the_mode_switching_map() {
+        assert_eq!(mode_name(1), "x-y");
+        assert_eq!(mode_name(2), "z-yaw");
+        assert_eq!(mode_name(3), "roll-pitch");
+        assert_eq!(mode_name(9), "mode 8");
+    }
 }

@@ -8,9 +8,9 @@
 //! * [`Model::view`] turns it into a [`View`]: plain values, no history.
 //! * [`render`] draws a [`View`] into a ratatui frame, a pure function of the view.
 //!
-//! The loop ([`cli`]) subscribes read-only, redraws ten times a second, and maps keys to
-//! `scl estop` / `scl reset` ([`crate::control::estop`], in a thread so the picture keeps
-//! moving while safety confirms) and `q` to quit. `scl top --once` prints one 80x24 frame as
+//! The loop ([`cli`]) subscribes read-only, redraws ten times a second, and maps keys
+//! ([`key_action`], a pure function) to `scl estop` / `scl reset` ([`crate::control::estop`],
+//! in a thread so the picture keeps moving while safety confirms) and `q` to quit. `scl top --once` prints one 80x24 frame as
 //! text after listening for a second, for scripts and logs.
 
 use std::collections::VecDeque;
@@ -120,8 +120,11 @@ pub struct View {
     pub tick: Option<u64>,
     /// The mapper safety forwards.
     pub active_mapper: Option<u32>,
-    /// The active mode of a mode-switching mapper (none exists yet).
+    /// The active mapper's mode (`x-y`, `z-yaw`, `roll-pitch`), from its heartbeat; `None`
+    /// for a map without modes, or while no mapper is known to be active.
     pub mode: Option<String>,
+    /// The active mapper's mode switches since it started (with [`View::mode`]).
+    pub mode_switches: Option<u32>,
     /// Safety's e-stop is latched.
     pub estop: bool,
     /// The supervisor holds the arm.
@@ -341,6 +344,24 @@ impl Model {
                 .collect();
             v.gripper = Some(s.gripper);
         }
+        // The active mapper's mode: from its own heartbeat, once safety names it.
+        if let Some(active) = v.active_mapper
+            && let Some(m) = self
+                .tracks
+                .iter()
+                .map(|t| &t.last)
+                .filter(|s| {
+                    s.role == NodeRole::Mapper as u32
+                        && s.mapper_id == active
+                        && s.mode > 0
+                        && s.phase != phase::STOPPING
+                        && now.saturating_sub(s.t_ns) as f64 / 1e6 < ALIVE_MS
+                })
+                .max_by_key(|s| s.t_ns)
+        {
+            v.mode = Some(crate::control::mode_name(m.mode));
+            v.mode_switches = Some(m.mode_switches);
+        }
         v.joystick = self.joystick.map(|j| JoystickView {
             axes: j.axes,
             buttons: j.buttons,
@@ -423,7 +444,25 @@ fn fmt_us(us: f64) -> String {
     }
 }
 
-fn title_line(v: &View) -> Line<'static> {
+/// The mode as the title shows it, in the longest of its forms (`z-yaw (2 switches)`,
+/// `z-yaw (2 sw)`, `z-yaw`) that leaves `room` cells; `-` without a mode.
+fn mode_text(v: &View, room: usize) -> String {
+    let Some(name) = v.mode.as_deref() else {
+        return "-".to_owned();
+    };
+    let Some(n) = v.mode_switches else {
+        return name.to_owned();
+    };
+    let plural = if n == 1 { "switch" } else { "switches" };
+    [format!("{name} ({n} {plural})"), format!("{name} ({n} sw)")]
+        .into_iter()
+        .find(|t| t.chars().count() <= room)
+        .unwrap_or_else(|| name.to_owned())
+}
+
+/// The title row for a terminal `width` cells wide: the mode's text shrinks first, so the
+/// e-stop state at the end stays in view.
+fn title_line(v: &View, width: usize) -> Line<'static> {
     let bold = Style::new().add_modifier(Modifier::BOLD);
     let mut spans = vec![
         Span::styled(" scl top ", bold.add_modifier(Modifier::REVERSED)),
@@ -436,11 +475,10 @@ fn title_line(v: &View) -> Line<'static> {
             "  mapper {}",
             v.active_mapper.map_or("-".to_owned(), |m| m.to_string())
         )),
-        Span::raw(format!("  mode {}", v.mode.as_deref().unwrap_or("-"))),
-        Span::raw("  "),
     ];
+    let mut tail = vec![Span::raw("  ")];
     if v.estop {
-        spans.push(Span::styled(
+        tail.push(Span::styled(
             " E-STOP ",
             Style::new()
                 .fg(Color::White)
@@ -448,11 +486,16 @@ fn title_line(v: &View) -> Line<'static> {
                 .add_modifier(Modifier::BOLD),
         ));
     } else {
-        spans.push(Span::styled("e-stop off", Style::new().fg(Color::Green)));
+        tail.push(Span::styled("e-stop off", Style::new().fg(Color::Green)));
     }
     if v.hold {
-        spans.push(Span::styled(" HOLD", Style::new().fg(Color::Yellow)));
+        tail.push(Span::styled(" HOLD", Style::new().fg(Color::Yellow)));
     }
+    let used: usize = spans.iter().chain(&tail).map(Span::width).sum();
+    let label = "  mode ";
+    let room = width.saturating_sub(used + label.len());
+    spans.push(Span::raw(format!("{label}{}", mode_text(v, room))));
+    spans.extend(tail);
     Line::from(spans)
 }
 
@@ -667,7 +710,7 @@ pub fn render(frame: &mut Frame<'_>, v: &View) {
         Constraint::Length(1),
     ])
     .areas(area);
-    frame.render_widget(Paragraph::new(title_line(v)), title);
+    frame.render_widget(Paragraph::new(title_line(v, title.width as usize)), title);
 
     let [nodes, stick] =
         Layout::horizontal([Constraint::Min(40), Constraint::Length(26)]).areas(top);
@@ -812,8 +855,35 @@ fn send_estop(prefix: &Prefix, action: u32) -> std::sync::mpsc::Receiver<String>
     rx
 }
 
+/// What a key does on the dashboard.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Action {
+    /// Leave the dashboard: `q`, Esc, Ctrl-C.
+    Quit,
+    /// Latch the e-stop: `e` or space.
+    Estop,
+    /// Reset the e-stop: `r`.
+    Reset,
+}
+
+/// The action of a terminal key event, if any; only presses act (a held key's repeats and
+/// releases do not send a second e-stop or reset).
+pub fn key_action(k: &ratatui::crossterm::event::KeyEvent) -> Option<Action> {
+    use ratatui::crossterm::event::{KeyCode, KeyEventKind, KeyModifiers};
+    if k.kind != KeyEventKind::Press {
+        return None;
+    }
+    match k.code {
+        KeyCode::Char('c') if k.modifiers.contains(KeyModifiers::CONTROL) => Some(Action::Quit),
+        KeyCode::Char('q') | KeyCode::Esc => Some(Action::Quit),
+        KeyCode::Char('e') | KeyCode::Char(' ') => Some(Action::Estop),
+        KeyCode::Char('r') => Some(Action::Reset),
+        _ => None,
+    }
+}
+
 fn run_terminal(prefix: &Prefix) -> Result<(), SclError> {
-    use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
+    use ratatui::crossterm::event::{self, Event};
 
     let feed = Feed::open(prefix)?;
     let mut model = Model::new(prefix.as_str(), kinematics::gen3_lite::limits());
@@ -845,21 +915,17 @@ fn run_terminal(prefix: &Prefix) -> Result<(), SclError> {
             let Event::Key(k) = event::read().map_err(TopError::Terminal)? else {
                 continue;
             };
-            if k.kind != KeyEventKind::Press {
-                continue;
-            }
-            match k.code {
-                KeyCode::Char('q') | KeyCode::Esc => return Ok(()),
-                KeyCode::Char('c') if k.modifiers.contains(KeyModifiers::CONTROL) => return Ok(()),
-                KeyCode::Char('e') | KeyCode::Char(' ') => {
+            match key_action(&k) {
+                Some(Action::Quit) => return Ok(()),
+                Some(Action::Estop) => {
                     model.message = "e-stop sent, waiting for safety...".into();
                     pending.push(send_estop(prefix, ipc_types::control::estop_action::ESTOP));
                 }
-                KeyCode::Char('r') => {
+                Some(Action::Reset) => {
                     model.message = "reset sent, waiting for safety...".into();
                     pending.push(send_estop(prefix, ipc_types::control::estop_action::RESET));
                 }
-                _ => {}
+                None => {}
             }
         }
         Ok(())
@@ -900,7 +966,8 @@ mod tests {
             prefix: "lab2".into(),
             tick: Some(12345),
             active_mapper: Some(2),
-            mode: None,
+            mode: Some("z-yaw".into()),
+            mode_switches: Some(2),
             estop: false,
             hold: false,
             nodes: vec![
@@ -1001,7 +1068,8 @@ mod tests {
             "graph `lab2`",
             "tick 12345",
             "mapper 2",
-            "mode -",
+            // The long form ("z-yaw (2 switches)") needs one cell more than 80 columns give.
+            "mode z-yaw (2 sw)",
             "e-stop off",
         ] {
             assert!(title.contains(want), "title lacks `{want}`: {title}");
@@ -1151,6 +1219,67 @@ mod tests {
     }
 
     #[test]
+    fn the_mode_shrinks_before_the_estop_state_leaves_the_title() {
+        let title = |v: &View, w: u16| render_text(v, w, 24).unwrap()[0].trim_end().to_owned();
+        let mut v = fixed_view();
+        // Room enough: the long form, then the e-stop state.
+        let t = title(&v, 120);
+        assert!(
+            t.ends_with("mapper 2  mode z-yaw (2 switches)  e-stop off"),
+            "{t}"
+        );
+        v.mode_switches = Some(1);
+        assert!(title(&v, 120).contains("mode z-yaw (1 switch)  "));
+        // Latched and held with a long mode name and many switches in 80 columns: the mode
+        // is cut to its name, the e-stop and the hold stay in view.
+        v.estop = true;
+        v.hold = true;
+        v.mode = Some("roll-pitch".into());
+        v.mode_switches = Some(123);
+        let t = title(&v, 80);
+        assert!(
+            t.ends_with("mapper 2  mode roll-pitch   E-STOP  HOLD"),
+            "{t}"
+        );
+        let t = title(&v, 86);
+        assert!(t.contains("mode roll-pitch (123 sw)   E-STOP  HOLD"), "{t}");
+        // No mode (a map without modes, or no active mapper): a dash.
+        v.mode = None;
+        v.mode_switches = None;
+        assert!(title(&v, 80).contains("mapper 2  mode -   E-STOP  HOLD"));
+    }
+
+    #[test]
+    fn keys_map_to_actions_on_press_only() {
+        use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+        let press = |code| KeyEvent::new(code, KeyModifiers::NONE);
+        for (code, want) in [
+            (KeyCode::Char('e'), Some(Action::Estop)),
+            (KeyCode::Char(' '), Some(Action::Estop)),
+            (KeyCode::Char('r'), Some(Action::Reset)),
+            (KeyCode::Char('q'), Some(Action::Quit)),
+            (KeyCode::Esc, Some(Action::Quit)),
+            (KeyCode::Char('c'), None),
+            (KeyCode::Char('x'), None),
+            (KeyCode::Enter, None),
+        ] {
+            assert_eq!(key_action(&press(code)), want, "{code:?}");
+        }
+        assert_eq!(
+            key_action(&KeyEvent::new(KeyCode::Char('c'), KeyModifiers::CONTROL)),
+            Some(Action::Quit)
+        );
+        // A held key's repeats and its release send nothing more.
+        for kind in [KeyEventKind::Repeat, KeyEventKind::Release] {
+            for code in [KeyCode::Char('e'), KeyCode::Char('r'), KeyCode::Char('q')] {
+                let mut k = press(code);
+                k.kind = kind;
+                assert_eq!(key_action(&k), None, "{code:?} {kind:?}");
+            }
+        }
+    }
+
+    #[test]
     fn joint_bars_place_the_angle() {
         assert_eq!(joint_bar(0.0, -1.0, 1.0, 9), "────●────");
         assert_eq!(joint_bar(-1.0, -1.0, 1.0, 5), "●─┼──");
@@ -1232,5 +1361,70 @@ mod tests {
         m.take_status(&b);
         let v = m.view(14_030_000_000);
         assert_eq!((v.missed_total, v.missed_recent), (1, 0));
+    }
+
+    #[test]
+    fn the_title_shows_the_active_mappers_mode_from_its_heartbeat() {
+        let mut m = Model::new("g", kinematics::gen3_lite::limits());
+        let mapper = |id: u32, pid: u32, mode: u32, switches: u32, t_ms: u64| {
+            let mut s = hb(NodeRole::Mapper, pid, t_ms, 10);
+            s.mapper_id = id;
+            s.mode = mode;
+            s.mode_switches = switches;
+            s
+        };
+        let safety = |active: u32, t_ms: u64| {
+            let mut s = hb(NodeRole::Safety, 30, t_ms, 10);
+            s.mapper_id = active;
+            s
+        };
+        // A mode-switching mapper in z-yaw after two switches, and a second one (a swap in
+        // progress) in roll-pitch; no safety yet: no active mapper, so no mode.
+        m.take_status(&mapper(1, 20, 2, 2, 1000));
+        m.take_status(&mapper(2, 21, 3, 5, 1000));
+        let v = m.view(1_010_000_000);
+        assert_eq!((v.mode.as_deref(), v.mode_switches), (None, None));
+        // Safety forwards mapper 1: its mode.
+        m.take_status(&safety(1, 1000));
+        let v = m.view(1_010_000_000);
+        assert_eq!(
+            (v.mode.as_deref(), v.mode_switches),
+            (Some("z-yaw"), Some(2))
+        );
+        let lines = render_text(&v, 100, 24).unwrap();
+        assert!(
+            lines[0].contains("mapper 1  mode z-yaw (2 switches)  e-stop off"),
+            "{}",
+            lines[0]
+        );
+        // A press of the mode button: the next heartbeat says so.
+        m.take_status(&mapper(1, 20, 3, 3, 1025));
+        let v = m.view(1_030_000_000);
+        assert_eq!(
+            (v.mode.as_deref(), v.mode_switches),
+            (Some("roll-pitch"), Some(3))
+        );
+        // Swapped to mapper 2: its own mode and count.
+        m.take_status(&safety(2, 1050));
+        m.take_status(&mapper(2, 21, 1, 6, 1050));
+        let v = m.view(1_060_000_000);
+        assert_eq!((v.mode.as_deref(), v.mode_switches), (Some("x-y"), Some(6)));
+        let lines = render_text(&v, 80, 24).unwrap();
+        assert!(
+            lines[0].contains("mapper 2  mode x-y (6 switches)"),
+            "{}",
+            lines[0]
+        );
+        // A map without modes (mode 0) shows a dash.
+        m.take_status(&mapper(2, 21, 0, 0, 1075));
+        let v = m.view(1_080_000_000);
+        assert_eq!(v.mode, None);
+        assert!(render_text(&v, 80, 24).unwrap()[0].contains("mode -"));
+        // The active mapper's heartbeat gone stale: its mode is no longer claimed.
+        m.take_status(&mapper(2, 21, 2, 7, 1100));
+        m.take_status(&safety(2, 1500));
+        let v = m.view(1_500_000_000);
+        assert_eq!(v.active_mapper, Some(2));
+        assert_eq!(v.mode, None);
     }
 }

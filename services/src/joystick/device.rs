@@ -52,23 +52,44 @@ fn is_joystick_button(code: u16) -> bool {
     (0x120..=0x13f).contains(&code)
 }
 
-fn row_of(path: &Path, dev: &evdev::Device) -> DeviceRow {
-    let abs: Vec<u16> = dev
+/// Whether a device with the absolute axes `abs` and the keys `keys` is a joystick or
+/// gamepad with both `axes`: it has them and a button of the joystick or gamepad ranges.
+fn is_joystick_with(abs: &[u16], keys: &[u16], axes: [u16; 2]) -> bool {
+    axes.iter().all(|a| abs.contains(a)) && keys.iter().any(|k| is_joystick_button(*k))
+}
+
+/// Whether a device (its `name`, absolute axes `abs`, keys `keys`) is the one a selector
+/// asks for: `want`, lower case, is part of its name (case-insensitive), or, when empty,
+/// any joystick or gamepad with the mapping's two `axes`.
+fn selects(want: &str, name: &str, abs: &[u16], keys: &[u16], axes: [u16; 2]) -> bool {
+    if want.is_empty() {
+        is_joystick_with(abs, keys, axes)
+    } else {
+        name.to_lowercase().contains(want)
+    }
+}
+
+/// A device's absolute axes and keys, as codes.
+fn codes(dev: &evdev::Device) -> (Vec<u16>, Vec<u16>) {
+    let abs = dev
         .supported_absolute_axes()
         .map(|s| s.iter().map(|c| c.0).collect())
         .unwrap_or_default();
-    let keys: Vec<u16> = dev
+    let keys = dev
         .supported_keys()
         .map(|s| s.iter().map(|k| k.code()).collect())
         .unwrap_or_default();
+    (abs, keys)
+}
+
+fn row_of(path: &Path, dev: &evdev::Device) -> DeviceRow {
+    let (abs, keys) = codes(dev);
     DeviceRow {
         path: path.to_owned(),
         name: dev.name().unwrap_or_default().to_owned(),
         axes: abs.len(),
         keys: keys.len(),
-        joystick: abs.contains(&0)
-            && abs.contains(&1)
-            && keys.iter().any(|k| is_joystick_button(*k)),
+        joystick: is_joystick_with(&abs, &keys, [0, 1]),
     }
 }
 
@@ -170,17 +191,8 @@ pub fn open(selector: &str, mapping: &Mapping) -> Result<(PathBuf, evdev::Device
                 continue;
             }
         };
-        let ok = if want.is_empty() {
-            let has_axes = d
-                .supported_absolute_axes()
-                .is_some_and(|s| axes.iter().all(|a| s.contains(evdev::AbsoluteAxisCode(*a))));
-            let has_button = d
-                .supported_keys()
-                .is_some_and(|s| s.iter().any(|k| is_joystick_button(k.code())));
-            has_axes && has_button
-        } else {
-            d.name().is_some_and(|n| n.to_lowercase().contains(&want))
-        };
+        let (abs, keys) = codes(&d);
+        let ok = selects(&want, d.name().unwrap_or_default(), &abs, &keys, axes);
         if ok {
             return Ok((p, d));
         }
@@ -329,4 +341,147 @@ pub fn describe_missing(missing: &[(&'static str, Code)]) -> String {
         .map(|(role, c)| format!("{role} ({})", c.name()))
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(path: &str, name: &str, axes: usize, keys: usize, joystick: bool) -> DeviceRow {
+        DeviceRow {
+            path: PathBuf::from(path),
+            name: name.into(),
+            axes,
+            keys,
+            joystick,
+        }
+    }
+
+    #[test]
+    fn the_list_shows_each_device_and_why_others_are_missing() {
+        let rows = [
+            row(
+                "/dev/input/event3",
+                "AT Translated Set 2 keyboard",
+                0,
+                250,
+                false,
+            ),
+            row("/dev/input/event17", "Microsoft X-Box 360 pad", 8, 15, true),
+        ];
+        let refused = [
+            (
+                PathBuf::from("/dev/input/event5"),
+                std::io::Error::from(std::io::ErrorKind::PermissionDenied),
+            ),
+            (
+                PathBuf::from("/dev/input/event6"),
+                std::io::Error::from(std::io::ErrorKind::NotFound),
+            ),
+        ];
+        let text = render_list(&rows, &refused);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 4, "{text}");
+        let cols = |l: &str| l.split_whitespace().map(str::to_owned).collect::<Vec<_>>();
+        assert_eq!(cols(lines[0]), ["DEVICE", "AXES", "KEYS", "KIND", "NAME"]);
+        assert_eq!(
+            cols(lines[1]),
+            [
+                "/dev/input/event3",
+                "0",
+                "250",
+                "-",
+                "AT",
+                "Translated",
+                "Set",
+                "2",
+                "keyboard"
+            ]
+        );
+        assert_eq!(
+            cols(lines[2]),
+            [
+                "/dev/input/event17",
+                "8",
+                "15",
+                "joystick",
+                "Microsoft",
+                "X-Box",
+                "360",
+                "pad"
+            ]
+        );
+        // The names line up under the header.
+        let name_col = lines[0].find("NAME").unwrap();
+        assert_eq!(&lines[1][name_col..], "AT Translated Set 2 keyboard");
+        assert_eq!(&lines[2][name_col..], "Microsoft X-Box 360 pad");
+        assert!(
+            lines[3].starts_with("2 more device(s) could not be opened (permission denied"),
+            "{text}"
+        );
+        // Refusals other than permissions give no hint about the input group.
+        let text = render_list(&rows[..1], &refused[1..]);
+        assert!(
+            text.ends_with("1 more device(s) could not be opened\n"),
+            "{text}"
+        );
+        // Nothing at all: a pointer to the keyboard source.
+        let text = render_list(&[], &[]);
+        assert!(
+            text.starts_with("no input devices in /dev/input")
+                && text.contains("--source keyboard"),
+            "{text}"
+        );
+        assert!(!text.contains("DEVICE"));
+    }
+
+    #[test]
+    fn a_selector_picks_by_name_or_the_first_joystick_with_the_axes() {
+        let pad_abs = [0, 1, 2, 3, 4, 5];
+        let pad_keys = [0x130, 0x131, 0x136];
+        let kbd_keys = [1, 2, 30, 57];
+        // By name: a case-insensitive part of it, whatever the device is.
+        assert!(selects(
+            "x-box",
+            "Microsoft X-Box 360 pad",
+            &pad_abs,
+            &pad_keys,
+            [0, 1]
+        ));
+        assert!(selects(
+            "keyboard",
+            "AT Translated Set 2 keyboard",
+            &[],
+            &kbd_keys,
+            [0, 1]
+        ));
+        assert!(!selects(
+            "logitech",
+            "Microsoft X-Box 360 pad",
+            &pad_abs,
+            &pad_keys,
+            [0, 1]
+        ));
+        assert!(!selects("pad", "", &pad_abs, &pad_keys, [0, 1]));
+        // No selector: a joystick or gamepad button and both of the mapping's axes.
+        assert!(selects(
+            "",
+            "Microsoft X-Box 360 pad",
+            &pad_abs,
+            &pad_keys,
+            [0, 1]
+        ));
+        assert!(selects("", "pad", &pad_abs, &pad_keys, [3, 4]));
+        assert!(
+            !selects("", "pad", &[0, 1], &pad_keys, [3, 4]),
+            "lacks the axes"
+        );
+        assert!(!selects("", "pad", &[0], &pad_keys, [0, 1]), "lacks y");
+        // A touchpad has X and Y but no joystick button (BTN_TOUCH, BTN_LEFT).
+        assert!(!selects("", "touchpad", &[0, 1], &[0x14a, 0x110], [0, 1]));
+        // The ends of the joystick and gamepad button ranges.
+        assert!(selects("", "stick", &[0, 1], &[0x120], [0, 1]));
+        assert!(selects("", "stick", &[0, 1], &[0x13f], [0, 1]));
+        assert!(!selects("", "stick", &[0, 1], &[0x11f, 0x140], [0, 1]));
+    }
 }

@@ -407,6 +407,21 @@ pub fn spawn_reader(
         })
 }
 
+/// The mode the status line shows: that of the mapper safety forwards (`active_mapper`, 0
+/// while safety's heartbeat is not seen), from `modes`, the newest `(mapper id, mode, mode
+/// switches)` of each mapper's heartbeat ([`ipc_types::NodeStatus::mode`]: mode plus one, 0
+/// for a map without modes). `?` while the active mapper's mode is unknown.
+pub fn mode_text(active_mapper: u32, modes: &[(u32, u32, u32)]) -> String {
+    match modes.iter().find(|m| m.0 == active_mapper) {
+        None => "?".into(),
+        Some((_, 0, _)) => "- (the map has no modes)".into(),
+        Some((_, mode, switches)) => {
+            let plural = if *switches == 1 { "switch" } else { "switches" };
+            format!("{} ({switches} {plural})", crate::control::mode_name(*mode))
+        }
+    }
+}
+
 /// The status line: the input, the gripper, the mapper's mode.
 pub fn status_line(input: &Input, gripper_closed: bool, mode: &str) -> String {
     let b = input.buttons;
@@ -511,25 +526,73 @@ mod tests {
 
     #[test]
     fn mode_presses_become_separate_pulses() {
-        let mut k = Keys::new(s());
         let p = s().pulse_s;
+        // Each pulse and each gap is at least two 40 Hz ticks long, so the mapper, reading
+        // one sample a tick, sees every press and every release.
+        assert!(p >= 2.0 * 0.025, "{p}");
+        let mut k = Keys::new(s());
         k.input(0.0, None);
-        // Two quick presses: two pulses with a gap, never one long one.
+        // Three quick presses: three pulses with gaps, never one long one.
         k.key(Key::Mode, KeyAction::Press, 0.0);
         k.key(Key::Mode, KeyAction::Press, 0.01);
-        let mut edges = 0;
+        k.key(Key::Mode, KeyAction::Press, 0.02);
+        // Sampled every millisecond: the times the button goes up and down.
+        let dt = 0.001;
+        let (mut rises, mut falls) = (Vec::new(), Vec::new());
         let mut last = false;
-        let mut t = 0.0;
-        while t < 1.0 {
+        for i in 0..1000 {
+            let t = f64::from(i) * dt;
             let on = k.input(t, None).buttons & buttons::MODE != 0;
             if on && !last {
-                edges += 1;
+                rises.push(t);
+            }
+            if !on && last {
+                falls.push(t);
             }
             last = on;
-            t += 0.025;
         }
-        assert_eq!(edges, 2);
-        assert!(p >= 0.05, "a pulse must span two ticks");
+        assert_eq!(rises.len(), 3, "{rises:?}");
+        assert_eq!(falls.len(), 3, "{falls:?}");
+        for (i, (r, f)) in rises.iter().zip(&falls).enumerate() {
+            assert!((f - r - p).abs() <= dt + 1e-9, "pulse {i}: {r}..{f}");
+            if let Some(next) = rises.get(i + 1) {
+                assert!((next - f - p).abs() <= dt + 1e-9, "gap {i}: {f}..{next}");
+            }
+        }
+        // The queue is spent: no fourth pulse.
+        assert!(falls[2] < 0.6, "{falls:?}");
+        // And at 40 Hz, whatever the phase of the ticks, each pulse is seen on two ticks and
+        // each gap too: three rising edges.
+        for phase in [0.0, 0.007, 0.013, 0.024] {
+            let mut k = Keys::new(s());
+            k.input(0.0, None);
+            for t in [0.0, 0.01, 0.02] {
+                k.key(Key::Mode, KeyAction::Press, t);
+            }
+            let on: Vec<bool> = (0..40)
+                .map(|i| k.input(phase + f64::from(i) * 0.025, None).buttons & buttons::MODE != 0)
+                .collect();
+            let edges = on.windows(2).filter(|w| w[1] && !w[0]).count() + usize::from(on[0]);
+            assert_eq!(edges, 3, "phase {phase}: {on:?}");
+        }
+    }
+
+    #[test]
+    fn the_status_line_shows_the_active_mappers_mode() {
+        // No heartbeat of safety or of the mapper yet.
+        assert_eq!(mode_text(0, &[]), "?");
+        assert_eq!(mode_text(1, &[]), "?");
+        // Safety forwards mapper 1, a mode-switching map in z-yaw after two switches; mapper 2
+        // (a swap in progress) is in roll-pitch.
+        let modes = [(1, 2, 2), (2, 3, 5), (3, 0, 0)];
+        assert_eq!(mode_text(1, &modes), "z-yaw (2 switches)");
+        assert_eq!(mode_text(2, &modes), "roll-pitch (5 switches)");
+        assert_eq!(mode_text(1, &[(1, 1, 1)]), "x-y (1 switch)");
+        // A map without modes, a mapper not heard of.
+        assert_eq!(mode_text(3, &modes), "- (the map has no modes)");
+        assert_eq!(mode_text(4, &modes), "?");
+        let line = status_line(&Input::NEUTRAL, false, &mode_text(2, &modes));
+        assert!(line.contains("mode roll-pitch (5 switches)"), "{line}");
     }
 
     #[test]

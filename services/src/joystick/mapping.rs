@@ -355,6 +355,33 @@ mod tests {
     }
 
     #[test]
+    fn a_mapping_without_a_deadzone_gets_the_default() {
+        let axes = "[axes]\nx = { code = \"ABS_X\" }\ny = { code = \"ABS_Y\" }\n";
+        let m = Mapping::parse(axes, "pad.toml").unwrap();
+        assert_eq!(m.deadzone, 0.1);
+        assert_eq!(DEFAULT_DEADZONE, 0.1);
+        // Every other control is optional too: unmapped, axes not inverted, scale 1.
+        assert_eq!(
+            (m.gripper_close, m.gripper_open, m.deadman, m.mode, m.estop),
+            (None, None, None, None, None)
+        );
+        assert_eq!(
+            m.axes[1],
+            AxisMap {
+                code: 1,
+                invert: false,
+                scale: 1.0,
+                range: None
+            }
+        );
+        // A deadzone given is taken as written, zero included.
+        for dz in [0.0, 0.25] {
+            let m = Mapping::parse(&format!("deadzone = {dz:?}\n{axes}"), "pad.toml").unwrap();
+            assert_eq!(m.deadzone, dz);
+        }
+    }
+
+    #[test]
     fn codes_parse_and_name() {
         assert_eq!(Code::parse("ABS_RZ"), Some(Code::Abs(5)));
         assert_eq!(Code::parse("BTN_SOUTH"), Some(Code::Key(0x130)));

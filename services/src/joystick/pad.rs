@@ -540,6 +540,78 @@ pub(crate) mod tests {
         assert_eq!(i.buttons, buttons::DEADMAN);
     }
 
+    /// A generic USB joystick as hid-generic reports it: X, Y 0..1023 centred, a throttle,
+    /// the buttons `BTN_TRIGGER` .. `BTN_BASE6`.
+    fn generic_snapshot() -> Snapshot {
+        let axis = |code: u16, max: i32| AxisInfo {
+            code,
+            min: 0,
+            max,
+            value: max / 2,
+        };
+        Snapshot {
+            name: "Logitech Extreme 3D".into(),
+            path: "/dev/input/event9".into(),
+            axes: vec![axis(0, 1023), axis(1, 1023), axis(5, 255), axis(6, 255)],
+            keys: (0x120..=0x12b).collect(),
+            keys_down: vec![],
+        }
+    }
+
+    #[test]
+    fn the_generic_mapping_reads_a_stick_and_its_buttons() {
+        let (trigger, thumb, thumb2, top, top2) = (0x120, 0x121, 0x122, 0x123, 0x124);
+        let mut pad = Pad::new(Mapping::load("generic").unwrap());
+        assert!(pad.connect(&generic_snapshot()).is_empty());
+        // At its centre (511 of 0..1023): neutral.
+        assert_eq!(pad.input(), Input::NEUTRAL);
+        // Pushed fully forward (y at its minimum; the mapping inverts it) with the deadman
+        // (BTN_TOP2) held: a1 = +1, nothing on a0.
+        pad.event(ev(EV_ABS, 1, 0));
+        pad.event(ev(EV_KEY, top2, 1));
+        assert!(pad.event(syn()));
+        let i = pad.input();
+        assert!(
+            i.axes[0].abs() < 1e-6 && (i.axes[1] - 1.0).abs() < 1e-6,
+            "{i:?}"
+        );
+        assert_eq!((i.gripper, i.buttons), (0.0, buttons::DEADMAN));
+        // Right at three quarters: a0 = (0.5 - 0.1) / 0.9 of the length, direction kept,
+        // and the trigger closes the gripper at full rate.
+        pad.event(ev(EV_ABS, 0, 767));
+        pad.event(ev(EV_ABS, 1, 512));
+        pad.event(ev(EV_KEY, trigger, 1));
+        pad.event(syn());
+        let i = pad.input();
+        let want = (f64::from(767 - 511) / 512.0 - 0.1) / 0.9;
+        assert!((f64::from(i.axes[0]) - want).abs() < 1e-6, "{i:?}");
+        assert!(i.axes[1].abs() < 0.01, "{i:?}");
+        assert_eq!(i.gripper, 1.0);
+        assert_eq!(i.buttons, buttons::DEADMAN | buttons::GRIPPER);
+        // The thumb button opens against the trigger; BTN_THUMB2 is the mode button, BTN_TOP
+        // the e-stop; the deadman released.
+        pad.event(ev(EV_KEY, thumb, 1));
+        pad.event(ev(EV_KEY, thumb2, 1));
+        pad.event(ev(EV_KEY, top, 1));
+        pad.event(ev(EV_KEY, top2, 0));
+        pad.event(syn());
+        let i = pad.input();
+        assert_eq!(i.gripper, 0.0);
+        assert_eq!(i.buttons, buttons::GRIPPER | buttons::MODE | buttons::ESTOP);
+        // The throttle and the other buttons are not mapped: no change.
+        pad.event(ev(EV_ABS, 6, 255));
+        pad.event(ev(EV_KEY, 0x125, 1));
+        pad.event(syn());
+        assert_eq!(pad.input(), i);
+        // Everything released, back at the centre: neutral.
+        for k in [trigger, thumb, thumb2, top] {
+            pad.event(ev(EV_KEY, k, 0));
+        }
+        pad.event(ev(EV_ABS, 0, 512));
+        pad.event(syn());
+        assert_eq!(pad.input(), Input::NEUTRAL);
+    }
+
     #[test]
     fn evtest_lines_parse() {
         let (t, e) = parse_evtest(
