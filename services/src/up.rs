@@ -4,18 +4,22 @@
 //!
 //! * Start: joystick, mapper and safety, each awaited until it reports ready, then the bridge
 //!   (the clock), so the first tick already finds every process listening.
-//! * A child that exits is reaped at once and what it left in shared memory is cleaned up.
-//!   Its restart policy (`[supervisor.restart]`) decides: `never` stops the graph with a
+//! * A child that exits is reaped at once and what it left in shared memory is cleaned up in
+//!   the same loop iteration, before any successor starts; the node directory is scanned for
+//!   dead nodes only then, before a restart, and once a second as a safety net
+//!   ([`CleanupSchedule`]), not on every 2 ms iteration. The child's restart policy
+//!   (`[supervisor.restart]`) decides ([`decide_restart`]): `never` stops the graph with a
 //!   non-zero status and a message naming it; `on-failure` / `always` restart it after an
 //!   exponential backoff. The arm is stopped meanwhile (the bridge misses the tick, or for a
 //!   dead bridge the robot's own watchdog acts). A restarted bridge continues the tick count
 //!   and starts from a stop.
 //! * `scl swap MODEL` (a request on the supervisor's control service) is make-before-break:
 //!   a new mapper process with a new id starts beside the old one; once it has produced valid
-//!   commands for `swap_valid_ticks` consecutive ticks, safety is told to forward its commands
-//!   from a tick boundary on; when the bridge has received the first of them, the old mapper
-//!   is stopped. A model that does not load, or a new mapper that fails, is refused with the
-//!   reason and the old mapper keeps running.
+//!   commands for `swap_valid_ticks` consecutive ticks ([`Warmup`]), safety is told to forward
+//!   its commands from a tick boundary on; when the bridge has received the first of them, the
+//!   old mapper is stopped. A model that does not load, or a new mapper that fails or does not
+//!   warm up within `swap_timeout_s`, is refused with the reason and the old mapper keeps
+//!   running.
 
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::PathBuf;
@@ -32,7 +36,7 @@ use ipc_types::{
 };
 use serde::Serialize;
 
-use crate::config::{GraphConfig, RestartPolicy};
+use crate::config::{GraphConfig, RestartPolicy, SupervisorConfig};
 use crate::stats::{Percentiles, percentiles_us};
 use crate::{SclError, signals};
 
@@ -121,6 +125,119 @@ fn describe(status: ExitStatus) -> String {
     }
 }
 
+/// What happens to a child that exited on its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RestartDecision {
+    /// Its policy does not restart it: the graph stops.
+    Stop,
+    /// Restart it after `delay`; `failures` is its new count of consecutive failures.
+    After { delay: Duration, failures: u32 },
+}
+
+/// The restart decision for a `role` child that exited (`clean_exit`: status 0) after running
+/// for `ran_for`, with `failures` consecutive failures before this one.
+///
+/// `never` stops the graph; `on-failure` restarts after a crash or a non-zero status only;
+/// `always` restarts after any exit. The delay starts at `backoff_initial_ms` and doubles
+/// with each consecutive failure up to `backoff_max_ms`; a child that ran longer than
+/// `stable_after_s` starts the count afresh.
+fn decide_restart(
+    sv: &SupervisorConfig,
+    role: NodeRole,
+    clean_exit: bool,
+    ran_for: Duration,
+    failures: u32,
+) -> RestartDecision {
+    let restart = match sv.restart.of(role) {
+        RestartPolicy::Never => false,
+        RestartPolicy::OnFailure => !clean_exit,
+        RestartPolicy::Always => true,
+    };
+    if !restart {
+        return RestartDecision::Stop;
+    }
+    let before = if ran_for.as_secs_f64() > sv.stable_after_s {
+        0
+    } else {
+        failures
+    };
+    let failures = before.saturating_add(1);
+    let factor = 1u64 << (failures - 1).min(20);
+    let delay = Duration::from_millis(
+        sv.backoff_initial_ms
+            .saturating_mul(factor)
+            .min(sv.backoff_max_ms),
+    );
+    RestartDecision::After { delay, failures }
+}
+
+/// Whether a new mapper's command counts towards the swap's warm-up: no invalid input,
+/// output or state, and every velocity finite.
+fn command_valid(c: &MapperCommand) -> bool {
+    let bad = mapper_flags::INPUT_NON_FINITE
+        | mapper_flags::OUTPUT_NON_FINITE
+        | mapper_flags::STATE_INVALID;
+    c.flags & bad == 0 && c.qdot_rad_s.iter().all(|v| v.is_finite())
+}
+
+/// The swap's warm-up counter: valid commands of the new mapper on consecutive ticks. An
+/// invalid command resets it to zero; a skipped tick (a missing command) restarts it at the
+/// command that follows the gap.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Warmup {
+    /// Valid commands on consecutive ticks, ending at `last_tick`.
+    valid: u32,
+    /// The tick of the newest command taken.
+    last_tick: Option<u64>,
+}
+
+impl Warmup {
+    /// Takes the new mapper's command for `tick` (`ok`: [`command_valid`]); returns the count
+    /// of valid commands on consecutive ticks ending at it. A valid repeat of the newest tick
+    /// is not counted twice.
+    fn observe(&mut self, tick: u64, ok: bool) -> u32 {
+        if ok && self.last_tick == Some(tick) {
+            return self.valid;
+        }
+        let consecutive = self.last_tick.is_none_or(|t| tick == t.wrapping_add(1));
+        self.valid = match (ok, consecutive) {
+            (true, true) => self.valid.saturating_add(1),
+            (true, false) => 1,
+            (false, _) => 0,
+        };
+        self.last_tick = Some(tick);
+        self.valid
+    }
+}
+
+/// When the supervisor scans iceoryx2's node directory for dead nodes (a file-system walk):
+/// in the loop iteration that reaped a child, so its resources go before a successor needs
+/// them, and otherwise at most once per `every`, for processes of the graph it did not start.
+#[derive(Debug, Clone, Copy)]
+struct CleanupSchedule {
+    every: Duration,
+    last: Option<Instant>,
+}
+
+impl CleanupSchedule {
+    fn new(every: Duration) -> Self {
+        Self { every, last: None }
+    }
+
+    /// Whether to scan now (`reaped`: a child was reaped in this iteration); a scan resets
+    /// the safety-net timer.
+    fn due(&mut self, reaped: bool, now: Instant) -> bool {
+        let due = reaped
+            || self
+                .last
+                .is_none_or(|t| now.saturating_duration_since(t) >= self.every);
+        if due {
+            self.last = Some(now);
+        }
+        due
+    }
+}
+
 /// What the supervisor learns from the heartbeats.
 #[derive(Default)]
 struct Telemetry {
@@ -190,7 +307,7 @@ type Request = ActiveControlRequest;
 
 enum SwapPhase {
     /// Waiting for the new mapper's valid consecutive commands.
-    Warmup { valid: u32, last_tick: Option<u64> },
+    Warmup(Warmup),
     /// Safety was told to switch at `from_tick`; waiting for the bridge to get its command.
     Switching { from_tick: u64 },
 }
@@ -224,6 +341,8 @@ struct Supervisor<'a> {
     hold: bool,
     /// E-stop state relayed to safety: change counter and latched or not.
     estop: (u32, bool),
+    /// When to scan for dead nodes.
+    cleanup: CleanupSchedule,
 }
 
 fn spawn(args: &[String]) -> std::io::Result<Child> {
@@ -340,6 +459,7 @@ impl<'a> Supervisor<'a> {
         let sv = &self.opts.config.supervisor;
         let mut failure = None;
         let mut refuse_swap = None;
+        let mut reaped = false;
         for p in self.procs.iter_mut() {
             let Some(child) = p.child.as_mut() else {
                 continue;
@@ -347,6 +467,7 @@ impl<'a> Supervisor<'a> {
             let Ok(Some(status)) = child.try_wait() else {
                 continue;
             };
+            reaped = true;
             p.child = None;
             let what = format!("{} {}", p.label(), describe(status));
             if p.retiring {
@@ -357,28 +478,27 @@ impl<'a> Supervisor<'a> {
                 && p.role == NodeRole::Mapper
             {
                 p.retiring = true;
-                refuse_swap = Some(format!("the new mapper did not start: {what}"));
+                refuse_swap = Some(format!(
+                    "the new mapper stopped before the switch-over: {what}"
+                ));
                 continue;
             }
-            let restart = match sv.restart.of(p.role) {
-                RestartPolicy::Never => false,
-                RestartPolicy::OnFailure => !status.success(),
-                RestartPolicy::Always => true,
+            let decision = decide_restart(
+                sv,
+                p.role,
+                status.success(),
+                p.started.elapsed(),
+                p.failures,
+            );
+            let RestartDecision::After { delay, failures } = decision else {
+                failure = Some(what);
+                break;
             };
-            if !restart || signals::stop_requested() {
+            if signals::stop_requested() {
                 failure = Some(what);
                 break;
             }
-            if p.started.elapsed().as_secs_f64() > sv.stable_after_s {
-                p.failures = 0;
-            }
-            p.failures += 1;
-            let factor = 1u64 << (p.failures - 1).min(20);
-            let delay = Duration::from_millis(
-                sv.backoff_initial_ms
-                    .saturating_mul(factor)
-                    .min(sv.backoff_max_ms),
-            );
+            p.failures = failures;
             p.restart_at = Some(Instant::now() + delay);
             self.restarts += 1;
             tracing::warn!(
@@ -388,9 +508,8 @@ impl<'a> Supervisor<'a> {
         }
         // What the dead left in shared memory (ports, a publisher slot) goes now, before a
         // successor needs it.
-        let cleaned = self.graph.cleanup_dead_nodes();
-        if cleaned > 0 {
-            tracing::debug!(cleaned, "removed resources of dead processes");
+        if self.cleanup.due(reaped, Instant::now()) {
+            self.cleanup_dead_nodes();
         }
         self.procs.retain(|p| !(p.retiring && p.child.is_none()));
         if let Some(reason) = refuse_swap {
@@ -399,10 +518,26 @@ impl<'a> Supervisor<'a> {
         failure
     }
 
+    /// Removes the resources of the graph's dead nodes.
+    fn cleanup_dead_nodes(&self) {
+        let cleaned = self.graph.cleanup_dead_nodes();
+        if cleaned > 0 {
+            tracing::debug!(cleaned, "removed resources of dead processes");
+        }
+    }
+
     fn restart_due(&mut self) -> Result<(), SclError> {
         let now = Instant::now();
+        let mut scanned = false;
         for i in 0..self.procs.len() {
             if self.procs[i].restart_at.is_some_and(|t| t <= now) {
+                if !scanned {
+                    // Already done when the child was reaped; again in case its node was
+                    // not yet seen dead then. Restarts are rare.
+                    self.cleanup.due(true, now);
+                    self.cleanup_dead_nodes();
+                    scanned = true;
+                }
                 self.start(i)?;
                 tracing::info!("restarted {}", self.procs[i].label());
             }
@@ -494,10 +629,7 @@ impl<'a> Supervisor<'a> {
             old_id: self.active_mapper,
             started: Instant::now(),
             missed_at_start: self.tel.missed(),
-            phase: SwapPhase::Warmup {
-                valid: 0,
-                last_tick: None,
-            },
+            phase: SwapPhase::Warmup(Warmup::default()),
         });
     }
 
@@ -506,24 +638,13 @@ impl<'a> Supervisor<'a> {
         let Some(swap) = self.swap.as_mut() else {
             return Ok(());
         };
-        let SwapPhase::Warmup { valid, last_tick } = &mut swap.phase else {
+        let SwapPhase::Warmup(warmup) = &mut swap.phase else {
             return Ok(());
         };
         if c.mapper_id != swap.new_id {
             return Ok(());
         }
-        let bad = mapper_flags::INPUT_NON_FINITE
-            | mapper_flags::OUTPUT_NON_FINITE
-            | mapper_flags::STATE_INVALID;
-        let ok = c.flags & bad == 0 && c.qdot_rad_s.iter().all(|v| v.is_finite());
-        let consecutive = last_tick.is_none_or(|t| c.tick == t.wrapping_add(1));
-        *valid = match (ok, consecutive) {
-            (true, true) => *valid + 1,
-            (true, false) => 1,
-            (false, _) => 0,
-        };
-        *last_tick = Some(c.tick);
-        if *valid >= need {
+        if warmup.observe(c.tick, command_valid(c)) >= need {
             // Two ticks ahead: safety has the switch before that tick's commands arrive.
             let from_tick = c.tick + 2;
             let new_id = swap.new_id;
@@ -618,7 +739,7 @@ impl<'a> Supervisor<'a> {
             return;
         }
         let reason = match swap.phase {
-            SwapPhase::Warmup { valid, .. } => format!(
+            SwapPhase::Warmup(Warmup { valid, .. }) => format!(
                 "the new mapper produced {valid} valid consecutive commands in {timeout:?}, {} needed",
                 self.opts.config.supervisor.swap_valid_ticks
             ),
@@ -670,6 +791,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         switch: (cfg.mapper.id, 0),
         hold: false,
         estop: (0, false),
+        cleanup: CleanupSchedule::new(Duration::from_secs(1)),
     };
     // Reaping and holding the arm must not wait behind other load; below the control path.
     crate::rt::elevate(&cfg.graph, crate::config::RtRole::Supervisor);
@@ -842,4 +964,281 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SclError> {
         tracing::error!("{f}; the graph was stopped (bridge first)");
     }
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::RestartPolicies;
+
+    const MS: fn(u64) -> Duration = Duration::from_millis;
+
+    fn config(policy: RestartPolicy) -> SupervisorConfig {
+        SupervisorConfig {
+            backoff_initial_ms: 100,
+            backoff_max_ms: 1000,
+            stable_after_s: 10.0,
+            restart: RestartPolicies {
+                joystick: policy,
+                mapper: policy,
+                safety: policy,
+                bridge: policy,
+            },
+            ..SupervisorConfig::default()
+        }
+    }
+
+    fn after(delay_ms: u64, failures: u32) -> RestartDecision {
+        RestartDecision::After {
+            delay: MS(delay_ms),
+            failures,
+        }
+    }
+
+    #[test]
+    fn policies_decide_which_exits_restart() {
+        let roles = [
+            NodeRole::Joystick,
+            NodeRole::Mapper,
+            NodeRole::Safety,
+            NodeRole::Bridge,
+        ];
+        for role in roles {
+            let never = config(RestartPolicy::Never);
+            let on_failure = config(RestartPolicy::OnFailure);
+            let always = config(RestartPolicy::Always);
+            let ran = MS(50);
+            assert_eq!(
+                decide_restart(&never, role, false, ran, 0),
+                RestartDecision::Stop
+            );
+            assert_eq!(
+                decide_restart(&never, role, true, ran, 0),
+                RestartDecision::Stop
+            );
+            assert_eq!(
+                decide_restart(&on_failure, role, false, ran, 0),
+                after(100, 1)
+            );
+            assert_eq!(
+                decide_restart(&on_failure, role, true, ran, 0),
+                RestartDecision::Stop,
+                "a clean exit under on-failure stops the graph"
+            );
+            assert_eq!(decide_restart(&always, role, false, ran, 0), after(100, 1));
+            assert_eq!(decide_restart(&always, role, true, ran, 0), after(100, 1));
+        }
+        // A recorder is never restarted, whatever the policies say.
+        let always = config(RestartPolicy::Always);
+        assert_eq!(
+            decide_restart(&always, NodeRole::Recorder, false, MS(50), 0),
+            RestartDecision::Stop
+        );
+    }
+
+    #[test]
+    fn policies_apply_per_role() {
+        let mut sv = config(RestartPolicy::Never);
+        sv.restart.safety = RestartPolicy::Always;
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Mapper, false, MS(1), 0),
+            RestartDecision::Stop
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Safety, false, MS(1), 0),
+            after(100, 1)
+        );
+    }
+
+    #[test]
+    fn backoff_doubles_up_to_the_maximum() {
+        let sv = config(RestartPolicy::OnFailure);
+        let mut failures = 0;
+        let mut delays = Vec::new();
+        for _ in 0..7 {
+            let RestartDecision::After { delay, failures: f } =
+                decide_restart(&sv, NodeRole::Mapper, false, MS(200), failures)
+            else {
+                panic!("on-failure did not restart a crash");
+            };
+            assert_eq!(f, failures + 1);
+            failures = f;
+            delays.push(delay.as_millis());
+        }
+        assert_eq!(delays, [100, 200, 400, 800, 1000, 1000, 1000]);
+        // No overflow however long a process keeps failing.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Mapper, false, MS(1), u32::MAX),
+            after(1000, u32::MAX)
+        );
+        let huge = SupervisorConfig {
+            backoff_initial_ms: u64::MAX / 2,
+            backoff_max_ms: u64::MAX,
+            ..sv
+        };
+        assert_eq!(
+            decide_restart(&huge, NodeRole::Mapper, false, MS(1), 40),
+            after(u64::MAX, 41)
+        );
+    }
+
+    #[test]
+    fn a_stable_run_resets_the_backoff() {
+        let sv = config(RestartPolicy::Always);
+        // Failed five times in quick succession: 1600 ms capped at 1000.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(9_000), 5),
+            after(1000, 6)
+        );
+        // At exactly stable_after_s the count goes on; beyond it, it starts afresh.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(10_000), 5),
+            after(1000, 6)
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(10_001), 5),
+            after(100, 1)
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, true, Duration::from_secs(3600), 9),
+            after(100, 1)
+        );
+    }
+
+    fn command(tick: u64, flags: u32) -> MapperCommand {
+        MapperCommand {
+            tick,
+            t_ns: 1,
+            state_t_ns: 0,
+            state_rx_ns: 0,
+            joystick_t_ns: 0,
+            joystick_rx_ns: 0,
+            joystick_seq: 0,
+            compute_ns: 0,
+            mapper_id: 2,
+            n_joints: 6,
+            flags,
+            buttons: 0,
+            action: [0.0; ipc_types::ACTION_DIM],
+            qdot_rad_s: [0.1; ipc_types::MAX_JOINTS],
+            gripper_rate: 0.0,
+        }
+    }
+
+    #[test]
+    fn only_finite_commands_of_a_valid_state_count() {
+        assert!(command_valid(&command(3, 0)));
+        // Flags that are not faults: no sample yet, a clamped action, a stale joystick.
+        for f in [
+            mapper_flags::NO_INPUT,
+            mapper_flags::INPUT_CLAMPED,
+            mapper_flags::INPUT_STALE,
+        ] {
+            assert!(command_valid(&command(3, f)), "flag {f:#x}");
+        }
+        for f in [
+            mapper_flags::INPUT_NON_FINITE,
+            mapper_flags::OUTPUT_NON_FINITE,
+            mapper_flags::STATE_INVALID,
+        ] {
+            assert!(!command_valid(&command(3, f)), "flag {f:#x}");
+        }
+        let mut c = command(3, 0);
+        c.qdot_rad_s[7] = f64::NAN;
+        assert!(!command_valid(&c), "a NaN in any slot");
+        c.qdot_rad_s[7] = f64::INFINITY;
+        assert!(!command_valid(&c));
+    }
+
+    /// Feeds `(tick, ok)` pairs; returns the count after each.
+    fn counts(ticks: &[(u64, bool)]) -> Vec<u32> {
+        let mut w = Warmup::default();
+        ticks.iter().map(|&(t, ok)| w.observe(t, ok)).collect()
+    }
+
+    #[test]
+    fn warmup_counts_consecutive_valid_ticks() {
+        let ticks: Vec<(u64, bool)> = (100..110).map(|t| (t, true)).collect();
+        assert_eq!(counts(&ticks), (1..=10).collect::<Vec<u32>>());
+    }
+
+    #[test]
+    fn an_invalid_command_resets_the_warmup() {
+        assert_eq!(
+            counts(&[
+                (1, true),
+                (2, true),
+                (3, true),
+                (4, false),
+                (5, true),
+                (6, true)
+            ]),
+            [1, 2, 3, 0, 1, 2]
+        );
+        // Invalid from the start: nothing counts.
+        assert_eq!(counts(&[(7, false), (8, false), (9, true)]), [0, 0, 1]);
+    }
+
+    #[test]
+    fn a_missing_tick_restarts_the_warmup() {
+        assert_eq!(
+            counts(&[(1, true), (2, true), (3, true), (5, true), (6, true)]),
+            [1, 2, 3, 1, 2]
+        );
+        // Ticks going back (a new bridge would not, but a stray one) count as a gap too.
+        assert_eq!(counts(&[(10, true), (11, true), (4, true)]), [1, 2, 1]);
+        // A gap after an invalid command: the valid one after it starts at 1.
+        assert_eq!(counts(&[(1, true), (2, false), (9, true)]), [1, 0, 1]);
+    }
+
+    #[test]
+    fn a_repeated_tick_is_not_counted_twice() {
+        assert_eq!(
+            counts(&[(1, true), (2, true), (2, true), (3, true)]),
+            [1, 2, 2, 3]
+        );
+        // An invalid repeat still resets.
+        assert_eq!(
+            counts(&[(1, true), (2, true), (2, false), (3, true)]),
+            [1, 2, 0, 1]
+        );
+    }
+
+    #[test]
+    fn warmup_reaches_the_threshold_only_after_n_in_a_row() {
+        let need = 10;
+        let mut w = Warmup::default();
+        // Nine valid, one invalid, then nine valid: never ready.
+        for t in 0..9 {
+            assert!(w.observe(t, true) < need);
+        }
+        assert_eq!(w.observe(9, false), 0);
+        for t in 10..19 {
+            assert!(w.observe(t, true) < need);
+        }
+        assert_eq!(w.observe(19, true), need);
+        assert_eq!(w.valid, need);
+        assert_eq!(w.last_tick, Some(19));
+    }
+
+    #[test]
+    fn dead_nodes_are_scanned_after_a_reap_and_once_a_second() {
+        let t0 = Instant::now();
+        let mut c = CleanupSchedule::new(Duration::from_secs(1));
+        // The first iteration scans (what a previous run left).
+        assert!(c.due(false, t0));
+        // Then not on every 2 ms iteration.
+        for ms in (2..1000).step_by(2) {
+            assert!(!c.due(false, t0 + MS(ms)), "{ms} ms");
+        }
+        assert!(c.due(false, t0 + MS(1000)));
+        // A reap scans at once, whenever it happens, and restarts the safety-net timer.
+        assert!(c.due(true, t0 + MS(1002)));
+        assert!(c.due(true, t0 + MS(1004)));
+        assert!(!c.due(false, t0 + MS(1500)));
+        assert!(!c.due(false, t0 + MS(2003)));
+        assert!(c.due(false, t0 + MS(2004)));
+        // A clock that seems to go back does not panic or scan.
+        assert!(!c.due(false, t0));
+    }
 }
