@@ -259,10 +259,30 @@ pub struct LatencyReport {
     pub rt: bool,
     /// `--load` busy processes.
     pub load: usize,
+    /// The graph that ran: the model the mapper served, the joystick script, the bridge's
+    /// rate and the CPU the control path was pinned to (-1: none).
+    pub settings: BenchSettings,
     /// One run per transport.
     pub runs: Vec<RunReport>,
     /// iceoryx2 / uds of every figure's p50, p99 and max, when both ran.
     pub ratios: Vec<(String, f64, f64, f64)>,
+}
+
+/// The settings of a benchmark's graph, as reported in its JSON.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchSettings {
+    /// The mapper's model (`bundled`, a file, or a spec such as `modeswitch`).
+    pub model: String,
+    /// The scripted joystick's pattern.
+    pub script: String,
+    /// The bridge's rate (Hz).
+    pub rate_hz: f64,
+    /// The bridge's command deadline, as a fraction of the period.
+    pub command_deadline: f64,
+    /// The CPU the control path was pinned to with `--rt` (-1: none).
+    pub rt_cpu: i32,
+    /// The transports, in the order they ran.
+    pub transports: Vec<Transport>,
 }
 
 struct Burners(Vec<Child>);
@@ -309,6 +329,10 @@ fn run_one(
         -1
     };
     cfg.graph.prefix = prefix.to_string();
+    // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
+    // configuration says: it must never drive a real arm, nor wait for a person's input.
+    cfg.bridge.robot = "mock".to_owned();
+    cfg.joystick.source = "script".to_owned();
     let cfg_path = dir.join(format!("graph-{transport}.toml"));
     let text = toml::to_string(&cfg)
         .map_err(|e| SclError::Graph(format!("cannot write the run's config: {e}")))?;
@@ -545,11 +569,25 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, SclError> {
     if opts.out.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
+    let machine = Machine::detect();
+    let settings = BenchSettings {
+        model: opts.config.mapper.model.clone(),
+        script: opts.config.joystick.script.clone(),
+        rate_hz: opts.config.bridge.rate_hz,
+        command_deadline: opts.config.bridge.command_deadline,
+        rt_cpu: if opts.rt {
+            machine.cores as i32 - 1
+        } else {
+            -1
+        },
+        transports: opts.transports.clone(),
+    };
     Ok(LatencyReport {
-        machine: Machine::detect(),
+        machine,
         duration_s: opts.duration.as_secs_f64(),
         rt: opts.rt,
         load: opts.load,
+        settings,
         runs,
         ratios,
     })
@@ -573,6 +611,11 @@ pub fn render(r: &LatencyReport) -> String {
         r.duration_s,
         r.load,
         r.rt
+    );
+    let _ = writeln!(
+        s,
+        "graph: model {}, scripted joystick ({}), mock arm at {} Hz",
+        r.settings.model, r.settings.script, r.settings.rate_hz
     );
     for run in &r.runs {
         let _ = writeln!(

@@ -8,7 +8,7 @@ use std::time::Duration;
 use ipc_types::{NO_TICK, NodeRole, mapper_flags, safe_flags, state_flags, time::now_ns};
 use mapper::LoadedModel;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, scl_binary, serial,
+    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, leftovers, scl_binary, serial,
     unique_prefix, wait_clean,
 };
 
@@ -322,5 +322,89 @@ fn bad_model_is_refused_before_anything_starts() {
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(2)),
         Vec::<String>::new()
+    );
+}
+
+/// Process ids of the children of `parent` whose command line contains `word`.
+fn children_with(parent: u32, word: &str) -> Vec<u32> {
+    let mut found = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // "pid (comm) state ppid ...": the fields after the command name's closing paren.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+        let cmdline = String::from_utf8_lossy(&cmdline).replace('\0', " ");
+        if ppid == Some(parent) && cmdline.contains(word) {
+            found.push(pid);
+        }
+    }
+    found
+}
+
+/// Without any observer in the test, `scl up` is the graph's last node: what it leaves in
+/// `/dev/shm` and iceoryx2's directory is checked as it is, not after a clean-up by the test
+/// (`wait_clean` releases the domain itself, which would hide a leak).
+#[test]
+fn scl_up_leaves_nothing_behind_by_itself() {
+    let _serial = serial();
+
+    // A clean run.
+    let prefix = unique_prefix("leak");
+    let _domain = DomainGuard(prefix.clone());
+    let out = up(&prefix, &["--for", "2s", "--json"])
+        .stdout(Stdio::piped())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "scl up failed: {:?}", out.status);
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(summary["ticks"].as_u64().unwrap() >= 40, "{summary}");
+    assert_eq!(
+        leftovers(&prefix),
+        Vec::<String>::new(),
+        "after a clean run"
+    );
+
+    // A run whose mapper is killed (restart policy `never`: `scl up` stops the graph and
+    // fails): the dead mapper's ports and node files go too.
+    let prefix = unique_prefix("leakkill");
+    let _domain2 = DomainGuard(prefix.clone());
+    let mut guard = ChildGuard(Some(
+        up(&prefix, &["--for", "60s"])
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    ));
+    let up_pid = guard.child().id();
+    let t0 = std::time::Instant::now();
+    // The bridge starts last: once it runs, the graph is up.
+    while children_with(up_pid, " bridge").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the graph did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    let mappers = children_with(up_pid, " mapper");
+    assert_eq!(mappers.len(), 1, "mapper children: {mappers:?}");
+    // SAFETY: signalling a process of the graph under test.
+    unsafe {
+        libc::kill(mappers[0] as libc::pid_t, libc::SIGKILL);
+    }
+    let out = guard.take().wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
+    assert_eq!(
+        leftovers(&prefix),
+        Vec::<String>::new(),
+        "after a killed mapper"
     );
 }

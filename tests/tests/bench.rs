@@ -1,0 +1,133 @@
+//! `scl bench latency` end to end: the real command runs the whole graph on both transports
+//! (iceoryx2, then Unix datagram sockets), and its report carries every figure the issue
+//! names, the machine, the settings and the ratios, with a histogram PNG. No latency figure is
+//! asserted (the machine is shared); that each figure was measured, is.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+use std::process::Stdio;
+
+use scl_tests::{scl_binary, serial, temp_dir};
+
+/// Every distribution in the report: measured (samples taken) and ordered.
+fn check_dist(name: &str, d: &serde_json::Value, min_samples: u64) {
+    let n = d["n"].as_u64().unwrap_or(0);
+    assert!(n >= min_samples, "{name}: {n} samples: {d}");
+    let q: Vec<f64> = ["p50", "p90", "p99", "p999", "max"]
+        .iter()
+        .map(|k| d[*k].as_f64().unwrap())
+        .collect();
+    assert!(q[0] > 0.0, "{name}: p50 {}", q[0]);
+    for w in q.windows(2) {
+        assert!(w[0] <= w[1], "{name}: quantiles out of order: {d}");
+    }
+}
+
+#[test]
+fn bench_latency_measures_both_transports() {
+    let _serial = serial();
+    let dir = temp_dir("bench");
+    let out_dir = dir.join("out");
+    // A base config that names a Kortex robot: the benchmark must still run the mock arm.
+    let cfg = dir.join("graph.toml");
+    std::fs::write(
+        &cfg,
+        "[bridge]\nrobot = \"kortex\"\n[bridge.kortex]\naddress = \"127.0.0.1\"\n",
+    )
+    .unwrap();
+    let out = std::process::Command::new(scl_binary())
+        .args(["--config"])
+        .arg(&cfg)
+        .args([
+            "bench",
+            "latency",
+            "--for",
+            "3s",
+            "--transport",
+            "both",
+            "--json",
+            "--out",
+        ])
+        .arg(&out_dir)
+        .env("SCL_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "scl bench latency failed: {stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let saved: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report, saved, "report.json differs from the printed report");
+
+    // The machine and the settings.
+    assert!(report["machine"]["cores"].as_u64().unwrap() >= 1);
+    assert!(
+        report["machine"]["kernel"]
+            .as_str()
+            .is_some_and(|k| !k.is_empty())
+    );
+    assert_eq!(report["settings"]["model"], "bundled");
+    assert_eq!(report["settings"]["rate_hz"], 40.0);
+    assert_eq!(report["duration_s"], 3.0);
+
+    // One run per transport, in order, each with every figure measured.
+    let runs = report["runs"].as_array().unwrap();
+    let transports: Vec<&str> = runs
+        .iter()
+        .map(|r| r["transport"].as_str().unwrap())
+        .collect();
+    assert_eq!(transports, ["iceoryx2", "uds"]);
+    for run in runs {
+        let t = run["transport"].as_str().unwrap();
+        let ticks = run["ticks"].as_u64().unwrap();
+        // 3 s at 40 Hz: 120 ticks, less start-up and shutdown.
+        assert!(ticks >= 80, "{t}: {ticks} ticks");
+        // Most ticks give a sample of each figure (a missed tick gives none of its hops).
+        let min = ticks / 2;
+        check_dist(&format!("{t} e2e"), &run["e2e_us"], min);
+        for hop in [
+            "joystick_mapper",
+            "bridge_mapper",
+            "mapper_safety",
+            "safety_bridge",
+        ] {
+            check_dist(&format!("{t} {hop}"), &run["hops_us"][hop], min);
+        }
+        check_dist(&format!("{t} sample age"), &run["joystick_age_us"], min);
+        check_dist(
+            &format!("{t} compute mapper"),
+            &run["compute_us"]["mapper"],
+            min,
+        );
+        check_dist(
+            &format!("{t} compute safety"),
+            &run["compute_us"]["safety"],
+            min,
+        );
+        // Lateness can be 0 µs at p50 on an idle machine; only that it was sampled.
+        assert!(run["tick_lateness_us"]["n"].as_u64().unwrap() >= min);
+        // The hops of one tick add up to no more than its end-to-end time (same clock).
+        let e2e = run["e2e_us"]["p50"].as_f64().unwrap();
+        let hop = run["hops_us"]["bridge_mapper"]["p50"].as_f64().unwrap();
+        assert!(
+            hop <= e2e,
+            "{t}: bridge -> mapper p50 {hop} > e2e p50 {e2e}"
+        );
+    }
+    // A ratio (iceoryx2 / uds) of p50, p99 and max for every figure.
+    let ratios = report["ratios"].as_array().unwrap();
+    assert!(ratios.len() >= 9, "{} ratios", ratios.len());
+    for r in ratios {
+        let name = r[0].as_str().unwrap();
+        for k in 1..=3 {
+            let v = r[k].as_f64().unwrap_or(f64::NAN);
+            assert!(v.is_finite() && v > 0.0, "ratio of {name}: {r}");
+        }
+    }
+    // The histograms.
+    let png = std::fs::read(out_dir.join("latency.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"), "latency.png is not a PNG");
+    assert!(png.len() > 10_000, "latency.png is {} bytes", png.len());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
