@@ -1,31 +1,58 @@
 //! The Kortex client against the fake robot over TCP on loopback: start-up, the pipelined
 //! loop, the gripper, the robot's limits, and every bad input ending in a stopped arm and a
 //! clear message. Each test runs its own fake robot on a free port of 127.0.0.1.
+//!
+//! The machine running these may be loaded (two shared cores): where the reply timeout is not
+//! the point, the client waits [`REPLY_TIMEOUT_MS`] for a reply, so a starved fake thread
+//! cannot fail a tick; the connection inactivity timeout stays at the product's 200 ms.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use std::net::TcpListener;
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
 use std::time::{Duration, Instant};
 
 use hw_bridge::core::BridgeCore;
+use hw_bridge::kortex::wire::{Decoded, Frame, FrameDecoder, FrameType, RobotFault};
 use hw_bridge::kortex::{
     Credentials, FakeConfig, FakeKortex, Fault, Function, KortexArm, KortexConfig, KortexError,
+    gripper_position_msg, joint_speeds_msg, msg,
 };
 use hw_bridge::{Robot, RobotError};
 use ipc_types::{MAX_JOINTS, NO_TICK, SafeCommand, state_flags};
 use kinematics::gen3_lite;
+use prost::Message as _;
 
 const DT: f64 = 0.025;
 const PERIOD: Duration = Duration::from_millis(25);
 const MOVE: [f64; 6] = [0.2, -0.1, 0.0, 0.0, 0.0, 0.3];
 
+/// The client's reply timeout where timing is not the point (the product's default is 200 ms).
+const REPLY_TIMEOUT_MS: u32 = 2_000;
+
+/// The reply timeout of the tests that wait for one to pass: long enough for a loaded machine,
+/// short enough to keep them quick.
+const SHORT_REPLY_TIMEOUT_MS: u32 = 1_000;
+
+/// The start-up requests, in the order `KortexArm::connect` sends them.
+const START_UP: [Function; 6] = [
+    Function::CreateSession,
+    Function::SetServoingMode,
+    Function::ClearFaults,
+    Function::GetActuatorCount,
+    Function::GetKinematicHardLimits,
+    Function::RefreshFeedback,
+];
+
 fn start_fake(cfg: FakeConfig) -> FakeKortex {
     FakeKortex::start(cfg).unwrap()
 }
 
+/// The default client settings on `fake`, with a reply timeout of [`REPLY_TIMEOUT_MS`].
 fn client_cfg(fake: &FakeKortex) -> KortexConfig {
     KortexConfig {
         address: "127.0.0.1".into(),
         port: fake.addr().port(),
+        reply_timeout_ms: REPLY_TIMEOUT_MS,
         ..KortexConfig::default()
     }
 }
@@ -36,6 +63,23 @@ fn admin() -> Credentials {
 
 fn connect(fake: &FakeKortex) -> KortexArm {
     KortexArm::connect(&client_cfg(fake), &admin()).unwrap()
+}
+
+/// A client whose reply timeout is [`SHORT_REPLY_TIMEOUT_MS`], for the tests that wait for it.
+fn connect_short_reply_timeout(fake: &FakeKortex) -> KortexArm {
+    let cfg = KortexConfig {
+        reply_timeout_ms: SHORT_REPLY_TIMEOUT_MS,
+        ..client_cfg(fake)
+    };
+    KortexArm::connect(&cfg, &admin()).unwrap()
+}
+
+/// The functions the fake received, in order.
+fn requested(fake: &FakeKortex) -> Vec<Function> {
+    fake.request_log()
+        .iter()
+        .map(|r| r.function().unwrap())
+        .collect()
 }
 
 /// One tick of the bridge's loop: advance, command, then the rest of the period.
@@ -84,24 +128,42 @@ fn assert_stopped_by_the_client(fake: &FakeKortex) {
         s.stats.sessions_closed, 1,
         "the session was not closed: {s:?}"
     );
-    assert_eq!(s.stats.connection_timeouts, 0);
+    // `connection_timeouts` is not checked: on a loaded machine the test thread may be
+    // starved past the 200 ms connection timeout before the fault, which the fake rightly
+    // counts; the Stop and CloseSession above are what this checks.
 }
 
 /// The connection is gone: the robot's connection inactivity timeout must stop the arm.
-fn assert_stopped_by_the_timeout(fake: &FakeKortex) {
+/// `timeouts_before` is the fake's count of connection timeouts before the fault (a starved
+/// test thread may have let one pass earlier).
+fn assert_stopped_by_the_timeout(fake: &FakeKortex, timeouts_before: u64) {
     wait_until(fake, "the connection timeout stops the arm", |s| {
-        s.stats.connection_timeouts == 1
+        s.stats.connection_timeouts > timeouts_before
     });
     let s = fake.snapshot();
     assert!(!s.commanded_to_move(), "{s:?}");
     assert!(s.last_timeout_gap.unwrap() >= Duration::from_millis(200));
 }
 
+/// Ticks until the fake has the motion command in force (a halt by the connection timeout of
+/// a starved test thread is undone by the next command).
 fn moving(fake: &FakeKortex, arm: &mut KortexArm) {
+    let t0 = Instant::now();
     for _ in 0..4 {
         tick(arm, &MOVE, 0.0).unwrap();
     }
-    wait_until(fake, "the arm moves", |s| s.commanded_to_move());
+    while !fake.snapshot().commanded_to_move() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the arm never moves"
+        );
+        tick(arm, &MOVE, 0.0).unwrap();
+    }
+}
+
+/// The fake's count of connection timeouts now.
+fn connection_timeouts(fake: &FakeKortex) -> u64 {
+    fake.snapshot().stats.connection_timeouts
 }
 
 #[test]
@@ -145,6 +207,182 @@ fn start_up_then_the_arm_moves_as_commanded_and_shutdown_stops_and_closes() {
     // Nothing but the client's own requests reached the robot (no KeepAlive thread).
     assert_eq!(s.stats.frames, arm.stats().requests);
     assert!(arm.advance(DT).is_err(), "the session is closed");
+}
+
+#[test]
+fn the_session_asks_for_exactly_the_configured_inactivity_timeouts() {
+    // The defaults: 200 ms for the connection (the robot-side watchdog), 60 s for the session.
+    let defaults = KortexConfig::default();
+    assert_eq!(
+        (defaults.connection_timeout_ms, defaults.session_timeout_ms),
+        (200, 60_000)
+    );
+    let fake = start_fake(FakeConfig::default());
+    assert_eq!(fake.snapshot().connection_timeout_ms, None);
+    let mut arm = connect(&fake);
+    let s = fake.snapshot();
+    assert_eq!(s.connection_timeout_ms, Some(200), "{s:?}");
+    assert_eq!(s.session_timeout_ms, Some(60_000), "{s:?}");
+    arm.shutdown().unwrap();
+    // Other values reach the robot as configured, not a constant of the client.
+    let fake = start_fake(FakeConfig::default());
+    let cfg = KortexConfig {
+        connection_timeout_ms: 345,
+        session_timeout_ms: 4_321,
+        ..client_cfg(&fake)
+    };
+    let mut arm = KortexArm::connect(&cfg, &admin()).unwrap();
+    let s = fake.snapshot();
+    assert_eq!(
+        (s.connection_timeout_ms, s.session_timeout_ms),
+        (Some(345), Some(4_321)),
+        "{s:?}"
+    );
+    arm.shutdown().unwrap();
+}
+
+#[test]
+fn start_up_sets_servoing_and_clears_faults_before_anything_else_in_order() {
+    let fake = start_fake(FakeConfig::default());
+    let mut arm = connect(&fake);
+    assert_eq!(requested(&fake), START_UP);
+    let log = fake.request_log();
+    // Message ids count up from 1; the session id is 0 until CreateSession answered.
+    let ids: Vec<u16> = log.iter().map(|r| r.message_id).collect();
+    assert_eq!(ids, [1, 2, 3, 4, 5, 6]);
+    assert_eq!(log[0].session_id, 0);
+    assert!(log[1..].iter().all(|r| r.session_id == 0x1234), "{log:?}");
+    assert!(fake.snapshot().single_level_servoing);
+    // The loop, then Stop, a last feedback and CloseSession.
+    tick(&mut arm, &MOVE, 0.0).unwrap();
+    arm.shutdown().unwrap();
+    assert_eq!(
+        requested(&fake)[START_UP.len()..],
+        [
+            // The first tick asks for feedback in `advance`; `command` asks for none while
+            // that one is still waiting for its reply.
+            Function::RefreshFeedback,
+            Function::SendJointSpeedsCommand,
+            Function::Stop,
+            Function::RefreshFeedback,
+            Function::CloseSession,
+        ]
+    );
+    assert_eq!(fake.snapshot().stats.refused_not_servoing, 0);
+}
+
+/// A bare Kortex client on `stream`: sends one request, returns the reply.
+fn raw_call(
+    stream: &mut TcpStream,
+    decoder: &mut FrameDecoder,
+    session: u16,
+    message_id: u16,
+    function: Function,
+    payload: Vec<u8>,
+) -> Frame {
+    let mut out = Vec::new();
+    Frame::new(
+        FrameType::Request,
+        session,
+        message_id,
+        function.uid(),
+        payload,
+    )
+    .unwrap()
+    .encode_tcp(&mut out)
+    .unwrap();
+    stream.write_all(&out).unwrap();
+    let mut buf = [0u8; 4096];
+    loop {
+        while let Some(r) = decoder.next_frame() {
+            if let Decoded::Frame(f) = r.unwrap() {
+                assert_eq!(f.header().message_id(), message_id);
+                return f;
+            }
+        }
+        let n = stream.read(&mut buf).unwrap();
+        assert!(n > 0, "the fake closed the connection");
+        decoder.push(&buf[..n]);
+    }
+}
+
+#[test]
+fn the_fake_refuses_motion_until_single_level_servoing_is_set() {
+    let fake = start_fake(FakeConfig::default());
+    let mut stream = TcpStream::connect(fake.addr()).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut dec = FrameDecoder::new();
+    let info = msg::CreateSessionInfo {
+        username: "admin".into(),
+        session_inactivity_timeout: 60_000,
+        password: "admin".into(),
+        // No robot-side watchdog: this test is about servoing, whatever the machine's load.
+        connection_inactivity_timeout: 0,
+    };
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        0,
+        1,
+        Function::CreateSession,
+        info.encode_to_vec(),
+    );
+    assert_eq!(reply.error(), None);
+    let session = reply.header().session_id();
+    // A client that skips SetServoingMode: its commands are refused, the arm does not move.
+    let speeds = joint_speeds_msg(&MOVE).encode_to_vec();
+    let refused = |f: &Frame| {
+        matches!(f.error(), Some(RobotFault { code: 3, ref detail, .. })
+            if detail.contains("not in single-level servoing"))
+    };
+    let f = Function::SendJointSpeedsCommand;
+    let reply = raw_call(&mut stream, &mut dec, session, 2, f, speeds.clone());
+    assert!(refused(&reply), "{:?}", reply.error());
+    let gripper = gripper_position_msg(0.5).encode_to_vec();
+    let g = Function::SendGripperCommand;
+    let reply = raw_call(&mut stream, &mut dec, session, 3, g, gripper.clone());
+    assert!(refused(&reply), "{:?}", reply.error());
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move() && !s.single_level_servoing, "{s:?}");
+    assert_eq!(s.gripper_target, 0.0);
+    assert_eq!(s.stats.refused_not_servoing, 2);
+    assert_eq!(s.stats.joint_speed_commands, 0);
+    // Single-level servoing set: the same commands are executed.
+    let mode = msg::ServoingModeInformation {
+        servoing_mode: msg::servoing_mode::SINGLE_LEVEL,
+    }
+    .encode_to_vec();
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        session,
+        4,
+        Function::SetServoingMode,
+        mode,
+    );
+    assert_eq!(reply.error(), None);
+    let reply = raw_call(&mut stream, &mut dec, session, 5, f, speeds);
+    assert_eq!(reply.error(), None);
+    let reply = raw_call(&mut stream, &mut dec, session, 6, g, gripper);
+    assert_eq!(reply.error(), None);
+    let s = fake.snapshot();
+    assert!(s.commanded_to_move() && s.single_level_servoing, "{s:?}");
+    assert_eq!(s.gripper_target, 0.5);
+    assert_eq!(s.stats.refused_not_servoing, 2);
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        session,
+        7,
+        Function::Stop,
+        Vec::new(),
+    );
+    assert_eq!(reply.error(), None);
+    let close = Function::CloseSession;
+    let reply = raw_call(&mut stream, &mut dec, session, 8, close, Vec::new());
+    assert_eq!(reply.error(), None);
 }
 
 #[test]
@@ -263,6 +501,18 @@ fn a_robot_that_is_not_a_gen3_lite_is_refused_and_its_session_closed() {
     );
     let s = fake.snapshot();
     assert_eq!((s.stats.sessions_opened, s.stats.sessions_closed), (1, 1));
+    // Start-up went as far as the count, then Stop and CloseSession.
+    assert_eq!(
+        requested(&fake),
+        [
+            Function::CreateSession,
+            Function::SetServoingMode,
+            Function::ClearFaults,
+            Function::GetActuatorCount,
+            Function::Stop,
+            Function::CloseSession,
+        ]
+    );
 }
 
 #[test]
@@ -335,10 +585,10 @@ fn a_reply_for_an_unknown_message_id_stops_the_arm() {
 #[test]
 fn a_damaged_magic_is_resynchronised_and_the_lost_reply_ends_in_a_stop() {
     let fake = start_fake(FakeConfig::default());
-    let mut arm = connect(&fake);
+    let mut arm = connect_short_reply_timeout(&fake);
     moving(&fake, &mut arm);
     fake.inject(Fault::CorruptMagic, Some(Function::SendJointSpeedsCommand));
-    let e = tick_until_error(&mut arm, 40);
+    let e = tick_until_error(&mut arm, 400);
     let text = e.to_string();
     assert!(
         matches!(
@@ -351,7 +601,8 @@ fn a_damaged_magic_is_resynchronised_and_the_lost_reply_ends_in_a_stop() {
         "{text}"
     );
     assert!(
-        text.contains("within 200 ms") && text.contains("skipped to resynchronise"),
+        text.contains(&format!("within {SHORT_REPLY_TIMEOUT_MS} ms"))
+            && text.contains("skipped to resynchronise"),
         "{text}"
     );
     // The stream was resynchronised: the frames after the damaged one were decoded (the
@@ -382,10 +633,10 @@ fn garbage_between_frames_is_skipped_and_the_loop_goes_on() {
 #[test]
 fn a_dropped_reply_ends_in_a_reply_timeout_and_a_stop() {
     let fake = start_fake(FakeConfig::default());
-    let mut arm = connect(&fake);
+    let mut arm = connect_short_reply_timeout(&fake);
     moving(&fake, &mut arm);
     fake.inject(Fault::DropReply, Some(Function::RefreshFeedback));
-    let e = tick_until_error(&mut arm, 40);
+    let e = tick_until_error(&mut arm, 400);
     assert_eq!(
         e.to_string().split(" (message").next().unwrap(),
         "no reply to BaseCyclic.RefreshFeedback"
@@ -399,6 +650,7 @@ fn a_truncated_reply_is_reported_and_the_connection_timeout_stops_the_arm() {
     let fake = start_fake(FakeConfig::default());
     let mut arm = connect(&fake);
     moving(&fake, &mut arm);
+    let before = connection_timeouts(&fake);
     fake.inject(
         Fault::TruncateReply(20),
         Some(Function::SendJointSpeedsCommand),
@@ -407,7 +659,7 @@ fn a_truncated_reply_is_reported_and_the_connection_timeout_stops_the_arm() {
     assert!(matches!(e, KortexError::Truncated { have: 20, .. }), "{e}");
     assert!(e.to_string().contains("truncated frame: 20 of"), "{e}");
     // The connection is gone: no Stop could be sent; the robot's watchdog stops the arm.
-    assert_stopped_by_the_timeout(&fake);
+    assert_stopped_by_the_timeout(&fake, before);
     assert_eq!(fake.snapshot().stats.stops, 0);
 }
 
@@ -416,6 +668,7 @@ fn a_reset_connection_is_reported_and_the_connection_timeout_stops_the_arm() {
     let fake = start_fake(FakeConfig::default());
     let mut arm = connect(&fake);
     moving(&fake, &mut arm);
+    let before = connection_timeouts(&fake);
     fake.inject(
         Fault::CloseConnection,
         Some(Function::SendJointSpeedsCommand),
@@ -426,7 +679,7 @@ fn a_reset_connection_is_reported_and_the_connection_timeout_stops_the_arm() {
         "{e}"
     );
     assert!(e.to_string().contains("127.0.0.1"), "{e}");
-    assert_stopped_by_the_timeout(&fake);
+    assert_stopped_by_the_timeout(&fake, before);
     assert_eq!(fake.snapshot().stats.stops, 0);
 }
 
@@ -437,13 +690,16 @@ fn a_frozen_loop_lets_the_connection_time_out_and_the_robot_stops_the_arm() {
     moving(&fake, &mut arm);
     // The control loop freezes: no frame goes out, and no thread of the client keeps the
     // session alive.
-    assert_stopped_by_the_timeout(&fake);
+    let before = connection_timeouts(&fake);
+    assert_stopped_by_the_timeout(&fake, before);
     assert_eq!(fake.snapshot().stats.stops, 0);
     // The session itself lives on (session timeout 60 s): the loop resumes.
-    for _ in 0..4 {
-        tick(&mut arm, &MOVE, 0.0).unwrap();
-    }
-    wait_until(&fake, "the arm moves again", |s| s.commanded_to_move());
+    moving(&fake, &mut arm);
+    // The frames re-armed the watchdog: a second freeze stops the arm again.
+    let before = connection_timeouts(&fake);
+    assert_stopped_by_the_timeout(&fake, before);
+    assert_eq!(fake.snapshot().stats.stops, 0);
+    assert!(fake.snapshot().session_open);
     arm.shutdown().unwrap();
 }
 

@@ -6,8 +6,15 @@
 //! checks the credentials, serves the calls the bridge makes, and enforces the session's
 //! connection inactivity timeout: a watchdog thread sleeps until the deadline and, if no frame
 //! has arrived for that long, stops the arm, as the robot does. A closed connection alone does
-//! not stop the arm (the worst case: only the timeout does). The session itself ends after the
-//! session inactivity timeout.
+//! not stop the arm (the worst case: only the timeout does); the next frame re-arms the watchdog.
+//! The session itself ends after the session inactivity timeout.
+//!
+//! Like a robot left in another servoing mode by a previous client, the fake starts in no
+//! servoing mode a client may rely on: it refuses joint speed and gripper commands with a device
+//! error until a session sets single-level servoing (`Base.SetServoingMode`). It records every
+//! request it receives ([`FakeKortex::request_log`]) and the inactivity timeouts of the last
+//! session opened ([`FakeSnapshot::connection_timeout_ms`]), so tests can check what the client
+//! sent and in which order.
 //!
 //! Threads: the watchdog, a blocking accept loop, and one thread per connection that reads,
 //! answers, and holds delayed replies until they are due. They sleep unless something happens,
@@ -37,7 +44,8 @@ use crate::mock::{MockArm, MockConfig, MockConfigError};
 /// The longest the watchdog sleeps (so that shutting down is prompt).
 const WATCHDOG_MAX_SLEEP: Duration = Duration::from_millis(50);
 
-/// Joint speed commands kept in the log (about eight minutes at 40 Hz).
+/// Joint speed commands kept in the log (about eight minutes at 40 Hz); also the number of
+/// requests kept in the request log.
 const LOG_CAPACITY: usize = 20_000;
 
 /// Settings of the fake robot.
@@ -133,6 +141,26 @@ pub struct FakeStats {
     pub faults_fired: u64,
     /// Bytes from clients skipped to resynchronise.
     pub skipped_bytes: u64,
+    /// Joint speed or gripper commands refused because single-level servoing was not set.
+    pub refused_not_servoing: u64,
+}
+
+/// A request the fake robot received, in the order of arrival ([`FakeKortex::request_log`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FakeRequest {
+    /// The function UID of its header: `(service id << 16) | function id`.
+    pub function_uid: u32,
+    /// Its message id.
+    pub message_id: u16,
+    /// The session id of its header (0 before CreateSession answered).
+    pub session_id: u16,
+}
+
+impl FakeRequest {
+    /// The function requested, if the bridge knows it.
+    pub fn function(&self) -> Option<Function> {
+        Function::from_uid(self.function_uid)
+    }
 }
 
 /// What the fake robot looks like now.
@@ -156,6 +184,14 @@ pub struct FakeSnapshot {
     pub last_timeout_gap: Option<Duration>,
     /// Time since the last frame of the session's connection.
     pub since_last_frame: Option<Duration>,
+    /// The connection inactivity timeout (ms) the last session opened was created with, as the
+    /// client sent it (0: none); `None` before any session. Kept after the session ends.
+    pub connection_timeout_ms: Option<u32>,
+    /// The session inactivity timeout (ms) the last session opened was created with, as the
+    /// client sent it (0: none); `None` before any session. Kept after the session ends.
+    pub session_timeout_ms: Option<u32>,
+    /// Single-level servoing is set (joint speed and gripper commands are accepted).
+    pub single_level_servoing: bool,
 }
 
 impl FakeSnapshot {
@@ -203,6 +239,12 @@ struct State {
     stats: FakeStats,
     last_timeout_gap: Option<Duration>,
     log: VecDeque<[f64; gen3_lite::N_JOINTS]>,
+    requests: VecDeque<FakeRequest>,
+    /// (connection, session) inactivity timeouts (ms) of the last CreateSession that opened a
+    /// session.
+    created_timeouts_ms: Option<(u32, u32)>,
+    /// Robot-wide, as on the real arm: it outlives sessions.
+    single_level_servoing: bool,
 }
 
 struct Shared {
@@ -277,6 +319,9 @@ impl FakeKortex {
                 stats: FakeStats::default(),
                 last_timeout_gap: None,
                 log: VecDeque::new(),
+                requests: VecDeque::new(),
+                created_timeouts_ms: None,
+                single_level_servoing: false,
             }),
             threads: Mutex::new(Vec::new()),
             conns: Mutex::new(Vec::new()),
@@ -327,6 +372,9 @@ impl FakeKortex {
             stats: st.stats,
             last_timeout_gap: st.last_timeout_gap,
             since_last_frame: st.session.as_ref().map(|s| s.last_frame.elapsed()),
+            connection_timeout_ms: st.created_timeouts_ms.map(|(c, _)| c),
+            session_timeout_ms: st.created_timeouts_ms.map(|(_, s)| s),
+            single_level_servoing: st.single_level_servoing,
         };
         s.q_rad.copy_from_slice(&st.reading.q_rad[..n]);
         s.qdot_rad_s.copy_from_slice(&st.reading.qdot_rad_s[..n]);
@@ -339,6 +387,12 @@ impl FakeKortex {
     /// the last 20 000.
     pub fn joint_speed_log(&self) -> Vec<[f64; gen3_lite::N_JOINTS]> {
         self.shared.state().log.iter().copied().collect()
+    }
+
+    /// The requests received, oldest first (every connection, whatever the fake answered, up
+    /// to the last 20 000).
+    pub fn request_log(&self) -> Vec<FakeRequest> {
+        self.shared.state().requests.iter().copied().collect()
     }
 
     /// Stops the fake robot and waits for its threads.
@@ -552,11 +606,21 @@ fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
         && s.conn == conn
     {
         s.last_frame = now;
+        // A frame re-arms the watchdog: the next silence stops the arm again.
+        s.timed_out = false;
     }
     let h = frame.header();
     if h.frame_type() != Some(FrameType::Request) {
         return Vec::new();
     }
+    if st.requests.len() == LOG_CAPACITY {
+        st.requests.pop_front();
+    }
+    st.requests.push_back(FakeRequest {
+        function_uid: h.function_uid(),
+        message_id: h.message_id(),
+        session_id: h.session_id(),
+    });
     let function = Function::from_uid(h.function_uid());
     let fault = st
         .faults
@@ -687,9 +751,14 @@ fn execute(
             timed_out: false,
         });
         st.stats.sessions_opened += 1;
+        st.created_timeouts_ms = Some((
+            info.connection_inactivity_timeout,
+            info.session_inactivity_timeout,
+        ));
         tracing::info!(
             session = format_args!("{id:#06x}"),
             connection_timeout_ms = info.connection_inactivity_timeout,
+            session_timeout_ms = info.session_inactivity_timeout,
             "fake Kortex: session open"
         );
         return Ok(Vec::new());
@@ -721,6 +790,7 @@ fn execute(
                     "this fake robot serves single-level servoing only".into(),
                 ));
             }
+            st.single_level_servoing = true;
             Ok(Vec::new())
         }
         Function::GetActuatorCount => Ok(msg::ActuatorInformation {
@@ -751,6 +821,20 @@ fn execute(
         Function::RefreshFeedback => {
             st.stats.feedback_requests += 1;
             Ok(feedback(&st.reading, n).encode_to_vec())
+        }
+        Function::SendJointSpeedsCommand | Function::SendGripperCommand
+            if !st.single_level_servoing =>
+        {
+            st.stats.refused_not_servoing += 1;
+            Err((
+                3,
+                0,
+                format!(
+                    "{} refused: the robot is not in single-level servoing (call \
+                     Base.SetServoingMode first)",
+                    function.name()
+                ),
+            ))
         }
         Function::SendJointSpeedsCommand => {
             let m: msg::JointSpeeds = decode_req(frame, "JointSpeeds")?;

@@ -45,7 +45,7 @@ use std::net::{IpAddr, SocketAddr};
 use serde::{Deserialize, Serialize};
 
 pub use arm::{KortexArm, KortexStats};
-pub use fake::{FakeConfig, FakeKortex, FakeSnapshot, FakeStats, Fault};
+pub use fake::{FakeConfig, FakeKortex, FakeRequest, FakeSnapshot, FakeStats, Fault};
 
 /// The functions of the Kortex API the bridge (and the fake robot) use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
