@@ -7,10 +7,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SafetyConfig {
-    /// Joint speed limits (rad/s), one per joint. Default: the Gen3 lite planning defaults.
+    /// Joint speed limits (rad/s), one per joint, at most the URDF's velocity limits.
+    /// Default: the Gen3 lite teleoperation limits (`kinematics::gen3_lite::limits()`: the
+    /// planning defaults capped by the URDF).
     pub max_velocity_rad_s: Vec<f64>,
-    /// Joint acceleration limits (rad/s²), one per joint. Default: the Gen3 lite simulator
-    /// accelerations.
+    /// Joint acceleration limits (rad/s²), one per joint. Default: the Gen3 lite teleoperation
+    /// accelerations (the simulator's).
     pub max_acceleration_rad_s2: Vec<f64>,
     /// Distance kept from each joint's position limits (rad).
     pub joint_margin_rad: f64,
@@ -33,10 +35,19 @@ pub struct SafetyConfig {
 }
 
 impl Default for SafetyConfig {
+    /// [`SafetyConfig::from_limits`] of the Gen3 lite (`kinematics::gen3_lite::limits()`).
     fn default() -> Self {
+        Self::from_limits(&kinematics::gen3_lite::limits())
+    }
+}
+
+impl SafetyConfig {
+    /// The defaults for a robot with the teleoperation limits `limits` (velocity limits
+    /// already capped by its URDF): its speed and acceleration limits, the rest the defaults.
+    pub fn from_limits(limits: &ArmLimits) -> Self {
         Self {
-            max_velocity_rad_s: kinematics::gen3_lite::DEFAULT_VELOCITY_RAD_S.to_vec(),
-            max_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
+            max_velocity_rad_s: limits.max_velocity_rad_s.clone(),
+            max_acceleration_rad_s2: limits.max_acceleration_rad_s2.clone(),
             joint_margin_rad: 0.05,
             speed_override: 1.0,
             max_gripper_rate: 2.0,
@@ -103,8 +114,20 @@ fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
 }
 
 impl SafetyConfig {
-    /// Checks the configuration for a robot with the given joint limits.
+    /// Checks the configuration for the Gen3 lite: [`SafetyConfig::validate_for`] with the
+    /// velocity limits of the embedded URDF (`robots/gen3_lite.urdf`).
     pub fn validate(&self, limits: &ArmLimits) -> Result<(), ConfigError> {
+        self.validate_for(limits, kinematics::Gen3Lite::get().arm().velocity_limits())
+    }
+
+    /// Checks the configuration for a robot with the joint limits `limits` whose robot
+    /// description allows at most `urdf_velocity_rad_s` per joint: no configured speed may
+    /// exceed it.
+    pub fn validate_for(
+        &self,
+        limits: &ArmLimits,
+        urdf_velocity_rad_s: &[f64],
+    ) -> Result<(), ConfigError> {
         let n_joints = limits.n_joints();
         for (key, values) in [
             ("max_velocity_rad_s", &self.max_velocity_rad_s),
@@ -126,6 +149,31 @@ impl SafetyConfig {
                         format!("entry {i} is {v}; every limit must be a positive number"),
                     ));
                 }
+            }
+        }
+        if urdf_velocity_rad_s.len() != n_joints {
+            return Err(err(
+                "max_velocity_rad_s",
+                format!(
+                    "the robot description has {} velocity limits for {n_joints} joints",
+                    urdf_velocity_rad_s.len()
+                ),
+            ));
+        }
+        for (i, (v, urdf)) in self
+            .max_velocity_rad_s
+            .iter()
+            .zip(urdf_velocity_rad_s)
+            .enumerate()
+        {
+            if v > urdf {
+                return Err(err(
+                    "max_velocity_rad_s",
+                    format!(
+                        "entry {i} ({}) is {v} rad/s, above the URDF velocity limit {urdf} rad/s",
+                        limits.names[i]
+                    ),
+                ));
             }
         }
         let m = self.joint_margin_rad;
@@ -181,5 +229,75 @@ impl SafetyConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use kinematics::{Gen3Lite, gen3_lite};
+
+    #[test]
+    fn defaults_are_the_urdf_derived_limits() {
+        let l = gen3_lite::limits();
+        let d = SafetyConfig::default();
+        assert_eq!(d, SafetyConfig::from_limits(&l));
+        assert_eq!(d.max_velocity_rad_s, l.max_velocity_rad_s);
+        assert_eq!(d.max_acceleration_rad_s2, l.max_acceleration_rad_s2);
+        d.validate(&l).unwrap();
+        // A description with a slower wrist caps the default speed, not the constant.
+        let g = slow_wrist();
+        let d = SafetyConfig::from_limits(&g.limits());
+        assert_eq!(d.max_velocity_rad_s, [0.48, 0.48, 0.48, 0.76, 0.76, 1.0]);
+        d.validate_for(&g.limits(), g.arm().velocity_limits())
+            .unwrap();
+    }
+
+    /// The Gen3 lite with its wrist's URDF velocity limit lowered from 3.2 to 1 rad/s.
+    fn slow_wrist() -> Gen3Lite {
+        let slow = gen3_lite::URDF.replace("velocity=\"3.2\"", "velocity=\"1.0\"");
+        Gen3Lite::from_urdf_str(&slow, "slow.urdf").unwrap()
+    }
+
+    #[test]
+    fn speeds_above_the_urdf_velocity_limits_are_refused() {
+        let l = gen3_lite::limits();
+        let urdf = Gen3Lite::get().arm().velocity_limits();
+        assert_eq!(urdf, [1.6, 1.6, 1.6, 1.6, 1.6, 3.2]);
+        // Up to the URDF's limits is allowed, also above the teleoperation defaults.
+        let mut cfg = SafetyConfig {
+            max_velocity_rad_s: urdf.to_vec(),
+            ..SafetyConfig::default()
+        };
+        cfg.validate(&l).unwrap();
+        cfg.max_velocity_rad_s[5] = 3.3;
+        let e = cfg.validate(&l).unwrap_err();
+        assert_eq!(e.key, "max_velocity_rad_s");
+        assert_eq!(
+            e.to_string(),
+            "safety.max_velocity_rad_s: entry 5 (joint_6) is 3.3 rad/s, \
+             above the URDF velocity limit 3.2 rad/s"
+        );
+        // So does the filter.
+        assert_eq!(crate::SafetyFilter::new(cfg, &l, 0.025).unwrap_err(), e);
+
+        // A description with a slower wrist: the Gen3 lite default 1.52 rad/s is too fast.
+        let g = slow_wrist();
+        let e = SafetyConfig::default()
+            .validate_for(&g.limits(), g.arm().velocity_limits())
+            .unwrap_err();
+        assert_eq!(e.key, "max_velocity_rad_s");
+        assert!(
+            e.reason.contains("joint_6") && e.reason.contains("limit 1 rad/s"),
+            "{e}"
+        );
+
+        // A description without a velocity limit per joint cannot be checked against.
+        let e = SafetyConfig::default()
+            .validate_for(&l, &urdf[..5])
+            .unwrap_err();
+        assert_eq!(e.key, "max_velocity_rad_s");
     }
 }

@@ -1,7 +1,7 @@
 //! The filter's rules as pure functions on joint-velocity slices. Every rule only scales: a
 //! whole command by one factor (velocity, position, workspace) or the change from the current
-//! velocity by one factor (acceleration), so the result is always between what the arm does
-//! now and what was asked.
+//! velocity by one factor (acceleration), so the result is always between zero, what the arm
+//! does now and what was asked.
 
 use ipc_types::MAX_JOINTS;
 
@@ -46,16 +46,32 @@ pub fn brake_speed(decel: f64, dist: f64, dt: f64) -> f64 {
     (decel * decel * dt * dt + 2.0 * decel * dist).sqrt() - decel * dt
 }
 
+/// How fast the acceleration limits let `qdot` be braked along its own direction: the largest
+/// `alpha` (1/s) with `alpha·|qdot_j| <= accel_j` for every joint, infinite for a zero
+/// `qdot`. The acceleration rule scales a change as a whole, so braking a command keeps its
+/// direction and slows joint `j` at `alpha·|qdot_j|`, not at `accel_j`: the braking
+/// distances of the position and workspace rules use these decelerations.
+pub fn brake_rate(qdot: &[f64], accel: &[f64]) -> f64 {
+    qdot.iter()
+        .zip(accel)
+        .filter(|(v, _)| v.abs() > 0.0)
+        .map(|(v, a)| a / v.abs())
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// The factor `<= 1` for `qdot` so that no joint moving toward its bound
 /// `[lower_j, upper_j]` (the limits less the margin) goes faster than it can stop before it;
 /// with `hard` the bound is only "not past it within the next tick" (`dist / dt`). Motion away
-/// from a bound is never limited.
+/// from a bound is never limited. Joint `j` is braked at `min(accel_j, alpha·|qdot_j|)`,
+/// `alpha` the [`brake_rate`] of the command (infinite: at `accel_j`).
+#[allow(clippy::too_many_arguments)]
 pub fn position_scale(
     q: &[f64],
     qdot: &[f64],
     lower: &[f64],
     upper: &[f64],
     accel: &[f64],
+    alpha: f64,
     dt: f64,
     hard: bool,
 ) -> f64 {
@@ -72,7 +88,7 @@ pub fn position_scale(
         let allowed = if hard {
             dist.max(0.0) / dt
         } else {
-            brake_speed(accel[j], dist, dt)
+            brake_speed(accel[j].min(alpha * v.abs()), dist, dt)
         };
         k = k.min(allowed / v.abs());
     }
@@ -159,10 +175,19 @@ impl Bounds {
     }
 
     /// The factor `<= 1` for a tool velocity `v` at position `p` so that it approaches no
-    /// bound faster than it can stop before it at `decel` (or, with `hard`, does not cross it
-    /// within the next tick); motion back inside is never limited, motion further out of a
-    /// violated bound is stopped.
-    pub fn scale(&self, p: &[f64; 3], v: &[f64; 3], decel: f64, dt: f64, hard: bool) -> f64 {
+    /// bound faster than it can stop before it (or, with `hard`, does not cross it within the
+    /// next tick); motion back inside is never limited, motion further out of a violated bound
+    /// is stopped. An approach at rate `r` is braked at `min(decel, alpha·r)`, `alpha` the
+    /// [`brake_rate`] of the joint command behind `v` (infinite: at `decel`).
+    pub fn scale(
+        &self,
+        p: &[f64; 3],
+        v: &[f64; 3],
+        decel: f64,
+        alpha: f64,
+        dt: f64,
+        hard: bool,
+    ) -> f64 {
         let mut k: f64 = 1.0;
         for (n, b) in &self.planes {
             let rate = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
@@ -173,7 +198,7 @@ impl Bounds {
             let allowed = if hard {
                 dist.max(0.0) / dt
             } else {
-                brake_speed(decel, dist, dt)
+                brake_speed(decel.min(alpha * -rate), dist, dt)
             };
             k = k.min(allowed / -rate);
         }
@@ -211,20 +236,75 @@ mod tests {
     }
 
     #[test]
+    fn braking_keeps_the_direction_at_the_slowest_joints_pace() {
+        // Joint 0 (0.4 rad/s at 0.4 rad/s²) needs 1 s to stop; braking the whole command in
+        // that second slows joint 1 at 0.1 rad/s², not at its own 10 rad/s².
+        let (qdot, acc) = ([0.4, 0.1], [0.4, 10.0]);
+        let alpha = brake_rate(&qdot, &acc);
+        assert!((alpha - 1.0).abs() < 1e-12);
+        assert_eq!(brake_rate(&[0.0, 0.0], &acc), f64::INFINITY);
+        // Joint 1 is 6 mm from its bound: at 10 rad/s² it could go on at 0.1 rad/s, at
+        // 0.1 rad/s² it must slow down.
+        let (lo, hi) = ([-1.0; 2], [1.0, 0.006]);
+        let own = position_scale(
+            &[0.0; 2],
+            &qdot,
+            &lo,
+            &hi,
+            &acc,
+            f64::INFINITY,
+            0.025,
+            false,
+        );
+        let along = position_scale(&[0.0; 2], &qdot, &lo, &hi, &acc, alpha, 0.025, false);
+        assert_eq!(own, 1.0);
+        assert!(along < 0.9, "{along}");
+        let v = along * qdot[1];
+        assert!(v * 0.025 + v * v / (2.0 * 0.1) <= 0.006 + 1e-12);
+    }
+
+    #[test]
     fn position_scale_leaves_motion_away_free() {
         let (lo, hi, acc) = ([-1.0; 2], [1.0; 2], [1.0; 2]);
         // At the upper bound: moving up is stopped, moving down is free.
         assert_eq!(
-            position_scale(&[1.0, 0.0], &[0.5, 0.0], &lo, &hi, &acc, 0.025, false),
+            position_scale(
+                &[1.0, 0.0],
+                &[0.5, 0.0],
+                &lo,
+                &hi,
+                &acc,
+                f64::INFINITY,
+                0.025,
+                false
+            ),
             0.0
         );
         assert_eq!(
-            position_scale(&[1.0, 0.0], &[-0.5, 0.0], &lo, &hi, &acc, 0.025, false),
+            position_scale(
+                &[1.0, 0.0],
+                &[-0.5, 0.0],
+                &lo,
+                &hi,
+                &acc,
+                f64::INFINITY,
+                0.025,
+                false
+            ),
             1.0
         );
         // Past the bound: moving further out is stopped.
         assert_eq!(
-            position_scale(&[1.2, 0.0], &[0.1, 0.0], &lo, &hi, &acc, 0.025, true),
+            position_scale(
+                &[1.2, 0.0],
+                &[0.1, 0.0],
+                &lo,
+                &hi,
+                &acc,
+                f64::INFINITY,
+                0.025,
+                true
+            ),
             0.0
         );
     }
@@ -235,15 +315,36 @@ mod tests {
         assert!(b.contains(&[0.0, 0.0, 0.5], 0.0));
         assert!(!b.contains(&[0.0, 0.0, -0.01], 0.0));
         // Moving down onto the table from 1 cm at 1 m/s: must slow down.
-        let k = b.scale(&[0.0, 0.0, 0.01], &[0.0, 0.0, -1.0], 0.5, 0.025, false);
+        let k = b.scale(
+            &[0.0, 0.0, 0.01],
+            &[0.0, 0.0, -1.0],
+            0.5,
+            f64::INFINITY,
+            0.025,
+            false,
+        );
         assert!(k < 0.2);
         // Moving up from below the table is free; moving down from there is stopped.
         assert_eq!(
-            b.scale(&[0.0, 0.0, -0.01], &[0.0, 0.0, 0.1], 0.5, 0.025, false),
+            b.scale(
+                &[0.0, 0.0, -0.01],
+                &[0.0, 0.0, 0.1],
+                0.5,
+                f64::INFINITY,
+                0.025,
+                false
+            ),
             1.0
         );
         assert_eq!(
-            b.scale(&[0.0, 0.0, -0.01], &[0.0, 0.0, -1.0], 0.5, 0.025, true),
+            b.scale(
+                &[0.0, 0.0, -0.01],
+                &[0.0, 0.0, -1.0],
+                0.5,
+                f64::INFINITY,
+                0.025,
+                true
+            ),
             0.0
         );
     }
