@@ -703,6 +703,26 @@ fn a_frozen_loop_lets_the_connection_time_out_and_the_robot_stops_the_arm() {
     arm.shutdown().unwrap();
 }
 
+/// A frozen client replaced by a new one (a restarted bridge) before its connection timeout
+/// fired: the robot still stops the motion the frozen session started, until the new session
+/// commands; then the new session drives the arm.
+#[test]
+fn a_new_session_does_not_cancel_the_frozen_sessions_connection_timeout() {
+    let fake = start_fake(FakeConfig::default());
+    let mut frozen = connect(&fake);
+    moving(&fake, &mut frozen);
+    let before = connection_timeouts(&fake);
+    // The new client opens its session at once, and sends no motion yet.
+    let mut next = connect(&fake);
+    assert_eq!(fake.snapshot().stats.sessions_opened, 2);
+    assert_stopped_by_the_timeout(&fake, before);
+    assert_eq!(fake.snapshot().stats.stops, 0, "nobody sent a Stop");
+    // The new session's commands are in force from its first tick on.
+    moving(&fake, &mut next);
+    next.shutdown().unwrap();
+    drop(frozen);
+}
+
 #[test]
 fn dropping_the_client_stops_the_arm_and_closes_the_session() {
     let fake = start_fake(FakeConfig::default());

@@ -301,6 +301,115 @@ fn killing_the_bridge_lets_the_robot_stop_the_arm_on_its_connection_timeout() {
     );
 }
 
+/// With the bridge restarted by the supervisor (`on-failure`), the robot's own connection
+/// timeout stops the arm while no bridge runs; the new bridge opens a new session, starts from
+/// a stop and drives the arm again.
+#[test]
+fn a_restarted_bridge_reconnects_after_the_robot_stopped_the_arm_itself() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("restart");
+    let config = write_config(
+        &dir.0,
+        &fake,
+        false,
+        // A restart delay longer than the robot's connection timeout (200 ms), so that the
+        // robot's watchdog, not the new bridge, stops the arm (the fake models a new session
+        // that comes sooner: a_new_session_does_not_cancel_the_frozen_sessions_connection_timeout).
+        "\n[supervisor]\nbackoff_initial_ms = 1000\n[supervisor.restart]\nbridge = \"on-failure\"\n",
+    );
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxrestart");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up(&prefix, &config, &log, true);
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| running_states(r) >= 80),
+        "the graph did not start: {}",
+        std::fs::read_to_string(&log).unwrap()
+    );
+    let before = fake.snapshot();
+    assert!(
+        before.commanded_to_move(),
+        "the arm is not moving: {before:?}"
+    );
+    let last_before = *rec.robot_states.last().unwrap();
+    let pid = rec.pid_of(NodeRole::Bridge).unwrap();
+    // SAFETY: signalling a process of the graph under test.
+    unsafe {
+        libc::kill(pid as libc::pid_t, libc::SIGKILL);
+    }
+    // The robot's watchdog stops the arm before any new session exists (the restart waits
+    // for its backoff, 1 s).
+    let t0 = Instant::now();
+    let stopped = loop {
+        let s = fake.snapshot();
+        if s.stats.connection_timeouts > before.stats.connection_timeouts {
+            break s;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the connection timeout never stopped the arm: {s:?}"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    assert!(!stopped.commanded_to_move(), "{stopped:?}");
+    assert_eq!(
+        stopped.stats.sessions_opened, before.stats.sessions_opened,
+        "a new session opened before the robot stopped the arm"
+    );
+    assert_eq!(
+        stopped.stats.stops, before.stats.stops,
+        "a Stop came from a dead bridge"
+    );
+    // The new bridge: a new session, then the arm moves again.
+    let t0 = Instant::now();
+    loop {
+        let s = fake.snapshot();
+        if s.stats.sessions_opened > before.stats.sessions_opened && s.commanded_to_move() {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the restarted bridge did not drive the arm: {s:?}\n{}",
+            std::fs::read_to_string(&log).unwrap()
+        );
+        rec.poll();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    rec.poll_for(Duration::from_millis(200));
+    // Its first state continues the tick count and reports a stop, not the last command.
+    let first = rec
+        .robot_states
+        .iter()
+        .find(|s| s.tick > last_before.tick && s.flags & state_flags::SHUTDOWN == 0)
+        .copied()
+        .expect("no state from the restarted bridge");
+    assert_eq!(
+        first.applied_tick,
+        ipc_types::NO_TICK,
+        "the new bridge did not start from a stop"
+    );
+
+    // SAFETY: signalling the graph under test to stop.
+    unsafe {
+        libc::kill(guard.child().id() as libc::pid_t, libc::SIGTERM);
+    }
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(out.status.success(), "{log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["restarts"], 1, "{summary}");
+    assert_no_credentials(&log_text);
+    // The new bridge closed its session on the way out.
+    assert!(fake.snapshot().stats.sessions_closed >= 1);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
 #[test]
 fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
     let _serial = serial();

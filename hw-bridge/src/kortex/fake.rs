@@ -7,7 +7,9 @@
 //! connection inactivity timeout: a watchdog thread sleeps until the deadline and, if no frame
 //! has arrived for that long, stops the arm, as the robot does. A closed connection alone does
 //! not stop the arm (the worst case: only the timeout does); the next frame re-arms the watchdog.
-//! The session itself ends after the session inactivity timeout.
+//! A new session from another connection (a restarted bridge) does not cancel the old one's
+//! timeout: it still stops the motion the old session started, unless the new session has
+//! commanded since. The session itself ends after the session inactivity timeout.
 //!
 //! Like a robot left in another servoing mode by a previous client, the fake starts in no
 //! servoing mode a client may rely on: it refuses joint speed and gripper commands with a device
@@ -234,6 +236,11 @@ struct State {
     reading: Reading,
     last_step: Instant,
     session: Option<Session>,
+    /// A session replaced by a newer one (another connection) before its connection timeout
+    /// fired: its watchdog still stops the motion it started, as the robot's does.
+    orphan: Option<Session>,
+    /// The session whose joint speeds are in force.
+    command_from: Option<u16>,
     next_session_id: u16,
     faults: VecDeque<(Option<Function>, Fault)>,
     stats: FakeStats,
@@ -314,6 +321,8 @@ impl FakeKortex {
                 reading,
                 last_step: Instant::now(),
                 session: None,
+                orphan: None,
+                command_from: None,
                 next_session_id: 0x1234,
                 faults: VecDeque::new(),
                 stats: FakeStats::default(),
@@ -448,6 +457,31 @@ fn watchdog_loop(sh: Arc<Shared>) {
                     } else {
                         next = Some(s.last_frame + t);
                     }
+                }
+            }
+            // A replaced session's watchdog: stops the arm if what moves it is still that
+            // session's command (a new session that commanded since has taken over).
+            if let Some((id, last_frame, t)) = st
+                .orphan
+                .as_ref()
+                .and_then(|o| o.connection_timeout.map(|t| (o.id, o.last_frame, t)))
+            {
+                let gap = now.duration_since(last_frame);
+                if gap > t {
+                    st.orphan = None;
+                    if st.command_from == Some(id) {
+                        st.arm.halt();
+                        st.stats.connection_timeouts += 1;
+                        st.last_timeout_gap = Some(gap);
+                        tracing::warn!(
+                            "fake Kortex: no frame for {} ms on a replaced session: \
+                             connection inactivity timeout, arm stopped",
+                            gap.as_millis()
+                        );
+                    }
+                } else {
+                    let due = last_frame + t;
+                    next = Some(next.map_or(due, |n| n.min(due)));
                 }
             }
             if let Some(s) = st.session.as_ref() {
@@ -742,6 +776,13 @@ fn execute(
         let id = st.next_session_id;
         st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
         let ms = |v: u32| (v > 0).then(|| Duration::from_millis(u64::from(v)));
+        if let Some(old) = st.session.take()
+            && old.conn != conn
+            && !old.timed_out
+            && old.connection_timeout.is_some()
+        {
+            st.orphan = Some(old);
+        }
         st.session = Some(Session {
             id,
             conn,
@@ -861,6 +902,7 @@ fn execute(
                 return Err((3, 0, "joint speed commands must name every joint".into()));
             }
             st.arm.set_command(&v[..n], 0.0);
+            st.command_from = st.session.as_ref().map(|s| s.id);
             st.stats.joint_speed_commands += 1;
             let mut entry = [0.0; gen3_lite::N_JOINTS];
             entry.copy_from_slice(&v[..n]);
