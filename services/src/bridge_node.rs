@@ -245,8 +245,18 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), SclError> {
         if signals::stop_requested() {
             break;
         }
-        if skipped > 0 {
-            tracing::warn!(skipped, "the bridge was held up for more than a period");
+        // Woken this long after the deadline it slept for, the process was not run by the
+        // operating system (or the host of a virtual machine): the periods it slept through
+        // are lost, and so is this tick if it starts past its command deadline (its state
+        // goes out, but no command can come back in time: the bridge brakes).
+        let lost = skipped + u64::from(lateness_ns >= wait_ns);
+        if lost > 0 {
+            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
+            tracing::warn!(
+                ticks_lost = lost,
+                late_ms,
+                "missed tick: the bridge was held up past a command deadline"
+            );
             core.add_skipped(skipped);
         }
         let state = match core.begin_tick(now_ns()) {

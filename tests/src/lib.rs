@@ -308,3 +308,113 @@ pub fn serial() -> std::sync::MutexGuard<'static, ()> {
     LOCK.lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
+
+/// The stretch of `states` (robot states in order, shutdown state excluded) without a miss
+/// that ends with the last state: how many states in a row, counted back from the last one,
+/// follow their predecessor's tick, report its command executed and leave the bridge's miss
+/// counter unchanged. Tests that must see N ticks without a miss poll until this reaches N.
+pub fn clean_run_at_end(states: &[RobotState]) -> usize {
+    let clean = |w: &[RobotState]| {
+        w[1].tick == w[0].tick + 1 && w[1].applied_tick == w[0].tick && w[1].missed == w[0].missed
+    };
+    match states.windows(2).rev().position(|w| !clean(w)) {
+        Some(n) => n + 1,
+        None => states.len(),
+    }
+}
+
+/// The lines of an `scl` log that report a missed tick, with its cause (a command that did
+/// not come in time, or the bridge held up by the machine), and the real-time settings each
+/// process obtained: what a test prints when it finds a miss.
+pub fn miss_report(log: &str) -> String {
+    log.lines()
+        .filter(|l| {
+            l.contains("missed tick") || l.contains("late reply") || l.contains("real-time")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Ticks an `scl` log says the machine took from the bridge: the periods its process was not
+/// run through, and the tick it then started past its command deadline (the `held up`
+/// warnings, `ticks_lost=N`).
+/// Whole-graph tests that require no miss accept these, at most [`MAX_HELD_UP`] of them,
+/// and nothing else: the graph cannot keep a tick the machine did not give it.
+pub fn held_up_skips(log: &str) -> u64 {
+    log.lines()
+        .filter(|l| l.contains("held up"))
+        .filter_map(|l| {
+            l.split("ticks_lost=")
+                .nth(1)?
+                .split(' ')
+                .next()?
+                .parse::<u64>()
+                .ok()
+        })
+        .sum()
+}
+
+/// How many times a whole-graph test that requires no miss lets the machine hold the bridge
+/// up in one run (see [`held_up_skips`]).
+pub const MAX_HELD_UP: usize = 2;
+
+/// Asserts that every miss in a run of `missed` missed ticks is one the machine took from
+/// the bridge (per its log `log`), in at most [`MAX_HELD_UP`] hold-ups; `what` names the run.
+pub fn assert_misses_only_held_up(missed: u64, log: &str, what: &str) {
+    let held_up = held_up_skips(log);
+    let events = log.lines().filter(|l| l.contains("held up")).count();
+    assert!(
+        missed == held_up && events <= MAX_HELD_UP,
+        "{what}: {missed} missed ticks, {held_up} of them lost in {events} hold-up(s) of the bridge by the machine:\n{}",
+        miss_report(log)
+    );
+    if missed > 0 {
+        eprintln!(
+            "{what}: the machine held the bridge up, {missed} tick(s) lost:\n{}",
+            miss_report(log)
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(tick: u64, applied_tick: u64, missed: u64) -> RobotState {
+        RobotState {
+            applied_tick,
+            missed,
+            ..RobotState::at_rest(tick, 0, 6)
+        }
+    }
+
+    #[test]
+    fn the_clean_run_counts_back_from_the_last_state_to_the_last_miss() {
+        assert_eq!(clean_run_at_end(&[]), 0);
+        assert_eq!(clean_run_at_end(&[state(5, 4, 0)]), 1);
+        let mut s: Vec<_> = (1..=10).map(|t| state(t, t - 1, 0)).collect();
+        assert_eq!(clean_run_at_end(&s), 10);
+        // Tick 6 did not execute tick 5's command: the run restarts at 6.
+        s[5].applied_tick = u64::MAX;
+        for st in &mut s[5..] {
+            st.missed = 1;
+        }
+        assert_eq!(clean_run_at_end(&s), 5);
+        // A skipped tick (the clock jumped) breaks the run too.
+        s.push(state(12, 11, 1));
+        assert_eq!(clean_run_at_end(&s), 1);
+        // So does a miss counted without a visible gap.
+        s.push(state(13, 12, 2));
+        assert_eq!(clean_run_at_end(&s), 1);
+    }
+
+    #[test]
+    fn held_up_ticks_are_read_from_the_bridge_warnings() {
+        let log = "2026 WARN scl::bridge_node: missed tick: the bridge was held up for more than a period ticks_lost=1 late_ms=26.1\n\
+                   2026 WARN scl::bridge_node: missed tick: controlled stop tick=7 reason=NoCommand missed=2\n\
+                   2026 WARN scl::bridge_node: missed tick: the bridge was held up for more than a period ticks_lost=2 late_ms=61.0\n";
+        assert_eq!(held_up_skips(log), 3);
+        assert_eq!(held_up_skips(""), 0);
+        assert_eq!(miss_report(log).lines().count(), 3);
+    }
+}
