@@ -625,6 +625,11 @@ mod tests {
     fn bundled_model_loads() {
         let m = LoadedModel::load(BUNDLED_NAME).unwrap();
         m.expect_dims(6, 2).unwrap();
+        // The paper's SCL, as the README promises: Gram-Schmidt on, two hidden layers of 256.
+        assert_eq!(m.header.kind, ModelKind::Scl);
+        let net = m.header.network.as_ref().unwrap();
+        assert!(net.gram_schmidt);
+        assert_eq!(net.hidden, [256, 256]);
     }
 
     #[test]

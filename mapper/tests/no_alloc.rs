@@ -107,6 +107,21 @@ fn network(kind: ModelKind, gram_schmidt: bool) -> LoadedModel {
     LoadedModel::from_bytes(&model.to_bytes().unwrap(), Path::new("test")).unwrap()
 }
 
+/// A PCA model file's bytes, loaded as the mapper loads any file: one basis column moves
+/// joint 1, the other joints 2 and 3 against each other (orthonormal columns).
+fn pca() -> LoadedModel {
+    let (m, d) = (6, 2);
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    // Row-major m x d.
+    let basis = vec![1.0, 0.0, 0.0, h, 0.0, -h, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    let mut header = network_model(ModelKind::Scl, true).header().clone();
+    header.kind = ModelKind::Pca;
+    header.network = None;
+    let bytes = mapper::model::to_bytes(&header, &[(mapper::pca::BASIS_TENSOR, vec![m, d], basis)])
+        .unwrap();
+    LoadedModel::from_bytes(&bytes, Path::new("pca")).unwrap()
+}
+
 fn joystick(i: usize) -> JoystickInput {
     let t = i as f32 * 0.01;
     JoystickInput {
@@ -136,6 +151,7 @@ fn mapper_step_never_allocates() {
         ("scl", network(ModelKind::Scl, true)),
         ("scl without Gram-Schmidt", network(ModelKind::Scl, false)),
         ("cae", network(ModelKind::Cae, false)),
+        ("pca", pca()),
         (
             "bundled (scl)",
             LoadedModel::load(mapper::model::BUNDLED_NAME).unwrap(),

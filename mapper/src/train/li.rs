@@ -249,4 +249,151 @@ mod tests {
         let e = parse_terms("consistency,bogus").unwrap_err();
         assert!(e.contains("bogus") && e.contains("proportionality"), "{e}");
     }
+
+    const B: usize = 4;
+    const M: usize = 2;
+    const N_OBS: usize = 3;
+    const D: usize = 2;
+    const N_IN: usize = N_OBS + D;
+
+    /// The decoder on one input, through its own batch of one.
+    fn g(decoder: &Mlp, x: &[f32]) -> Vec<f32> {
+        let mut cache = BatchCache::new(decoder, 1);
+        decoder.forward_batch(x, 1, &mut cache);
+        cache.output().to_vec()
+    }
+
+    fn norm(v: &[f32]) -> f64 {
+        v.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt()
+    }
+
+    /// A small decoder, a batch of inputs `[q (2) | c | a (2)]`, and its outputs.
+    fn batch() -> (Mlp, Vec<f32>, Vec<f32>) {
+        let mut rng = Rng::new(11);
+        let decoder = Mlp::init(&[N_IN, 8, M], &mut rng);
+        let xin: Vec<f32> = (0..B * N_IN).map(|_| rng.range(-1.0, 1.0) as f32).collect();
+        let yhat: Vec<f32> = (0..B)
+            .flat_map(|b| g(&decoder, &xin[b * N_IN..(b + 1) * N_IN]))
+            .collect();
+        (decoder, xin, yhat)
+    }
+
+    /// The loss `add_terms` returns for `li` on [`batch`], with the generator it samples α from.
+    fn loss(li: &LiLosses, rng: &mut Rng, q_step: &[f32]) -> f64 {
+        let (decoder, xin, yhat) = batch();
+        let cb = CaeBatch {
+            batch: B,
+            n_obs: N_OBS,
+            m: M,
+            d: D,
+            xin: &xin,
+            yhat: &yhat,
+            q_step,
+        };
+        let mut ws = LiWorkspace::new(&decoder, B);
+        let mut grads = decoder.zeros_like();
+        let (mut g_yhat, mut g_a) = (vec![0.0; B * M], vec![0.0; B * D]);
+        add_terms(
+            li,
+            &decoder,
+            &cb,
+            &mut ws,
+            rng,
+            &mut grads,
+            &mut g_yhat,
+            &mut g_a,
+        )
+    }
+
+    fn only(terms: &str, weight: f64) -> LiLosses {
+        LiLosses {
+            weight,
+            ..parse_terms(terms).unwrap().unwrap()
+        }
+    }
+
+    /// Each term's value, against its definition evaluated one sample at a time:
+    /// consistency `w |g(o, a) - g(o', a)|²` with `w = exp(-|o - o'|/γ)` for a partner `o'`
+    /// from the batch; proportionality `(|g(o, αa)| - α|g(o, a)|)²`; reversibility
+    /// `|g(o, a) + g(T(o, a), -a)|²` with `T` one step of `s·g` in `q`. Means over the batch
+    /// (and joints for the vector terms), scaled by the weight.
+    #[test]
+    fn each_term_is_its_definition() {
+        let (decoder, xin, yhat) = batch();
+        let x = |b: usize| &xin[b * N_IN..(b + 1) * N_IN];
+        let y = |b: usize| &yhat[b * M..(b + 1) * M];
+        let q_step = [0.3f32, -0.2];
+
+        // Consistency, γ = 2: the partner of sample b is b + B/2 (mod B).
+        let mut want = 0.0;
+        for b in 0..B {
+            let p = (b + B / 2) % B;
+            let dist = norm(&(0..N_OBS).map(|k| x(b)[k] - x(p)[k]).collect::<Vec<_>>());
+            let w = (-dist / DEFAULT_GAMMA).exp();
+            let mut xp = x(p)[..N_OBS].to_vec();
+            xp.extend_from_slice(&x(b)[N_OBS..]);
+            let other = g(&decoder, &xp);
+            want += w
+                * (0..M)
+                    .map(|i| f64::from(y(b)[i] - other[i]).powi(2))
+                    .sum::<f64>();
+        }
+        want /= (B * M) as f64;
+        let got = loss(&only("consistency", 1.0), &mut Rng::new(5), &q_step);
+        assert!(
+            (got - want).abs() < 1e-5 * want.max(1e-3),
+            "{got} vs {want}"
+        );
+        let twice = loss(&only("consistency", 2.0), &mut Rng::new(5), &q_step);
+        assert!((twice - 2.0 * want).abs() < 2e-5 * want.max(1e-3));
+
+        // Proportionality: α drawn per sample, in batch order, from the generator given.
+        let mut rng = Rng::new(5);
+        let mut want = 0.0;
+        for b in 0..B {
+            let alpha = rng.range(DEFAULT_ALPHA[0], DEFAULT_ALPHA[1]) as f32;
+            assert!((0.1..=1.0).contains(&alpha));
+            let mut xs = x(b).to_vec();
+            xs[N_OBS..].iter_mut().for_each(|a| *a *= alpha);
+            let r = norm(&g(&decoder, &xs)) - f64::from(alpha) * norm(y(b));
+            want += r * r;
+        }
+        want /= B as f64;
+        let got = loss(&only("proportionality", 1.0), &mut Rng::new(5), &q_step);
+        assert!(
+            (got - want).abs() < 1e-5 * want.max(1e-3),
+            "{got} vs {want}"
+        );
+
+        // Reversibility: one step along the predicted velocity, then the opposite action.
+        let mut want = 0.0;
+        for b in 0..B {
+            let mut xs = x(b).to_vec();
+            for i in 0..M {
+                xs[i] += q_step[i] * y(b)[i];
+            }
+            xs[N_OBS..].iter_mut().for_each(|a| *a = -*a);
+            let back = g(&decoder, &xs);
+            want += (0..M)
+                .map(|i| f64::from(y(b)[i] + back[i]).powi(2))
+                .sum::<f64>();
+        }
+        want /= (B * M) as f64;
+        let got = loss(&only("reversibility", 1.0), &mut Rng::new(5), &q_step);
+        assert!(
+            (got - want).abs() < 1e-5 * want.max(1e-3),
+            "{got} vs {want}"
+        );
+
+        // All three: the sum.
+        let all = loss(
+            &only("consistency,proportionality,reversibility", 1.0),
+            &mut Rng::new(5),
+            &q_step,
+        );
+        let parts = loss(&only("consistency", 1.0), &mut Rng::new(5), &q_step)
+            + loss(&only("proportionality", 1.0), &mut Rng::new(5), &q_step)
+            + got;
+        assert!((all - parts).abs() < 1e-5 * parts);
+    }
 }
