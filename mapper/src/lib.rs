@@ -12,6 +12,8 @@
 //! * [`demos`]: generated demonstrations (a joint-space reaching set for the bundled model).
 //! * [`tasks`]: generated demonstrations of the paper's tasks (table cleaning, pick and place,
 //!   pouring on the Gen3 lite; the 5-DOF planar reach) by Cartesian waypoints and DLS.
+//! * [`greedy`]: the paper's simulated greedy user (best of 4096 Gaussian actions per step
+//!   towards a goal joint state), batched over the candidates.
 //! * [`rollout`]: closed-loop forward-then-reverse runs of a map on a simulated arm (the
 //!   proportionality and soft-reversibility experiment).
 //! * [`step`]: the mapper process's pure step function, `(RobotState, JoystickInput) ->
@@ -21,6 +23,7 @@
 pub mod dataset;
 pub mod demos;
 pub mod eval;
+pub mod greedy;
 pub mod import;
 pub mod model;
 pub mod modeswitch;

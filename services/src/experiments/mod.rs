@@ -12,12 +12,14 @@
 //!
 //! Experiments: [`reversibility`] (proportionality and soft reversibility on the mock Gen3
 //! lite), [`theorem`] (the soft-reversibility inequality, sampled), [`reconstruction`]
-//! (validation loss of every kind on the three Gen3 lite tasks). The `greedy-user` experiment
-//! reuses [`CommonArgs`] and [`Run`].
+//! (validation loss of every kind on the three Gen3 lite tasks), [`greedy_user`] (the paper's
+//! simulated greedy user on the 5-DOF planar reach, with the rank tests of [`stats`]).
 
 pub mod figure;
+pub mod greedy_user;
 pub mod reconstruction;
 pub mod reversibility;
+pub mod stats;
 pub mod theorem;
 
 use std::path::{Path, PathBuf};
@@ -346,6 +348,26 @@ impl Run {
                 ..base(ModelKind::Scl)
             },
             Variant::Cae => base(ModelKind::Cae),
+            Variant::CaeLiCons => TrainConfig {
+                li: li("consistency"),
+                ..base(ModelKind::Cae)
+            },
+            Variant::CaeLiProp => TrainConfig {
+                li: li("proportionality"),
+                ..base(ModelKind::Cae)
+            },
+            Variant::CaeLiRev => TrainConfig {
+                li: li("reversibility"),
+                ..base(ModelKind::Cae)
+            },
+            Variant::CaeLiConsProp => TrainConfig {
+                li: li("consistency,proportionality"),
+                ..base(ModelKind::Cae)
+            },
+            Variant::CaeLiConsRev => TrainConfig {
+                li: li("consistency,reversibility"),
+                ..base(ModelKind::Cae)
+            },
             Variant::CaeLiPropRev => TrainConfig {
                 li: li("proportionality,reversibility"),
                 ..base(ModelKind::Cae)
@@ -505,6 +527,16 @@ pub enum Variant {
     SclProjection,
     /// The conditional autoencoder.
     Cae,
+    /// CAE with Li et al.'s consistency term (gamma = 2).
+    CaeLiCons,
+    /// CAE with Li et al.'s proportionality term (alpha sampled in [0.1, 1]).
+    CaeLiProp,
+    /// CAE with Li et al.'s reversibility term.
+    CaeLiRev,
+    /// CAE with Li et al.'s consistency and proportionality terms.
+    CaeLiConsProp,
+    /// CAE with Li et al.'s consistency and reversibility terms.
+    CaeLiConsRev,
     /// CAE with Li et al.'s proportionality and reversibility terms.
     CaeLiPropRev,
     /// CAE with all three Li et al. terms.
@@ -512,7 +544,8 @@ pub enum Variant {
 }
 
 impl Variant {
-    /// Every variant, in table order.
+    /// The variants of the reconstruction table, in table order (the Li et al. grid's other
+    /// points are in [`Variant::GREEDY`] only).
     pub const ALL: [Variant; 8] = [
         Variant::Pca,
         Variant::Scl,
@@ -524,6 +557,29 @@ impl Variant {
         Variant::CaeLiAll,
     ];
 
+    /// The greedy-user experiment's groups: SCL with and without Gram-Schmidt, and CAE over
+    /// every combination of the Li et al. terms (the paper's grid, plain CAE included).
+    pub const GREEDY: [Variant; 10] = [
+        Variant::Scl,
+        Variant::SclNoGs,
+        Variant::Cae,
+        Variant::CaeLiCons,
+        Variant::CaeLiProp,
+        Variant::CaeLiRev,
+        Variant::CaeLiConsProp,
+        Variant::CaeLiConsRev,
+        Variant::CaeLiPropRev,
+        Variant::CaeLiAll,
+    ];
+
+    /// The variant called `name` (its cache name, [`Variant::name`]).
+    pub fn from_name(name: &str) -> Option<Variant> {
+        Self::ALL
+            .into_iter()
+            .chain(Self::GREEDY)
+            .find(|v| v.name() == name)
+    }
+
     /// The cache file name (without extension).
     pub fn name(self) -> &'static str {
         match self {
@@ -533,6 +589,11 @@ impl Variant {
             Variant::SclNoLipschitz => "scl-no-lipschitz",
             Variant::SclProjection => "scl-projection",
             Variant::Cae => "cae",
+            Variant::CaeLiCons => "cae-li-cons",
+            Variant::CaeLiProp => "cae-li-prop",
+            Variant::CaeLiRev => "cae-li-rev",
+            Variant::CaeLiConsProp => "cae-li-cons-prop",
+            Variant::CaeLiConsRev => "cae-li-cons-rev",
             Variant::CaeLiPropRev => "cae-li-prop-rev",
             Variant::CaeLiAll => "cae-li-all",
         }
@@ -545,7 +606,14 @@ impl Variant {
             Variant::Scl | Variant::SclNoGs | Variant::SclNoLipschitz | Variant::SclProjection => {
                 ModelKind::Scl
             }
-            Variant::Cae | Variant::CaeLiPropRev | Variant::CaeLiAll => ModelKind::Cae,
+            Variant::Cae
+            | Variant::CaeLiCons
+            | Variant::CaeLiProp
+            | Variant::CaeLiRev
+            | Variant::CaeLiConsProp
+            | Variant::CaeLiConsRev
+            | Variant::CaeLiPropRev
+            | Variant::CaeLiAll => ModelKind::Cae,
         }
     }
 
@@ -558,6 +626,11 @@ impl Variant {
             Variant::SclNoLipschitz => "SCL without Lipschitz bound",
             Variant::SclProjection => "SCL, projection encoder",
             Variant::Cae => "CAE",
+            Variant::CaeLiCons => "CAE + Li cons.",
+            Variant::CaeLiProp => "CAE + Li prop.",
+            Variant::CaeLiRev => "CAE + Li rev.",
+            Variant::CaeLiConsProp => "CAE + Li cons. + prop.",
+            Variant::CaeLiConsRev => "CAE + Li cons. + rev.",
             Variant::CaeLiPropRev => "CAE + Li prop. + rev.",
             Variant::CaeLiAll => "CAE + Li cons. + prop. + rev.",
         }

@@ -9,6 +9,7 @@ use std::time::SystemTime;
 use mapper::model::ModelKind;
 use mapper::tasks::Task;
 
+use super::greedy_user::{GreedyUserArgs, Metric};
 use super::reconstruction::ReconstructionArgs;
 use super::reversibility::ReversibilityArgs;
 use super::theorem::TheoremArgs;
@@ -22,6 +23,18 @@ fn data() -> &'static Path {
         let _ = std::fs::remove_dir_all(&d);
         let ds = mapper::tasks::generate(Task::PickAndPlace, 2, 1, 1).unwrap();
         dataset::write_dir(&d.join("pick-and-place"), &ds).unwrap();
+        d
+    })
+}
+
+/// A small planar-reach data set (8 train, 2 val trajectories), generated once.
+fn planar_data() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("scl-exp-planar-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        let ds = mapper::tasks::generate(Task::PlanarReach, 8, 2, 1).unwrap();
+        dataset::write_dir(&d.join("planar-reach"), &ds).unwrap();
         d
     })
 }
@@ -302,6 +315,112 @@ fn reconstruction_reuses_prepopulated_models_and_refuses_bad_ones() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("no-val") && e.contains("validation"), "{e}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+fn greedy_cache_mtimes(dir: &Path) -> Vec<(PathBuf, SystemTime)> {
+    let mut v = Vec::new();
+    for g in std::fs::read_dir(dir.join("greedy")).unwrap() {
+        for f in std::fs::read_dir(g.unwrap().path()).unwrap() {
+            let p = f.unwrap().path();
+            let t = std::fs::metadata(&p).unwrap().modified().unwrap();
+            v.push((p, t));
+        }
+    }
+    v.sort();
+    v
+}
+
+#[test]
+fn greedy_user_quick_scl_returns_closer_than_cae_and_resumes() {
+    let out = out_dir("greedy");
+    let mut args = GreedyUserArgs {
+        common: CommonArgs {
+            data: Some(planar_data().to_owned()),
+            ..common(&out, 2, 30)
+        },
+        test_trajectories: 3,
+        candidates: 256,
+        horizon: 1.5,
+        no_clip: false,
+        seed: 2,
+        variants: "scl,scl-no-gs,cae,cae-li-rev".into(),
+    };
+    let o = greedy_user::run(&args, "test").unwrap();
+    let names: Vec<&str> = o.groups.iter().map(|g| g.name.as_str()).collect();
+    assert_eq!(names, ["scl", "scl-no-gs", "cae", "cae-li-rev"]);
+    for g in &o.groups {
+        assert_eq!(g.models.len(), 2, "{}", g.name);
+        assert!(g.models.iter().all(|m| m.rows.len() == 3));
+        assert!(g.errors(Metric::Return).iter().all(|e| e.is_finite()));
+    }
+    // The best CAE configuration by validation loss is one of the two CAE groups.
+    let best = o.best_cae.unwrap();
+    assert!(o.groups[best].name.starts_with("cae"));
+    // The paper's direction: SCL (both versions) returns closer to the start than CAE, and it
+    // gets closer to the end state than it started.
+    let scl = o.group("scl").unwrap();
+    let no_gs = o.group("scl-no-gs").unwrap();
+    for cae in [o.group("cae").unwrap(), &o.groups[best]] {
+        assert!(
+            scl.median(Metric::Return) < cae.median(Metric::Return)
+                && no_gs.median(Metric::Return) < cae.median(Metric::Return),
+            "scl {} / {}, {} {}",
+            scl.median(Metric::Return),
+            no_gs.median(Metric::Return),
+            cae.name,
+            cae.median(Metric::Return)
+        );
+    }
+    let start = scl.models[0].rows[0].start_distance;
+    assert!(scl.median(Metric::Forward) < 0.5 * start, "{scl:?}");
+    assert!(o.checks[0].holds, "{:?}", o.checks);
+    // The tests ran on the paper's three groups.
+    let f = o
+        .family("paper", Metric::Return, greedy_user::Unit::Trajectory)
+        .unwrap();
+    let t = f.tests.as_ref().unwrap();
+    assert_eq!((t.kruskal.df, t.kruskal.n, t.dunn.len()), (2, 18, 3));
+    assert!(t.kruskal.h > 0.0 && t.kruskal.p > 0.0 && t.kruskal.p < 1.0);
+    for f in [
+        "errors.csv",
+        "models.csv",
+        "groups.csv",
+        "stats.csv",
+        "summary.md",
+        "greedy-user.png",
+        "greedy-user.svg",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let errors = std::fs::read_to_string(out.join("errors.csv")).unwrap();
+    assert_eq!(errors.lines().count(), 1 + 4 * 2 * 3);
+    assert!(
+        errors.lines().all(|l| l.split(',').count() == 8),
+        "{errors}"
+    );
+    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+    // 2 families x 2 metrics x 2 units, each one Kruskal-Wallis row.
+    assert_eq!(stats.matches(",kruskal-wallis,").count(), 8, "{stats}");
+    assert!(
+        stats.contains("paper,back-to-start,model-mean,dunn,scl,cae"),
+        "{stats}"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(summary.contains("Kruskal-Wallis H =") && summary.contains("best CAE by val. loss"));
+    // A second run trains and evaluates nothing and measures the same.
+    let models = mtimes(&out);
+    let evals = greedy_cache_mtimes(&out);
+    assert_eq!((models.len(), evals.len()), (8, 8));
+    let again = greedy_user::run(&args, "test").unwrap();
+    assert_eq!(mtimes(&out), models);
+    assert_eq!(greedy_cache_mtimes(&out), evals);
+    assert_eq!(again.groups, o.groups);
+    // Other evaluation settings: the models are reused, the evaluations redone.
+    args.candidates = 64;
+    let other = greedy_user::run(&args, "test").unwrap();
+    assert_eq!(mtimes(&out), models);
+    assert_ne!(other.groups, o.groups);
     std::fs::remove_dir_all(&out).unwrap();
 }
 
