@@ -876,6 +876,55 @@ mod tests {
         assert!(parse_duration("0s").is_err());
     }
 
+    /// `scl train` with nothing but the kind, the data and the output trains the paper's
+    /// models: the same settings as the library's defaults.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn train_defaults_are_the_papers() {
+        let args = |extra: &[&str]| {
+            let mut argv = vec!["scl", "train", "--data", "d", "--out", "m.safetensors"];
+            argv.extend_from_slice(extra);
+            let Cmd::Train(t) = Cli::try_parse_from(argv).unwrap().cmd else {
+                panic!("not train")
+            };
+            t
+        };
+        assert_eq!(
+            args(&["--kind", "scl"]).config(ModelKind::Scl).unwrap(),
+            TrainConfig::default()
+        );
+        assert_eq!(
+            args(&["--kind", "cae"]).config(ModelKind::Cae).unwrap(),
+            TrainConfig::cae()
+        );
+        // The Li et al. terms at the paper's settings: γ = 2, α in [0.1, 1], one control
+        // period for the reversibility step, weight 1.
+        let li = args(&[
+            "--kind",
+            "cae",
+            "--li-losses",
+            "consistency,proportionality,reversibility",
+        ])
+        .config(ModelKind::Cae)
+        .unwrap()
+        .li
+        .unwrap();
+        assert_eq!(li.consistency_gamma, Some(2.0));
+        assert_eq!(li.proportionality_alpha, Some([0.1, 1.0]));
+        assert!(li.reversibility);
+        assert_eq!((li.weight, li.step_s), (1.0, 0.025));
+        // The ablations are one flag each.
+        let c = args(&["--no-gram-schmidt", "--no-lipschitz"])
+            .config(ModelKind::Scl)
+            .unwrap();
+        assert!(!c.gram_schmidt && c.lipschitz.is_none());
+        assert!(
+            args(&["--li-alpha", "0.5", "--li-losses", "proportionality"])
+                .config(ModelKind::Cae)
+                .is_err()
+        );
+    }
+
     #[test]
     fn cli_is_consistent() {
         use clap::CommandFactory;
