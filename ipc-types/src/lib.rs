@@ -17,6 +17,7 @@ pub mod control;
 pub mod graph;
 pub mod msg;
 pub mod prefix;
+pub mod signals;
 pub mod time;
 pub mod uds;
 

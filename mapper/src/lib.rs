@@ -20,21 +20,13 @@
 //!   MapperCommand`.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
-pub mod dataset;
-pub mod demos;
-pub mod eval;
-pub mod greedy;
-pub mod import;
 pub mod model;
 pub mod modeswitch;
 pub mod network;
 pub mod nn;
 pub mod pca;
 pub mod rng;
-pub mod rollout;
 pub mod step;
-pub mod tasks;
-pub mod train;
 
 pub use model::{LoadedModel, ModelError, ModelHeader, ModelKind};
 

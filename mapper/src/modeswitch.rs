@@ -806,6 +806,13 @@ pub fn to_bytes(params: &ModeSwitchParams, command: &str) -> Result<Vec<u8>, Mod
     })
 }
 
+/// The name of a heartbeat's [`ipc_types::NodeStatus::mode`] (mode plus one; the mode-switching map's
+/// modes are the only ones so far): `x-y`, `z-yaw`, `roll-pitch`, else `mode N`.
+pub fn status_mode_name(mode: u32) -> String {
+    let index = (mode as usize).saturating_sub(1);
+    Mode::from_index(index).map_or_else(|| format!("mode {index}"), |m| m.name().to_owned())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

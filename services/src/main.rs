@@ -6,10 +6,11 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use ipc_types::Prefix;
+use ipc_types::signals;
+use learning::train::TrainConfig;
 use mapper::model::ModelKind;
-use mapper::train::TrainConfig;
-use services::config::GraphConfig;
-use services::{SclError, signals};
+use scl_node::config::GraphConfig;
+use services::SclError;
 
 /// Teleoperate a 6-joint arm with a 2-axis joystick through a learned action map.
 ///
@@ -53,11 +54,11 @@ enum Cmd {
     },
     /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
     /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
-    Record(services::record::RecordArgs),
+    Record(scl_recorder::RecordArgs),
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
-    Dataset(services::to_dataset::DatasetArgs),
+    Dataset(learning::to_dataset::DatasetArgs),
     /// A terminal dashboard of a running graph (works over SSH in 80x24).
-    Top(services::top::TopArgs),
+    Top(scl_dashboard::TopArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -89,7 +90,7 @@ enum Cmd {
     },
     /// The joystick process: a script, a joystick or gamepad (evdev), the keyboard, or a
     /// recorded input file; `--list` shows the input devices attached.
-    Joystick(services::joystick::JoystickArgs),
+    Joystick(scl_joystick::JoystickArgs),
     /// A mapper process serving one model.
     Mapper {
         /// Model file, `bundled` or `modeswitch[:key=value,...]`.
@@ -123,12 +124,12 @@ enum Cmd {
         #[arg(long)]
         port: Option<u16>,
         /// Kortex: user name (else bridge.kortex.credentials_file).
-        #[arg(long, env = services::bridge_node::USER_ENV, hide_env_values = true)]
-        user: Option<services::bridge_node::Secret>,
+        #[arg(long, env = scl_bridge_node::USER_ENV, hide_env_values = true)]
+        user: Option<scl_bridge_node::Secret>,
         /// Kortex: password; prefer the environment variable or the credentials file, since a
         /// command line is visible to other users.
-        #[arg(long, env = services::bridge_node::PASSWORD_ENV, hide_env_values = true)]
-        password: Option<services::bridge_node::Secret>,
+        #[arg(long, env = scl_bridge_node::PASSWORD_ENV, hide_env_values = true)]
+        password: Option<scl_bridge_node::Secret>,
     },
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
@@ -225,28 +226,28 @@ enum Cmd {
 
 /// `scl eval EXPERIMENT --out DIR`: the paper's experiments (docs/experiments.md).
 ///
-/// Every experiment shares the options of `services::experiments::CommonArgs` (--out, --seeds,
+/// Every experiment shares the options of `learning::experiments::CommonArgs` (--out, --seeds,
 /// --epochs, --threads, --data, --models, --hidden); each experiment flattens them into its
 /// own arguments.
 #[derive(Subcommand, Debug)]
 enum EvalCmd {
     /// Proportionality and soft reversibility on the mock Gen3 lite (the paper's figure):
     /// a for 1 s, stop, -a for 1 s, 10 models per kind (SCL, CAE, PCA) x 10 start states.
-    Reversibility(services::experiments::reversibility::ReversibilityArgs),
+    Reversibility(learning::experiments::reversibility::ReversibilityArgs),
     /// The soft-reversibility inequality over sampled states and actions, for SCL without
     /// Gram-Schmidt (the theorem: must always hold), with Gram-Schmidt, and CAE.
     /// `--models FILE...` checks given files (the former `scl eval reversibility --model`).
-    Theorem(services::experiments::theorem::TheoremArgs),
+    Theorem(learning::experiments::theorem::TheoremArgs),
     /// Validation reconstruction loss of every kind on the three Gen3 lite tasks (with
     /// `--models FILE... --data DIR`: of given files on one data set).
-    Reconstruction(services::experiments::reconstruction::ReconstructionArgs),
+    Reconstruction(learning::experiments::reconstruction::ReconstructionArgs),
     /// The paper's simulated greedy user on the 5-DOF planar reach: SCL with and without
     /// Gram-Schmidt and CAE over the Li et al. loss grid (10 models each, 1000 epochs); the
     /// best of 4096 Gaussian actions per step, to the end state and back to the start of 100
     /// test trajectories; violin plots, Kruskal-Wallis and Dunn's test. Long at the paper's
     /// defaults (hours): resumable, and --seeds / --epochs / --test-trajectories give a quick
     /// look.
-    GreedyUser(services::experiments::greedy_user::GreedyUserArgs),
+    GreedyUser(learning::experiments::greedy_user::GreedyUserArgs),
 }
 
 /// `scl train`: every option, with the paper's defaults.
@@ -318,23 +319,23 @@ struct TrainArgs {
     #[arg(long, default_value_t = 1.0)]
     li_weight: f64,
     /// Temperature gamma of the consistency term.
-    #[arg(long, default_value_t = mapper::train::li::DEFAULT_GAMMA)]
+    #[arg(long, default_value_t = learning::train::li::DEFAULT_GAMMA)]
     li_gamma: f64,
     /// Sampling range of alpha in the proportionality term, `lo,hi`.
     #[arg(long, default_value = "0.1,1.0")]
     li_alpha: String,
     /// Time step (s) of the reversibility term's transition.
-    #[arg(long, default_value_t = mapper::train::li::DEFAULT_STEP_S)]
+    #[arg(long, default_value_t = learning::train::li::DEFAULT_STEP_S)]
     li_step: f64,
 }
 
 impl TrainArgs {
     /// The training configuration of a network kind.
     fn config(&self, kind: ModelKind) -> Result<TrainConfig, SclError> {
-        use services::learning::{parse_encoder, parse_inputs, parse_list};
+        use learning::cli::{parse_encoder, parse_inputs, parse_list};
         let mut li = match &self.li_losses {
-            Some(list) => mapper::train::li::parse_terms(list).map_err(|reason| {
-                services::learning::LearningError::Option {
+            Some(list) => learning::train::li::parse_terms(list).map_err(|reason| {
+                learning::cli::LearningError::Option {
                     option: "--li-losses",
                     reason,
                 }
@@ -350,7 +351,7 @@ impl TrainArgs {
             if li.proportionality_alpha.is_some() {
                 let r: Vec<f64> = parse_list(&self.li_alpha, "--li-alpha")?;
                 let [lo, hi] = r[..] else {
-                    return Err(services::learning::LearningError::Option {
+                    return Err(learning::cli::LearningError::Option {
                         option: "--li-alpha",
                         reason: format!("`{}`: expected two numbers `lo,hi`", self.li_alpha),
                     }
@@ -455,7 +456,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         cfg.graph.prefix = p.clone();
     }
     let prefix =
-        Prefix::new(&cfg.graph.prefix).map_err(|e| services::config::ConfigError::Value {
+        Prefix::new(&cfg.graph.prefix).map_err(|e| scl_node::config::ConfigError::Value {
             key: "prefix".into(),
             reason: e.to_string(),
         })?;
@@ -474,18 +475,18 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             if let Some(s) = script {
                 cfg.joystick.script = s;
             }
-            let opts = services::up::UpOptions {
+            let opts = scl_supervisor::up::UpOptions {
                 prefix,
                 config_path: cli.config.clone(),
                 config: cfg,
                 duration,
                 json,
-                record: record.map(|p| services::record::absolute(&p)),
+                record: record.map(|p| scl_recorder::absolute(&p)),
             };
-            let summary = services::up::run(&opts)?;
+            let summary = scl_supervisor::up::run(&opts)?;
             if json {
                 let text = serde_json::to_string(&summary)
-                    .map_err(|e| SclError::Graph(format!("cannot encode the summary: {e}")))?;
+                    .map_err(|e| SclError::Other(format!("cannot encode the summary: {e}")))?;
                 println!("{text}");
             } else {
                 eprintln!(
@@ -504,11 +505,11 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Record(args) => services::record::cli(&prefix, &args),
-        Cmd::Dataset(args) => services::to_dataset::cli(&args),
-        Cmd::Top(args) => services::top::cli(&prefix, &args),
+        Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
+        Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
+        Cmd::Top(args) => Ok(scl_dashboard::cli(&prefix, &args)?),
         Cmd::Swap { model, timeout } => {
-            let r = services::control::swap(&prefix, &model, timeout)?;
+            let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
                 println!(
                     "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed",
@@ -530,7 +531,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             } else {
                 (ipc_types::control::estop_action::RESET, "e-stop reset")
             };
-            match services::control::estop(
+            match scl_supervisor::control::estop(
                 &prefix,
                 cfg.graph.transport,
                 action,
@@ -549,7 +550,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
         }
         Cmd::Bench { what } => match what {
-            BenchCmd::Burn => services::bench::burn(),
+            BenchCmd::Burn => scl_bench::burn(),
             BenchCmd::Latency {
                 duration,
                 rt,
@@ -563,13 +564,13 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                     "uds" => vec![ipc_types::Transport::Uds],
                     "both" => vec![ipc_types::Transport::Iceoryx2, ipc_types::Transport::Uds],
                     other => {
-                        return Err(SclError::Graph(format!(
+                        return Err(SclError::Other(format!(
                             "--transport {other}: use iceoryx2, uds or both"
                         )));
                     }
                 };
                 cfg.validate()?;
-                let opts = services::bench::LatencyOptions {
+                let opts = scl_bench::LatencyOptions {
                     duration,
                     rt,
                     load,
@@ -577,24 +578,24 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                     config: cfg,
                     out: out.clone(),
                 };
-                let report = services::bench::latency(&opts)?;
+                let report = scl_bench::latency(&opts)?;
                 let text = serde_json::to_string_pretty(&report)
-                    .map_err(|e| SclError::Graph(format!("cannot encode the report: {e}")))?;
+                    .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
                 if let Some(dir) = &out {
                     let p = dir.join("report.json");
                     std::fs::write(&p, &text)
-                        .map_err(|e| SclError::Graph(format!("{}: {e}", p.display())))?;
+                        .map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
                 }
                 if json {
                     println!("{text}");
                 } else {
-                    print!("{}", services::bench::render(&report));
+                    print!("{}", scl_bench::render(&report));
                 }
                 Ok(ExitCode::SUCCESS)
             }
         },
         Cmd::Status { json } => {
-            let st = services::control::status(
+            let st = scl_supervisor::control::status(
                 &prefix,
                 cfg.graph.transport,
                 Duration::from_millis(300),
@@ -607,20 +608,20 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             if json {
                 let text = serde_json::to_string_pretty(&st)
-                    .map_err(|e| SclError::Graph(format!("cannot encode the status: {e}")))?;
+                    .map_err(|e| SclError::Other(format!("cannot encode the status: {e}")))?;
                 println!("{text}");
             } else {
-                print!("{}", services::control::render(&st));
+                print!("{}", scl_supervisor::control::render(&st));
             }
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Joystick(args) => {
-            services::joystick::main(&prefix, &mut cfg, &args)?;
+            scl_joystick::main(&prefix, &mut cfg, &args)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Mapper { model, id } => {
             let model = model.unwrap_or(cfg.mapper.model);
-            services::mapper_node::run(
+            scl_mapper_node::run(
                 &prefix,
                 &cfg.graph,
                 &cfg.faults,
@@ -630,7 +631,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Safety => {
-            services::safety_node::run(&prefix, &cfg.graph, &cfg.safety, period_s)?;
+            scl_safety_node::run(&prefix, &cfg.graph, &cfg.safety, period_s)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Bridge {
@@ -653,15 +654,15 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 cfg.bridge.kortex.port = p;
             }
             cfg.validate()?;
-            let resume = services::bridge_node::Resume {
+            let resume = scl_bridge_node::Resume {
                 start_tick,
                 pose: resume_q.map(|q| (q, resume_gripper)),
             };
-            let creds = services::bridge_node::CredentialArgs {
-                user: user.map(services::bridge_node::Secret::into_inner),
-                password: password.map(services::bridge_node::Secret::into_inner),
+            let creds = scl_bridge_node::CredentialArgs {
+                user: user.map(scl_bridge_node::Secret::into_inner),
+                password: password.map(scl_bridge_node::Secret::into_inner),
             };
-            services::bridge_node::run(
+            scl_bridge_node::run(
                 &prefix,
                 &cfg.graph,
                 &cfg.bridge,
@@ -672,7 +673,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::FakeKortex { port } => {
-            services::fake_kortex::run(port)?;
+            scl_bridge_node::fake_kortex::run(port)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {
@@ -683,7 +684,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             n_val,
             plot,
         } => {
-            services::tools::demos(&task, &out, seed, (n_train, n_val), plot.as_deref())?;
+            learning::tools::demos(&task, &out, seed, (n_train, n_val), plot.as_deref())?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Plot {
@@ -693,14 +694,14 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             font,
             force,
         } => {
-            services::tools::plot(&data, &out, title.as_deref(), font.as_deref(), force)?;
+            learning::tools::plot(&data, &out, title.as_deref(), font.as_deref(), force)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Train(t) => {
             let command = std::env::args().collect::<Vec<_>>().join(" ");
             match t.kind.as_str() {
                 "pca" => {
-                    services::tools::train_pca(&services::tools::TrainOptions {
+                    learning::tools::train_pca(&learning::tools::TrainOptions {
                         data: &t.data,
                         out: &t.out,
                         latent_dim: t.latent_dim,
@@ -716,10 +717,10 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                         ModelKind::Cae
                     };
                     let cfg = t.config(kind)?;
-                    services::learning::train_network(&cfg, &t.data, &t.out, t.force, &command)?;
+                    learning::cli::train_network(&cfg, &t.data, &t.out, t.force, &command)?;
                 }
                 other => {
-                    return Err(SclError::Graph(format!(
+                    return Err(SclError::Other(format!(
                         "--kind {other}: expected pca, scl or cae"
                     )));
                 }
@@ -738,18 +739,18 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             out,
             force,
         } => {
-            use services::learning::parse_list;
+            use learning::cli::parse_list;
             let kind = match kind.as_str() {
                 "scl" => ModelKind::Scl,
                 "cae" => ModelKind::Cae,
                 other => {
-                    return Err(SclError::Graph(format!(
+                    return Err(SclError::Other(format!(
                         "--kind {other}: expected scl or cae"
                     )));
                 }
             };
             if !(speed_scale.is_finite() && speed_scale > 0.0) {
-                return Err(SclError::Graph(format!(
+                return Err(SclError::Other(format!(
                     "--speed-scale {speed_scale}: expected a positive number (rad/s)"
                 )));
             }
@@ -760,7 +761,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 )),
                 _ => None,
             };
-            let opts = mapper::import::ImportOptions {
+            let opts = learning::import::ImportOptions {
                 kind,
                 n_joints: joints,
                 latent_dim,
@@ -769,12 +770,12 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 normalisation,
                 command: std::env::args().collect::<Vec<_>>().join(" "),
             };
-            services::learning::import_weights(&json, &opts, &out, force)?;
+            learning::cli::import_weights(&json, &opts, &out, force)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Eval { what } => {
             let command = std::env::args().collect::<Vec<_>>().join(" ");
-            use services::experiments as ex;
+            use learning::experiments as ex;
             let (out, verdict) = match what {
                 EvalCmd::Reversibility(args) => {
                     let o = ex::reversibility::run(&args, period_s, &command)?;

@@ -10,11 +10,11 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use ipc_types::{NodeRole, RobotState, state_flags};
+use recording::{self, Event, ReadSummary, RobotStateJson};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
     wait_clean,
 };
-use services::mcap_log::{self, Event, ReadSummary, RobotStateJson};
 
 /// What a recording holds.
 #[derive(Default)]
@@ -30,7 +30,7 @@ struct Contents {
 
 fn contents(path: &Path) -> Contents {
     let mut c = Contents::default();
-    c.summary = mcap_log::read_file(path, |ev| {
+    c.summary = recording::read_file(path, |ev| {
         match ev {
             Event::Channel(ch) => {
                 let schema = ch
@@ -49,7 +49,7 @@ fn contents(path: &Path) -> Contents {
                 *c.counts.entry(channel.topic.clone()).or_default() += 1;
                 if channel.topic == "/robot_state" {
                     c.states
-                        .push(mcap_log::decode(path, &channel.topic, sequence, data).unwrap());
+                        .push(recording::decode(path, &channel.topic, sequence, data).unwrap());
                 }
             }
             Event::Metadata { name, entries } => {
@@ -118,7 +118,12 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
     // the recorder started before the bridge and stopped after it.
     let c = contents(&file);
     assert!(c.summary.complete, "{:?}", c.summary);
-    assert_eq!(c.channels.len(), mcap_log::Topic::COUNT, "{:?}", c.channels);
+    assert_eq!(
+        c.channels.len(),
+        recording::Topic::COUNT,
+        "{:?}",
+        c.channels
+    );
     for (topic, (enc, schema)) in &c.channels {
         assert_eq!(
             (enc.as_str(), schema.as_str()),
@@ -145,9 +150,9 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
     // Heartbeats of the four nodes and of the recorder itself.
     assert!(c.counts["/status"] >= 4 * ticks, "{:?}", c.counts);
     // Clean stop: the end metadata counts everything, nothing dropped.
-    let start = &c.metadata[mcap_log::START_METADATA];
+    let start = &c.metadata[recording::START_METADATA];
     assert_eq!(start["prefix"], prefix.as_str());
-    let end = &c.metadata[mcap_log::END_METADATA];
+    let end = &c.metadata[recording::END_METADATA];
     assert_eq!(end["dropped_total"], "0", "{end:?}");
     assert_eq!(end["robot_state_gaps"], "0", "{end:?}");
     assert_eq!(end["written.robot_state"], c.states.len().to_string());
@@ -179,7 +184,7 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let ds = mapper::dataset::load_dir(&data).unwrap();
+    let ds = learning::dataset::load_dir(&data).unwrap();
     let n_traj = ds.train.len() + ds.val.len();
     assert!(n_traj >= 4, "{n_traj} trajectories");
     assert_eq!(ds.val.len(), n_traj / 4, "val gets a quarter");
@@ -220,7 +225,7 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
 
     // Never overwritten: a second conversion into the same place is refused and changes
     // nothing.
-    let before = mapper::dataset::load_dir(&data).unwrap().hash;
+    let before = learning::dataset::load_dir(&data).unwrap().hash;
     let again = scl(&prefix)
         .arg("dataset")
         .arg(&file)
@@ -231,7 +236,7 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
         .unwrap();
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("already exists"));
-    assert_eq!(mapper::dataset::load_dir(&data).unwrap().hash, before);
+    assert_eq!(learning::dataset::load_dir(&data).unwrap().hash, before);
     // Nor is a recording.
     let out = scl(&prefix)
         .args(["up", "--for", "1s", "--record"])
@@ -313,7 +318,7 @@ fn a_killed_recorder_leaves_a_readable_recording() {
     let cut = contents(&file);
     assert!(!cut.summary.complete, "{:?}", cut.summary);
     assert!(cut.summary.stopped.is_some());
-    assert!(!cut.metadata.contains_key(mcap_log::END_METADATA));
+    assert!(!cut.metadata.contains_key(recording::END_METADATA));
     assert!(
         cut.states.len() >= on_disk,
         "only {} of the {on_disk} states on disk before the kill are readable",
@@ -356,9 +361,9 @@ fn a_killed_recorder_leaves_a_readable_recording() {
     assert!(
         rec_fixed
             .metadata
-            .contains_key(mcap_log::RECOVERED_METADATA)
+            .contains_key(recording::RECOVERED_METADATA)
     );
-    assert!(rec_fixed.metadata.contains_key(mcap_log::START_METADATA));
+    assert!(rec_fixed.metadata.contains_key(recording::START_METADATA));
     // Recovering again over the result is refused.
     let again = scl(&prefix)
         .args(["record", "--recover"])
@@ -381,7 +386,7 @@ fn a_killed_recorder_leaves_a_readable_recording() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("the recording is cut"), "{stderr}");
-    let ds = mapper::dataset::load_dir(&dir.join("data")).unwrap();
+    let ds = learning::dataset::load_dir(&dir.join("data")).unwrap();
     assert_eq!(ds.n_train() + ds.n_val(), cut.states.len() - 1);
 
     drop(rec);

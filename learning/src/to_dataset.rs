@@ -1,0 +1,532 @@
+//! `scl dataset`: turns recordings into the training data format (`crate::dataset`: CSV
+//! trajectories `t,q0..,c,qd0..,cd` in `train/` and `val/`), so a user records demonstrations
+//! by teleoperating and trains on them.
+//!
+//! Only the recorded robot states are used. The tuple of tick `k` pairs the state at `k`
+//! (`q`, gripper `c`) with the velocity the arm then executed, reported by state `k+1`
+//! (`qdot_rad_s`), and the gripper rate `(c(k+1) - c(k)) / dt`: the operator's choice at that
+//! state. A trajectory is a run of consecutive ticks; it ends where a state is missing, the
+//! bridge missed a tick, stopped the arm (a controlled stop, a safety stop, shutdown) or the
+//! joint count changes; rests of at least `--rest-s` are cut out; long runs are cut into
+//! pieces of at most `--max-length-s`. Trajectories are spread evenly over train and val.
+
+use std::path::{Path, PathBuf};
+
+use crate::dataset::{Dataset, Trajectory};
+use ipc_types::state_flags;
+
+use crate::ToolError;
+use recording::{self, Event, RobotStateJson, Topic};
+
+/// Joint-space speed (rad/s) and gripper rate (1/s) below which the arm counts as resting.
+pub const REST_SPEED: f64 = 1e-3;
+
+/// `scl dataset`'s arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DatasetArgs {
+    /// Recordings to convert (from `scl record` or `scl up --record`; a recording cut by a
+    /// crash is read up to its last complete chunk).
+    #[arg(required = true, value_name = "FROM.mcap")]
+    pub from: Vec<PathBuf>,
+    /// Data set directory to write (gets train/ and val/); existing files are never
+    /// overwritten.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Fraction of the trajectories that go to val/, spread evenly over the recording.
+    #[arg(long, default_value_t = 0.25)]
+    pub val_fraction: f64,
+    /// Split trajectories where the arm rests at least this long (s) and leave the rest out;
+    /// 0 keeps rests.
+    #[arg(long, default_value_t = 1.0)]
+    pub rest_s: f64,
+    /// Cut trajectories longer than this (s) into equal pieces.
+    #[arg(long, default_value_t = 20.0)]
+    pub max_length_s: f64,
+}
+
+/// How recordings are cut into trajectories.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Fraction of trajectories for validation, in `[0, 1)`.
+    pub val_fraction: f64,
+    /// Shortest rest that splits a trajectory (s); 0 never splits at rests.
+    pub rest_s: f64,
+    /// Longest trajectory (s).
+    pub max_length_s: f64,
+}
+
+impl Options {
+    /// Checks the values, naming the flag of a bad one.
+    pub fn validate(&self) -> Result<(), ToolError> {
+        let bad = |flag: &str, v: f64, want: &str| {
+            Err(ToolError::Graph(format!("{flag} {v}: must be {want}")))
+        };
+        if !(0.0..1.0).contains(&self.val_fraction) {
+            return bad("--val-fraction", self.val_fraction, "in [0, 1)");
+        }
+        if !(self.rest_s.is_finite() && self.rest_s >= 0.0) {
+            return bad("--rest-s", self.rest_s, "0 or more seconds");
+        }
+        if !(self.max_length_s.is_finite() && self.max_length_s > 0.0) {
+            return bad(
+                "--max-length-s",
+                self.max_length_s,
+                "a positive number of seconds",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// What the cutting left out, in tuples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LeftOut {
+    /// Tuples in rests of at least `rest_s`.
+    pub resting: usize,
+    /// Tuples in fragments of a single tuple.
+    pub fragments: usize,
+}
+
+/// One tuple before it goes into a trajectory.
+#[derive(Debug, Clone)]
+struct Tuple {
+    tick: u64,
+    t_ns: u64,
+    q: Vec<f64>,
+    c: f64,
+    qd: Vec<f64>,
+    cd: f64,
+}
+
+impl Tuple {
+    fn resting(&self) -> bool {
+        self.qd.iter().map(|v| v * v).sum::<f64>().sqrt() < REST_SPEED && self.cd.abs() < REST_SPEED
+    }
+}
+
+const NOT_A_DEMONSTRATION: u32 =
+    state_flags::MISSED | state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
+
+/// The runs of valid consecutive tuples of `states` (any order; sorted by tick here).
+fn runs(states: &[RobotStateJson]) -> Vec<Vec<Tuple>> {
+    let mut sorted: Vec<&RobotStateJson> = states.iter().collect();
+    // The bridge's shutdown state repeats its last tick: the running state comes first and
+    // is the one kept.
+    sorted.sort_by_key(|s| (s.tick, s.flags & state_flags::SHUTDOWN != 0));
+    sorted.dedup_by_key(|s| s.tick);
+    let mut out: Vec<Vec<Tuple>> = Vec::new();
+    let mut cur: Vec<Tuple> = Vec::new();
+    for w in sorted.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let dt_s = b.t_ns.saturating_sub(a.t_ns) as f64 / 1e9;
+        let ok = b.tick == a.tick + 1
+            && a.flags & state_flags::SHUTDOWN == 0
+            && b.flags & NOT_A_DEMONSTRATION == 0
+            && a.q_rad.len() == b.q_rad.len()
+            && b.qdot_rad_s.len() == a.q_rad.len()
+            && !a.q_rad.is_empty()
+            && dt_s > 0.0;
+        if !ok {
+            if !cur.is_empty() {
+                out.push(std::mem::take(&mut cur));
+            }
+            continue;
+        }
+        cur.push(Tuple {
+            tick: a.tick,
+            t_ns: a.t_ns,
+            q: a.q_rad.clone(),
+            c: a.gripper,
+            qd: b.qdot_rad_s.clone(),
+            cd: (b.gripper - a.gripper) / dt_s,
+        });
+    }
+    if !cur.is_empty() {
+        out.push(cur);
+    }
+    out
+}
+
+/// Cuts `run` at rests of at least `rest_s` (left out); returns the moving pieces.
+fn cut_rests(run: Vec<Tuple>, rest_s: f64, left: &mut LeftOut) -> Vec<Vec<Tuple>> {
+    if rest_s <= 0.0 {
+        return vec![run];
+    }
+    let mut pieces = Vec::new();
+    let mut cur: Vec<Tuple> = Vec::new();
+    let mut rest: Vec<Tuple> = Vec::new();
+    let mut close_rest = |cur: &mut Vec<Tuple>, rest: &mut Vec<Tuple>, next_t_ns: Option<u64>| {
+        if rest.is_empty() {
+            return;
+        }
+        let start = rest[0].t_ns;
+        let end = next_t_ns.unwrap_or_else(|| {
+            // A rest that ends the run lasts until one period after its last tuple.
+            let n = rest.len() as u64;
+            let last = rest[rest.len() - 1].t_ns;
+            let period = if n > 1 { (last - start) / (n - 1) } else { 0 };
+            last + period
+        });
+        if end.saturating_sub(start) as f64 / 1e9 >= rest_s {
+            left.resting += rest.len();
+            rest.clear();
+            if !cur.is_empty() {
+                pieces.push(std::mem::take(cur));
+            }
+        } else {
+            cur.append(rest);
+        }
+    };
+    for t in run {
+        if t.resting() {
+            rest.push(t);
+        } else {
+            close_rest(&mut cur, &mut rest, Some(t.t_ns));
+            cur.push(t);
+        }
+    }
+    close_rest(&mut cur, &mut rest, None);
+    if !cur.is_empty() {
+        pieces.push(cur);
+    }
+    pieces
+}
+
+/// Cuts `piece` into equal parts of at most `max_s`.
+fn cut_length(piece: Vec<Tuple>, max_s: f64) -> Vec<Vec<Tuple>> {
+    let (Some(first), Some(last)) = (piece.first(), piece.last()) else {
+        return Vec::new();
+    };
+    let n = piece.len();
+    // Duration including the last tuple's period.
+    let span_s = (last.t_ns - first.t_ns) as f64 / 1e9 * n as f64 / (n.max(2) - 1) as f64;
+    let parts = ((span_s / max_s).ceil() as usize).clamp(1, n);
+    if parts == 1 {
+        return vec![piece];
+    }
+    let mut out = Vec::with_capacity(parts);
+    let mut it = piece.into_iter();
+    for p in 0..parts {
+        let take = (p + 1) * n / parts - p * n / parts;
+        out.push(it.by_ref().take(take).collect());
+    }
+    out
+}
+
+/// The trajectories of one recording's robot states; `stem` names them
+/// (`<stem>-<index>-tick<first tick>.csv`).
+pub fn trajectories(
+    states: &[RobotStateJson],
+    stem: &str,
+    o: &Options,
+) -> (Vec<Trajectory>, LeftOut) {
+    let mut left = LeftOut::default();
+    let mut out = Vec::new();
+    for run in runs(states) {
+        for piece in cut_rests(run, o.rest_s, &mut left) {
+            for part in cut_length(piece, o.max_length_s) {
+                if part.len() < 2 {
+                    left.fragments += part.len();
+                    continue;
+                }
+                let t0 = part[0].t_ns;
+                let mut traj = Trajectory {
+                    name: format!("{stem}-{:03}-tick{}.csv", out.len(), part[0].tick),
+                    ..Trajectory::default()
+                };
+                for t in part {
+                    traj.t.push((t.t_ns - t0) as f64 / 1e9);
+                    traj.q.push(t.q);
+                    traj.c.push(t.c);
+                    traj.qdot.push(t.qd);
+                    traj.cdot.push(t.cd);
+                }
+                out.push(traj);
+            }
+        }
+    }
+    (out, left)
+}
+
+/// Spreads `trajs` over train and val: trajectory `i` goes to val when
+/// `floor((i + 1) f) > floor(i f)`, so val gets `floor(n f)` of them, evenly spaced.
+pub fn split(trajs: Vec<Trajectory>, val_fraction: f64) -> Dataset {
+    let mut ds = Dataset::default();
+    for (i, t) in trajs.into_iter().enumerate() {
+        let to_val = ((i + 1) as f64 * val_fraction).floor() > (i as f64 * val_fraction).floor();
+        if to_val {
+            ds.val.push(t);
+        } else {
+            ds.train.push(t);
+        }
+    }
+    ds
+}
+
+/// The robot states of recording `path`, and how far it could be read.
+pub fn robot_states(
+    path: &Path,
+) -> Result<(Vec<RobotStateJson>, recording::ReadSummary), ToolError> {
+    let mut states = Vec::new();
+    let channel = Topic::RobotState.channel();
+    let summary = recording::read_file(path, |ev| {
+        if let Event::Message {
+            channel: c,
+            sequence,
+            data,
+            ..
+        } = ev
+            && c.topic == channel
+        {
+            states.push(recording::decode(path, &c.topic, sequence, data)?);
+        }
+        Ok(())
+    })?;
+    Ok((states, summary))
+}
+
+/// What `scl dataset` did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConvertReport {
+    /// Files written.
+    pub files: Vec<PathBuf>,
+    /// Tuples in train/.
+    pub n_train: usize,
+    /// Tuples in val/.
+    pub n_val: usize,
+    /// Tuples left out.
+    pub left_out: LeftOut,
+    /// Recordings that were cut (read up to their last complete chunk).
+    pub truncated: Vec<PathBuf>,
+}
+
+/// Converts recordings `from` into the data set directory `out`.
+pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertReport, ToolError> {
+    o.validate()?;
+    let mut all = Vec::new();
+    let mut left = LeftOut::default();
+    let mut truncated = Vec::new();
+    for path in from {
+        let (states, summary) = robot_states(path)?;
+        if !summary.complete {
+            tracing::warn!(
+                "{}: the recording is cut ({}); converting its {} readable messages (`scl record --recover` makes a finished copy)",
+                path.display(),
+                summary.stopped.as_deref().unwrap_or("no data-end record"),
+                summary.messages
+            );
+            truncated.push(path.clone());
+        }
+        if states.is_empty() {
+            return Err(ToolError::Graph(format!(
+                "{}: no robot states in the recording (was /robot_state recorded?)",
+                path.display()
+            )));
+        }
+        let stem = path.file_stem().map_or_else(
+            || "recording".to_owned(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        let (trajs, l) = trajectories(&states, &stem, o);
+        left.resting += l.resting;
+        left.fragments += l.fragments;
+        all.extend(trajs);
+    }
+    if all.is_empty() {
+        return Err(ToolError::Graph(
+            "the recordings hold no motion: every tuple was a rest, a stop or a fragment".into(),
+        ));
+    }
+    let ds = split(all, o.val_fraction);
+    if ds.val.is_empty() && o.val_fraction > 0.0 {
+        tracing::warn!(
+            "only {} trajectories: none for val/ (lower --max-length-s to cut more)",
+            ds.train.len()
+        );
+    }
+    let files = crate::dataset::write_dir(out, &ds)?;
+    Ok(ConvertReport {
+        files,
+        n_train: ds.n_train(),
+        n_val: ds.n_val(),
+        left_out: left,
+        truncated,
+    })
+}
+
+/// `scl dataset`.
+pub fn cli(args: &DatasetArgs) -> Result<std::process::ExitCode, ToolError> {
+    let o = Options {
+        val_fraction: args.val_fraction,
+        rest_s: args.rest_s,
+        max_length_s: args.max_length_s,
+    };
+    let r = convert(&args.from, &args.out, &o)?;
+    eprintln!(
+        "wrote {} trajectories ({} train / {} validation tuples) from {} recording(s) to {}; left out {} resting and {} fragment tuples",
+        r.files.len(),
+        r.n_train,
+        r.n_val,
+        args.from.len(),
+        args.out.display(),
+        r.left_out.resting,
+        r.left_out.fragments
+    );
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT_NS: u64 = 25_000_000;
+
+    /// A state at `tick` moving joint 0 at `v` rad/s (the velocity that brought it there).
+    fn st(tick: u64, q0: f64, v: f64) -> RobotStateJson {
+        RobotStateJson {
+            tick,
+            t_ns: 1_000_000_000 + tick * DT_NS,
+            applied_tick: tick.checked_sub(1),
+            missed: 0,
+            flags: state_flags::MOCK,
+            flag_names: vec![],
+            q_rad: vec![q0, 0.5],
+            qdot_rad_s: vec![v, 0.0],
+            gripper: 0.01 * tick as f64,
+        }
+    }
+
+    /// Ticks `from..to` moving at `v` from `q0`.
+    fn moving(from: u64, to: u64, v: f64) -> Vec<RobotStateJson> {
+        (from..to)
+            .map(|k| st(k, v * (k - from) as f64 * 0.025, v))
+            .collect()
+    }
+
+    fn opts(rest_s: f64, max_length_s: f64) -> Options {
+        Options {
+            val_fraction: 0.25,
+            rest_s,
+            max_length_s,
+        }
+    }
+
+    #[test]
+    fn tuples_pair_a_state_with_the_velocity_that_followed() {
+        let mut s = moving(0, 10, 0.2);
+        s[5].qdot_rad_s[0] = 0.7; // the velocity executed from tick 4 to 5
+        let (trajs, left) = trajectories(&s, "r", &opts(0.0, 100.0));
+        assert_eq!(left, LeftOut::default());
+        assert_eq!(trajs.len(), 1);
+        let t = &trajs[0];
+        assert_eq!(t.name, "r-000-tick0.csv");
+        assert_eq!(t.len(), 9, "the last state has no successor");
+        assert_eq!(t.qdot[4][0], 0.7);
+        assert_eq!(t.q[4], s[4].q_rad);
+        assert!((t.t[3] - 0.075).abs() < 1e-12);
+        assert!((t.cdot[0] - 0.4).abs() < 1e-9, "{}", t.cdot[0]);
+    }
+
+    #[test]
+    fn gaps_stops_and_shutdown_end_a_trajectory() {
+        let mut s = moving(0, 10, 0.2);
+        s.extend(moving(12, 20, 0.2)); // ticks 10 and 11 lost
+        s[15].flags |= state_flags::MISSED; // tick 17 reports a miss: tuple 16 is a stop
+        s.last_mut().unwrap().flags |= state_flags::SHUTDOWN;
+        // Out of order and with a duplicate, as two sources might give them.
+        s.swap(0, 3);
+        s.push(s[7].clone());
+        let (trajs, left) = trajectories(&s, "r", &opts(0.0, 100.0));
+        let ranges: Vec<(&str, usize)> = trajs.iter().map(|t| (t.name.as_str(), t.len())).collect();
+        // 0..=8, then 12..=15 (16 -> 17 was a miss), then the lone tuple 17 (18 -> 19 is the
+        // shutdown), left out as a fragment.
+        assert_eq!(
+            ranges,
+            vec![("r-000-tick0.csv", 9), ("r-001-tick12.csv", 4)]
+        );
+        assert_eq!(left.fragments, 1);
+    }
+
+    #[test]
+    fn long_rests_are_cut_out_and_short_ones_kept() {
+        // 20 ticks moving, 60 at rest (1.5 s), 20 moving, 10 at rest (0.25 s), 20 moving.
+        let mut s = moving(0, 20, 0.2);
+        let q_end = s.last().unwrap().q_rad[0];
+        s.extend((20..80).map(|k| RobotStateJson {
+            q_rad: vec![q_end, 0.5],
+            qdot_rad_s: vec![0.0, 0.0],
+            gripper: 0.0,
+            ..st(k, 0.0, 0.0)
+        }));
+        s.extend(moving(80, 100, 0.3));
+        s.extend((100..110).map(|k| RobotStateJson {
+            qdot_rad_s: vec![0.0, 0.0],
+            gripper: 0.0,
+            ..st(k, 0.0, 0.0)
+        }));
+        s.extend(moving(110, 131, 0.3));
+        for x in &mut s {
+            x.gripper = 0.0;
+        }
+        let (trajs, left) = trajectories(&s, "r", &opts(1.0, 100.0));
+        assert_eq!(
+            trajs.len(),
+            2,
+            "{:?}",
+            trajs.iter().map(|t| &t.name).collect::<Vec<_>>()
+        );
+        assert_eq!(trajs[0].name, "r-000-tick0.csv");
+        // Tuple 19 pairs state 19 with state 20's (zero) velocity: it rests; tuple 79 pairs
+        // the resting state 79 with the motion that followed: it moves.
+        assert_eq!(trajs[1].name, "r-001-tick79.csv");
+        assert_eq!(trajs[0].len(), 19);
+        assert_eq!(left.resting, 60);
+        assert_eq!(trajs[1].len(), 51, "the short rest stays in");
+        // Without rest splitting, one trajectory of every tuple.
+        let (all, left) = trajectories(&s, "r", &opts(0.0, 100.0));
+        assert_eq!(all.len(), 1);
+        assert_eq!(all[0].len(), 130);
+        assert_eq!(left.resting, 0);
+    }
+
+    #[test]
+    fn long_runs_are_cut_into_equal_pieces() {
+        let s = moving(0, 201, 0.1); // 200 tuples, 5 s
+        let (trajs, _) = trajectories(&s, "r", &opts(0.0, 1.2));
+        assert_eq!(trajs.len(), 5);
+        assert!(trajs.iter().all(|t| t.len() == 40));
+        assert_eq!(trajs[1].name, "r-001-tick40.csv");
+        assert_eq!(trajs[1].t[0], 0.0, "each piece starts at t = 0");
+    }
+
+    #[test]
+    fn val_gets_an_even_share() {
+        let trajs: Vec<Trajectory> = (0..8)
+            .map(|i| Trajectory {
+                name: format!("{i}"),
+                ..Trajectory::default()
+            })
+            .collect();
+        let ds = split(trajs.clone(), 0.25);
+        let names: Vec<&str> = ds.val.iter().map(|t| t.name.as_str()).collect();
+        assert_eq!(names, vec!["3", "7"]);
+        assert_eq!(ds.train.len(), 6);
+        assert!(split(trajs.clone(), 0.0).val.is_empty());
+        assert_eq!(split(trajs[..3].to_vec(), 0.25).val.len(), 0);
+    }
+
+    #[test]
+    fn bad_options_name_the_flag() {
+        let e = opts(1.0, 0.0).validate().unwrap_err().to_string();
+        assert!(e.starts_with("--max-length-s 0"), "{e}");
+        let e = Options {
+            val_fraction: 1.0,
+            ..opts(1.0, 1.0)
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.starts_with("--val-fraction 1"), "{e}");
+        assert!(opts(-1.0, 1.0).validate().is_err());
+    }
+}

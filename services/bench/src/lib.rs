@@ -1,0 +1,712 @@
+//! `scl bench latency`: the full graph (scripted joystick, mapper, safety, mock bridge) run for
+//! a while on one or both transports, with optional CPU load and real-time settings, and every
+//! tick's timestamps collected from the bridge's `TickReport`s.
+//!
+//! Figures, each as p50 / p90 / p99 / p99.9 / max (µs):
+//! * per hop: joystick -> mapper (sample produced -> received), bridge -> mapper (RobotState
+//!   published -> received), mapper -> safety, safety -> bridge;
+//! * end to end within a tick: RobotState(k) published -> SafeCommand(k) received by the
+//!   bridge;
+//! * the joystick sample's age when the mapper used it;
+//! * the bridge's tick lateness against the ideal grid, and missed ticks;
+//! * compute inside the mapper (the map) and safety (the filter), apart from transport.
+//!
+//! Each run is `scl up` as a child process under a fresh prefix; the benchmark observes it
+//! read-only on the same transport. Load processes are plain busy loops.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+/// Why the benchmark stopped or could not start, each with the message a user sees.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// The graph or the process failed (a child died, a thread did not start, ...).
+    #[error("{0}")]
+    Graph(String),
+}
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use ipc_types::{Graph, Prefix, TickReport, Transport};
+use serde::Serialize;
+
+use ipc_types::signals;
+use scl_node::config::GraphConfig;
+use scl_node::stats::quantile;
+
+/// What `scl bench latency` was asked to do.
+#[derive(Debug, Clone)]
+pub struct LatencyOptions {
+    /// How long each transport runs.
+    pub duration: Duration,
+    /// Ask for SCHED_FIFO, mlockall and CPU affinity.
+    pub rt: bool,
+    /// Busy processes running beside the graph.
+    pub load: usize,
+    /// The transports, run one after the other.
+    pub transports: Vec<Transport>,
+    /// The base configuration (its transport and real-time settings are overridden).
+    pub config: GraphConfig,
+    /// Where to write the JSON (and the raw samples); none: stdout only.
+    pub out: Option<PathBuf>,
+}
+
+/// p50 / p90 / p99 / p99.9 / max of one figure, µs, and its sample count.
+#[derive(Debug, Clone, Copy, Serialize, Default, PartialEq)]
+pub struct Dist {
+    /// Median.
+    pub p50: f64,
+    /// 90th percentile.
+    pub p90: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// 99.9th percentile.
+    pub p999: f64,
+    /// Largest.
+    pub max: f64,
+    /// Samples.
+    pub n: usize,
+}
+
+impl Dist {
+    /// The distribution of samples given in ns.
+    pub fn of(samples_ns: &[u64]) -> Self {
+        let mut s = samples_ns.to_vec();
+        s.sort_unstable();
+        let us = |q: f64| quantile(&s, q) as f64 / 1000.0;
+        Self {
+            p50: us(0.5),
+            p90: us(0.9),
+            p99: us(0.99),
+            p999: us(0.999),
+            max: s.last().map_or(0.0, |v| *v as f64 / 1000.0),
+            n: s.len(),
+        }
+    }
+}
+
+/// The per-hop samples of a run (ns), as collected from the tick reports.
+#[derive(Debug, Clone, Default)]
+pub struct Samples {
+    /// joystick -> mapper.
+    pub joystick_mapper: Vec<u64>,
+    /// bridge -> mapper.
+    pub bridge_mapper: Vec<u64>,
+    /// mapper -> safety.
+    pub mapper_safety: Vec<u64>,
+    /// safety -> bridge.
+    pub safety_bridge: Vec<u64>,
+    /// End to end.
+    pub e2e: Vec<u64>,
+    /// Joystick sample age when used.
+    pub joystick_age: Vec<u64>,
+    /// Tick lateness.
+    pub lateness: Vec<u64>,
+    /// Mapper compute.
+    pub mapper_compute: Vec<u64>,
+    /// Safety compute.
+    pub safety_compute: Vec<u64>,
+    /// Ticks seen.
+    pub ticks: u64,
+    /// Missed ticks (the bridge's own count at the last report).
+    pub missed: u64,
+}
+
+impl Samples {
+    /// Adds one tick.
+    pub fn take(&mut self, r: &TickReport) {
+        self.ticks += 1;
+        self.missed = r.missed;
+        self.lateness.push(r.lateness_ns);
+        if r.executed == 0 {
+            return;
+        }
+        let d = |a: u64, b: u64| b.saturating_sub(a);
+        if r.joystick_t_ns != 0 && r.joystick_rx_ns != 0 {
+            // The sample's hop, and its age when the map ran (the command's publication less
+            // the map's own time).
+            self.joystick_mapper
+                .push(d(r.joystick_t_ns, r.joystick_rx_ns));
+            let used = r.mapper_t_ns.saturating_sub(r.mapper_compute_ns);
+            self.joystick_age.push(d(r.joystick_t_ns, used));
+        }
+        self.bridge_mapper.push(d(r.state_t_ns, r.state_rx_ns));
+        self.mapper_safety.push(d(r.mapper_t_ns, r.mapper_rx_ns));
+        self.safety_bridge.push(d(r.safe_t_ns, r.safe_rx_ns));
+        self.e2e.push(d(r.state_t_ns, r.safe_rx_ns));
+        self.mapper_compute.push(r.mapper_compute_ns);
+        self.safety_compute.push(r.safety_compute_ns);
+    }
+}
+
+/// The figures of one transport's run.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    /// The transport.
+    pub transport: Transport,
+    /// Ticks observed.
+    pub ticks: u64,
+    /// Ticks missed.
+    pub missed: u64,
+    /// Per hop (µs).
+    pub hops_us: Hops,
+    /// RobotState(k) published -> SafeCommand(k) received by the bridge (µs).
+    pub e2e_us: Dist,
+    /// Age of the joystick sample when the mapper used it (µs).
+    pub joystick_age_us: Dist,
+    /// The bridge's lateness against the ideal grid (µs).
+    pub tick_lateness_us: Dist,
+    /// Compute inside the processes (µs).
+    pub compute_us: Compute,
+    /// What the processes said about their real-time settings.
+    pub realtime: Vec<String>,
+}
+
+/// Per-hop distributions.
+#[derive(Debug, Clone, Serialize)]
+pub struct Hops {
+    /// Joystick sample produced -> received by the mapper.
+    pub joystick_mapper: Dist,
+    /// RobotState published -> received by the mapper.
+    pub bridge_mapper: Dist,
+    /// MapperCommand published -> received by safety.
+    pub mapper_safety: Dist,
+    /// SafeCommand published -> received by the bridge.
+    pub safety_bridge: Dist,
+}
+
+/// Compute distributions.
+#[derive(Debug, Clone, Serialize)]
+pub struct Compute {
+    /// The map in the mapper.
+    pub mapper: Dist,
+    /// The safety filter.
+    pub safety: Dist,
+}
+
+impl RunReport {
+    fn new(transport: Transport, s: &Samples, realtime: Vec<String>) -> Self {
+        Self {
+            transport,
+            ticks: s.ticks,
+            missed: s.missed,
+            hops_us: Hops {
+                joystick_mapper: Dist::of(&s.joystick_mapper),
+                bridge_mapper: Dist::of(&s.bridge_mapper),
+                mapper_safety: Dist::of(&s.mapper_safety),
+                safety_bridge: Dist::of(&s.safety_bridge),
+            },
+            e2e_us: Dist::of(&s.e2e),
+            joystick_age_us: Dist::of(&s.joystick_age),
+            tick_lateness_us: Dist::of(&s.lateness),
+            compute_us: Compute {
+                mapper: Dist::of(&s.mapper_compute),
+                safety: Dist::of(&s.safety_compute),
+            },
+            realtime,
+        }
+    }
+
+    /// The named figures, for tables and ratios.
+    pub fn figures(&self) -> Vec<(&'static str, Dist)> {
+        vec![
+            ("joystick -> mapper", self.hops_us.joystick_mapper),
+            ("bridge -> mapper", self.hops_us.bridge_mapper),
+            ("mapper -> safety", self.hops_us.mapper_safety),
+            ("safety -> bridge", self.hops_us.safety_bridge),
+            ("end to end", self.e2e_us),
+            ("joystick sample age", self.joystick_age_us),
+            ("tick lateness", self.tick_lateness_us),
+            ("mapper compute", self.compute_us.mapper),
+            ("safety compute", self.compute_us.safety),
+        ]
+    }
+}
+
+/// The machine the figures come from.
+#[derive(Debug, Clone, Serialize)]
+pub struct Machine {
+    /// Online CPUs.
+    pub cores: usize,
+    /// `uname -r`.
+    pub kernel: String,
+    /// CPU model name.
+    pub cpu: String,
+    /// Whether the CPU reports running under a hypervisor.
+    pub virtualised: bool,
+}
+
+impl Machine {
+    /// Reads the machine's description from /proc.
+    pub fn detect() -> Self {
+        let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+        let field = |name: &str| {
+            cpuinfo
+                .lines()
+                .find(|l| l.starts_with(name))
+                .and_then(|l| l.split(':').nth(1))
+                .map_or(String::new(), |v| v.trim().to_owned())
+        };
+        Self {
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            kernel: std::fs::read_to_string("/proc/sys/kernel/osrelease")
+                .map_or(String::new(), |s| s.trim().to_owned()),
+            cpu: field("model name"),
+            virtualised: field("flags").split_whitespace().any(|f| f == "hypervisor"),
+        }
+    }
+}
+
+/// The whole benchmark's result (`--json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct LatencyReport {
+    /// The machine.
+    pub machine: Machine,
+    /// Seconds per transport.
+    pub duration_s: f64,
+    /// `--rt` given.
+    pub rt: bool,
+    /// `--load` busy processes.
+    pub load: usize,
+    /// The graph that ran: the model the mapper served, the joystick script, the bridge's
+    /// rate and the CPU the control path was pinned to (-1: none).
+    pub settings: BenchSettings,
+    /// One run per transport.
+    pub runs: Vec<RunReport>,
+    /// iceoryx2 / uds of every figure's p50, p99 and max, when both ran.
+    pub ratios: Vec<(String, f64, f64, f64)>,
+}
+
+/// The settings of a benchmark's graph, as reported in its JSON.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchSettings {
+    /// The mapper's model (`bundled`, a file, or a spec such as `modeswitch`).
+    pub model: String,
+    /// The scripted joystick's pattern.
+    pub script: String,
+    /// The bridge's rate (Hz).
+    pub rate_hz: f64,
+    /// The bridge's command deadline, as a fraction of the period.
+    pub command_deadline: f64,
+    /// The CPU the control path was pinned to with `--rt` (-1: none).
+    pub rt_cpu: i32,
+    /// The transports, in the order they ran.
+    pub transports: Vec<Transport>,
+}
+
+struct Burners(Vec<Child>);
+
+impl Drop for Burners {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+fn spawn_scl(args: &[String]) -> Result<Command, BenchError> {
+    let exe = std::env::current_exe()
+        .map_err(|e| BenchError::Graph(format!("cannot find the scl executable: {e}")))?;
+    let mut c = Command::new(exe);
+    c.args(args);
+    Ok(c)
+}
+
+/// A busy loop until killed: the `--load` processes.
+pub fn burn() -> ! {
+    let mut x: u64 = 1;
+    loop {
+        x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        std::hint::black_box(x);
+    }
+}
+
+fn run_one(
+    opts: &LatencyOptions,
+    transport: Transport,
+    dir: &Path,
+) -> Result<(RunReport, Samples), BenchError> {
+    let prefix = Prefix::new(&format!("bench{}{}", std::process::id(), transport))
+        .map_err(|e| BenchError::Graph(e.to_string()))?;
+    let mut cfg = opts.config.clone();
+    cfg.graph.transport = transport;
+    cfg.graph.realtime = opts.rt;
+    cfg.graph.rt_cpu = if opts.rt {
+        Machine::detect().cores as i32 - 1
+    } else {
+        -1
+    };
+    cfg.graph.prefix = prefix.to_string();
+    // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
+    // configuration says: it must never drive a real arm, nor wait for a person's input.
+    cfg.bridge.robot = "mock".to_owned();
+    cfg.joystick.source = "script".to_owned();
+    let cfg_path = dir.join(format!("graph-{transport}.toml"));
+    let text = toml::to_string(&cfg)
+        .map_err(|e| BenchError::Graph(format!("cannot write the run's config: {e}")))?;
+    std::fs::write(&cfg_path, text)
+        .map_err(|e| BenchError::Graph(format!("{}: {e}", cfg_path.display())))?;
+
+    let mut burners = Burners(Vec::new());
+    for _ in 0..opts.load {
+        let c = spawn_scl(&["bench".into(), "burn".into()])?
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .map_err(|e| BenchError::Graph(format!("cannot start a load process: {e}")))?;
+        burners.0.push(c);
+    }
+    let graph = Graph::join_with(&prefix, &format!("bench-{}", std::process::id()), transport)?;
+    let reports = graph.tick_report_subscriber()?;
+    let log_path = dir.join(format!("scl-up-{transport}.log"));
+    let log = std::fs::File::create(&log_path)
+        .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
+    let secs = opts.duration.as_secs_f64();
+    let mut up = spawn_scl(&[
+        "up".into(),
+        "--config".into(),
+        cfg_path.display().to_string(),
+        "--for".into(),
+        format!("{secs}s"),
+    ])?
+    .env("SCL_LOG", "info")
+    .stdout(Stdio::null())
+    .stderr(log)
+    .spawn()
+    .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
+
+    eprintln!(
+        "bench: {transport}, {secs:.0} s, load {}, rt {}",
+        opts.load, opts.rt
+    );
+    let mut samples = Samples::default();
+    let t0 = Instant::now();
+    let mut next = 10.0;
+    while up
+        .try_wait()
+        .map_err(|e| BenchError::Graph(e.to_string()))?
+        .is_none()
+    {
+        reports.drain(|r| samples.take(r))?;
+        if signals::stop_requested() {
+            // SAFETY: signalling our own child.
+            unsafe {
+                libc::kill(up.id() as libc::pid_t, libc::SIGTERM);
+            }
+        }
+        let el = t0.elapsed().as_secs_f64();
+        if el >= next {
+            next += 10.0;
+            let e = Dist::of(&samples.e2e);
+            eprintln!(
+                "bench: {el:>5.0} s  ticks {}  missed {}  e2e p50 {:.1} µs  p99 {:.1} µs",
+                samples.ticks, samples.missed, e.p50, e.p99
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    reports.drain(|r| samples.take(r))?;
+    drop(burners);
+    drop(reports);
+    drop(graph);
+    let _ = ipc_types::graph::release_domain(&prefix);
+    ipc_types::uds::remove_graph(prefix.as_str());
+    let realtime = std::fs::read_to_string(&log_path)
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| l.contains("real-time"))
+        .map(|l| l.trim().to_owned())
+        .collect();
+    Ok((RunReport::new(transport, &samples, realtime), samples))
+}
+
+/// Log-spaced histogram of samples (ns): counts in bins from 1 µs to 100 ms, 8 per decade,
+/// as (bin centre in µs, fraction of samples).
+pub fn histogram(samples_ns: &[u64]) -> Vec<(f64, f64)> {
+    const PER_DECADE: f64 = 8.0;
+    let bins = (5.0 * PER_DECADE) as usize;
+    let mut counts = vec![0usize; bins];
+    for v in samples_ns {
+        let us = (*v as f64 / 1000.0).max(1.0);
+        let i = ((us.log10() * PER_DECADE) as usize).min(bins - 1);
+        counts[i] += 1;
+    }
+    let n = samples_ns.len().max(1) as f64;
+    counts
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (10f64.powf((i as f64 + 0.5) / PER_DECADE), *c as f64 / n))
+        .collect()
+}
+
+/// Draws the histograms of six figures, one line per transport, into an RGB buffer of
+/// [`learning::plot::SIZE`].
+pub fn render_histograms(
+    runs: &[(Transport, &Samples)],
+    title: &str,
+    text: bool,
+) -> Result<Vec<u8>, learning::plot::PlotError> {
+    use plotters::prelude::*;
+    let draw = |e: &dyn std::fmt::Display| learning::plot::PlotError::Draw(e.to_string());
+    let (w, h) = learning::plot::SIZE;
+    let mut buf = vec![0u8; (w as usize) * (h as usize) * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| draw(&e))?;
+        let body = if text {
+            root.titled(title, ("sans-serif", 24))
+                .map_err(|e| draw(&e))?
+        } else {
+            root.clone()
+        };
+        let panels = body.split_evenly((2, 3));
+        type Pick = fn(&Samples) -> &Vec<u64>;
+        let figures: [(&str, Pick); 6] = [
+            ("end to end", |s| &s.e2e),
+            ("bridge -> mapper", |s| &s.bridge_mapper),
+            ("mapper -> safety", |s| &s.mapper_safety),
+            ("safety -> bridge", |s| &s.safety_bridge),
+            ("joystick -> mapper", |s| &s.joystick_mapper),
+            ("tick lateness", |s| &s.lateness),
+        ];
+        let colours = [RGBColor(31, 119, 180), RGBColor(255, 127, 14)];
+        for (panel, (name, pick)) in panels.iter().zip(figures) {
+            let hists: Vec<(Transport, Vec<(f64, f64)>)> =
+                runs.iter().map(|(t, s)| (*t, histogram(pick(s)))).collect();
+            let top = hists
+                .iter()
+                .flat_map(|(_, h)| h.iter().map(|(_, f)| *f))
+                .fold(0.0, f64::max)
+                .max(0.01)
+                * 1.1;
+            let mut chart = ChartBuilder::on(panel);
+            chart.margin(8);
+            if text {
+                chart
+                    .caption(name, ("sans-serif", 18))
+                    .x_label_area_size(30)
+                    .y_label_area_size(40);
+            }
+            let mut chart = chart
+                .build_cartesian_2d((1.0f64..100_000.0).log_scale(), 0.0..top)
+                .map_err(|e| draw(&e))?;
+            let mut mesh = chart.configure_mesh();
+            if text {
+                mesh.x_desc("µs")
+                    .y_desc("fraction")
+                    .x_label_formatter(&|v| format!("{v:.0}"));
+            } else {
+                mesh.disable_x_mesh().disable_y_mesh();
+            }
+            mesh.draw().map_err(|e| draw(&e))?;
+            for (k, (t, hist)) in hists.iter().enumerate() {
+                let colour = colours[k % colours.len()];
+                let series = chart
+                    .draw_series(LineSeries::new(
+                        hist.iter().copied(),
+                        colour.stroke_width(2),
+                    ))
+                    .map_err(|e| draw(&e))?;
+                if text {
+                    series
+                        .label(t.to_string())
+                        .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+                }
+            }
+            if text {
+                chart
+                    .configure_series_labels()
+                    .border_style(BLACK)
+                    .draw()
+                    .map_err(|e| draw(&e))?;
+            }
+        }
+        root.present().map_err(|e| draw(&e))?;
+    }
+    Ok(buf)
+}
+
+/// Runs the benchmark.
+pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
+    let dir = match &opts.out {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("scl-bench-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&dir)
+        .map_err(|e| BenchError::Graph(format!("{}: {e}", dir.display())))?;
+    let mut runs = Vec::new();
+    let mut all_samples = Vec::new();
+    for t in &opts.transports {
+        if signals::stop_requested() {
+            break;
+        }
+        let (report, samples) = run_one(opts, *t, &dir)?;
+        runs.push(report);
+        all_samples.push((*t, samples));
+    }
+    if opts.out.is_some() {
+        let font = learning::plot::load_font(None).map_err(|e| BenchError::Graph(e.to_string()))?;
+        let refs: Vec<(Transport, &Samples)> = all_samples.iter().map(|(t, s)| (*t, s)).collect();
+        let title = format!(
+            "scl bench latency: {:.0} s per transport, load {}, rt {}",
+            opts.duration.as_secs_f64(),
+            opts.load,
+            opts.rt
+        );
+        let rgb = render_histograms(&refs, &title, font.is_some())
+            .map_err(|e| BenchError::Graph(e.to_string()))?;
+        let png = dir.join("latency.png");
+        learning::plot::write_png(&png, &rgb, true)
+            .map_err(|e| BenchError::Graph(e.to_string()))?;
+        eprintln!("bench: histograms in {}", png.display());
+    }
+    let mut ratios = Vec::new();
+    if let (Some(i), Some(u)) = (
+        runs.iter().find(|r| r.transport == Transport::Iceoryx2),
+        runs.iter().find(|r| r.transport == Transport::Uds),
+    ) {
+        for ((name, a), (_, b)) in i.figures().into_iter().zip(u.figures()) {
+            let r = |x: f64, y: f64| if y > 0.0 { x / y } else { f64::NAN };
+            ratios.push((
+                name.to_owned(),
+                r(a.p50, b.p50),
+                r(a.p99, b.p99),
+                r(a.max, b.max),
+            ));
+        }
+    }
+    if opts.out.is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let machine = Machine::detect();
+    let settings = BenchSettings {
+        model: opts.config.mapper.model.clone(),
+        script: opts.config.joystick.script.clone(),
+        rate_hz: opts.config.bridge.rate_hz,
+        command_deadline: opts.config.bridge.command_deadline,
+        rt_cpu: if opts.rt {
+            machine.cores as i32 - 1
+        } else {
+            -1
+        },
+        transports: opts.transports.clone(),
+    };
+    Ok(LatencyReport {
+        machine,
+        duration_s: opts.duration.as_secs_f64(),
+        rt: opts.rt,
+        load: opts.load,
+        settings,
+        runs,
+        ratios,
+    })
+}
+
+/// The report as a table.
+pub fn render(r: &LatencyReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{} cores, {}, kernel {}{}; {:.0} s per transport, load {}, rt {}",
+        r.machine.cores,
+        r.machine.cpu,
+        r.machine.kernel,
+        if r.machine.virtualised {
+            ", virtualised"
+        } else {
+            ""
+        },
+        r.duration_s,
+        r.load,
+        r.rt
+    );
+    let _ = writeln!(
+        s,
+        "graph: model {}, scripted joystick ({}), mock arm at {} Hz",
+        r.settings.model, r.settings.script, r.settings.rate_hz
+    );
+    for run in &r.runs {
+        let _ = writeln!(
+            s,
+            "\n{}: {} ticks, {} missed",
+            run.transport, run.ticks, run.missed
+        );
+        let _ = writeln!(
+            s,
+            "  {:<20} {:>9} {:>9} {:>9} {:>9} {:>9}   (µs)",
+            "", "p50", "p90", "p99", "p99.9", "max"
+        );
+        for (name, d) in run.figures() {
+            let _ = writeln!(
+                s,
+                "  {name:<20} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+                d.p50, d.p90, d.p99, d.p999, d.max
+            );
+        }
+        for line in &run.realtime {
+            let _ = writeln!(s, "  {line}");
+        }
+    }
+    if !r.ratios.is_empty() {
+        let _ = writeln!(s, "\niceoryx2 / uds (below 1: iceoryx2 faster)");
+        let _ = writeln!(s, "  {:<20} {:>7} {:>7} {:>7}", "", "p50", "p99", "max");
+        for (name, a, b, c) in &r.ratios {
+            let _ = writeln!(s, "  {name:<20} {a:>7.2} {b:>7.2} {c:>7.2}");
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(tick: u64, executed: bool) -> TickReport {
+        TickReport {
+            tick,
+            ideal_ns: 1_000,
+            lateness_ns: 50_000,
+            state_t_ns: 1_000_000,
+            state_rx_ns: 1_040_000,
+            joystick_t_ns: 990_000,
+            joystick_rx_ns: 1_000_000,
+            mapper_t_ns: 1_050_000,
+            mapper_rx_ns: 1_080_000,
+            safe_t_ns: 1_090_000,
+            safe_rx_ns: 1_120_000,
+            mapper_compute_ns: 2_000,
+            safety_compute_ns: 500,
+            missed: u64::from(!executed),
+            executed: u32::from(executed),
+            reserved: 0,
+        }
+    }
+
+    #[test]
+    fn hops_from_a_tick_report() {
+        let mut s = Samples::default();
+        s.take(&report(1, true));
+        assert_eq!(s.bridge_mapper, vec![40_000]);
+        assert_eq!(s.mapper_safety, vec![30_000]);
+        assert_eq!(s.safety_bridge, vec![30_000]);
+        assert_eq!(s.e2e, vec![120_000]);
+        assert_eq!(s.joystick_mapper, vec![10_000]);
+        assert_eq!(s.joystick_age, vec![58_000]);
+        // A missed tick counts, but has no hops.
+        s.take(&report(2, false));
+        assert_eq!(
+            (s.ticks, s.missed, s.e2e.len(), s.lateness.len()),
+            (2, 1, 1, 2)
+        );
+        let d = Dist::of(&s.e2e);
+        assert_eq!((d.p50, d.max, d.n), (120.0, 120.0, 1));
+    }
+}

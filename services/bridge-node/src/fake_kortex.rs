@@ -1,0 +1,54 @@
+//! `scl fake-kortex`: a fake Gen3 lite speaking the Kortex protocol on 127.0.0.1, for trying
+//! the bridge without an arm ([`hw_bridge::kortex::FakeKortex`]). It accepts the robot's
+//! default credentials (admin / admin), simulates the arm, and stops it when the bridge's
+//! connection inactivity timeout passes without a frame.
+
+use std::io::Write;
+use std::time::Duration;
+
+use hw_bridge::kortex::{FakeConfig, FakeKortex};
+
+use crate::BridgeNodeError;
+use ipc_types::signals;
+
+/// Runs the fake robot on `127.0.0.1:port` (0: a free port) until SIGINT / SIGTERM. The first
+/// line on stdout is `listening on 127.0.0.1:PORT`.
+pub fn run(port: u16) -> Result<(), BridgeNodeError> {
+    let fake = FakeKortex::start(FakeConfig {
+        port,
+        ..FakeConfig::default()
+    })?;
+    let mut out = std::io::stdout();
+    let _ = writeln!(out, "listening on {}", fake.addr());
+    let _ = out.flush();
+    eprintln!(
+        "scl fake-kortex: a fake Gen3 lite on {addr} (user admin, password admin). Try:\n  \
+         SCL_KORTEX_USER=admin SCL_KORTEX_PASSWORD=admin scl bridge --robot kortex \
+         --address 127.0.0.1 --port {port}",
+        addr = fake.addr(),
+        port = fake.addr().port()
+    );
+    let mut last = fake.snapshot().stats;
+    while !signals::stop_requested() {
+        std::thread::sleep(Duration::from_millis(50));
+        let s = fake.snapshot();
+        if s.stats.joint_speed_commands / 400 != last.joint_speed_commands / 400 {
+            tracing::info!(
+                joint_speed_commands = s.stats.joint_speed_commands,
+                q_rad = ?s.q_rad,
+                gripper = s.gripper,
+                "fake Kortex arm"
+            );
+        }
+        last = s.stats;
+    }
+    let s = fake.snapshot();
+    tracing::info!(
+        frames = s.stats.frames,
+        sessions = s.stats.sessions_opened,
+        connection_timeouts = s.stats.connection_timeouts,
+        "fake Kortex robot stopping"
+    );
+    fake.shutdown();
+    Ok(())
+}

@@ -1,0 +1,484 @@
+//! The hardware bridge process: the graph's only clock.
+//!
+//! On every deadline of the absolute 40 Hz timer it publishes `RobotState(k)`, waits until
+//! `command_deadline` into the period for `SafeCommand(k)`, and executes it; anything else is
+//! a counted miss answered by a controlled stop. On shutdown it stops the arm first and
+//! publishes a last state flagged `SHUTDOWN`.
+//!
+//! The robot is the mock (`robot = "mock"`) or a Gen3 lite over Kortex (`robot = "kortex"`,
+//! [`hw_bridge::kortex::KortexArm`]). A robot error ends the run the same way as a shutdown
+//! (stop, last state) and the process exits with the error's message.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod fake_kortex;
+
+/// Why the bridge process stopped or could not start, each with the message a user sees.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeNodeError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// The robot failed (Kortex: connection, session, an error from the robot).
+    #[error(transparent)]
+    Robot(#[from] hw_bridge::RobotError),
+    /// The Kortex credentials could not be found or read (the message never holds them).
+    #[error("{0}")]
+    Credentials(String),
+    /// The fake Kortex robot could not start.
+    #[error(transparent)]
+    FakeKortex(#[from] hw_bridge::kortex::fake::FakeError),
+    /// The graph or the process failed (a child died, a thread did not start, ...).
+    #[error("{0}")]
+    Graph(String),
+}
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use hw_bridge::clock::{Clock, Wake};
+use hw_bridge::core::{BridgeCore, Outcome};
+use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
+use hw_bridge::mock::MockArm;
+use hw_bridge::{Robot, RobotError};
+use ipc_types::{
+    Graph, NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns,
+};
+use serde::Deserialize;
+
+use ipc_types::signals;
+use scl_node::config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
+
+/// Environment variable with the Kortex user name (`scl bridge --user`).
+pub const USER_ENV: &str = "SCL_KORTEX_USER";
+/// Environment variable with the Kortex password (`scl bridge --password`).
+pub const PASSWORD_ENV: &str = "SCL_KORTEX_PASSWORD";
+
+/// A command-line value that must not show in `Debug` output (the Kortex user name and
+/// password flags).
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(String);
+
+impl Secret {
+    /// The value.
+    pub fn into_inner(self) -> String {
+        self.0
+    }
+}
+
+impl std::str::FromStr for Secret {
+    type Err = std::convert::Infallible;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(Self(s.to_owned()))
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("<redacted>")
+    }
+}
+
+/// Kortex credentials given on the command line or in the environment; they take precedence
+/// over `bridge.kortex.credentials_file`. Never printed.
+#[derive(Clone, Default)]
+pub struct CredentialArgs {
+    /// `--user` / `SCL_KORTEX_USER`.
+    pub user: Option<String>,
+    /// `--password` / `SCL_KORTEX_PASSWORD`.
+    pub password: Option<String>,
+}
+
+impl std::fmt::Debug for CredentialArgs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CredentialArgs(<redacted>)")
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CredentialsFile {
+    username: Option<String>,
+    password: Option<String>,
+}
+
+fn read_credentials_file(path: &Path) -> Result<CredentialsFile, BridgeNodeError> {
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        BridgeNodeError::Credentials(format!(
+            "cannot read credentials file {}: {e}",
+            path.display()
+        ))
+    })?;
+    #[cfg(unix)]
+    if let Ok(meta) = std::fs::metadata(path) {
+        use std::os::unix::fs::PermissionsExt;
+        if meta.permissions().mode() & 0o077 != 0 {
+            tracing::warn!(
+                "credentials file {} can be read by other users; chmod 600 it",
+                path.display()
+            );
+        }
+    }
+    // The parser's own message quotes the offending line, which may hold the password: only
+    // the line number is reported.
+    toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+        BridgeNodeError::Credentials(format!(
+            "credentials file {}{}: expected `username = \"...\"` and `password = \"...\"` \
+             (TOML strings) and nothing else",
+            path.display(),
+            line.map_or(String::new(), |l| format!(", line {l}"))
+        ))
+    })
+}
+
+/// The credentials for the Kortex session: `--user` / `--password` (or their environment
+/// variables) first, then `credentials_file`. Both must be found.
+pub fn kortex_credentials(
+    cfg: &KortexConfig,
+    args: &CredentialArgs,
+) -> Result<Credentials, BridgeNodeError> {
+    let mut user = args.user.clone().filter(|s| !s.is_empty());
+    let mut password = args.password.clone().filter(|s| !s.is_empty());
+    if (user.is_none() || password.is_none()) && !cfg.credentials_file.is_empty() {
+        let file = read_credentials_file(&PathBuf::from(&cfg.credentials_file))?;
+        user = user.or(file.username);
+        password = password.or(file.password);
+    }
+    match (user, password) {
+        (Some(u), Some(p)) => Ok(Credentials::new(u, p)),
+        (u, p) => {
+            let missing = match (u.is_none(), p.is_none()) {
+                (true, true) => "user name and password",
+                (true, false) => "user name",
+                _ => "password",
+            };
+            Err(BridgeNodeError::Credentials(format!(
+                "no Kortex {missing}: set {USER_ENV} and {PASSWORD_ENV}, or \
+                 bridge.kortex.credentials_file (a TOML file with username and password)"
+            )))
+        }
+    }
+}
+
+/// Where a restarted bridge takes over (given by the supervisor from the last state its
+/// predecessor published).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Resume {
+    /// The first tick to publish.
+    pub start_tick: Option<u64>,
+    /// The mock arm's pose and gripper state to start from (a real arm keeps its own).
+    pub pose: Option<(Vec<f64>, f64)>,
+}
+
+enum Backend {
+    Mock(Box<MockArm>),
+    Kortex(Credentials),
+}
+
+/// Runs the bridge until a shutdown is requested or the robot fails.
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    cfg: &BridgeConfig,
+    faults: &FaultConfig,
+    resume: &Resume,
+    creds: &CredentialArgs,
+) -> Result<(), BridgeNodeError> {
+    // Everything that can be refused without touching the network, first.
+    let backend = match cfg.robot.as_str() {
+        "mock" => {
+            let mut arm = MockArm::new(cfg.mock.clone())
+                .map_err(|e| BridgeNodeError::Graph(format!("config: {e}")))?;
+            if let Some((q, c)) = &resume.pose {
+                arm.resume(q, *c);
+            }
+            Backend::Mock(Box::new(arm))
+        }
+        "kortex" => Backend::Kortex(kortex_credentials(&cfg.kortex, creds)?),
+        other => {
+            return Err(BridgeNodeError::Graph(format!(
+                "bridge.robot: `{other}` is not a robot; use mock or kortex"
+            )));
+        }
+    };
+    scl_node::rt::elevate(graph_cfg, RtRole::Bridge);
+    let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
+    let ctx = Ctx {
+        graph: &graph,
+        cfg,
+        faults,
+        resume,
+    };
+    match backend {
+        Backend::Mock(arm) => tick_loop(&ctx, *arm),
+        Backend::Kortex(credentials) => {
+            // Connect as late as possible: from here on a frame must go out at least every
+            // connection_timeout_ms, and the first tick follows within one period.
+            let arm = KortexArm::connect(&cfg.kortex, &credentials).map_err(RobotError::from)?;
+            tick_loop(&ctx, arm)
+        }
+    }
+}
+
+struct Ctx<'a> {
+    graph: &'a Graph,
+    cfg: &'a BridgeConfig,
+    faults: &'a FaultConfig,
+    resume: &'a Resume,
+}
+
+fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
+    let (graph, cfg, faults) = (ctx.graph, ctx.cfg, ctx.faults);
+    let period_ns = (1e9 / cfg.rate_hz) as u64;
+    let period_s = period_ns as f64 * 1e-9;
+    let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
+    let states = graph.robot_state_publisher()?;
+    let commands = graph.safe_command_subscriber(true)?;
+    let status = graph.status_publisher()?;
+    let reports = graph.tick_report_publisher()?;
+    let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
+    if let Some(t) = ctx.resume.start_tick {
+        core.start_at(t);
+        tracing::info!(
+            start_tick = t,
+            "resuming the graph's tick count from a stop"
+        );
+    }
+    let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
+    status.send(st)?;
+    st.phase = phase::RUNNING;
+    tracing::info!(rate_hz = cfg.rate_hz, robot = %cfg.robot, "ticking");
+
+    let mut clock = Clock::new(now_ns() + period_ns, period_ns);
+    // Drop whatever commands are left over from an earlier bridge of this graph.
+    commands.drain(|_| {})?;
+    let mut failure: Option<RobotError> = None;
+    while !signals::stop_requested() {
+        let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
+            Wake::Interrupted => continue,
+            Wake::Tick {
+                ideal_ns,
+                lateness_ns,
+                skipped,
+            } => (ideal_ns, lateness_ns, skipped),
+        };
+        if signals::stop_requested() {
+            break;
+        }
+        // Woken this long after the deadline it slept for, the process was not run by the
+        // operating system (or the host of a virtual machine): the periods it slept through
+        // are lost, and so is this tick if it starts past its command deadline (its state
+        // goes out, but no command can come back in time: the bridge brakes).
+        let lost = skipped + u64::from(lateness_ns >= wait_ns);
+        if lost > 0 {
+            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
+            tracing::warn!(
+                ticks_lost = lost,
+                late_ms,
+                "missed tick: the bridge was held up past a command deadline"
+            );
+            core.add_skipped(skipped);
+        }
+        let state = match core.begin_tick(now_ns()) {
+            Ok(s) => s,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
+        let stop_after = faults.bridge_states_stop_after_ticks;
+        if stop_after == 0 || st.handled < stop_after {
+            states.send(state)?;
+        } else if st.handled == stop_after {
+            tracing::warn!(tick = state.tick, "fault injection: robot states stop");
+        }
+
+        let deadline = ideal_ns + wait_ns;
+        let mut found: Option<SafeCommand> = None;
+        let mut other: Option<SafeCommand> = None;
+        let mut received_ns = 0;
+        loop {
+            commands.drain(|c| {
+                if c.tick == state.tick {
+                    found = Some(*c);
+                } else {
+                    other = Some(*c);
+                }
+            })?;
+            let now = now_ns();
+            if found.is_some() {
+                received_ns = now;
+                break;
+            }
+            if now >= deadline || signals::stop_requested() {
+                break;
+            }
+            commands.wait(Duration::from_nanos(deadline - now))?;
+        }
+        let outcome = match core.finish_tick(found.as_ref().or(other.as_ref())) {
+            Ok(o) => o,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
+        st.latency_ns = match outcome {
+            Outcome::Executed => received_ns - state.t_ns,
+            Outcome::Missed(reason) => {
+                if core.missed() <= 10 || core.missed().is_power_of_two() {
+                    tracing::warn!(
+                        tick = state.tick,
+                        ?reason,
+                        missed = core.missed(),
+                        "missed tick: controlled stop"
+                    );
+                }
+                0
+            }
+        };
+        st.t_ns = now_ns();
+        st.tick = state.tick;
+        st.handled += 1;
+        st.faults = core.missed();
+        st.lateness_ns = lateness_ns;
+        st.joint_travel_rad = core.joint_travel_rad();
+        st.mapper_id = found.map_or(0, |c| c.mapper_id);
+        status.send(st)?;
+        let executed = matches!(outcome, Outcome::Executed);
+        let c = found.filter(|_| executed);
+        reports.send(TickReport {
+            tick: state.tick,
+            ideal_ns,
+            lateness_ns,
+            state_t_ns: state.t_ns,
+            state_rx_ns: c.map_or(0, |c| c.state_rx_ns),
+            joystick_t_ns: c.map_or(0, |c| c.joystick_t_ns),
+            joystick_rx_ns: c.map_or(0, |c| c.joystick_rx_ns),
+            mapper_t_ns: c.map_or(0, |c| c.mapper_t_ns),
+            mapper_rx_ns: c.map_or(0, |c| c.mapper_rx_ns),
+            safe_t_ns: c.map_or(0, |c| c.t_ns),
+            safe_rx_ns: if executed { received_ns } else { 0 },
+            mapper_compute_ns: c.map_or(0, |c| c.mapper_compute_ns),
+            safety_compute_ns: c.map_or(0, |c| c.compute_ns),
+            missed: core.missed(),
+            executed: u32::from(executed),
+            reserved: 0,
+        })?;
+    }
+    // Stop the arm first (also after a robot error: as far as the robot can be reached),
+    // then say so.
+    let (last, stopped) = core.shutdown(now_ns());
+    if let Err(e) = stopped {
+        match &failure {
+            None => failure = Some(e),
+            Some(_) => tracing::warn!("while stopping after the failure: {e}"),
+        }
+    }
+    states.send(last)?;
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    st.latency_ns = 0;
+    status.send(st)?;
+    let link = core.robot().link_stats();
+    tracing::info!(
+        ticks = st.handled,
+        missed = core.missed(),
+        requests = link.requests,
+        late_replies = link.late_replies,
+        stale_readings = link.stale_readings,
+        skipped_bytes = link.skipped_bytes,
+        clamped_commands = link.clamped_commands,
+        signal = signals::signal(),
+        "arm stopped; bridge exiting"
+    );
+    match failure {
+        Some(e) => Err(BridgeNodeError::Robot(e)),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("scl-creds-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn flags_and_environment_come_before_the_file() {
+        let d = dir("order");
+        let f = d.join("kortex.toml");
+        std::fs::write(&f, "username = \"file-user\"\npassword = \"file-pw\"\n").unwrap();
+        let cfg = KortexConfig {
+            credentials_file: f.display().to_string(),
+            ..KortexConfig::default()
+        };
+        let from_file = kortex_credentials(&cfg, &CredentialArgs::default()).unwrap();
+        assert_eq!(from_file, Credentials::new("file-user", "file-pw"));
+        let args = CredentialArgs {
+            user: Some("flag-user".into()),
+            password: None,
+        };
+        assert_eq!(
+            kortex_credentials(&cfg, &args).unwrap(),
+            Credentials::new("flag-user", "file-pw")
+        );
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn missing_or_bad_credentials_are_named_without_the_secret() {
+        let e = kortex_credentials(&KortexConfig::default(), &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("user name and password") && e.contains(USER_ENV),
+            "{e}"
+        );
+        let args = CredentialArgs {
+            user: Some("u".into()),
+            password: None,
+        };
+        let e = kortex_credentials(&KortexConfig::default(), &args)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no Kortex password"), "{e}");
+
+        let d = dir("bad");
+        let f = d.join("kortex.toml");
+        // An unquoted password: the TOML parser would quote the line; the message must not.
+        std::fs::write(&f, "username = \"admin\"\npassword = sup3r-s3cret\n").unwrap();
+        let cfg = KortexConfig {
+            credentials_file: f.display().to_string(),
+            ..KortexConfig::default()
+        };
+        let e = kortex_credentials(&cfg, &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("kortex.toml"), "{e}");
+        assert!(!e.contains("sup3r"), "{e}");
+        let args = CredentialArgs {
+            user: Some("qx-user".into()),
+            password: Some("qz-pass".into()),
+        };
+        let text = format!("{args:?}");
+        assert!(
+            !text.contains("qx-user") && !text.contains("qz-pass"),
+            "{text}"
+        );
+        std::fs::remove_dir_all(&d).unwrap();
+        let e = kortex_credentials(&cfg, &CredentialArgs::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cannot read credentials file"), "{e}");
+    }
+}

@@ -1,0 +1,1061 @@
+//! The joystick process: the operator's input device in, [`JoystickInput`] samples out.
+//!
+//! Sources (`[joystick] source`):
+//! * `script` ([`script`]): a circle, steps or a constant, evaluated at the tick the sample
+//!   answers, so a scripted run is deterministic;
+//! * `evdev` ([`device`], [`mapping`], [`pad`]): a joystick or gamepad through Linux evdev,
+//!   read on its own thread and handed over through a channel; a mapping file says which axis
+//!   and button is which; an unplugged device makes the input neutral and flagged
+//!   ([`buttons::NO_DEVICE`]) until it returns;
+//! * `keyboard` ([`keyboard`]): arrow keys or WASD with a ramp, for a person at a terminal;
+//! * `replay` ([`replay`]): a recorded input file with its original timing.
+//!
+//! Whatever the source, the process publishes one sample at start, one on every change of the
+//! input, and one on every robot tick, answering it (`JoystickInput::tick` is the newest robot
+//! tick seen), so the sample's age is always known downstream and a dead joystick stops the
+//! arm within two ticks. `--record-input FILE` writes every change to a file [`replay`] reads.
+//!
+//! The loop waits on the robot state's event and, for the threaded sources, on an eventfd
+//! ([`Waker`]) their threads ring after handing something over: it never polls and never
+//! blocks on a device or the terminal.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod device;
+pub mod keyboard;
+pub mod mapping;
+pub mod pad;
+pub mod replay;
+pub mod script;
+
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::Receiver;
+use ipc_types::graph::Wakeable;
+use ipc_types::{
+    Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, phase, time::now_ns,
+};
+
+use ipc_types::signals;
+use scl_node::config::{
+    ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole,
+};
+
+pub use script::Script;
+
+/// The sources `[joystick] source` accepts.
+pub const SOURCES: [&str; 4] = ["script", "evdev", "keyboard", "replay"];
+
+/// The operator's input at one moment: what a [`JoystickInput`] carries besides its stamps.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Input {
+    /// The two axes, `|a| <= 1`.
+    pub axes: [f32; 2],
+    /// Gripper rate in `[-1, 1]`, positive closes.
+    pub gripper: f32,
+    /// [`buttons`] bits.
+    pub buttons: u32,
+}
+
+impl Input {
+    /// Axes at rest, no button.
+    pub const NEUTRAL: Input = Input {
+        axes: [0.0, 0.0],
+        gripper: 0.0,
+        buttons: 0,
+    };
+}
+
+/// Why an input source could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum JoystickError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// A file could not be read or written.
+    #[error("{action} {path}: {source}")]
+    File {
+        /// What was being done.
+        action: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A mapping is unusable.
+    #[error("mapping {file}: {key}: {reason}")]
+    Mapping {
+        /// The mapping's file or built-in name.
+        file: PathBuf,
+        /// The key (`axes.x.code`, `buttons.mode`, ...).
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A recorded input file is unusable.
+    #[error("recorded input {path}, line {line}: {reason}")]
+    Replay {
+        /// The file.
+        path: PathBuf,
+        /// The line (1-based; 0 for the file as a whole).
+        line: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The keyboard source was asked for without a terminal.
+    #[error(
+        "the keyboard source needs a terminal on standard input; run `scl joystick --source keyboard` (or `scl up` with it) in a terminal"
+    )]
+    NoTerminal,
+    /// The terminal refused a setting.
+    #[error("cannot {what} of the terminal: {source}")]
+    Terminal {
+        /// What was being done.
+        what: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A reader thread or its wake-up could not be created.
+    #[error("cannot start the {what}: {source}")]
+    Thread {
+        /// Which.
+        what: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// An eventfd the source threads ring after handing something over; the loop waits on it
+/// beside the robot state's event ([`ipc_types::wait_any`]).
+#[derive(Debug)]
+pub struct Waker {
+    fd: OwnedFd,
+}
+
+impl Waker {
+    /// A new, unsignalled waker.
+    pub fn new() -> std::io::Result<Self> {
+        // SAFETY: eventfd has no memory effects; the descriptor is checked and owned below.
+        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
+        if fd < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        // SAFETY: fd is a fresh descriptor nothing else owns.
+        Ok(Self {
+            fd: unsafe { OwnedFd::from_raw_fd(fd) },
+        })
+    }
+
+    /// Wakes the loop.
+    pub fn notify(&self) {
+        let one: u64 = 1;
+        // SAFETY: writes 8 bytes from a live u64 to our own eventfd; a full counter (never in
+        // practice) only means the loop is already due to wake.
+        unsafe {
+            libc::write(
+                self.fd.as_raw_fd(),
+                (&raw const one).cast::<libc::c_void>(),
+                8,
+            );
+        }
+    }
+}
+
+impl Wakeable for Waker {
+    fn fd(&self) -> Option<i32> {
+        Some(self.fd.as_raw_fd())
+    }
+
+    fn consume_wake(&self) {
+        let mut v: u64 = 0;
+        // SAFETY: reads 8 bytes into a live u64 from our own non-blocking eventfd.
+        unsafe {
+            libc::read(self.fd.as_raw_fd(), (&raw mut v).cast::<libc::c_void>(), 8);
+        }
+    }
+}
+
+/// Decides what the process publishes: a sample on every new robot tick (answering it) and on
+/// every change of the input in between; numbers them.
+#[derive(Debug, Default)]
+pub struct Outbox {
+    seq: u64,
+    last: Option<Input>,
+}
+
+impl Outbox {
+    /// The sample to publish now, if any, for `input` with `tick` the newest robot tick seen
+    /// (`new_tick`: it arrived since the last call). The first call always publishes.
+    pub fn next(
+        &mut self,
+        input: Input,
+        tick: u64,
+        new_tick: bool,
+        t_ns: u64,
+    ) -> Option<JoystickInput> {
+        if !new_tick && self.last == Some(input) {
+            return None;
+        }
+        let s = JoystickInput {
+            tick,
+            t_ns,
+            seq: self.seq,
+            axes: input.axes,
+            gripper: input.gripper,
+            buttons: input.buttons,
+        };
+        self.seq += 1;
+        self.last = Some(input);
+        Some(s)
+    }
+}
+
+/// A reader thread and the flag that stops it.
+#[derive(Debug)]
+struct Reader {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Reader {
+    /// Asks the thread to stop (it notices within its 100 ms wait) without waiting for it.
+    fn signal_stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
+impl Drop for Reader {
+    fn drop(&mut self) {
+        self.signal_stop();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The evdev source.
+#[derive(Debug)]
+struct DeviceSource {
+    pad: pad::Pad,
+    rx: Receiver<device::DeviceMsg>,
+    waker: Arc<Waker>,
+    /// Stops and joins the reading thread when the source is dropped.
+    _reader: Reader,
+}
+
+impl DeviceSource {
+    fn open(cfg: &JoystickConfig) -> Result<Self, JoystickError> {
+        let mapping = mapping::Mapping::load(&cfg.mapping)?;
+        let waker = Arc::new(Waker::new().map_err(|source| JoystickError::Thread {
+            what: "device reader's wake-up",
+            source,
+        })?);
+        let (tx, rx) = crossbeam_channel::unbounded();
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = device::spawn_reader(
+            cfg.device.clone(),
+            mapping.clone(),
+            Duration::from_millis(cfg.reconnect_interval_ms),
+            tx,
+            Arc::clone(&waker),
+            Arc::clone(&stop),
+        )
+        .map_err(|source| JoystickError::Thread {
+            what: "device reader",
+            source,
+        })?;
+        tracing::info!(mapping = %mapping.source, device = %cfg.device, "evdev source");
+        Ok(Self {
+            pad: pad::Pad::new(mapping),
+            rx,
+            waker,
+            _reader: Reader {
+                stop,
+                thread: Some(thread),
+            },
+        })
+    }
+
+    fn input(&mut self) -> Input {
+        while let Ok(m) = self.rx.try_recv() {
+            match m {
+                device::DeviceMsg::Connected(snap) => {
+                    let missing = self.pad.connect(&snap);
+                    tracing::info!(path = %snap.path, "device connected: {}", snap.name);
+                    if !missing.is_empty() {
+                        tracing::warn!(
+                            "{} has no {}: those inputs stay neutral (mapping {})",
+                            snap.name,
+                            device::describe_missing(&missing),
+                            self.pad.mapping().source
+                        );
+                    }
+                }
+                device::DeviceMsg::Event(e) => {
+                    self.pad.event(e);
+                }
+                device::DeviceMsg::Lost(reason) => {
+                    self.pad.disconnect();
+                    tracing::warn!("device lost ({reason}): the input is neutral until it returns");
+                }
+                device::DeviceMsg::Missing(reason) => {
+                    self.pad.disconnect();
+                    tracing::warn!("{reason}; waiting for it, the input is neutral meanwhile");
+                }
+            }
+        }
+        self.pad.input()
+    }
+}
+
+/// The keyboard source.
+struct KeyboardSource {
+    keys: keyboard::Keys,
+    rx: Receiver<(keyboard::Key, keyboard::KeyAction)>,
+    waker: Arc<Waker>,
+    reader: Reader,
+    terminal: keyboard::Terminal,
+    t0: Instant,
+    /// The mapper safety forwards (from safety's heartbeat), and each mapper's mode.
+    active_mapper: u32,
+    modes: Vec<(u32, u32, u32)>,
+    draw: bool,
+    last_line: String,
+    last_draw: Instant,
+    handed_back: bool,
+}
+
+impl KeyboardSource {
+    fn open(cfg: &JoystickConfig) -> Result<Self, JoystickError> {
+        let terminal = keyboard::Terminal::take()?;
+        let waker = Arc::new(Waker::new().map_err(|source| JoystickError::Thread {
+            what: "keyboard reader's wake-up",
+            source,
+        })?);
+        let (tx, rx) = crossbeam_channel::unbounded();
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = keyboard::spawn_reader(tx, Arc::clone(&waker), Arc::clone(&stop)).map_err(
+            |source| JoystickError::Thread {
+                what: "keyboard reader",
+                source,
+            },
+        )?;
+        let settings = keyboard::KeyboardSettings {
+            ramp_s: cfg.keyboard_ramp_s,
+            first_hold_s: cfg.keyboard_first_hold_ms as f64 / 1000.0,
+            repeat_hold_s: cfg.keyboard_repeat_hold_ms as f64 / 1000.0,
+            ..keyboard::KeyboardSettings::default()
+        };
+        Ok(Self {
+            keys: keyboard::Keys::new(settings),
+            rx,
+            waker,
+            reader: Reader {
+                stop,
+                thread: Some(thread),
+            },
+            terminal,
+            t0: Instant::now(),
+            active_mapper: 0,
+            modes: Vec::new(),
+            draw: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            last_line: String::new(),
+            last_draw: Instant::now(),
+            handed_back: false,
+        })
+    }
+
+    fn input(&mut self, now: Instant, gripper: Option<f64>) -> Input {
+        let t = now.duration_since(self.t0).as_secs_f64();
+        while let Ok((key, action)) = self.rx.try_recv() {
+            self.keys.key(key, action, t);
+        }
+        if self.handed_back {
+            return Input::NEUTRAL;
+        }
+        self.keys.input(t, gripper)
+    }
+
+    /// Whether the process should end: `q` or Ctrl-C at a terminal of its own. Under `scl up`
+    /// (the terminal borrowed), the terminal goes back to the supervisor with an interrupt,
+    /// which then stops the graph in order; this process goes on with a neutral input until
+    /// it is told to stop.
+    fn quit(&mut self) -> bool {
+        if !self.keys.quit_requested() || self.handed_back {
+            return false;
+        }
+        if self.terminal.borrowed() {
+            self.handed_back = true;
+            self.reader.signal_stop();
+            self.terminal.restore(true);
+            tracing::info!("keyboard: quit; the terminal goes back to `scl up`");
+            false
+        } else {
+            true
+        }
+    }
+
+    fn heartbeat(&mut self, s: &NodeStatus) {
+        if s.role == NodeRole::Safety as u32 {
+            self.active_mapper = s.mapper_id;
+        } else if s.role == NodeRole::Mapper as u32 {
+            match self.modes.iter_mut().find(|m| m.0 == s.mapper_id) {
+                Some(m) => *m = (s.mapper_id, s.mode, s.mode_switches),
+                None => self.modes.push((s.mapper_id, s.mode, s.mode_switches)),
+            }
+        }
+    }
+
+    fn mode_text(&self) -> String {
+        keyboard::mode_text(self.active_mapper, &self.modes)
+    }
+
+    fn show(&mut self, input: &Input) {
+        if !self.draw || self.handed_back {
+            return;
+        }
+        let line = keyboard::status_line(input, self.keys.gripper_closed(), &self.mode_text());
+        if line != self.last_line || self.last_draw.elapsed() > Duration::from_millis(500) {
+            use std::io::Write as _;
+            let mut e = std::io::stderr().lock();
+            let _ = write!(e, "\r\x1b[2K{line}");
+            let _ = e.flush();
+            self.last_line = line;
+            self.last_draw = Instant::now();
+        }
+    }
+}
+
+/// The replay source.
+#[derive(Debug)]
+struct ReplaySource {
+    rec: replay::Recording,
+    start: Option<Instant>,
+    said_finished: bool,
+}
+
+impl ReplaySource {
+    fn elapsed(&self, now: Instant) -> f64 {
+        self.start
+            .map_or(0.0, |s| now.duration_since(s).as_secs_f64())
+    }
+
+    fn input(&mut self, now: Instant, tick: u64) -> Input {
+        if tick == NO_TICK {
+            return Input::NEUTRAL;
+        }
+        let start = *self.start.get_or_insert(now);
+        let t = now.duration_since(start).as_secs_f64();
+        if self.rec.finished(t) && !self.said_finished {
+            self.said_finished = true;
+            tracing::info!(
+                file = %self.rec.path.display(),
+                "replay finished; the input is neutral from here on"
+            );
+        }
+        self.rec.at(t)
+    }
+
+    fn timeout(&self, now: Instant) -> Duration {
+        let t = self.elapsed(now);
+        match (self.start, self.rec.next_change(t)) {
+            (Some(_), Some(next)) => Duration::from_secs_f64((next - t).clamp(0.0005, 0.1)),
+            _ => Duration::from_millis(100),
+        }
+    }
+}
+
+/// The configured source.
+enum Source {
+    Script { script: Script, period_s: f64 },
+    Device(Box<DeviceSource>),
+    Keyboard(Box<KeyboardSource>),
+    Replay(ReplaySource),
+}
+
+impl Source {
+    fn open(cfg: &JoystickConfig, period_s: f64) -> Result<Self, JoystickError> {
+        Ok(match cfg.source.as_str() {
+            "evdev" => Self::Device(Box::new(DeviceSource::open(cfg)?)),
+            "keyboard" => Self::Keyboard(Box::new(KeyboardSource::open(cfg)?)),
+            "replay" => Self::Replay(ReplaySource {
+                rec: replay::Recording::load(Path::new(&cfg.replay_file))?,
+                start: None,
+                said_finished: false,
+            }),
+            _ => Self::Script {
+                script: Script::from_config(cfg).ok_or_else(|| {
+                    JoystickError::Config(ConfigError::Value {
+                        key: "joystick.script".into(),
+                        reason: format!(
+                            "`{}` is not a script; use `circle`, `step` or `constant`",
+                            cfg.script
+                        ),
+                    })
+                })?,
+                period_s,
+            },
+        })
+    }
+
+    fn waker(&self) -> Option<&Waker> {
+        match self {
+            Self::Device(d) => Some(&d.waker),
+            Self::Keyboard(k) => Some(&k.waker),
+            _ => None,
+        }
+    }
+
+    fn timeout(&self, now: Instant) -> Duration {
+        match self {
+            Self::Replay(r) => r.timeout(now),
+            _ => Duration::from_millis(100),
+        }
+    }
+
+    fn input(&mut self, now: Instant, tick: u64, gripper: Option<f64>) -> Input {
+        match self {
+            Self::Script { script, period_s } => Input {
+                axes: script.sample(tick, *period_s, 0, 0).axes,
+                ..Input::NEUTRAL
+            },
+            Self::Device(d) => d.input(),
+            Self::Keyboard(k) => k.input(now, gripper),
+            Self::Replay(r) => r.input(now, tick),
+        }
+    }
+}
+
+/// Runs the joystick process until a shutdown is requested (or, at a terminal of its own,
+/// the keyboard source's quit key).
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    cfg: &JoystickConfig,
+    faults: &FaultConfig,
+    period_s: f64,
+) -> Result<(), JoystickError> {
+    let mut source = Source::open(cfg, period_s)?;
+    let mut recorder = if cfg.record_input.is_empty() {
+        None
+    } else {
+        Some(replay::InputRecorder::create(Path::new(&cfg.record_input))?)
+    };
+    let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
+    let publisher = graph.joystick_publisher()?;
+    let states = graph.robot_state_subscriber(true)?;
+    let status = graph.status_publisher()?;
+    let heartbeats = if matches!(source, Source::Keyboard(_)) {
+        Some(graph.status_subscriber()?)
+    } else {
+        None
+    };
+    scl_node::rt::elevate(graph_cfg, RtRole::Joystick);
+    let t0 = Instant::now();
+    let mut outbox = Outbox::default();
+    let mut tick = NO_TICK;
+    let mut gripper = None;
+    let input = source.input(t0, tick, gripper);
+    if let Some(s) = outbox.next(input, tick, true, now_ns()) {
+        publisher.send(s)?;
+        if let Some(r) = recorder.as_mut() {
+            r.record(0.0, &input);
+        }
+    }
+    status.send(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
+    tracing::info!(source = %cfg.source, "publishing on {}", publisher.service());
+    let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
+    let quit = |source: &mut Source| match source {
+        Source::Keyboard(k) => k.quit(),
+        _ => false,
+    };
+    while !signals::stop_requested() && !quit(&mut source) {
+        let timeout = source.timeout(Instant::now());
+        match source.waker() {
+            Some(w) => {
+                let wakes: [&dyn Wakeable; 2] = [&states, w];
+                ipc_types::wait_any(&wakes, timeout);
+            }
+            None => {
+                states.wait(timeout)?;
+            }
+        }
+        let new_state = states.latest()?;
+        if let Some(s) = &new_state {
+            tick = s.tick;
+            gripper = Some(s.gripper);
+        }
+        if let (Some(hb), Source::Keyboard(k)) = (&heartbeats, &mut source) {
+            hb.drain(|s| k.heartbeat(s))?;
+        }
+        let now = Instant::now();
+        let input = source.input(now, tick, gripper);
+        let silent = faults.joystick_silent_after_ticks;
+        if silent == 0 || st.handled < silent {
+            if let Some(sample) = outbox.next(input, tick, new_state.is_some(), now_ns()) {
+                publisher.send(sample)?;
+                if let Some(r) = recorder.as_mut() {
+                    r.record(now.duration_since(t0).as_secs_f64(), &input);
+                }
+            }
+        } else if st.handled == silent && new_state.is_some() {
+            tracing::warn!(tick, "fault injection: the joystick goes silent");
+        }
+        if let Source::Keyboard(k) = &mut source {
+            k.show(&input);
+        }
+        if let Some(s) = new_state {
+            st.t_ns = now_ns();
+            st.tick = s.tick;
+            st.handled += 1;
+            if input.buttons & buttons::NO_DEVICE != 0 {
+                st.faults += 1;
+            }
+            status.send(st)?;
+        }
+    }
+    drop(source);
+    if let Some(r) = recorder {
+        let file = cfg.record_input.clone();
+        let rows = r.finish(t0.elapsed().as_secs_f64())?;
+        tracing::info!(rows, file, "input recorded");
+    }
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    status.send(st)?;
+    Ok(())
+}
+
+/// Checks `[joystick]`: every key, and the files the chosen source needs (the mapping, the
+/// recorded input), so a bad one is refused at start-up naming the key and the file.
+pub fn validate(j: &JoystickConfig) -> Result<(), ConfigError> {
+    let err = |key: &str, reason: String| ConfigError::Value {
+        key: format!("joystick.{key}"),
+        reason,
+    };
+    if !SOURCES.contains(&j.source.as_str()) {
+        return Err(err(
+            "source",
+            format!(
+                "`{}` is not a source; use {}",
+                j.source,
+                SOURCES.map(|s| format!("`{s}`")).join(", ")
+            ),
+        ));
+    }
+    if Script::from_config(j).is_none() {
+        return Err(err(
+            "script",
+            format!(
+                "`{}` is not a script; use `circle`, `step` or `constant`",
+                j.script
+            ),
+        ));
+    }
+    if !(j.amplitude > 0.0 && j.amplitude <= 1.0) {
+        return Err(err(
+            "amplitude",
+            format!("{} is outside (0, 1]", j.amplitude),
+        ));
+    }
+    for (key, v) in [
+        ("circle_period_s", j.circle_period_s),
+        ("step_hold_s", j.step_hold_s),
+        ("keyboard_ramp_s", j.keyboard_ramp_s),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(err(key, format!("{v} must be a positive number")));
+        }
+    }
+    if !(j.step_rest_s.is_finite() && j.step_rest_s >= 0.0) {
+        return Err(err("step_rest_s", "must be zero or positive".into()));
+    }
+    for (key, v, lo) in [
+        ("reconnect_interval_ms", j.reconnect_interval_ms, 10),
+        ("keyboard_first_hold_ms", j.keyboard_first_hold_ms, 50),
+        ("keyboard_repeat_hold_ms", j.keyboard_repeat_hold_ms, 50),
+    ] {
+        if v < lo {
+            return Err(err(key, format!("{v} is below {lo} ms")));
+        }
+    }
+    if j.source == "evdev" {
+        mapping::Mapping::load(&j.mapping).map_err(|e| err("mapping", e.to_string()))?;
+    }
+    if j.source == "replay" {
+        if j.replay_file.is_empty() {
+            return Err(err(
+                "replay_file",
+                "the replay source needs a recorded input file".into(),
+            ));
+        }
+        replay::Recording::load(Path::new(&j.replay_file))
+            .map_err(|e| err("replay_file", e.to_string()))?;
+    }
+    // (An existing `record_input` is refused when the joystick creates it, not here: every
+    // process of the graph validates the config, some after the joystick has started.)
+    Ok(())
+}
+
+/// `scl joystick`'s options.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct JoystickArgs {
+    /// List the input devices attached (evdev) and exit.
+    #[arg(long)]
+    pub list: bool,
+    /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` or `replay`.
+    #[arg(long)]
+    pub source: Option<String>,
+    /// Script: `circle`, `step` or `constant`.
+    #[arg(long)]
+    pub script: Option<String>,
+    /// evdev device: a path (`/dev/input/event5`) or part of its name; default: the first
+    /// joystick or gamepad.
+    #[arg(long, value_name = "PATH|NAME")]
+    pub device: Option<String>,
+    /// evdev mapping: `xbox`, `generic` or a mapping file (TOML).
+    #[arg(long, value_name = "NAME|FILE")]
+    pub mapping: Option<String>,
+    /// Replay this recorded input file with its original timing (sets the source to
+    /// `replay`).
+    #[arg(long, value_name = "FILE")]
+    pub replay: Option<PathBuf>,
+    /// Record the published input to FILE (CSV `t_s,a0,a1,gripper,buttons`; refused if it
+    /// exists), from any source.
+    #[arg(long, value_name = "FILE")]
+    pub record_input: Option<PathBuf>,
+}
+
+/// `scl joystick`: lists the devices, or runs the process with the options applied over the
+/// config's `[joystick]`.
+pub fn main(
+    prefix: &Prefix,
+    cfg: &mut GraphConfig,
+    args: &JoystickArgs,
+) -> Result<(), JoystickError> {
+    if args.list {
+        let (rows, refused) = device::list();
+        print!("{}", device::render_list(&rows, &refused));
+        return Ok(());
+    }
+    let j = &mut cfg.joystick;
+    if let Some(s) = &args.source {
+        j.source.clone_from(s);
+    }
+    if let Some(s) = &args.script {
+        j.script.clone_from(s);
+    }
+    if let Some(s) = &args.device {
+        j.device.clone_from(s);
+        if args.source.is_none() {
+            j.source = "evdev".into();
+        }
+    }
+    if let Some(s) = &args.mapping {
+        j.mapping.clone_from(s);
+    }
+    if let Some(p) = &args.replay {
+        j.replay_file = p.display().to_string();
+        j.source = "replay".into();
+    }
+    if let Some(p) = &args.record_input {
+        j.record_input = p.display().to_string();
+    }
+    validate(j)?;
+    let period_s = cfg.period_s();
+    run(prefix, &cfg.graph, &cfg.joystick, &cfg.faults, period_s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pad::tests::{parse_evtest, xbox_snapshot};
+
+    /// A synthetic session in `evtest`'s output format (written for this test, not captured
+    /// from hardware): an Xbox pad's stick pushed right then up-left with jitter inside the
+    /// deadzone, the mode button tapped, the right trigger pulled, everything released.
+    const SESSION: &str = "\
+Event: time 1700000000.000000, type 3 (EV_ABS), code 0 (ABS_X), value 1500
+Event: time 1700000000.000000, type 3 (EV_ABS), code 1 (ABS_Y), value -900
+Event: time 1700000000.000000, -------------- SYN_REPORT ------------
+Event: time 1700000000.012000, type 3 (EV_ABS), code 0 (ABS_X), value 16384
+Event: time 1700000000.012000, -------------- SYN_REPORT ------------
+Event: time 1700000000.020000, type 3 (EV_ABS), code 0 (ABS_X), value 32767
+Event: time 1700000000.020000, -------------- SYN_REPORT ------------
+Event: time 1700000000.140000, type 1 (EV_KEY), code 304 (BTN_SOUTH), value 1
+Event: time 1700000000.140000, -------------- SYN_REPORT ------------
+Event: time 1700000000.230000, type 1 (EV_KEY), code 304 (BTN_SOUTH), value 0
+Event: time 1700000000.230000, -------------- SYN_REPORT ------------
+Event: time 1700000000.300000, type 3 (EV_ABS), code 0 (ABS_X), value -23170
+Event: time 1700000000.300000, type 3 (EV_ABS), code 1 (ABS_Y), value -23170
+Event: time 1700000000.300000, type 3 (EV_ABS), code 5 (ABS_RZ), value 1023
+Event: time 1700000000.300000, -------------- SYN_REPORT ------------
+Event: time 1700000000.400000, type 3 (EV_ABS), code 0 (ABS_X), value 0
+Event: time 1700000000.400000, type 3 (EV_ABS), code 1 (ABS_Y), value 0
+Event: time 1700000000.400000, type 3 (EV_ABS), code 5 (ABS_RZ), value 0
+Event: time 1700000000.400000, -------------- SYN_REPORT ------------
+";
+
+    /// Plays `events` (time-stamped) through a pad and the outbox as the process loop does,
+    /// with a robot tick every 25 ms from `t_first`: returns the published samples and the
+    /// time each was published at.
+    fn play(
+        pad: &mut pad::Pad,
+        events: &[(f64, pad::RawEvent)],
+        t_first: f64,
+        t_end: f64,
+    ) -> Vec<(f64, JoystickInput)> {
+        let mut out = Outbox::default();
+        let mut published = Vec::new();
+        let mut tick = NO_TICK;
+        let mut next_tick = (t_first, 0u64);
+        let mut i = 0;
+        let mut t = t_first;
+        if let Some(s) = out.next(pad.input(), tick, true, 0) {
+            published.push((t, s));
+        }
+        while t < t_end {
+            // Whichever comes first: the next event or the next tick.
+            let t_ev = events.get(i).map_or(f64::INFINITY, |e| e.0);
+            let new_tick = next_tick.0 <= t_ev;
+            if new_tick {
+                t = next_tick.0;
+                tick = next_tick.1;
+                next_tick = (t + 0.025, tick + 1);
+            } else {
+                t = t_ev;
+                // The reader hands over a batch; the loop drains it all before publishing.
+                while i < events.len() && events[i].0 == t_ev {
+                    pad.event(events[i].1);
+                    i += 1;
+                }
+            }
+            if let Some(s) = out.next(pad.input(), tick, new_tick, (t * 1e9) as u64) {
+                published.push((t, s));
+            }
+        }
+        published
+    }
+
+    #[test]
+    fn a_recorded_session_gives_the_expected_samples() {
+        let events: Vec<(f64, pad::RawEvent)> = SESSION
+            .lines()
+            .filter_map(parse_evtest)
+            .map(|(t, e)| (t - 1_700_000_000.0, e))
+            .collect();
+        assert_eq!(events.len(), 19);
+        let mut pad = pad::Pad::new(mapping::Mapping::load("xbox").unwrap());
+        pad.connect(&xbox_snapshot());
+        // Ticks at -7 ms, 18 ms, 43 ms, ...
+        let samples = play(&mut pad, &events, -0.007, 0.5);
+        let at = |t: f64| {
+            samples
+                .iter()
+                .rev()
+                .find(|(ts, _)| *ts <= t + 1e-9)
+                .map(|(_, s)| *s)
+                .unwrap()
+        };
+        // Every robot tick is answered with its own number, in order, with no gap.
+        let ticks: Vec<u64> = samples
+            .iter()
+            .map(|(_, s)| s.tick)
+            .filter(|t| *t != NO_TICK)
+            .collect();
+        let mut answered = ticks.clone();
+        answered.dedup();
+        assert_eq!(answered, (0..=21).collect::<Vec<_>>());
+        assert!(samples.windows(2).all(|w| w[1].1.seq == w[0].1.seq + 1));
+        // Jitter inside the deadzone (|a| = 0.05): neutral, so nothing extra is published.
+        assert_eq!(at(0.0).axes, [0.0, 0.0]);
+        let near = |t: f64| {
+            samples
+                .iter()
+                .find(|(ts, _)| (ts - t).abs() < 1e-5)
+                .map(|s| s.1)
+        };
+        assert_eq!(near(0.0), None);
+        // Half-way right, then full right, each published at once (on change), not at the
+        // next tick.
+        let half = near(0.012).unwrap();
+        assert!((half.axes[0] - (0.5 - 0.1) / 0.9).abs() < 1e-3, "{half:?}");
+        assert_eq!(half.tick, 0);
+        // (y stays where the jitter left it: 900 of 32768, outside the radial deadzone once x
+        // is pushed.)
+        let full = near(0.020).unwrap();
+        assert!(
+            full.axes[0] > 0.999 && (full.axes[1] - 900.0 / 32768.0).abs() < 1e-3,
+            "{full:?}"
+        );
+        assert_eq!(full.tick, 1);
+        // The mode button: held from 0.14 to 0.23 s, over several ticks: the mapper sees one
+        // rising edge.
+        let mode_ticks: Vec<u64> = samples
+            .iter()
+            .filter(|(_, s)| s.buttons & buttons::MODE != 0)
+            .map(|(_, s)| s.tick)
+            .collect();
+        assert_eq!(mode_ticks, [5, 6, 7, 8, 9]);
+        // Every sample between them carries the button, so the published sequence has a
+        // single rising edge (one press for the mapper), however many samples it spans.
+        let rising = samples
+            .windows(2)
+            .filter(|w| w[1].1.buttons & buttons::MODE != 0 && w[0].1.buttons & buttons::MODE == 0)
+            .count();
+        assert_eq!(rising, 1);
+        // Up-left at full deflection with the gripper closing, then all released.
+        let s = at(0.35);
+        assert!(s.axes[0] < -0.7 && s.axes[1] > 0.7, "{s:?}");
+        assert!((f64::from(s.axes[0]).hypot(f64::from(s.axes[1])) - 1.0).abs() < 1e-3);
+        assert_eq!((s.gripper, s.buttons), (1.0, buttons::GRIPPER));
+        let s = at(0.45);
+        assert_eq!((s.axes, s.gripper, s.buttons), ([0.0, 0.0], 0.0, 0));
+    }
+
+    #[test]
+    fn an_unplugged_device_publishes_neutral_flagged_samples_every_tick() {
+        let mut pad = pad::Pad::new(mapping::Mapping::load("xbox").unwrap());
+        pad.connect(&xbox_snapshot());
+        let held = [
+            (
+                0.0,
+                pad::RawEvent {
+                    kind: pad::EV_ABS,
+                    code: 0,
+                    value: 32767,
+                },
+            ),
+            (
+                0.0,
+                pad::RawEvent {
+                    kind: pad::EV_SYN,
+                    code: pad::SYN_REPORT,
+                    value: 0,
+                },
+            ),
+        ];
+        let before = play(&mut pad, &held, -0.001, 0.1);
+        assert_eq!(before.last().unwrap().1.axes, [1.0, 0.0]);
+        pad.disconnect();
+        let after = play(&mut pad, &[], 0.2, 0.3);
+        // One sample per tick keeps coming (the process is alive), all neutral and flagged.
+        assert!(after.len() >= 4);
+        for (_, s) in &after {
+            assert_eq!(s.axes, [0.0, 0.0]);
+            assert_eq!(s.buttons, buttons::NO_DEVICE);
+        }
+    }
+
+    #[test]
+    fn the_outbox_publishes_on_ticks_and_on_changes_only() {
+        let mut o = Outbox::default();
+        let a = Input {
+            axes: [0.5, 0.0],
+            ..Input::NEUTRAL
+        };
+        let first = o.next(Input::NEUTRAL, NO_TICK, false, 1).unwrap();
+        assert_eq!((first.seq, first.tick), (0, NO_TICK));
+        assert!(o.next(Input::NEUTRAL, NO_TICK, false, 2).is_none());
+        let s = o.next(Input::NEUTRAL, 7, true, 3).unwrap();
+        assert_eq!((s.seq, s.tick), (1, 7));
+        let s = o.next(a, 7, false, 4).unwrap();
+        assert_eq!((s.seq, s.tick, s.axes), (2, 7, [0.5, 0.0]));
+        assert!(o.next(a, 7, false, 5).is_none());
+        assert_eq!(o.next(a, 8, true, 6).unwrap().tick, 8);
+    }
+
+    #[test]
+    fn the_waker_wakes_a_wait() {
+        let w = Waker::new().unwrap();
+        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_millis(1)), 0);
+        w.notify();
+        w.notify();
+        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_secs(5)), 1);
+        // Consumed: quiet again.
+        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_millis(1)), 0);
+    }
+
+    #[test]
+    fn config_checks_name_the_key_and_file() {
+        let ok = JoystickConfig::default();
+        validate(&ok).unwrap();
+        let mut j = ok.clone();
+        j.source = "wii".into();
+        assert!(
+            validate(&j)
+                .unwrap_err()
+                .to_string()
+                .contains("joystick.source")
+        );
+        let mut j = ok.clone();
+        j.source = "evdev".into();
+        j.mapping = "/nonexistent/pad.toml".into();
+        let e = validate(&j).unwrap_err().to_string();
+        assert!(
+            e.contains("joystick.mapping") && e.contains("/nonexistent/pad.toml"),
+            "{e}"
+        );
+        j.mapping = "generic".into();
+        validate(&j).unwrap();
+        let mut j = ok.clone();
+        j.source = "replay".into();
+        assert!(
+            validate(&j)
+                .unwrap_err()
+                .to_string()
+                .contains("joystick.replay_file")
+        );
+        let mut j = ok;
+        j.keyboard_repeat_hold_ms = 1;
+        assert!(
+            validate(&j)
+                .unwrap_err()
+                .to_string()
+                .contains("joystick.keyboard_repeat_hold_ms")
+        );
+        // Relative names are taken from the config's directory; built-in mappings are not.
+        let mut j = JoystickConfig {
+            mapping: "pads/mine.toml".into(),
+            replay_file: "in.csv".into(),
+            ..JoystickConfig::default()
+        };
+        scl_node::config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
+        assert_eq!(j.mapping, "/etc/scl/pads/mine.toml");
+        assert_eq!(j.replay_file, "/etc/scl/in.csv");
+        assert_eq!(j.record_input, "");
+        let mut j = JoystickConfig::default();
+        scl_node::config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
+        assert_eq!(j.mapping, "xbox");
+    }
+
+    #[test]
+    fn the_config_knows_the_builtin_mappings() {
+        let names: Vec<&str> = mapping::BUILTIN.iter().map(|(n, _)| *n).collect();
+        assert_eq!(names, scl_node::config::BUILTIN_MAPPINGS);
+    }
+
+    #[test]
+    fn the_shipped_graph_configs_load() {
+        let dir = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../examples/joystick"
+        ));
+        for (name, source) in [
+            ("gamepad-graph.toml", "evdev"),
+            ("keyboard-graph.toml", "keyboard"),
+        ] {
+            let cfg = GraphConfig::load(Some(&dir.join(name))).unwrap();
+            cfg.validate().unwrap();
+            validate(&cfg.joystick).unwrap();
+            assert_eq!(cfg.joystick.source, source);
+            assert_eq!(cfg.mapper.model, "modeswitch");
+        }
+    }
+}

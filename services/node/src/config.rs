@@ -1,0 +1,600 @@
+//! The graph configuration: one TOML file, every key optional, every default written out in
+//! `examples/graph.toml`. Unknown keys are errors that name the key, so a typo never silently
+//! falls back to a default.
+
+use std::path::{Path, PathBuf};
+
+use hw_bridge::kortex::KortexConfig;
+use hw_bridge::mock::MockConfig;
+use safety::SafetyConfig;
+use serde::{Deserialize, Serialize};
+
+/// The whole graph configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct GraphConfig {
+    /// `[graph]`: graph-wide settings.
+    pub graph: GraphSection,
+    /// `[joystick]`: the input source.
+    pub joystick: JoystickConfig,
+    /// `[mapper]`: the model served.
+    pub mapper: MapperConfig,
+    /// `[safety]`: the safety filter.
+    pub safety: SafetyConfig,
+    /// `[bridge]`: the robot and the clock.
+    pub bridge: BridgeConfig,
+    /// `[supervisor]`: what `scl up` does when a process dies, and live swaps.
+    pub supervisor: SupervisorConfig,
+    /// `[faults]`: fault injection for tests and drills; all off by default.
+    pub faults: FaultConfig,
+}
+
+/// `[faults]`: make a process misbehave on purpose, to see the stack stop the arm. 0 is off.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct FaultConfig {
+    /// The mapper publishes a NaN velocity for this one tick.
+    pub mapper_nan_at_tick: u64,
+    /// The joystick stops publishing samples after this many ticks (the process lives on).
+    pub joystick_silent_after_ticks: u64,
+    /// The bridge stops publishing robot states after this many ticks (its clock goes on).
+    pub bridge_states_stop_after_ticks: u64,
+}
+
+/// What the supervisor does when a process exits on its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    /// Stop the whole graph (bridge first) and exit non-zero, naming the process.
+    Never,
+    /// Restart it after a crash or a non-zero exit, with exponential backoff; a clean exit
+    /// stops the graph.
+    OnFailure,
+    /// Restart it whenever it exits, with exponential backoff.
+    Always,
+}
+
+/// `[supervisor.restart]`: one policy per process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RestartPolicies {
+    /// The joystick process.
+    pub joystick: RestartPolicy,
+    /// Mapper processes.
+    pub mapper: RestartPolicy,
+    /// The safety process.
+    pub safety: RestartPolicy,
+    /// The bridge (a restarted bridge resumes the tick count and starts from a stop).
+    pub bridge: RestartPolicy,
+}
+
+impl Default for RestartPolicies {
+    fn default() -> Self {
+        Self {
+            joystick: RestartPolicy::Never,
+            mapper: RestartPolicy::Never,
+            safety: RestartPolicy::Never,
+            bridge: RestartPolicy::Never,
+        }
+    }
+}
+
+impl RestartPolicies {
+    /// The policy of a role.
+    pub fn of(&self, role: ipc_types::NodeRole) -> RestartPolicy {
+        match role {
+            ipc_types::NodeRole::Joystick => self.joystick,
+            ipc_types::NodeRole::Mapper => self.mapper,
+            ipc_types::NodeRole::Safety => self.safety,
+            ipc_types::NodeRole::Bridge => self.bridge,
+            // A recorder is not restarted (its file is not reopened): if it dies, the graph
+            // stops, so no run goes unrecorded.
+            ipc_types::NodeRole::Recorder => RestartPolicy::Never,
+        }
+    }
+}
+
+/// `[supervisor]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisorConfig {
+    /// First restart delay (ms); doubles with each consecutive failure.
+    pub backoff_initial_ms: u64,
+    /// Longest restart delay (ms).
+    pub backoff_max_ms: u64,
+    /// A process that ran this long before failing starts its backoff afresh (s).
+    pub stable_after_s: f64,
+    /// A new mapper must produce valid commands for this many consecutive ticks before
+    /// safety switches to it.
+    pub swap_valid_ticks: u32,
+    /// A swap that has not switched over by then is refused and undone (s).
+    pub swap_timeout_s: f64,
+    /// `[supervisor.restart]`: restart policy per process.
+    pub restart: RestartPolicies,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        Self {
+            backoff_initial_ms: 100,
+            backoff_max_ms: 5000,
+            stable_after_s: 10.0,
+            swap_valid_ticks: 10,
+            swap_timeout_s: 10.0,
+            restart: RestartPolicies::default(),
+        }
+    }
+}
+
+/// `[graph]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GraphSection {
+    /// Service-name prefix; `--prefix` and `SCL_PREFIX` override it.
+    pub prefix: String,
+    /// How long `scl up` waits for each child to report ready (s).
+    pub start_timeout_s: f64,
+    /// The control-path processes (bridge, safety, mappers, joystick) ask for SCHED_FIFO and
+    /// mlockall once initialised; each says in one line what it was refused.
+    pub realtime: bool,
+    /// SCHED_FIFO priority of the bridge; safety, mappers and the joystick take the next
+    /// three below it, in the order the data flows back from the clock.
+    pub rt_priority: i32,
+    /// CPU the control-path processes are pinned to when real-time is on (`-1`: not pinned).
+    pub rt_cpu: i32,
+    /// Transport of the data-plane topics: `iceoryx2` (the product) or `uds` (Unix-domain
+    /// datagram sockets, for latency comparisons; no single-publisher guarantee).
+    pub transport: ipc_types::Transport,
+}
+
+/// A process of the control path, for its real-time priority.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RtRole {
+    /// The bridge: `rt_priority`.
+    Bridge,
+    /// Safety: one below.
+    Safety,
+    /// Mappers: two below.
+    Mapper,
+    /// The joystick: three below.
+    Joystick,
+    /// The supervisor (`scl up`), which reaps dead children and holds the arm: four below.
+    Supervisor,
+}
+
+impl GraphSection {
+    /// The SCHED_FIFO priority of `role`, or `None` when real-time is off.
+    pub fn rt_priority_of(&self, role: RtRole) -> Option<i32> {
+        let below = match role {
+            RtRole::Bridge => 0,
+            RtRole::Safety => 1,
+            RtRole::Mapper => 2,
+            RtRole::Joystick => 3,
+            RtRole::Supervisor => 4,
+        };
+        self.realtime.then_some(self.rt_priority - below)
+    }
+}
+
+impl Default for GraphSection {
+    fn default() -> Self {
+        Self {
+            prefix: ipc_types::prefix::DEFAULT_PREFIX.to_owned(),
+            start_timeout_s: 10.0,
+            realtime: true,
+            rt_priority: 80,
+            rt_cpu: -1,
+            transport: ipc_types::Transport::Iceoryx2,
+        }
+    }
+}
+
+/// `[joystick]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JoystickConfig {
+    /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` (a person at the
+    /// terminal) or `replay` (a recorded input file).
+    pub source: String,
+    /// Script: `circle` (a slow circle), `step` (+x, +y, -x, -y holds with rests) or
+    /// `constant` (`constant_axes` held).
+    pub script: String,
+    /// Circle: period of one turn (s).
+    pub circle_period_s: f64,
+    /// Script amplitude, `|a|` at full deflection, in `(0, 1]`.
+    pub amplitude: f64,
+    /// Step: how long each direction is held (s).
+    pub step_hold_s: f64,
+    /// Step: rest at zero between holds (s).
+    pub step_rest_s: f64,
+    /// Constant: the axes held (scaled by `amplitude`).
+    pub constant_axes: [f64; 2],
+    /// evdev: the device: a path (`/dev/input/event5`), part of its name (`xbox`), or empty
+    /// for the first joystick or gamepad that has the mapping's axes.
+    pub device: String,
+    /// evdev: the mapping of axes and buttons: `xbox` or `generic` (built in) or a mapping
+    /// file (TOML; a relative path is relative to the config file's directory).
+    pub mapping: String,
+    /// evdev: how often an unplugged or missing device is looked for again (ms).
+    pub reconnect_interval_ms: u64,
+    /// Keyboard: time from rest to full deflection (s).
+    pub keyboard_ramp_s: f64,
+    /// Keyboard: a key counts as held this long after its first press (ms); terminals
+    /// report auto-repeats but rarely releases.
+    pub keyboard_first_hold_ms: u64,
+    /// Keyboard: ... and this long after each auto-repeat (ms).
+    pub keyboard_repeat_hold_ms: u64,
+    /// Replay: the recorded input file (CSV `t_s,a0,a1,gripper,buttons`), played with its
+    /// original timing from the first robot tick.
+    pub replay_file: String,
+    /// Any source: also record the published input to this file (same CSV; an existing file
+    /// is refused); empty: off.
+    pub record_input: String,
+}
+
+impl Default for JoystickConfig {
+    fn default() -> Self {
+        Self {
+            source: "script".into(),
+            script: "circle".into(),
+            circle_period_s: 8.0,
+            amplitude: 1.0,
+            step_hold_s: 2.0,
+            step_rest_s: 0.5,
+            constant_axes: [1.0, 0.0],
+            device: String::new(),
+            mapping: "xbox".into(),
+            reconnect_interval_ms: 500,
+            keyboard_ramp_s: 0.5,
+            keyboard_first_hold_ms: 600,
+            keyboard_repeat_hold_ms: 150,
+            replay_file: String::new(),
+            record_input: String::new(),
+        }
+    }
+}
+
+/// `[mapper]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapperConfig {
+    /// Model file, `bundled` for the model built into `scl`, or `modeswitch` (optionally
+    /// `modeswitch:key=value,...`) for the Cartesian mode-switching map. A relative path is
+    /// taken relative to the config file's directory.
+    pub model: String,
+    /// Id of the mapper process started by `scl up`; safety forwards this id.
+    pub id: u32,
+}
+
+impl Default for MapperConfig {
+    fn default() -> Self {
+        Self {
+            model: mapper::model::BUNDLED_NAME.into(),
+            id: 1,
+        }
+    }
+}
+
+/// `[bridge]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BridgeConfig {
+    /// Robot backend: `mock` (the simulation) or `kortex` (a Gen3 lite over the Kortex API,
+    /// settings in `[bridge.kortex]`).
+    pub robot: String,
+    /// Tick rate (Hz). The Gen3 lite's high-level API runs at 40 Hz.
+    pub rate_hz: f64,
+    /// How far into the period the bridge waits for the tick's command, as a fraction of the
+    /// period; a command later than this is a miss.
+    pub command_deadline: f64,
+    /// Acceleration limits for the bridge's controlled stop (rad/s²).
+    pub stop_acceleration_rad_s2: Vec<f64>,
+    /// `[bridge.mock]`: the mock arm.
+    pub mock: MockConfig,
+    /// `[bridge.kortex]`: the Kortex client (address, port, timeouts, credentials file).
+    pub kortex: KortexConfig,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        Self {
+            robot: "mock".into(),
+            rate_hz: kinematics::gen3_lite::CONTROL_RATE_HZ,
+            command_deadline: 0.6,
+            stop_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
+            mock: MockConfig::default(),
+            kortex: KortexConfig::default(),
+        }
+    }
+}
+
+/// A configuration that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for the graph.
+    #[error("config {path}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message (names the key and line).
+        reason: String,
+    },
+    /// A value is out of range.
+    #[error("config: {key}: {reason}")]
+    Value {
+        /// The dotted key.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// The evdev mappings built into the joystick process (`scl_joystick::mapping::BUILTIN`
+/// has their text; a test there keeps the two lists equal).
+pub const BUILTIN_MAPPINGS: [&str; 2] = ["xbox", "generic"];
+
+/// Resolves `[joystick]`'s file paths (a mapping file, the replay and record files) against
+/// the config file's directory; built-in mapping names stay as they are.
+pub fn resolve_joystick_paths(cfg: &mut JoystickConfig, dir: &Path) {
+    let builtin_mapping = BUILTIN_MAPPINGS.contains(&cfg.mapping.as_str());
+    let fix = |s: &mut String| {
+        let p = Path::new(s.as_str());
+        if !s.is_empty() && p.is_relative() {
+            *s = dir.join(p).display().to_string();
+        }
+    };
+    if !builtin_mapping {
+        fix(&mut cfg.mapping);
+    }
+    fix(&mut cfg.replay_file);
+    fix(&mut cfg.record_input);
+}
+
+impl GraphConfig {
+    /// Reads `path`, or the defaults if `None`. Relative model paths are resolved against
+    /// the file's directory.
+    pub fn load(path: Option<&Path>) -> Result<Self, ConfigError> {
+        let Some(path) = path else {
+            return Ok(Self::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        let mut cfg: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        if let Some(dir) = path.parent() {
+            resolve_joystick_paths(&mut cfg.joystick, dir);
+        }
+        if !mapper::model::is_builtin(&cfg.mapper.model) {
+            let p = Path::new(&cfg.mapper.model);
+            if p.is_relative()
+                && let Some(dir) = path.parent()
+            {
+                cfg.mapper.model = dir.join(p).display().to_string();
+            }
+        }
+        let creds = &mut cfg.bridge.kortex.credentials_file;
+        if !creds.is_empty() {
+            let p = Path::new(creds.as_str());
+            if p.is_relative()
+                && let Some(dir) = path.parent()
+            {
+                *creds = dir.join(p).display().to_string();
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// Checks every value that no single crate checks; the crates check their own tables
+    /// when they build from them. `[joystick]`'s sources and their files are checked by
+    /// `scl_joystick::validate` (the supervisor and every process call both).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
+        ipc_types::Prefix::new(&self.graph.prefix)
+            .map_err(|e| err("graph.prefix", e.to_string()))?;
+        if !(self.graph.start_timeout_s.is_finite() && self.graph.start_timeout_s > 0.0) {
+            return Err(err(
+                "graph.start_timeout_s",
+                "must be a positive number".into(),
+            ));
+        }
+        if !(5..=99).contains(&self.graph.rt_priority) {
+            return Err(err(
+                "graph.rt_priority",
+                format!(
+                    "{} is outside 5..=99 (the four processes after the bridge take the priorities below it)",
+                    self.graph.rt_priority
+                ),
+            ));
+        }
+        let b = &self.bridge;
+        if b.robot != "mock" && b.robot != "kortex" {
+            return Err(err(
+                "bridge.robot",
+                format!("`{}` is not a robot; use `mock` or `kortex`", b.robot),
+            ));
+        }
+        if !(b.rate_hz.is_finite() && b.rate_hz > 0.0 && b.rate_hz <= 1000.0) {
+            return Err(err(
+                "bridge.rate_hz",
+                format!("{} is outside (0, 1000]", b.rate_hz),
+            ));
+        }
+        if !(b.command_deadline > 0.0 && b.command_deadline < 1.0) {
+            return Err(err(
+                "bridge.command_deadline",
+                format!(
+                    "{} is outside (0, 1): a fraction of the period",
+                    b.command_deadline
+                ),
+            ));
+        }
+        let n = kinematics::gen3_lite::N_JOINTS;
+        if b.stop_acceleration_rad_s2.len() != n
+            || b.stop_acceleration_rad_s2
+                .iter()
+                .any(|a| !(a.is_finite() && *a > 0.0))
+        {
+            return Err(err(
+                "bridge.stop_acceleration_rad_s2",
+                format!("needs {n} positive numbers"),
+            ));
+        }
+        hw_bridge::mock::MockArm::new(b.mock.clone())
+            .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
+        b.kortex
+            .validate(1.0 / b.rate_hz)
+            .map_err(|e| err(&format!("bridge.kortex.{}", e.key), e.reason))?;
+        self.safety
+            .validate(&kinematics::gen3_lite::limits())
+            .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
+        if self.mapper.id == 0 {
+            return Err(err("mapper.id", "must be at least 1".into()));
+        }
+        let sv = &self.supervisor;
+        if sv.backoff_initial_ms == 0 || sv.backoff_max_ms < sv.backoff_initial_ms {
+            return Err(err(
+                "supervisor.backoff_max_ms",
+                "backoff_initial_ms must be positive and at most backoff_max_ms".into(),
+            ));
+        }
+        for (key, v) in [
+            ("supervisor.stable_after_s", sv.stable_after_s),
+            ("supervisor.swap_timeout_s", sv.swap_timeout_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(err(key, format!("{v} must be a positive number")));
+            }
+        }
+        if sv.swap_valid_ticks == 0 {
+            return Err(err(
+                "supervisor.swap_valid_ticks",
+                "must be at least 1".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The tick period (s).
+    pub fn period_s(&self) -> f64 {
+        1.0 / self.bridge.rate_hz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn example_file_is_the_defaults() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../examples/graph.toml"
+        ));
+        let cfg = GraphConfig::load(Some(path)).unwrap();
+        assert_eq!(cfg, GraphConfig::default());
+        cfg.validate().unwrap();
+    }
+
+    #[test]
+    fn kortex_example_is_valid_and_points_at_loopback() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../examples/kortex-fake.toml"
+        ));
+        let cfg = GraphConfig::load(Some(path)).unwrap();
+        cfg.validate().unwrap();
+        assert_eq!(cfg.bridge.robot, "kortex");
+        assert_eq!(
+            cfg.bridge.kortex.socket_addr().unwrap(),
+            "127.0.0.1:10000".parse().unwrap()
+        );
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_named() {
+        let dir = std::env::temp_dir().join(format!("scl-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("g.toml");
+        std::fs::write(&p, "[safety]\nmax_velocity = 1.0\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("max_velocity"), "{e}");
+        std::fs::write(&p, "[bridge]\nrate_hz = -4\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.rate_hz"), "{e}");
+        std::fs::write(&p, "[safety]\nmax_velocity_rad_s = [1, 1, 1, 1, 1, 0]\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safety.max_velocity_rad_s"), "{e}");
+        std::fs::write(&p, "[bridge.mock]\ninitial_pose = \"up\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.mock.initial_pose"), "{e}");
+        std::fs::write(&p, "[bridge]\nrobot = \"ur5\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bridge.robot") && e.contains("kortex"), "{e}");
+        std::fs::write(
+            &p,
+            "[bridge]\nrobot = \"kortex\"\n[bridge.kortex]\naddress = \"127.0.0.1\"\nport = 10123\n\
+             credentials_file = \"creds.toml\"\nconnection_timeout_ms = 20\n",
+        )
+        .unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(cfg.bridge.kortex.port, 10123);
+        assert_eq!(
+            cfg.bridge.kortex.credentials_file,
+            dir.join("creds.toml").display().to_string()
+        );
+        let e = cfg.validate().unwrap_err().to_string();
+        assert!(e.contains("bridge.kortex.connection_timeout_ms"), "{e}");
+        std::fs::write(&p, "[bridge.kortex]\npassword = \"admin\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("unknown field `password`"), "{e}");
+        std::fs::write(&p, "[mapper]\nmodel = \"m.safetensors\"\n").unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(
+            cfg.mapper.model,
+            dir.join("m.safetensors").display().to_string()
+        );
+        std::fs::write(&p, "[supervisor.restart]\nmapper = \"sometimes\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("sometimes") && e.contains("on-failure"), "{e}");
+        std::fs::write(&p, "[supervisor.restart]\nmapper = \"on-failure\"\n").unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        assert_eq!(cfg.supervisor.restart.mapper, RestartPolicy::OnFailure);
+        std::fs::write(&p, "not toml [").unwrap();
+        assert!(matches!(
+            GraphConfig::load(Some(&p)),
+            Err(ConfigError::Parse { .. })
+        ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,840 @@
+//! `scl record`: a read-only observer that writes every message of a graph to an MCAP file
+//! ([`recording`] is the format), and `scl record --recover`.
+//!
+//! Two threads, so that a slow disk never reaches the graph:
+//!
+//! * the subscriber thread (the process's main thread) wakes on each robot state, drains
+//!   every topic and hands each message to the writer with a non-blocking `try_send` on a
+//!   bounded crossbeam channel. A full channel drops the message and counts it. It also
+//!   publishes the recorder's heartbeat (`NodeRole::Recorder`: `handled` = messages received,
+//!   `faults` = messages dropped), which is how `scl up` knows it is listening.
+//! * the writer thread (lower CPU priority) encodes JSON, writes chunks, and closes a chunk
+//!   once a second, so a crash loses at most the last second. After a write error (a full
+//!   disk) it stops writing and counts what it is handed as dropped.
+//!
+//! Shared-memory topics never block their publishers (safe overflow), and the recorder
+//! publishes nothing but its heartbeat, so the control loop does not wait for it. Counts per
+//! topic (received, written, dropped, lost robot states) are printed at the end and written
+//! to the file's `scl.recording.end` metadata record.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+/// Why the recorder stopped or could not start, each with the message a user sees.
+#[derive(Debug, thiserror::Error)]
+pub enum RecorderError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// A recording could not be written, read or recovered.
+    #[error(transparent)]
+    Record(#[from] recording::RecordError),
+    /// The graph or the process failed (a child died, a thread did not start, ...).
+    #[error("{0}")]
+    Graph(String),
+}
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
+use ipc_types::{
+    Graph, NO_TICK, NodeRole, NodeStatus, Prefix, TopicSubscriber, phase, time::now_ns,
+};
+use serde::Serialize;
+
+use ipc_types::signals;
+use recording::{self, LogWriter, Payload, RecordError, Topic};
+
+/// How often the writer closes a chunk: the most a crash of the recorder loses.
+pub const FLUSH_EVERY: Duration = Duration::from_secs(1);
+
+/// A chunk is also closed once this much JSON is pending.
+const FLUSH_BYTES: usize = 4 << 20;
+
+/// Default capacity of the hand-off to the writer thread (messages): at the mock graph's
+/// ~300 messages per second, about 13 s of a stalled disk before anything is dropped.
+pub const DEFAULT_QUEUE: usize = 4096;
+
+/// `scl record`'s arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RecordArgs {
+    /// The MCAP file to write (never overwritten); with `--recover`, the recovered file.
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// Topics to record, comma-separated (default: every topic): joystick, robot_state,
+    /// mapper_command, safe_command, status, safety_control, estop.
+    #[arg(long, value_name = "TOPICS", value_delimiter = ',')]
+    pub topics: Vec<String>,
+    /// Rewrite the readable part of BROKEN (a recording cut by a crash) as a finished
+    /// recording in --out, instead of recording.
+    #[arg(long, value_name = "BROKEN")]
+    pub recover: Option<PathBuf>,
+    /// Messages the hand-off to the writer thread holds; beyond that, messages are dropped
+    /// and counted, never waited for.
+    #[arg(long, default_value_t = DEFAULT_QUEUE)]
+    pub queue: usize,
+    /// Print the report as one JSON object on stdout at the end.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What a recording run is asked to do.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    /// The file to write.
+    pub out: PathBuf,
+    /// The topics to record.
+    pub topics: Vec<Topic>,
+    /// Capacity of the hand-off to the writer thread.
+    pub queue: usize,
+    /// How often a chunk is closed.
+    pub flush_every: Duration,
+}
+
+/// Counters shared by the two threads, per topic (indexed by [`Topic::index`]).
+#[derive(Debug, Default)]
+pub struct Tally {
+    received: [AtomicU64; Topic::COUNT],
+    queue_dropped: [AtomicU64; Topic::COUNT],
+    written: [AtomicU64; Topic::COUNT],
+    write_dropped: [AtomicU64; Topic::COUNT],
+    json_bytes: AtomicU64,
+    state_gaps: AtomicU64,
+}
+
+fn load(a: &[AtomicU64; Topic::COUNT]) -> [u64; Topic::COUNT] {
+    std::array::from_fn(|i| a[i].load(Ordering::SeqCst))
+}
+
+impl Tally {
+    /// Messages dropped so far, for any reason.
+    pub fn dropped(&self) -> u64 {
+        load(&self.queue_dropped).iter().sum::<u64>()
+            + load(&self.write_dropped).iter().sum::<u64>()
+    }
+
+    /// Messages received so far.
+    pub fn received(&self) -> u64 {
+        load(&self.received).iter().sum()
+    }
+
+    /// The counts per topic for `topics`.
+    pub fn counts(&self, topics: &[Topic]) -> Vec<TopicCounts> {
+        let (r, q, w, d) = (
+            load(&self.received),
+            load(&self.queue_dropped),
+            load(&self.written),
+            load(&self.write_dropped),
+        );
+        topics
+            .iter()
+            .map(|t| {
+                let i = t.index();
+                TopicCounts {
+                    topic: t.name().to_owned(),
+                    received: r[i],
+                    written: w[i],
+                    dropped: q[i] + d[i],
+                }
+            })
+            .collect()
+    }
+
+    fn end_metadata(
+        &self,
+        topics: &[Topic],
+        pending: &[u64; Topic::COUNT],
+    ) -> BTreeMap<String, String> {
+        let mut m = BTreeMap::new();
+        let mut dropped = 0;
+        for mut c in self.counts(topics) {
+            if let Some(t) = Topic::from_name(&c.topic) {
+                c.written += pending[t.index()];
+            }
+            m.insert(format!("received.{}", c.topic), c.received.to_string());
+            m.insert(format!("written.{}", c.topic), c.written.to_string());
+            m.insert(format!("dropped.{}", c.topic), c.dropped.to_string());
+            dropped += c.dropped;
+        }
+        m.insert("dropped_total".into(), dropped.to_string());
+        m.insert(
+            "robot_state_gaps".into(),
+            self.state_gaps.load(Ordering::SeqCst).to_string(),
+        );
+        m.insert("stopped_monotonic_ns".into(), now_ns().to_string());
+        m
+    }
+}
+
+/// Counts of one topic.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TopicCounts {
+    /// Topic name.
+    pub topic: String,
+    /// Messages received from shared memory.
+    pub received: u64,
+    /// Messages in the file.
+    pub written: u64,
+    /// Messages dropped (full hand-off, or a write error).
+    pub dropped: u64,
+}
+
+/// The end-of-recording report.
+#[derive(Debug, Clone, Serialize)]
+pub struct RecordReport {
+    /// The file written.
+    pub file: String,
+    /// How long the recorder ran (s).
+    pub duration_s: f64,
+    /// Counts per topic.
+    pub topics: Vec<TopicCounts>,
+    /// Messages received.
+    pub received: u64,
+    /// Messages written.
+    pub written: u64,
+    /// Messages dropped.
+    pub dropped: u64,
+    /// Robot states missing between consecutive ticks received (lost before the recorder saw
+    /// them, e.g. a restarted bridge's gap).
+    pub robot_state_gaps: u64,
+    /// Size of the file (bytes).
+    pub file_bytes: u64,
+    /// The first write error, if writing failed (the file then ends at its last good chunk).
+    pub write_error: Option<String>,
+}
+
+/// The subscriber side of the hand-off: never blocks.
+pub struct Producer {
+    tx: Sender<Payload>,
+    tally: Arc<Tally>,
+    last_tick: Option<u64>,
+}
+
+impl Producer {
+    /// Hands `p` to the writer, or drops and counts it if the writer is behind (or gone).
+    /// Returns whether it was handed over.
+    pub fn offer(&mut self, p: Payload) -> bool {
+        let i = p.topic().index();
+        self.tally.received[i].fetch_add(1, Ordering::SeqCst);
+        if let Payload::RobotState(s) = &p {
+            if let Some(last) = self.last_tick
+                && s.tick > last + 1
+            {
+                self.tally
+                    .state_gaps
+                    .fetch_add(s.tick - last - 1, Ordering::SeqCst);
+            }
+            self.last_tick = Some(s.tick);
+        }
+        match self.tx.try_send(p) {
+            Ok(()) => true,
+            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
+                self.tally.queue_dropped[i].fetch_add(1, Ordering::SeqCst);
+                false
+            }
+        }
+    }
+
+    /// The newest robot tick offered.
+    pub fn last_tick(&self) -> Option<u64> {
+        self.last_tick
+    }
+}
+
+/// How the writer thread ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WriterOutcome {
+    /// The first write error, if any.
+    pub error: Option<String>,
+}
+
+/// Starts the writer thread on `writer` with a hand-off of `queue` messages; returns the
+/// producer end and the thread. The thread ends (finishing the file) once the producer is
+/// dropped and the hand-off is drained.
+pub fn start_pipeline<W: Write + Send + 'static>(
+    writer: LogWriter<W>,
+    topics: Vec<Topic>,
+    queue: usize,
+    flush_every: Duration,
+) -> std::io::Result<(Producer, Arc<Tally>, JoinHandle<WriterOutcome>)> {
+    let (tx, rx) = crossbeam_channel::bounded(queue.max(1));
+    let tally = Arc::new(Tally::default());
+    let t2 = tally.clone();
+    let handle = std::thread::Builder::new()
+        .name("mcap-writer".into())
+        .spawn(move || {
+            lower_priority();
+            write_loop(writer, rx, &t2, &topics, flush_every)
+        })?;
+    Ok((
+        Producer {
+            tx,
+            tally: tally.clone(),
+            last_tick: None,
+        },
+        tally,
+        handle,
+    ))
+}
+
+/// The writer thread yields the CPU to everything else in the process and on the machine.
+fn lower_priority() {
+    // SAFETY: gettid and setpriority on the calling thread only; failure is harmless.
+    unsafe {
+        let tid = libc::gettid();
+        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
+    }
+}
+
+fn write_loop<W: Write>(
+    mut w: LogWriter<W>,
+    rx: Receiver<Payload>,
+    tally: &Tally,
+    topics: &[Topic],
+    flush_every: Duration,
+) -> WriterOutcome {
+    // Messages in the open chunk: written once the chunk reaches the sink.
+    let mut pending = [0u64; Topic::COUNT];
+    let mut pending_bytes = 0usize;
+    let mut error: Option<String> = None;
+    let mut last_flush = Instant::now();
+    let fail = |error: &mut Option<String>, pending: &mut [u64; Topic::COUNT], e: RecordError| {
+        if error.is_none() {
+            tracing::error!(
+                "{e}; the recording ends at its last complete chunk, later messages are dropped"
+            );
+            *error = Some(e.to_string());
+        }
+        for (i, n) in pending.iter_mut().enumerate() {
+            tally.write_dropped[i].fetch_add(*n, Ordering::SeqCst);
+            *n = 0;
+        }
+    };
+    loop {
+        let wait = flush_every.saturating_sub(last_flush.elapsed());
+        match rx.recv_timeout(wait) {
+            Ok(p) => {
+                let i = p.topic().index();
+                if error.is_some() {
+                    tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
+                } else {
+                    match w.write(&p) {
+                        Ok(n) => {
+                            pending[i] += 1;
+                            pending_bytes += n;
+                            tally.json_bytes.fetch_add(n as u64, Ordering::SeqCst);
+                        }
+                        Err(e) => {
+                            tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
+                            fail(&mut error, &mut pending, e);
+                        }
+                    }
+                }
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
+        }
+        if error.is_none() && (last_flush.elapsed() >= flush_every || pending_bytes >= FLUSH_BYTES)
+        {
+            match w.flush() {
+                Ok(()) => {
+                    for (i, n) in pending.iter_mut().enumerate() {
+                        tally.written[i].fetch_add(*n, Ordering::SeqCst);
+                        *n = 0;
+                    }
+                }
+                Err(e) => fail(&mut error, &mut pending, e),
+            }
+            pending_bytes = 0;
+            last_flush = Instant::now();
+        }
+    }
+    if error.is_none() {
+        let end = tally.end_metadata(topics, &pending);
+        match w.finish(Some(recording::metadata(recording::END_METADATA, end))) {
+            Ok(_) => {
+                for (i, n) in pending.iter_mut().enumerate() {
+                    tally.written[i].fetch_add(*n, Ordering::SeqCst);
+                }
+            }
+            Err(e) => fail(&mut error, &mut pending, e),
+        }
+    }
+    WriterOutcome { error }
+}
+
+/// The subscriptions of the recorder; `None` for topics not recorded.
+struct Subscriptions {
+    states: TopicSubscriber<ipc_types::RobotState>,
+    record_states: bool,
+    joystick: Option<TopicSubscriber<ipc_types::JoystickInput>>,
+    mapper: Option<TopicSubscriber<ipc_types::MapperCommand>>,
+    safe: Option<TopicSubscriber<ipc_types::SafeCommand>>,
+    status: Option<TopicSubscriber<NodeStatus>>,
+    control: Option<TopicSubscriber<ipc_types::control::SafetyControl>>,
+    estop: Option<TopicSubscriber<ipc_types::control::EstopCommand>>,
+}
+
+impl Subscriptions {
+    fn open(graph: &Graph, topics: &[Topic]) -> Result<Self, RecorderError> {
+        let has = |t| topics.contains(&t);
+        Ok(Self {
+            // Always open: its event is the recorder's wake-up.
+            states: graph.robot_state_subscriber(true)?,
+            record_states: has(Topic::RobotState),
+            joystick: has(Topic::Joystick)
+                .then(|| graph.joystick_subscriber(false))
+                .transpose()?,
+            mapper: has(Topic::MapperCommand)
+                .then(|| graph.mapper_command_subscriber(false))
+                .transpose()?,
+            safe: has(Topic::SafeCommand)
+                .then(|| graph.safe_command_subscriber(false))
+                .transpose()?,
+            status: has(Topic::Status)
+                .then(|| graph.status_subscriber())
+                .transpose()?,
+            control: has(Topic::SafetyControl)
+                .then(|| graph.safety_control_observer())
+                .transpose()?,
+            estop: has(Topic::Estop)
+                .then(|| graph.estop_observer())
+                .transpose()?,
+        })
+    }
+
+    /// Hands everything buffered to `p`, robot states first (they are the clock).
+    fn drain(&self, p: &mut Producer) -> Result<(), RecorderError> {
+        let record_states = self.record_states;
+        self.states.drain(|m| {
+            if record_states {
+                p.offer(Payload::RobotState(*m));
+            } else {
+                p.last_tick = Some(m.tick);
+            }
+        })?;
+        if let Some(s) = &self.joystick {
+            s.drain(|m| {
+                p.offer(Payload::Joystick(*m));
+            })?;
+        }
+        if let Some(s) = &self.mapper {
+            s.drain(|m| {
+                p.offer(Payload::MapperCommand(*m));
+            })?;
+        }
+        if let Some(s) = &self.safe {
+            s.drain(|m| {
+                p.offer(Payload::SafeCommand(*m));
+            })?;
+        }
+        if let Some(s) = &self.status {
+            s.drain(|m| {
+                p.offer(Payload::Status(*m));
+            })?;
+        }
+        if let Some(s) = &self.control {
+            s.drain(|m| {
+                p.offer(Payload::SafetyControl(*m));
+            })?;
+        }
+        if let Some(s) = &self.estop {
+            s.drain(|m| {
+                p.offer(Payload::Estop(*m));
+            })?;
+        }
+        Ok(())
+    }
+}
+
+fn start_metadata(prefix: &Prefix, topics: &[Topic]) -> BTreeMap<String, String> {
+    let mono = now_ns();
+    let wall = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    let mut m = BTreeMap::new();
+    m.insert("prefix".into(), prefix.to_string());
+    m.insert(
+        "topics".into(),
+        topics
+            .iter()
+            .map(|t| t.name())
+            .collect::<Vec<_>>()
+            .join(","),
+    );
+    m.insert(
+        "clock".into(),
+        "CLOCK_MONOTONIC ns (log_time = publish_time = the message's t_ns)".into(),
+    );
+    // Taken together: unix_ns(t) = t - started_monotonic_ns + started_unix_ns.
+    m.insert("started_monotonic_ns".into(), mono.to_string());
+    m.insert("started_unix_ns".into(), wall.to_string());
+    m.insert("recorder_pid".into(), std::process::id().to_string());
+    m.insert("scl_version".into(), env!("CARGO_PKG_VERSION").into());
+    m
+}
+
+/// The recorder, set up and listening.
+struct Running {
+    subs: Subscriptions,
+    heartbeat: ipc_types::TopicPublisher<NodeStatus>,
+    producer: Producer,
+    tally: Arc<Tally>,
+    writer: JoinHandle<WriterOutcome>,
+    // Declared last: dropped after its ports.
+    _graph: Graph,
+}
+
+/// Creates the file (channels on disk at once), joins the graph, subscribes and starts the
+/// writer thread.
+fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError> {
+    let file = recording::create_new(&opts.out)?;
+    let mut w = LogWriter::new(
+        std::io::BufWriter::new(file),
+        &opts.out,
+        Some(recording::metadata(
+            recording::START_METADATA,
+            start_metadata(prefix, &opts.topics),
+        )),
+    )?;
+    let mut channel_meta = BTreeMap::new();
+    channel_meta.insert("prefix".to_owned(), prefix.to_string());
+    for t in &opts.topics {
+        w.add_topic(*t, &channel_meta)?;
+    }
+    // The channel definitions reach the disk at once: a crash keeps them.
+    w.flush()?;
+    let graph = Graph::join(prefix, "recorder")?;
+    let subs = Subscriptions::open(&graph, &opts.topics)?;
+    let heartbeat = graph.status_publisher()?;
+    let (producer, tally, writer) =
+        start_pipeline(w, opts.topics.clone(), opts.queue, opts.flush_every).map_err(|e| {
+            RecorderError::Graph(format!("cannot start the recorder's writer thread: {e}"))
+        })?;
+    Ok(Running {
+        subs,
+        heartbeat,
+        producer,
+        tally,
+        writer,
+        _graph: graph,
+    })
+}
+
+/// Records graph `prefix` into `opts.out` until a shutdown is requested (Ctrl-C, SIGTERM).
+pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, RecorderError> {
+    let started = Instant::now();
+    let r = match start(prefix, opts) {
+        Ok(r) => r,
+        Err(e) => {
+            // Nothing was recorded: leave no file that would block the next attempt (an
+            // existing file is never ours to remove).
+            if !matches!(e, RecorderError::Record(RecordError::Exists(_))) {
+                let _ = std::fs::remove_file(&opts.out);
+            }
+            return Err(e);
+        }
+    };
+    let Running {
+        subs,
+        heartbeat,
+        mut producer,
+        tally,
+        writer,
+        _graph: graph,
+    } = r;
+    tracing::info!(
+        file = %opts.out.display(),
+        topics = opts.topics.len(),
+        "recording graph `{prefix}`"
+    );
+    let mut st = NodeStatus::new(NodeRole::Recorder, phase::READY, now_ns());
+    let mut loop_result = heartbeat.send(st).map(|_| ()).map_err(RecorderError::from);
+    st.phase = phase::RUNNING;
+    while loop_result.is_ok() && !signals::stop_requested() {
+        loop_result = subs
+            .states
+            .wait(Duration::from_millis(50))
+            .map_err(RecorderError::from)
+            .and_then(|_| subs.drain(&mut producer))
+            .and_then(|()| {
+                st.t_ns = now_ns();
+                st.tick = producer.last_tick().unwrap_or(NO_TICK);
+                st.handled = tally.received();
+                st.faults = tally.dropped();
+                heartbeat.send(st).map(|_| ()).map_err(RecorderError::from)
+            });
+    }
+    // What arrived while stopping (the bridge's last state) goes in too.
+    let _ = subs.drain(&mut producer);
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    let _ = heartbeat.send(st);
+    // The writer finishes the file once the hand-off is closed and drained.
+    drop(producer);
+    let outcome = writer.join().unwrap_or_else(|_| WriterOutcome {
+        error: Some("the writer thread panicked".into()),
+    });
+    drop((subs, heartbeat, graph));
+    // If this was the last process of the graph, leave nothing in shared memory.
+    let _ = ipc_types::graph::release_domain(prefix);
+    loop_result?;
+    let topics = tally.counts(&opts.topics);
+    Ok(RecordReport {
+        file: opts.out.display().to_string(),
+        duration_s: started.elapsed().as_secs_f64(),
+        received: topics.iter().map(|c| c.received).sum(),
+        written: topics.iter().map(|c| c.written).sum(),
+        dropped: topics.iter().map(|c| c.dropped).sum(),
+        topics,
+        robot_state_gaps: tally.state_gaps.load(Ordering::SeqCst),
+        file_bytes: std::fs::metadata(&opts.out).map_or(0, |m| m.len()),
+        write_error: outcome.error,
+    })
+}
+
+/// The human-readable end-of-recording lines.
+pub fn render_report(r: &RecordReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let per: Vec<String> = r
+        .topics
+        .iter()
+        .map(|c| {
+            if c.dropped > 0 {
+                format!("{} {} ({} dropped)", c.topic, c.written, c.dropped)
+            } else {
+                format!("{} {}", c.topic, c.written)
+            }
+        })
+        .collect();
+    let _ = writeln!(
+        s,
+        "scl record: {}: {} messages in {:.1} s ({:.1} MB), {} dropped, {} robot states lost before the recorder",
+        r.file,
+        r.written,
+        r.duration_s,
+        r.file_bytes as f64 / 1e6,
+        r.dropped,
+        r.robot_state_gaps
+    );
+    let _ = writeln!(s, "  {}", per.join(", "));
+    if let Some(e) = &r.write_error {
+        let _ = writeln!(s, "  write error: {e}");
+    }
+    s
+}
+
+/// `scl record`: records until Ctrl-C / SIGTERM, or recovers a cut recording.
+pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode, RecorderError> {
+    if let Some(broken) = &args.recover {
+        let r = recording::recover(broken, &args.out)?;
+        let how = if r.source_complete {
+            "the source was complete".to_owned()
+        } else {
+            format!(
+                "the source stopped: {}",
+                r.stopped.as_deref().unwrap_or("unknown")
+            )
+        };
+        println!(
+            "recovered {} messages on {} channels from {} into {} ({how})",
+            r.messages,
+            r.channels,
+            broken.display(),
+            args.out.display()
+        );
+        return Ok(std::process::ExitCode::SUCCESS);
+    }
+    if args.queue == 0 {
+        return Err(RecorderError::Graph(
+            "--queue 0: the hand-off needs room for at least one message".into(),
+        ));
+    }
+    let opts = RecordOptions {
+        out: args.out.clone(),
+        topics: Topic::parse_list(&args.topics)?,
+        queue: args.queue,
+        flush_every: FLUSH_EVERY,
+    };
+    let r = run(prefix, &opts)?;
+    eprint!("{}", render_report(&r));
+    if args.json {
+        let text = serde_json::to_string(&r)
+            .map_err(|e| RecorderError::Graph(format!("cannot encode the report: {e}")))?;
+        println!("{text}");
+    }
+    Ok(if r.write_error.is_some() {
+        std::process::ExitCode::from(1)
+    } else {
+        std::process::ExitCode::SUCCESS
+    })
+}
+
+/// Absolute form of `p` (against the current directory), for a child with another one.
+pub fn absolute(p: &Path) -> PathBuf {
+    std::path::absolute(p).unwrap_or_else(|_| p.to_owned())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ipc_types::RobotState;
+
+    fn state(tick: u64) -> Payload {
+        Payload::RobotState(RobotState::at_rest(tick, 1000 + tick, 6))
+    }
+
+    /// A sink that takes `delay` per write call.
+    struct Slow {
+        bytes: Arc<std::sync::Mutex<Vec<u8>>>,
+        delay: Duration,
+    }
+
+    impl Write for Slow {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            std::thread::sleep(self.delay);
+            self.bytes.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    fn slow_writer(delay: Duration) -> (LogWriter<Slow>, Arc<std::sync::Mutex<Vec<u8>>>) {
+        let bytes = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let mut w = LogWriter::new(
+            Slow {
+                bytes: bytes.clone(),
+                delay,
+            },
+            Path::new("slow.mcap"),
+            None,
+        )
+        .unwrap();
+        w.add_topic(Topic::RobotState, &BTreeMap::new()).unwrap();
+        (w, bytes)
+    }
+
+    fn count_states(bytes: &[u8]) -> (u64, Option<BTreeMap<String, String>>) {
+        let mut n = 0;
+        let mut end = None;
+        let s = recording::read(bytes, Path::new("slow.mcap"), |ev| {
+            match ev {
+                recording::Event::Message { .. } => n += 1,
+                recording::Event::Metadata { name, entries } if name == recording::END_METADATA => {
+                    end = Some(entries.clone());
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert!(s.complete, "{s:?}");
+        (n, end)
+    }
+
+    #[test]
+    fn a_slow_writer_drops_and_counts_instead_of_blocking() {
+        // Each flush of the sink takes 30 ms; the hand-off holds 16 messages; 2000 are
+        // offered as fast as possible.
+        let (w, bytes) = slow_writer(Duration::from_millis(30));
+        let (mut p, tally, h) =
+            start_pipeline(w, vec![Topic::RobotState], 16, Duration::from_millis(5)).unwrap();
+        let mut handed = 0;
+        for k in 0..2000 {
+            if p.offer(state(k)) {
+                handed += 1;
+            }
+        }
+        drop(p);
+        let out = h.join().unwrap();
+        assert_eq!(out.error, None);
+        let c = &tally.counts(&[Topic::RobotState])[0];
+        assert_eq!(c.received, 2000);
+        assert!(c.dropped > 0, "nothing was dropped: {c:?}");
+        assert_eq!(c.written, handed);
+        assert_eq!(c.written + c.dropped, c.received, "{c:?}");
+        let (in_file, end) = count_states(&bytes.lock().unwrap());
+        assert_eq!(in_file, c.written);
+        let end = end.unwrap();
+        assert_eq!(end["dropped.robot_state"], c.dropped.to_string());
+        assert_eq!(end["written.robot_state"], c.written.to_string());
+        assert_eq!(end["received.robot_state"], "2000");
+    }
+
+    #[test]
+    fn gaps_in_robot_ticks_are_counted() {
+        let (w, _bytes) = slow_writer(Duration::ZERO);
+        let (mut p, tally, h) =
+            start_pipeline(w, vec![Topic::RobotState], 64, Duration::from_millis(5)).unwrap();
+        for k in [0, 1, 2, 5, 6, 10] {
+            p.offer(state(k));
+        }
+        drop(p);
+        h.join().unwrap();
+        assert_eq!(tally.state_gaps.load(Ordering::SeqCst), 2 + 3);
+        assert_eq!(tally.counts(&[Topic::RobotState])[0].written, 6);
+    }
+
+    #[test]
+    fn a_full_disk_drops_and_counts_everything_after_the_error() {
+        let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") else {
+            return;
+        };
+        let mut w =
+            LogWriter::new(std::io::BufWriter::new(full), Path::new("/dev/full"), None).unwrap();
+        w.add_topic(Topic::RobotState, &BTreeMap::new()).unwrap();
+        let (mut p, tally, h) =
+            start_pipeline(w, vec![Topic::RobotState], 1000, Duration::from_millis(1)).unwrap();
+        for k in 0..500 {
+            p.offer(state(k));
+            if k % 50 == 0 {
+                std::thread::sleep(Duration::from_millis(3));
+            }
+        }
+        drop(p);
+        let out = h.join().unwrap();
+        let err = out.error.expect("no write error on /dev/full");
+        assert!(err.starts_with("/dev/full:"), "{err}");
+        let c = &tally.counts(&[Topic::RobotState])[0];
+        assert_eq!(c.received, 500);
+        assert_eq!(c.written, 0, "{c:?}");
+        assert_eq!(c.dropped, 500, "{c:?}");
+    }
+
+    #[test]
+    fn report_names_drops_and_errors() {
+        let r = RecordReport {
+            file: "run.mcap".into(),
+            duration_s: 60.0,
+            topics: vec![TopicCounts {
+                topic: "robot_state".into(),
+                received: 2400,
+                written: 2398,
+                dropped: 2,
+            }],
+            received: 2400,
+            written: 2398,
+            dropped: 2,
+            robot_state_gaps: 0,
+            file_bytes: 1_500_000,
+            write_error: Some("run.mcap: disk full".into()),
+        };
+        let s = render_report(&r);
+        assert!(
+            s.contains("2398 messages in 60.0 s (1.5 MB), 2 dropped"),
+            "{s}"
+        );
+        assert!(s.contains("robot_state 2398 (2 dropped)"), "{s}");
+        assert!(s.contains("write error: run.mcap: disk full"), "{s}");
+    }
+}

@@ -1,0 +1,205 @@
+//! The safety process: wakes on mapper commands, forwards the active mapper's command for the
+//! newest tick through the filter, as the one publisher of `SafeCommand`. Switches of the
+//! active mapper arrive on the safety-control topic and take effect at their tick.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+/// Why the safety process stopped or could not start, each with the message a user sees.
+#[derive(Debug, thiserror::Error)]
+pub enum SafetyNodeError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// The graph or the process failed (a child died, a thread did not start, ...).
+    #[error("{0}")]
+    Graph(String),
+}
+
+use std::time::Duration;
+
+use ipc_types::{Graph, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use safety::{SafetyConfig, SafetyFilter};
+
+use ipc_types::signals;
+use scl_node::config::{GraphSection, RtRole};
+
+/// The names of the rules set in `flags`, comma-separated.
+fn rule_names(flags: u32) -> String {
+    ipc_types::safe_flags::NAMES
+        .iter()
+        .enumerate()
+        .filter(|(bit, _)| flags & (1 << bit) != 0)
+        .map(|(_, n)| *n)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn safety_state_bits(f: &SafetyFilter) -> u32 {
+    let mut bits = 0;
+    if f.estopped() {
+        bits |= ipc_types::safety_state::ESTOP;
+    }
+    if f.held() {
+        bits |= ipc_types::safety_state::HOLD;
+    }
+    bits
+}
+
+/// Runs the safety process until a shutdown is requested.
+pub fn run(
+    prefix: &Prefix,
+    graph_cfg: &GraphSection,
+    cfg: &SafetyConfig,
+    period_s: f64,
+) -> Result<(), SafetyNodeError> {
+    let mut filter = SafetyFilter::new(cfg.clone(), &kinematics::gen3_lite::limits(), period_s)
+        .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
+    if cfg.workspace.enabled {
+        filter = filter.with_tcp_model(Box::new(safety::ChainTcp::gen3_lite()));
+    }
+    let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
+    let commands = graph.mapper_command_subscriber(true)?;
+    let states = graph.robot_state_subscriber(false)?;
+    let control = graph.safety_control_subscriber()?;
+    let estops = graph.estop_subscriber()?;
+    // Fails if another safety process already publishes: the arm listens to one only.
+    let out = graph.safe_command_publisher()?;
+    let status = graph.status_publisher()?;
+    let mut st = NodeStatus::new(NodeRole::Safety, phase::READY, now_ns());
+    // A restarted safety learns the active mapper from the topic's history.
+    let mut estop_seq = 0;
+    let mut apply_control = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
+        while let Some(c) = control.receive().map_err(|e| {
+            SafetyNodeError::Ipc(ipc_types::IpcError::Io {
+                service: prefix.service(ipc_types::control::SAFETY_CONTROL),
+                op: "receive",
+                reason: e.to_string(),
+            })
+        })? {
+            tracing::info!(
+                mapper = c.active_mapper,
+                from_tick = c.from_tick,
+                hold = c.hold,
+                "control from the supervisor"
+            );
+            filter.request_switch(c.active_mapper, c.from_tick);
+            filter.set_hold(c.hold != 0);
+            if c.estop_seq != estop_seq {
+                estop_seq = c.estop_seq;
+                if c.estop != 0 {
+                    tracing::warn!("E-STOP latched (relayed by the supervisor)");
+                    filter.estop();
+                } else {
+                    filter.reset();
+                }
+            }
+        }
+        Ok(())
+    };
+    let apply_estop = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
+        while let Some(e) = estops.receive().map_err(|e| {
+            SafetyNodeError::Ipc(ipc_types::IpcError::Io {
+                service: prefix.service(ipc_types::control::ESTOP),
+                op: "receive",
+                reason: e.to_string(),
+            })
+        })? {
+            match e.action {
+                ipc_types::control::estop_action::ESTOP => {
+                    tracing::warn!(from_pid = e.source_pid, "E-STOP latched");
+                    filter.estop();
+                }
+                ipc_types::control::estop_action::RESET => {
+                    tracing::info!(from_pid = e.source_pid, "e-stop reset");
+                    filter.reset();
+                }
+                other => tracing::warn!(action = other, "unknown e-stop action ignored"),
+            }
+        }
+        Ok(())
+    };
+    apply_control(&mut filter)?;
+    apply_estop(&mut filter)?;
+    scl_node::rt::elevate(graph_cfg, RtRole::Safety);
+    st.mapper_id = filter.active_for_tick(0);
+    status.send(st)?;
+    tracing::info!(
+        active_mapper = st.mapper_id,
+        "forwarding to {}",
+        out.service()
+    );
+    st.phase = phase::RUNNING;
+    let mut state = None;
+    let mut last_tick = NO_TICK;
+    let mut last_stop_flags = 0;
+    while !signals::stop_requested() {
+        let woke = commands.wait(Duration::from_millis(100))?;
+        let rx_ns = now_ns();
+        apply_control(&mut filter)?;
+        apply_estop(&mut filter)?;
+        if !woke {
+            // No commands (no mapper, no ticks): still say what state safety is in, so
+            // `scl estop` can confirm and `scl status` shows it alive.
+            st.t_ns = now_ns();
+            st.safety_state = safety_state_bits(&filter);
+            status.send(st)?;
+            continue;
+        }
+        if let Some(s) = states.latest()? {
+            state = Some(s);
+        }
+        let Some(state) = state else {
+            continue;
+        };
+        let active = filter.active_for_tick(state.tick);
+        let mut pending = None;
+        commands.drain(|c| {
+            if c.mapper_id == active && c.tick == state.tick {
+                pending = Some(*c);
+            }
+        })?;
+        let Some(cmd) = pending else {
+            continue;
+        };
+        if cmd.tick == last_tick {
+            continue;
+        }
+        last_tick = cmd.tick;
+        let t0 = now_ns();
+        let mut safe = filter.step(&cmd, &state, t0);
+        safe.mapper_rx_ns = rx_ns;
+        safe.compute_ns = now_ns() - t0;
+        safe.t_ns = now_ns();
+        out.send(safe)?;
+        st.t_ns = safe.t_ns;
+        st.tick = safe.tick;
+        st.handled += 1;
+        st.mapper_id = active;
+        st.rule_counts = filter.rule_counts();
+        st.safety_state = safety_state_bits(&filter);
+        if safe.flags & ipc_types::safe_flags::STOP != 0 {
+            st.faults += 1;
+        }
+        // Say when the set of stop reasons changes, not every tick of a stop.
+        let stop_flags = if safe.flags & ipc_types::safe_flags::STOP != 0 {
+            safe.flags
+        } else {
+            0
+        };
+        if stop_flags != last_stop_flags {
+            if stop_flags != 0 {
+                tracing::warn!(tick = safe.tick, rules = %rule_names(stop_flags), "stopping the arm");
+            } else {
+                tracing::info!(tick = safe.tick, "stop cleared");
+            }
+            last_stop_flags = stop_flags;
+        }
+        status.send(st)?;
+    }
+    st.phase = phase::STOPPING;
+    st.t_ns = now_ns();
+    status.send(st)?;
+    Ok(())
+}

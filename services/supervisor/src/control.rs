@@ -1,0 +1,425 @@
+//! The commands that talk to a running graph: `scl swap` (a request to its supervisor) and
+//! `scl status` (read from the heartbeats every node publishes, so it also works for a graph
+//! started by hand).
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use ipc_types::control::{ControlRequest, ControlResponse, Text, request_kind};
+use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use serde::Serialize;
+
+use crate::SupervisorError;
+
+/// Asks the supervisor of graph `prefix` to swap the active mapper for one serving `model`
+/// (a path, made absolute here since the supervisor's working directory may differ, or
+/// `bundled`).
+pub fn swap(
+    prefix: &Prefix,
+    model: &str,
+    timeout: Duration,
+) -> Result<ControlResponse, SupervisorError> {
+    let spec = if mapper::model::is_builtin(model) {
+        model.to_owned()
+    } else {
+        let p = Path::new(model);
+        let abs = std::fs::canonicalize(p)
+            .map_err(|e| SupervisorError::Graph(format!("model file {model}: {e}")))?;
+        abs.display().to_string()
+    };
+    if spec.len() > ipc_types::control::TEXT_CAP {
+        return Err(SupervisorError::Graph(format!(
+            "model path {spec} is longer than {} bytes",
+            ipc_types::control::TEXT_CAP
+        )));
+    }
+    let graph = Graph::join(prefix, &format!("swap-{}", std::process::id()))?;
+    let req = ControlRequest {
+        kind: request_kind::SWAP,
+        reserved: 0,
+        path: Text::new(&spec),
+    };
+    Ok(graph.request(req, timeout)?)
+}
+
+/// Sends an e-stop or a reset (an `estop_action` value) to graph `prefix` and waits up to
+/// `timeout` for a safety process to confirm the new state in its heartbeat. Returns the
+/// confirming process's pid, or `None` if none did. The publisher stays alive until then: a
+/// sample of a publisher that is gone is not delivered.
+pub fn estop(
+    prefix: &Prefix,
+    transport: ipc_types::Transport,
+    action: u32,
+    timeout: Duration,
+) -> Result<Option<u32>, SupervisorError> {
+    use ipc_types::control::{EstopCommand, estop_action};
+    let graph = Graph::join_with(prefix, &format!("estop-{}", std::process::id()), transport)?;
+    let status = graph.status_subscriber()?;
+    let publisher = graph.estop_publisher()?;
+    publisher
+        .send_copy(EstopCommand {
+            t_ns: now_ns(),
+            action,
+            source_pid: std::process::id(),
+        })
+        .map_err(|e| SupervisorError::Graph(format!("cannot send the e-stop command: {e}")))?;
+    let want = action == estop_action::ESTOP;
+    let sent = now_ns();
+    let t0 = Instant::now();
+    while t0.elapsed() < timeout {
+        let mut confirmed = None;
+        status.drain(|s| {
+            let latched = s.safety_state & ipc_types::safety_state::ESTOP != 0;
+            if s.role == NodeRole::Safety as u32 && s.t_ns > sent && latched == want {
+                confirmed = Some(s.pid);
+            }
+        })?;
+        if confirmed.is_some() {
+            return Ok(confirmed);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Ok(None)
+}
+
+/// One node as `scl status` shows it.
+#[derive(Debug, Clone, Serialize)]
+pub struct NodeRow {
+    /// Role name.
+    pub role: String,
+    /// Process id.
+    pub pid: u32,
+    /// Mapper id (mappers: their own; safety: the active one; bridge: last executed).
+    pub mapper_id: u32,
+    /// `ready`, `running` or `stopping`.
+    pub phase: String,
+    /// Newest tick handled.
+    pub tick: Option<u64>,
+    /// Ticks handled.
+    pub handled: u64,
+    /// Faults (bridge: missed ticks).
+    pub faults: u64,
+    /// Age of the newest heartbeat (ms).
+    pub heartbeat_age_ms: f64,
+    /// Whether the node counts as alive: heartbeat younger than 250 ms and its iceoryx2
+    /// node alive.
+    pub alive: bool,
+    /// Safety: how many ticks each rule acted (only rules that did).
+    pub rules: Vec<(String, u32)>,
+    /// Mapper with modes (mode switching): the current mode's name.
+    pub mode: Option<String>,
+    /// Mapper with modes: mode switches since it started.
+    pub mode_switches: Option<u32>,
+}
+
+/// The graph as `scl status` shows it.
+#[derive(Debug, Clone, Serialize)]
+pub struct GraphStatus {
+    /// The prefix.
+    pub prefix: String,
+    /// Nodes with heartbeats, by role.
+    pub nodes: Vec<NodeRow>,
+    /// Other iceoryx2 nodes of the graph (supervisor, observers): name and pid.
+    pub other_nodes: Vec<(String, u32)>,
+    /// The mapper safety forwards.
+    pub active_mapper: Option<u32>,
+    /// The bridge's newest end-to-end latency (µs).
+    pub bridge_latency_us: Option<f64>,
+    /// The bridge's joint travel (rad).
+    pub joint_travel_rad: Option<f64>,
+}
+
+/// Reads the heartbeats of graph `prefix` for `listen`.
+pub fn status(
+    prefix: &Prefix,
+    transport: ipc_types::Transport,
+    listen: Duration,
+) -> Result<GraphStatus, SupervisorError> {
+    let me = format!("status-{}", std::process::id());
+    let graph = Graph::join_with(prefix, &me, transport)?;
+    let sub = graph.status_subscriber()?;
+    let mut latest: Vec<NodeStatus> = Vec::new();
+    let t0 = Instant::now();
+    while t0.elapsed() < listen {
+        sub.drain(|s| {
+            match latest
+                .iter_mut()
+                .find(|l| l.pid == s.pid && l.role == s.role)
+            {
+                Some(l) => *l = *s,
+                None => latest.push(*s),
+            }
+        })?;
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let alive = graph.alive_nodes();
+    Ok(status_from_heartbeats(
+        prefix.as_str(),
+        latest,
+        alive,
+        &me,
+        now_ns(),
+    ))
+}
+
+/// The graph as `scl status` shows it, from the newest heartbeat of each node (`latest`),
+/// the graph's live iceoryx2 nodes (`alive`: name and pid; `me`, the asking process, is left
+/// out) at monotonic time `now`: a pure function, so what `scl status` prints is testable
+/// without a graph.
+pub fn status_from_heartbeats(
+    prefix: &str,
+    mut latest: Vec<NodeStatus>,
+    alive: Vec<(String, u32)>,
+    me: &str,
+    now: u64,
+) -> GraphStatus {
+    latest.sort_by_key(|s| (s.role, s.mapper_id, s.pid));
+    let mut out = GraphStatus {
+        prefix: prefix.to_owned(),
+        nodes: Vec::new(),
+        other_nodes: Vec::new(),
+        active_mapper: None,
+        bridge_latency_us: None,
+        joint_travel_rad: None,
+    };
+    for s in &latest {
+        let role = NodeRole::from_u32(s.role);
+        let age_ms = now.saturating_sub(s.t_ns) as f64 / 1e6;
+        let node_alive = alive.iter().any(|(_, pid)| *pid == s.pid);
+        let row = NodeRow {
+            role: role.map_or("unknown", NodeRole::name).to_owned(),
+            pid: s.pid,
+            mapper_id: s.mapper_id,
+            phase: match s.phase {
+                phase::READY => "ready",
+                phase::RUNNING => "running",
+                phase::STOPPING => "stopping",
+                _ => "?",
+            }
+            .to_owned(),
+            tick: (s.tick != ipc_types::NO_TICK).then_some(s.tick),
+            handled: s.handled,
+            faults: s.faults,
+            heartbeat_age_ms: age_ms,
+            alive: age_ms < 250.0 && node_alive && s.phase != phase::STOPPING,
+            rules: ipc_types::safe_flags::NAMES
+                .iter()
+                .zip(s.rule_counts)
+                .filter(|(_, c)| *c > 0)
+                .map(|(n, c)| ((*n).to_owned(), c))
+                .collect(),
+            mode: (s.mode > 0).then(|| mode_name(s.mode)),
+            mode_switches: (s.mode > 0).then_some(s.mode_switches),
+        };
+        if row.alive {
+            match role {
+                Some(NodeRole::Safety) => out.active_mapper = Some(s.mapper_id),
+                Some(NodeRole::Bridge) => {
+                    out.bridge_latency_us = Some(s.latency_ns as f64 / 1e3);
+                    out.joint_travel_rad = Some(s.joint_travel_rad);
+                }
+                _ => {}
+            }
+        }
+        out.nodes.push(row);
+    }
+    out.other_nodes = alive
+        .into_iter()
+        .filter(|(name, pid)| *name != me && !latest.iter().any(|s| s.pid == *pid))
+        .collect();
+    out
+}
+
+pub use mapper::modeswitch::status_mode_name as mode_name;
+
+/// The table `scl status` prints.
+pub fn render(st: &GraphStatus) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let alive = st.nodes.iter().filter(|n| n.alive).count();
+    let _ = writeln!(
+        s,
+        "graph `{}`: {alive} of {} nodes alive, active mapper {}",
+        st.prefix,
+        st.nodes.len(),
+        st.active_mapper.map_or("none".into(), |m| m.to_string())
+    );
+    let _ = writeln!(
+        s,
+        "{:<9} {:>8} {:>3} {:<9} {:>8} {:>8} {:>6} {:>10}  LIVENESS",
+        "ROLE", "PID", "ID", "PHASE", "TICK", "HANDLED", "FAULTS", "HEARTBEAT"
+    );
+    for n in &st.nodes {
+        let _ = writeln!(
+            s,
+            "{:<9} {:>8} {:>3} {:<9} {:>8} {:>8} {:>6} {:>7.0} ms  {}",
+            n.role,
+            n.pid,
+            if n.mapper_id > 0 {
+                n.mapper_id.to_string()
+            } else {
+                "-".into()
+            },
+            n.phase,
+            n.tick.map_or("-".into(), |t| t.to_string()),
+            n.handled,
+            n.faults,
+            n.heartbeat_age_ms,
+            if n.alive { "alive" } else { "gone" }
+        );
+    }
+    for n in st.nodes.iter().filter(|n| !n.rules.is_empty()) {
+        let rules: Vec<String> = n.rules.iter().map(|(r, c)| format!("{r} {c}")).collect();
+        let _ = writeln!(
+            s,
+            "{} (pid {}) rules acted: {}",
+            n.role,
+            n.pid,
+            rules.join(", ")
+        );
+    }
+    for n in &st.nodes {
+        if let (Some(mode), Some(switches)) = (&n.mode, n.mode_switches) {
+            let _ = writeln!(
+                s,
+                "{} {} (pid {}): mode {mode}, {switches} mode switches",
+                n.role, n.mapper_id, n.pid
+            );
+        }
+    }
+    for (name, pid) in &st.other_nodes {
+        let _ = writeln!(
+            s,
+            "{name:<9} {pid:>8}   (no heartbeat: supervisor or observer)"
+        );
+    }
+    if let (Some(l), Some(t)) = (st.bridge_latency_us, st.joint_travel_rad) {
+        let _ = writeln!(
+            s,
+            "bridge: last end-to-end latency {l:.1} µs, joint travel {t:.3} rad"
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ipc_types::safe_flags;
+
+    fn hb(role: NodeRole, pid: u32, mapper_id: u32, t_ms: u64) -> NodeStatus {
+        let mut s = NodeStatus::new(role, phase::RUNNING, t_ms * 1_000_000);
+        s.pid = pid;
+        s.mapper_id = mapper_id;
+        s.tick = 400;
+        s.handled = 400;
+        s
+    }
+
+    /// A running graph with a mode-switching mapper (z-yaw after 3 switches), a PCA mapper
+    /// without modes, and a safety whose rules acted.
+    fn graph() -> GraphStatus {
+        let mut mapper = hb(NodeRole::Mapper, 2001, 1, 990);
+        mapper.mode = 2;
+        mapper.mode_switches = 3;
+        let pca = hb(NodeRole::Mapper, 2002, 2, 990);
+        let mut safety = hb(NodeRole::Safety, 2003, 1, 995);
+        safety.rule_counts[safe_flags::NAMES
+            .iter()
+            .position(|n| *n == "velocity")
+            .unwrap()] = 120;
+        safety.rule_counts[safe_flags::NAMES.iter().position(|n| *n == "stop").unwrap()] = 7;
+        let mut bridge = hb(NodeRole::Bridge, 2004, 1, 998);
+        bridge.latency_ns = 85_500;
+        bridge.joint_travel_rad = 1.25;
+        let alive = [2001, 2002, 2003, 2004, 2005, 2006]
+            .into_iter()
+            .map(|p| (format!("node-{p}"), p))
+            .chain([("status-1".to_owned(), 1)])
+            .collect();
+        status_from_heartbeats(
+            "lab2",
+            vec![bridge, safety, pca, mapper],
+            alive,
+            "status-1",
+            1_000_000_000,
+        )
+    }
+
+    #[test]
+    fn status_shows_the_mode_its_switches_and_the_rules_that_acted() {
+        let st = graph();
+        assert_eq!(st.active_mapper, Some(1));
+        assert_eq!(st.bridge_latency_us, Some(85.5));
+        let text = render(&st);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[0], "graph `lab2`: 4 of 4 nodes alive, active mapper 1",
+            "{text}"
+        );
+        // Rows by role: mappers, safety, bridge.
+        let roles: Vec<&str> = lines[2..6]
+            .iter()
+            .map(|l| l.split_whitespace().next().unwrap())
+            .collect();
+        assert_eq!(roles, ["mapper", "mapper", "safety", "bridge"], "{text}");
+        assert!(lines.iter().all(|l| !l.contains("gone")), "{text}");
+        // The mode-switching mapper's mode and switch count; none for the map without modes.
+        assert!(
+            text.contains("mapper 1 (pid 2001): mode z-yaw, 3 mode switches"),
+            "{text}"
+        );
+        assert!(!text.contains("(pid 2002): mode"), "{text}");
+        // The safety rules that acted, with their counts (the others are left out).
+        assert!(
+            text.contains("safety (pid 2003) rules acted: velocity 120, stop 7\n"),
+            "{text}"
+        );
+        assert_eq!(text.matches("rules acted").count(), 1, "{text}");
+        // Live nodes without heartbeats (supervisor, observers), but not the asker.
+        assert!(
+            text.contains("node-2005     2005   (no heartbeat"),
+            "{text}"
+        );
+        assert!(!text.contains("status-1"), "{text}");
+        assert!(
+            text.contains("last end-to-end latency 85.5 µs, joint travel 1.250 rad"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_stale_or_dead_node_is_gone_and_names_no_active_mapper() {
+        let safety = hb(NodeRole::Safety, 3001, 4, 0);
+        // Heartbeat 1 s old: gone, so no active mapper.
+        let st = status_from_heartbeats(
+            "g",
+            vec![safety],
+            vec![("s".into(), 3001)],
+            "me",
+            1e9 as u64,
+        );
+        assert_eq!(st.active_mapper, None);
+        assert!(render(&st).contains("gone"));
+        // Fresh, but its process is no longer a node of the graph: gone too.
+        let st = status_from_heartbeats("g", vec![safety], vec![], "me", 100_000_000);
+        assert_eq!(st.active_mapper, None);
+        // Fresh and listed: alive.
+        let st = status_from_heartbeats(
+            "g",
+            vec![safety],
+            vec![("s".into(), 3001)],
+            "me",
+            100_000_000,
+        );
+        assert_eq!(st.active_mapper, Some(4));
+    }
+
+    #[test]
+    fn mode_names_follow_the_mode_switching_map() {
+        assert_eq!(mode_name(1), "x-y");
+        assert_eq!(mode_name(2), "z-yaw");
+        assert_eq!(mode_name(3), "roll-pitch");
+        assert_eq!(mode_name(9), "mode 8");
+    }
+}

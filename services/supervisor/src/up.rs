@@ -1,0 +1,1246 @@
+//! `scl up`: starts the four processes of the graph as children, supervises them, serves live
+//! mapper swaps, reports once a second, and stops them in a safe order (bridge first, so the
+//! arm is stopped before anything else goes).
+//!
+//! * Start: joystick, mapper and safety, each awaited until it reports ready, then the bridge
+//!   (the clock), so the first tick already finds every process listening.
+//! * A child that exits is reaped at once and what it left in shared memory is cleaned up in
+//!   the same loop iteration, before any successor starts; the node directory is scanned for
+//!   dead nodes only then, before a restart, and once a second as a safety net
+//!   ([`CleanupSchedule`]), not on every 2 ms iteration. The child's restart policy
+//!   (`[supervisor.restart]`) decides ([`decide_restart`]): `never` stops the graph with a
+//!   non-zero status and a message naming it; `on-failure` / `always` restart it after an
+//!   exponential backoff. The arm is stopped meanwhile (the bridge misses the tick, or for a
+//!   dead bridge the robot's own watchdog acts). A restarted bridge continues the tick count
+//!   and starts from a stop.
+//! * `scl swap MODEL` (a request on the supervisor's control service) is make-before-break:
+//!   a new mapper process with a new id starts beside the old one; once it has produced valid
+//!   commands for `swap_valid_ticks` consecutive ticks ([`Warmup`]), safety is told to forward
+//!   its commands from a tick boundary on; when the bridge has received the first of them, the
+//!   old mapper is stopped. A model that does not load, or a new mapper that fails or does not
+//!   warm up within `swap_timeout_s`, is refused with the reason and the old mapper keeps
+//!   running.
+
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitStatus};
+use std::time::{Duration, Instant};
+
+use ipc_types::control::{
+    ActiveControlRequest, ControlResponse, SafetyControl, SafetyControlPublisher, Text,
+    request_kind,
+};
+use ipc_types::{
+    Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, mapper_flags, phase,
+    time::now_ns,
+};
+use serde::Serialize;
+
+use crate::SupervisorError;
+use ipc_types::signals;
+use scl_node::config::{GraphConfig, RestartPolicy, SupervisorConfig};
+use scl_node::stats::{Percentiles, percentiles_us};
+
+/// What `scl up` was asked to do.
+#[derive(Debug, Clone)]
+pub struct UpOptions {
+    /// The graph prefix.
+    pub prefix: Prefix,
+    /// The config file given, passed on to the children.
+    pub config_path: Option<PathBuf>,
+    /// The effective configuration (file plus flags).
+    pub config: GraphConfig,
+    /// Stop after this long; run until Ctrl-C if `None`.
+    pub duration: Option<Duration>,
+    /// Print the summary as JSON on stdout.
+    pub json: bool,
+    /// Record the graph to this MCAP file: `scl record` as a supervised child, started first
+    /// and stopped last.
+    pub record: Option<PathBuf>,
+}
+
+/// The end-of-run summary (`--json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Ticks the bridge ran (over every bridge process of the run).
+    pub ticks: u64,
+    /// Ticks without a valid command in time.
+    pub missed: u64,
+    /// RobotState(k) published -> SafeCommand(k) received by the bridge, µs.
+    pub latency_us: Percentiles,
+    /// Lateness of the bridge's clock against the ideal grid, µs.
+    pub tick_lateness_us: Percentiles,
+    /// Joint-space path length of the arm (rad).
+    pub joint_travel_rad: f64,
+    /// Latency samples behind the percentiles.
+    pub latency_samples: usize,
+    /// Wall time of the run (s).
+    pub duration_s: f64,
+    /// The graph prefix.
+    pub prefix: String,
+    /// The mapper whose commands reached the arm last.
+    pub active_mapper: u32,
+    /// Processes restarted by their restart policy.
+    pub restarts: u32,
+    /// Live swaps completed.
+    pub swaps: u32,
+    /// Set when a child died and was not restarted: which, and how.
+    pub failure: Option<String>,
+}
+
+/// A supervised child process.
+struct Managed {
+    role: NodeRole,
+    /// Mapper id (mappers only).
+    mapper_id: u32,
+    args: Vec<String>,
+    child: Option<Child>,
+    pid: u32,
+    started: Instant,
+    /// Consecutive failures, for the backoff.
+    failures: u32,
+    restart_at: Option<Instant>,
+    /// Being stopped on purpose (the old mapper after a swap, a refused new one).
+    retiring: bool,
+}
+
+impl Managed {
+    fn label(&self) -> String {
+        if self.role == NodeRole::Mapper {
+            format!(
+                "the mapper process (id {}, pid {})",
+                self.mapper_id, self.pid
+            )
+        } else {
+            format!("the {} process (pid {})", self.role.name(), self.pid)
+        }
+    }
+}
+
+fn describe(status: ExitStatus) -> String {
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exited with status {c}"),
+        (None, Some(9)) => "was killed by signal 9 (SIGKILL)".into(),
+        (None, Some(s)) => format!("was killed by signal {s}"),
+        _ => "ended".into(),
+    }
+}
+
+/// What happens to a child that exited on its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RestartDecision {
+    /// Its policy does not restart it: the graph stops.
+    Stop,
+    /// Restart it after `delay`; `failures` is its new count of consecutive failures.
+    After { delay: Duration, failures: u32 },
+}
+
+/// The restart decision for a `role` child that exited (`clean_exit`: status 0) after running
+/// for `ran_for`, with `failures` consecutive failures before this one.
+///
+/// `never` stops the graph; `on-failure` restarts after a crash or a non-zero status only;
+/// `always` restarts after any exit. The delay starts at `backoff_initial_ms` and doubles
+/// with each consecutive failure up to `backoff_max_ms`; a child that ran longer than
+/// `stable_after_s` starts the count afresh.
+fn decide_restart(
+    sv: &SupervisorConfig,
+    role: NodeRole,
+    clean_exit: bool,
+    ran_for: Duration,
+    failures: u32,
+) -> RestartDecision {
+    let restart = match sv.restart.of(role) {
+        RestartPolicy::Never => false,
+        RestartPolicy::OnFailure => !clean_exit,
+        RestartPolicy::Always => true,
+    };
+    if !restart {
+        return RestartDecision::Stop;
+    }
+    let before = if ran_for.as_secs_f64() > sv.stable_after_s {
+        0
+    } else {
+        failures
+    };
+    let failures = before.saturating_add(1);
+    let factor = 1u64 << (failures - 1).min(20);
+    let delay = Duration::from_millis(
+        sv.backoff_initial_ms
+            .saturating_mul(factor)
+            .min(sv.backoff_max_ms),
+    );
+    RestartDecision::After { delay, failures }
+}
+
+/// Whether a new mapper's command counts towards the swap's warm-up: no invalid input,
+/// output or state, and every velocity finite.
+fn command_valid(c: &MapperCommand) -> bool {
+    let bad = mapper_flags::INPUT_NON_FINITE
+        | mapper_flags::OUTPUT_NON_FINITE
+        | mapper_flags::STATE_INVALID;
+    c.flags & bad == 0 && c.qdot_rad_s.iter().all(|v| v.is_finite())
+}
+
+/// The swap's warm-up counter: valid commands of the new mapper on consecutive ticks. An
+/// invalid command resets it to zero; a skipped tick (a missing command) restarts it at the
+/// command that follows the gap.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Warmup {
+    /// Valid commands on consecutive ticks, ending at `last_tick`.
+    valid: u32,
+    /// The tick of the newest command taken.
+    last_tick: Option<u64>,
+}
+
+impl Warmup {
+    /// Takes the new mapper's command for `tick` (`ok`: [`command_valid`]); returns the count
+    /// of valid commands on consecutive ticks ending at it. A valid repeat of the newest tick
+    /// is not counted twice.
+    fn observe(&mut self, tick: u64, ok: bool) -> u32 {
+        if ok && self.last_tick == Some(tick) {
+            return self.valid;
+        }
+        let consecutive = self.last_tick.is_none_or(|t| tick == t.wrapping_add(1));
+        self.valid = match (ok, consecutive) {
+            (true, true) => self.valid.saturating_add(1),
+            (true, false) => 1,
+            (false, _) => 0,
+        };
+        self.last_tick = Some(tick);
+        self.valid
+    }
+}
+
+/// When the supervisor scans iceoryx2's node directory for dead nodes (a file-system walk):
+/// in the loop iteration that reaped a child, so its resources go before a successor needs
+/// them, and otherwise at most once per `every`, for processes of the graph it did not start.
+#[derive(Debug, Clone, Copy)]
+struct CleanupSchedule {
+    every: Duration,
+    last: Option<Instant>,
+}
+
+impl CleanupSchedule {
+    fn new(every: Duration) -> Self {
+        Self { every, last: None }
+    }
+
+    /// Whether to scan now (`reaped`: a child was reaped in this iteration); a scan resets
+    /// the safety-net timer.
+    fn due(&mut self, reaped: bool, now: Instant) -> bool {
+        let due = reaped
+            || self
+                .last
+                .is_none_or(|t| now.saturating_duration_since(t) >= self.every);
+        if due {
+            self.last = Some(now);
+        }
+        due
+    }
+}
+
+/// What the supervisor learns from the heartbeats.
+#[derive(Default)]
+struct Telemetry {
+    ready: Vec<(NodeRole, u32)>,
+    bridge_pid: u32,
+    base_ticks: u64,
+    base_missed: u64,
+    base_travel: f64,
+    cur_ticks: u64,
+    cur_missed: u64,
+    cur_travel: f64,
+    active_mapper: u32,
+    latency_ns: Vec<u64>,
+    lateness_ns: Vec<u64>,
+    last_bridge_tick: Option<u64>,
+}
+
+impl Telemetry {
+    fn take(&mut self, s: &NodeStatus) {
+        let Some(role) = NodeRole::from_u32(s.role) else {
+            return;
+        };
+        if s.phase == phase::READY && !self.ready.contains(&(role, s.pid)) {
+            self.ready.push((role, s.pid));
+        }
+        if role != NodeRole::Bridge || s.phase == phase::READY {
+            return;
+        }
+        if s.pid != self.bridge_pid {
+            // A new bridge process: bank the counts of the one before.
+            self.base_ticks += self.cur_ticks;
+            self.base_missed += self.cur_missed;
+            self.base_travel += self.cur_travel;
+            self.bridge_pid = s.pid;
+        }
+        self.cur_ticks = s.handled;
+        self.cur_missed = s.faults;
+        self.cur_travel = s.joint_travel_rad;
+        if s.phase == phase::RUNNING && self.last_bridge_tick != Some(s.tick) {
+            self.last_bridge_tick = Some(s.tick);
+            if s.latency_ns > 0 {
+                self.latency_ns.push(s.latency_ns);
+                self.active_mapper = s.mapper_id;
+            }
+            self.lateness_ns.push(s.lateness_ns);
+        }
+    }
+
+    fn is_ready(&self, role: NodeRole, pid: u32) -> bool {
+        self.ready.contains(&(role, pid))
+    }
+
+    fn ticks(&self) -> u64 {
+        self.base_ticks + self.cur_ticks
+    }
+
+    fn missed(&self) -> u64 {
+        self.base_missed + self.cur_missed
+    }
+
+    fn travel(&self) -> f64 {
+        self.base_travel + self.cur_travel
+    }
+}
+
+type Request = ActiveControlRequest;
+
+enum SwapPhase {
+    /// Waiting for the new mapper's valid consecutive commands.
+    Warmup(Warmup),
+    /// Safety was told to switch at `from_tick`; waiting for the bridge to get its command.
+    Switching { from_tick: u64 },
+}
+
+struct Swap {
+    request: Request,
+    new_id: u32,
+    old_id: u32,
+    started: Instant,
+    missed_at_start: u64,
+    phase: SwapPhase,
+}
+
+/// Everything the supervisor keeps while the graph runs.
+struct Supervisor<'a> {
+    opts: &'a UpOptions,
+    graph: Graph,
+    procs: Vec<Managed>,
+    tel: Telemetry,
+    last_state: Option<RobotState>,
+    next_mapper_id: u32,
+    active_mapper: u32,
+    restarts: u32,
+    swaps: u32,
+    control_seq: u64,
+    swap: Option<Swap>,
+    switch_publisher: Option<SafetyControlPublisher>,
+    /// The switch last sent to safety: mapper id and first tick.
+    switch: (u32, u64),
+    /// Whether safety is told to hold the arm (the joystick is down).
+    hold: bool,
+    /// E-stop state relayed to safety: change counter and latched or not.
+    estop: (u32, bool),
+    /// When to scan for dead nodes.
+    cleanup: CleanupSchedule,
+}
+
+fn spawn(args: &[String]) -> std::io::Result<Child> {
+    let exe = std::env::current_exe()?;
+    let mut cmd = Command::new(exe);
+    cmd.args(args);
+    // SAFETY: setpgid and prctl are async-signal-safe. Each child gets its own process
+    // group, so a terminal's Ctrl-C reaches only the supervisor, which then stops the graph
+    // in order (bridge first); and each child gets SIGTERM if the supervisor dies, so no
+    // process of the graph outlives it.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::setpgid(0, 0);
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            Ok(())
+        });
+    }
+    cmd.spawn()
+}
+
+fn terminate(child: &Child) {
+    // SAFETY: sending a signal to our own child's pid.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+    }
+}
+
+fn signal_and_wait(p: &mut Managed, timeout: Duration) {
+    let label = p.label();
+    let Some(child) = p.child.as_mut() else {
+        return;
+    };
+    terminate(child);
+    let start = Instant::now();
+    loop {
+        if let Ok(Some(_)) = child.try_wait() {
+            break;
+        }
+        if start.elapsed() > timeout {
+            tracing::warn!("{label} did not stop within {timeout:?}; killing it");
+            let _ = child.kill();
+            let _ = child.wait();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    p.child = None;
+}
+
+impl<'a> Supervisor<'a> {
+    fn child_args(&self, sub: &str) -> Vec<String> {
+        let mut a = vec![
+            sub.to_owned(),
+            "--prefix".into(),
+            self.opts.prefix.to_string(),
+        ];
+        if let Some(p) = &self.opts.config_path {
+            a.push("--config".into());
+            a.push(p.display().to_string());
+        }
+        a
+    }
+
+    fn mapper_args(&self, model: &str, id: u32) -> Vec<String> {
+        let mut a = self.child_args("mapper");
+        a.extend([
+            "--model".into(),
+            model.to_owned(),
+            "--id".into(),
+            id.to_string(),
+        ]);
+        a
+    }
+
+    /// Starts (or restarts) process `i`. A restarted bridge resumes from the last state.
+    fn start(&mut self, i: usize) -> Result<(), SupervisorError> {
+        let mut args = self.procs[i].args.clone();
+        if self.procs[i].role == NodeRole::Bridge
+            && let Some(s) = &self.last_state
+        {
+            let q: Vec<String> = s.q().iter().map(|v| format!("{v:.9}")).collect();
+            args.push(format!("--start-tick={}", s.tick + 1));
+            args.push(format!("--resume-q={}", q.join(",")));
+            args.push(format!("--resume-gripper={:.9}", s.gripper));
+        }
+        let p = &mut self.procs[i];
+        let child = spawn(&args).map_err(|e| {
+            SupervisorError::Graph(format!("cannot start the {} process: {e}", p.role.name()))
+        })?;
+        p.pid = child.id();
+        p.child = Some(child);
+        p.started = Instant::now();
+        p.restart_at = None;
+        Ok(())
+    }
+
+    fn push(&mut self, role: NodeRole, mapper_id: u32, args: Vec<String>) -> usize {
+        self.procs.push(Managed {
+            role,
+            mapper_id,
+            args,
+            child: None,
+            pid: 0,
+            started: Instant::now(),
+            failures: 0,
+            restart_at: None,
+            retiring: false,
+        });
+        self.procs.len() - 1
+    }
+
+    /// Reaps exited children; returns a failure message if the graph must stop.
+    fn reap(&mut self) -> Option<String> {
+        let sv = &self.opts.config.supervisor;
+        let mut failure = None;
+        let mut refuse_swap = None;
+        let mut reaped = false;
+        for p in self.procs.iter_mut() {
+            let Some(child) = p.child.as_mut() else {
+                continue;
+            };
+            let Ok(Some(status)) = child.try_wait() else {
+                continue;
+            };
+            reaped = true;
+            p.child = None;
+            let what = format!("{} {}", p.label(), describe(status));
+            if p.retiring {
+                tracing::info!("{what}");
+                continue;
+            }
+            if self.swap.as_ref().is_some_and(|s| s.new_id == p.mapper_id)
+                && p.role == NodeRole::Mapper
+            {
+                p.retiring = true;
+                refuse_swap = Some(format!(
+                    "the new mapper stopped before the switch-over: {what}"
+                ));
+                continue;
+            }
+            let decision = decide_restart(
+                sv,
+                p.role,
+                status.success(),
+                p.started.elapsed(),
+                p.failures,
+            );
+            let RestartDecision::After { delay, failures } = decision else {
+                failure = Some(what);
+                break;
+            };
+            if signals::stop_requested() {
+                failure = Some(what);
+                break;
+            }
+            p.failures = failures;
+            p.restart_at = Some(Instant::now() + delay);
+            self.restarts += 1;
+            tracing::warn!(
+                "{what}; restarting it in {delay:?} (restart {} of this process)",
+                p.failures
+            );
+        }
+        // What the dead left in shared memory (ports, a publisher slot) goes now, before a
+        // successor needs it.
+        if self.cleanup.due(reaped, Instant::now()) {
+            self.cleanup_dead_nodes();
+        }
+        self.procs.retain(|p| !(p.retiring && p.child.is_none()));
+        if let Some(reason) = refuse_swap {
+            self.finish_swap(Err(reason));
+        }
+        failure
+    }
+
+    /// Removes the resources of the graph's dead nodes.
+    fn cleanup_dead_nodes(&self) {
+        let cleaned = self.graph.cleanup_dead_nodes();
+        if cleaned > 0 {
+            tracing::debug!(cleaned, "removed resources of dead processes");
+        }
+    }
+
+    fn restart_due(&mut self) -> Result<(), SupervisorError> {
+        let now = Instant::now();
+        let mut scanned = false;
+        for i in 0..self.procs.len() {
+            if self.procs[i].restart_at.is_some_and(|t| t <= now) {
+                if !scanned {
+                    // Already done when the child was reaped; again in case its node was
+                    // not yet seen dead then. Restarts are rare.
+                    self.cleanup.due(true, now);
+                    self.cleanup_dead_nodes();
+                    scanned = true;
+                }
+                self.start(i)?;
+                tracing::info!("restarted {}", self.procs[i].label());
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_switch(&mut self, id: u32, from_tick: u64) -> Result<(), SupervisorError> {
+        self.switch = (id, from_tick);
+        self.publish_control()
+    }
+
+    /// Holds the arm while the joystick process is down or restarting (not yet ready): the
+    /// mapper would otherwise keep acting on its last sample until safety found it stale.
+    fn update_hold(&mut self) -> Result<(), SupervisorError> {
+        let down = self.procs.iter().any(|p| {
+            p.role == NodeRole::Joystick
+                && !p.retiring
+                && (p.child.is_none() || !self.tel.is_ready(p.role, p.pid))
+        });
+        if down != self.hold {
+            self.hold = down;
+            if down {
+                tracing::warn!("the joystick is down: safety holds the arm");
+            } else {
+                tracing::info!("the joystick is back: hold released");
+            }
+            self.publish_control()?;
+        }
+        Ok(())
+    }
+
+    fn publish_control(&mut self) -> Result<(), SupervisorError> {
+        let (id, from_tick) = self.switch;
+        self.control_seq += 1;
+        let publisher = match self.switch_publisher.take() {
+            Some(p) => p,
+            None => self.graph.safety_control_publisher()?,
+        };
+        let msg = SafetyControl {
+            seq: self.control_seq,
+            t_ns: now_ns(),
+            from_tick,
+            active_mapper: id,
+            hold: u32::from(self.hold),
+            estop_seq: self.estop.0,
+            estop: u32::from(self.estop.1),
+        };
+        publisher.send_copy(msg).map_err(|e| {
+            SupervisorError::Graph(format!("cannot send the switch to safety: {e}"))
+        })?;
+        // Keep the publisher (and with it the topic's history for a restarted safety).
+        self.switch_publisher = Some(publisher);
+        Ok(())
+    }
+
+    fn begin_swap(&mut self, request: Request) {
+        let req = *request.payload();
+        let refuse = |request: &Request, reason: &str| {
+            tracing::warn!("swap refused: {reason}");
+            let _ = request.send_copy(ControlResponse::refused(reason));
+        };
+        if self.swap.is_some() {
+            refuse(&request, "another swap is in progress");
+            return;
+        }
+        if req.kind != request_kind::SWAP {
+            refuse(&request, &format!("unknown request kind {}", req.kind));
+            return;
+        }
+        let model = req.path.as_string();
+        let new_id = self.next_mapper_id;
+        if let Err(e) = scl_mapper_node::load_step(&model, new_id) {
+            refuse(&request, &e.to_string());
+            return;
+        }
+        self.next_mapper_id += 1;
+        let args = self.mapper_args(&model, new_id);
+        let i = self.push(NodeRole::Mapper, new_id, args);
+        if let Err(e) = self.start(i) {
+            self.procs.remove(i);
+            refuse(&request, &e.to_string());
+            return;
+        }
+        tracing::info!(new_id, model = %model, "swap: new mapper started, warming up");
+        self.swap = Some(Swap {
+            request,
+            new_id,
+            old_id: self.active_mapper,
+            started: Instant::now(),
+            missed_at_start: self.tel.missed(),
+            phase: SwapPhase::Warmup(Warmup::default()),
+        });
+    }
+
+    fn on_mapper_command(&mut self, c: &MapperCommand) -> Result<(), SupervisorError> {
+        let need = self.opts.config.supervisor.swap_valid_ticks;
+        let Some(swap) = self.swap.as_mut() else {
+            return Ok(());
+        };
+        let SwapPhase::Warmup(warmup) = &mut swap.phase else {
+            return Ok(());
+        };
+        if c.mapper_id != swap.new_id {
+            return Ok(());
+        }
+        if warmup.observe(c.tick, command_valid(c)) >= need {
+            // Two ticks ahead: safety has the switch before that tick's commands arrive.
+            let from_tick = c.tick + 2;
+            let new_id = swap.new_id;
+            swap.phase = SwapPhase::Switching { from_tick };
+            self.publish_switch(new_id, from_tick)?;
+            tracing::info!(
+                new_id,
+                from_tick,
+                "swap: safety switches at tick {from_tick}"
+            );
+        }
+        Ok(())
+    }
+
+    fn on_safe_command(&mut self, tick: u64, mapper_id: u32) {
+        let Some(swap) = self.swap.as_ref() else {
+            return;
+        };
+        if let SwapPhase::Switching { from_tick } = swap.phase
+            && tick >= from_tick
+            && mapper_id == swap.new_id
+        {
+            self.finish_swap(Ok(tick));
+        }
+    }
+
+    /// Ends the swap in flight: on success stops the old mapper; on failure stops the new one
+    /// and, if safety was already told to switch, tells it to switch back.
+    fn finish_swap(&mut self, result: Result<u64, String>) {
+        let Some(swap) = self.swap.take() else {
+            return;
+        };
+        let retire = match &result {
+            Ok(_) => swap.old_id,
+            Err(_) => swap.new_id,
+        };
+        for p in self.procs.iter_mut() {
+            if p.role == NodeRole::Mapper && p.mapper_id == retire && !p.retiring {
+                p.retiring = true;
+                p.restart_at = None;
+                if let Some(c) = p.child.as_ref() {
+                    terminate(c);
+                }
+            }
+        }
+        let resp = match result {
+            Ok(switch_tick) => {
+                self.active_mapper = swap.new_id;
+                self.swaps += 1;
+                let r = ControlResponse {
+                    ok: 1,
+                    new_mapper: swap.new_id,
+                    old_mapper: swap.old_id,
+                    reserved: 0,
+                    switch_tick,
+                    elapsed_ns: swap.started.elapsed().as_nanos() as u64,
+                    missed_during: self.tel.missed() - swap.missed_at_start,
+                    message: Text::new("switched"),
+                };
+                tracing::info!(
+                    new = swap.new_id,
+                    old = swap.old_id,
+                    switch_tick,
+                    elapsed_ms = r.elapsed_ns as f64 / 1e6,
+                    missed = r.missed_during,
+                    "swap done"
+                );
+                r
+            }
+            Err(reason) => {
+                if matches!(swap.phase, SwapPhase::Switching { .. }) {
+                    let back = self.last_state.map_or(0, |s| s.tick + 2);
+                    if let Err(e) = self.publish_switch(swap.old_id, back) {
+                        tracing::error!("cannot switch safety back: {e}");
+                    }
+                }
+                tracing::warn!("swap refused: {reason}");
+                ControlResponse::refused(&reason)
+            }
+        };
+        if let Err(e) = swap.request.send_copy(resp) {
+            tracing::warn!("cannot answer the swap request: {e}");
+        }
+    }
+
+    fn check_swap_timeout(&mut self) {
+        let timeout = Duration::from_secs_f64(self.opts.config.supervisor.swap_timeout_s);
+        let Some(swap) = self.swap.as_ref() else {
+            return;
+        };
+        if swap.started.elapsed() < timeout {
+            return;
+        }
+        let reason = match swap.phase {
+            SwapPhase::Warmup(Warmup { valid, .. }) => format!(
+                "the new mapper produced {valid} valid consecutive commands in {timeout:?}, {} needed",
+                self.opts.config.supervisor.swap_valid_ticks
+            ),
+            SwapPhase::Switching { from_tick } => {
+                format!("safety did not forward the new mapper's commands from tick {from_tick}")
+            }
+        };
+        self.finish_swap(Err(reason));
+    }
+}
+
+/// Runs the graph; returns the summary, with `failure` set if a child died for good.
+pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
+    let cfg = &opts.config;
+    cfg.validate()?;
+    scl_joystick::validate(&cfg.joystick)?;
+    // Refuse a bad model, or a recording over an existing file, before anything starts.
+    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id)?;
+    if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
+        return Err(recording::RecordError::Exists(p.clone()).into());
+    }
+    let cleaned = ipc_types::graph::cleanup_dead_nodes(&opts.prefix)?;
+    if cleaned > 0 {
+        tracing::info!(
+            cleaned,
+            "removed resources of dead processes of graph `{}`",
+            opts.prefix
+        );
+    }
+    let graph = Graph::join_with(&opts.prefix, "supervisor", cfg.graph.transport)?;
+    let status = graph.status_subscriber()?;
+    let states = graph.robot_state_subscriber(false)?;
+    let mapper_commands = graph.mapper_command_subscriber(false)?;
+    let safe_commands = graph.safe_command_subscriber(false)?;
+    let server = graph.control_server()?;
+    let estops = graph.estop_subscriber()?;
+    let mut sv = Supervisor {
+        opts,
+        graph,
+        procs: Vec::new(),
+        tel: Telemetry::default(),
+        last_state: None,
+        next_mapper_id: cfg.mapper.id + 1,
+        active_mapper: cfg.mapper.id,
+        restarts: 0,
+        swaps: 0,
+        control_seq: 0,
+        swap: None,
+        switch_publisher: None,
+        switch: (cfg.mapper.id, 0),
+        hold: false,
+        estop: (0, false),
+        cleanup: CleanupSchedule::new(Duration::from_secs(1)),
+    };
+    // Reaping and holding the arm must not wait behind other load; below the control path.
+    scl_node::rt::elevate(&cfg.graph, scl_node::config::RtRole::Supervisor);
+    let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
+    let mut plan = Vec::new();
+    if let Some(path) = &opts.record {
+        // The recorder first: it sees the graph from its first message on.
+        let mut args = sv.child_args("record");
+        args.extend(["--out".to_owned(), path.display().to_string()]);
+        plan.push((NodeRole::Recorder, 0, args));
+    }
+    plan.extend([
+        (NodeRole::Joystick, 0, {
+            // `scl up --script` overrides the config file the child reads.
+            let mut a = sv.child_args("joystick");
+            a.extend(["--script".to_owned(), cfg.joystick.script.clone()]);
+            a
+        }),
+        (
+            NodeRole::Mapper,
+            cfg.mapper.id,
+            sv.mapper_args(&cfg.mapper.model, cfg.mapper.id),
+        ),
+        (NodeRole::Safety, 0, sv.child_args("safety")),
+        (NodeRole::Bridge, 0, sv.child_args("bridge")),
+    ]);
+    let mut failure: Option<String> = None;
+    'start: for (role, id, args) in plan {
+        let i = sv.push(role, id, args);
+        sv.start(i)?;
+        let t0 = Instant::now();
+        while !sv.tel.is_ready(role, sv.procs[i].pid) {
+            status.drain(|s| sv.tel.take(s))?;
+            if let Some(c) = sv.procs[i].child.as_mut()
+                && let Ok(Some(s)) = c.try_wait()
+            {
+                sv.procs[i].child = None;
+                failure = Some(format!(
+                    "the {} process {} during start-up",
+                    role.name(),
+                    describe(s)
+                ));
+                break 'start;
+            }
+            if t0.elapsed() > start_timeout || signals::stop_requested() {
+                failure = Some(format!(
+                    "the {} process did not report ready within {start_timeout:?}",
+                    role.name()
+                ));
+                break 'start;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    let started = Instant::now();
+    let mut next_report = Duration::from_secs(1);
+    while failure.is_none() && !signals::stop_requested() {
+        std::thread::sleep(Duration::from_millis(2));
+        if let Some(f) = sv.reap() {
+            failure = Some(f);
+            break;
+        }
+        sv.restart_due()?;
+        status.drain(|s| sv.tel.take(s))?;
+        sv.update_hold()?;
+        // Relay e-stops into the control topic, whose history outlives `scl estop`: a
+        // restarted safety comes up still latched.
+        while let Some(e) = estops
+            .receive()
+            .map_err(|e| SupervisorError::Graph(format!("e-stop topic: {e}")))?
+        {
+            sv.estop = (
+                sv.estop.0.wrapping_add(1),
+                e.action == ipc_types::control::estop_action::ESTOP,
+            );
+            sv.publish_control()?;
+        }
+        states.drain(|s| sv.last_state = Some(*s))?;
+        let mut cmds = Vec::new();
+        mapper_commands.drain(|c| cmds.push(*c))?;
+        for c in &cmds {
+            sv.on_mapper_command(c)?;
+        }
+        let mut executed = Vec::new();
+        safe_commands.drain(|c| executed.push((c.tick, c.mapper_id)))?;
+        for (tick, id) in executed {
+            sv.on_safe_command(tick, id);
+        }
+        while let Some(request) = server
+            .receive()
+            .map_err(|e| SupervisorError::Graph(format!("control service: {e}")))?
+        {
+            sv.begin_swap(request);
+        }
+        sv.check_swap_timeout();
+
+        let elapsed = started.elapsed();
+        if elapsed >= next_report {
+            next_report += Duration::from_secs(1);
+            let l = percentiles_us(&sv.tel.latency_ns);
+            let restarts = if sv.restarts > 0 {
+                format!("  restarts {}", sv.restarts)
+            } else {
+                String::new()
+            };
+            eprintln!(
+                "scl up: {:>4.0}s  ticks {:>6}  missed {:>3}  e2e p50 {:>6.1} µs  p99 {:>7.1} µs  mapper {}{restarts}",
+                elapsed.as_secs_f64(),
+                sv.tel.ticks(),
+                sv.tel.missed(),
+                l.p50,
+                l.p99,
+                sv.active_mapper,
+            );
+        }
+        if opts.duration.is_some_and(|d| elapsed >= d) {
+            break;
+        }
+    }
+    let duration_s = started.elapsed().as_secs_f64();
+    if sv.swap.is_some() {
+        sv.finish_swap(Err("the graph is shutting down".into()));
+    }
+
+    // Bridge first: it stops the arm at once and publishes a final state. The recorder
+    // last, so the file holds everything up to the end.
+    for role in [
+        NodeRole::Bridge,
+        NodeRole::Safety,
+        NodeRole::Mapper,
+        NodeRole::Joystick,
+        NodeRole::Recorder,
+    ] {
+        for p in sv.procs.iter_mut().filter(|p| p.role == role) {
+            signal_and_wait(p, Duration::from_secs(3));
+        }
+    }
+    status.drain(|s| sv.tel.take(s))?;
+    let summary = Summary {
+        ticks: sv.tel.ticks(),
+        missed: sv.tel.missed(),
+        latency_us: percentiles_us(&sv.tel.latency_ns),
+        tick_lateness_us: percentiles_us(&sv.tel.lateness_ns),
+        joint_travel_rad: sv.tel.travel(),
+        latency_samples: sv.tel.latency_ns.len(),
+        duration_s,
+        prefix: opts.prefix.to_string(),
+        active_mapper: sv.tel.active_mapper,
+        restarts: sv.restarts,
+        swaps: sv.swaps,
+        failure,
+    };
+    drop((
+        status,
+        states,
+        mapper_commands,
+        safe_commands,
+        server,
+        estops,
+    ));
+    drop(sv);
+    // Last one out: remove what killed children left and the domain itself, unless an
+    // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
+    ipc_types::graph::release_domain(&opts.prefix)?;
+    if cfg.graph.transport == ipc_types::Transport::Uds {
+        ipc_types::uds::remove_graph(opts.prefix.as_str());
+    }
+    if let Some(f) = &summary.failure {
+        tracing::error!("{f}; the graph was stopped (bridge first)");
+    }
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scl_node::config::RestartPolicies;
+
+    const MS: fn(u64) -> Duration = Duration::from_millis;
+
+    fn config(policy: RestartPolicy) -> SupervisorConfig {
+        SupervisorConfig {
+            backoff_initial_ms: 100,
+            backoff_max_ms: 1000,
+            stable_after_s: 10.0,
+            restart: RestartPolicies {
+                joystick: policy,
+                mapper: policy,
+                safety: policy,
+                bridge: policy,
+            },
+            ..SupervisorConfig::default()
+        }
+    }
+
+    fn after(delay_ms: u64, failures: u32) -> RestartDecision {
+        RestartDecision::After {
+            delay: MS(delay_ms),
+            failures,
+        }
+    }
+
+    #[test]
+    fn policies_decide_which_exits_restart() {
+        let roles = [
+            NodeRole::Joystick,
+            NodeRole::Mapper,
+            NodeRole::Safety,
+            NodeRole::Bridge,
+        ];
+        for role in roles {
+            let never = config(RestartPolicy::Never);
+            let on_failure = config(RestartPolicy::OnFailure);
+            let always = config(RestartPolicy::Always);
+            let ran = MS(50);
+            assert_eq!(
+                decide_restart(&never, role, false, ran, 0),
+                RestartDecision::Stop
+            );
+            assert_eq!(
+                decide_restart(&never, role, true, ran, 0),
+                RestartDecision::Stop
+            );
+            assert_eq!(
+                decide_restart(&on_failure, role, false, ran, 0),
+                after(100, 1)
+            );
+            assert_eq!(
+                decide_restart(&on_failure, role, true, ran, 0),
+                RestartDecision::Stop,
+                "a clean exit under on-failure stops the graph"
+            );
+            assert_eq!(decide_restart(&always, role, false, ran, 0), after(100, 1));
+            assert_eq!(decide_restart(&always, role, true, ran, 0), after(100, 1));
+        }
+        // A recorder is never restarted, whatever the policies say.
+        let always = config(RestartPolicy::Always);
+        assert_eq!(
+            decide_restart(&always, NodeRole::Recorder, false, MS(50), 0),
+            RestartDecision::Stop
+        );
+    }
+
+    #[test]
+    fn policies_apply_per_role() {
+        let mut sv = config(RestartPolicy::Never);
+        sv.restart.safety = RestartPolicy::Always;
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Mapper, false, MS(1), 0),
+            RestartDecision::Stop
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Safety, false, MS(1), 0),
+            after(100, 1)
+        );
+    }
+
+    #[test]
+    fn backoff_doubles_up_to_the_maximum() {
+        let sv = config(RestartPolicy::OnFailure);
+        let mut failures = 0;
+        let mut delays = Vec::new();
+        for _ in 0..7 {
+            let RestartDecision::After { delay, failures: f } =
+                decide_restart(&sv, NodeRole::Mapper, false, MS(200), failures)
+            else {
+                panic!("on-failure did not restart a crash");
+            };
+            assert_eq!(f, failures + 1);
+            failures = f;
+            delays.push(delay.as_millis());
+        }
+        assert_eq!(delays, [100, 200, 400, 800, 1000, 1000, 1000]);
+        // No overflow however long a process keeps failing.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Mapper, false, MS(1), u32::MAX),
+            after(1000, u32::MAX)
+        );
+        let huge = SupervisorConfig {
+            backoff_initial_ms: u64::MAX / 2,
+            backoff_max_ms: u64::MAX,
+            ..sv
+        };
+        assert_eq!(
+            decide_restart(&huge, NodeRole::Mapper, false, MS(1), 40),
+            after(u64::MAX, 41)
+        );
+    }
+
+    #[test]
+    fn a_stable_run_resets_the_backoff() {
+        let sv = config(RestartPolicy::Always);
+        // Failed five times in quick succession: 1600 ms capped at 1000.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(9_000), 5),
+            after(1000, 6)
+        );
+        // At exactly stable_after_s the count goes on; beyond it, it starts afresh.
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(10_000), 5),
+            after(1000, 6)
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, false, MS(10_001), 5),
+            after(100, 1)
+        );
+        assert_eq!(
+            decide_restart(&sv, NodeRole::Bridge, true, Duration::from_secs(3600), 9),
+            after(100, 1)
+        );
+    }
+
+    fn command(tick: u64, flags: u32) -> MapperCommand {
+        MapperCommand {
+            tick,
+            t_ns: 1,
+            state_t_ns: 0,
+            state_rx_ns: 0,
+            joystick_t_ns: 0,
+            joystick_rx_ns: 0,
+            joystick_seq: 0,
+            compute_ns: 0,
+            mapper_id: 2,
+            n_joints: 6,
+            flags,
+            buttons: 0,
+            action: [0.0; ipc_types::ACTION_DIM],
+            qdot_rad_s: [0.1; ipc_types::MAX_JOINTS],
+            gripper_rate: 0.0,
+        }
+    }
+
+    #[test]
+    fn only_finite_commands_of_a_valid_state_count() {
+        assert!(command_valid(&command(3, 0)));
+        // Flags that are not faults: no sample yet, a clamped action, a stale joystick.
+        for f in [
+            mapper_flags::NO_INPUT,
+            mapper_flags::INPUT_CLAMPED,
+            mapper_flags::INPUT_STALE,
+        ] {
+            assert!(command_valid(&command(3, f)), "flag {f:#x}");
+        }
+        for f in [
+            mapper_flags::INPUT_NON_FINITE,
+            mapper_flags::OUTPUT_NON_FINITE,
+            mapper_flags::STATE_INVALID,
+        ] {
+            assert!(!command_valid(&command(3, f)), "flag {f:#x}");
+        }
+        let mut c = command(3, 0);
+        c.qdot_rad_s[7] = f64::NAN;
+        assert!(!command_valid(&c), "a NaN in any slot");
+        c.qdot_rad_s[7] = f64::INFINITY;
+        assert!(!command_valid(&c));
+    }
+
+    /// Feeds `(tick, ok)` pairs; returns the count after each.
+    fn counts(ticks: &[(u64, bool)]) -> Vec<u32> {
+        let mut w = Warmup::default();
+        ticks.iter().map(|&(t, ok)| w.observe(t, ok)).collect()
+    }
+
+    #[test]
+    fn warmup_counts_consecutive_valid_ticks() {
+        let ticks: Vec<(u64, bool)> = (100..110).map(|t| (t, true)).collect();
+        assert_eq!(counts(&ticks), (1..=10).collect::<Vec<u32>>());
+    }
+
+    #[test]
+    fn an_invalid_command_resets_the_warmup() {
+        assert_eq!(
+            counts(&[
+                (1, true),
+                (2, true),
+                (3, true),
+                (4, false),
+                (5, true),
+                (6, true)
+            ]),
+            [1, 2, 3, 0, 1, 2]
+        );
+        // Invalid from the start: nothing counts.
+        assert_eq!(counts(&[(7, false), (8, false), (9, true)]), [0, 0, 1]);
+    }
+
+    #[test]
+    fn a_missing_tick_restarts_the_warmup() {
+        assert_eq!(
+            counts(&[(1, true), (2, true), (3, true), (5, true), (6, true)]),
+            [1, 2, 3, 1, 2]
+        );
+        // Ticks going back (a new bridge would not, but a stray one) count as a gap too.
+        assert_eq!(counts(&[(10, true), (11, true), (4, true)]), [1, 2, 1]);
+        // A gap after an invalid command: the valid one after it starts at 1.
+        assert_eq!(counts(&[(1, true), (2, false), (9, true)]), [1, 0, 1]);
+    }
+
+    #[test]
+    fn a_repeated_tick_is_not_counted_twice() {
+        assert_eq!(
+            counts(&[(1, true), (2, true), (2, true), (3, true)]),
+            [1, 2, 2, 3]
+        );
+        // An invalid repeat still resets.
+        assert_eq!(
+            counts(&[(1, true), (2, true), (2, false), (3, true)]),
+            [1, 2, 0, 1]
+        );
+    }
+
+    #[test]
+    fn warmup_reaches_the_threshold_only_after_n_in_a_row() {
+        let need = 10;
+        let mut w = Warmup::default();
+        // Nine valid, one invalid, then nine valid: never ready.
+        for t in 0..9 {
+            assert!(w.observe(t, true) < need);
+        }
+        assert_eq!(w.observe(9, false), 0);
+        for t in 10..19 {
+            assert!(w.observe(t, true) < need);
+        }
+        assert_eq!(w.observe(19, true), need);
+        assert_eq!(w.valid, need);
+        assert_eq!(w.last_tick, Some(19));
+    }
+
+    #[test]
+    fn dead_nodes_are_scanned_after_a_reap_and_once_a_second() {
+        let t0 = Instant::now();
+        let mut c = CleanupSchedule::new(Duration::from_secs(1));
+        // The first iteration scans (what a previous run left).
+        assert!(c.due(false, t0));
+        // Then not on every 2 ms iteration.
+        for ms in (2..1000).step_by(2) {
+            assert!(!c.due(false, t0 + MS(ms)), "{ms} ms");
+        }
+        assert!(c.due(false, t0 + MS(1000)));
+        // A reap scans at once, whenever it happens, and restarts the safety-net timer.
+        assert!(c.due(true, t0 + MS(1002)));
+        assert!(c.due(true, t0 + MS(1004)));
+        assert!(!c.due(false, t0 + MS(1500)));
+        assert!(!c.due(false, t0 + MS(2003)));
+        assert!(c.due(false, t0 + MS(2004)));
+        // A clock that seems to go back does not panic or scan.
+        assert!(!c.due(false, t0));
+    }
+}
