@@ -9,6 +9,7 @@ use core::time::Duration;
 use iceoryx2::port::client::Client;
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
 use crate::graph::{Graph, Ipc, IpcError, TopicSubscriber};
 
@@ -53,6 +54,7 @@ impl Text {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::SafetyControl")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct SafetyControl {
     /// Counter of the publishing supervisor.
     pub seq: u64,
@@ -84,6 +86,7 @@ pub mod estop_action {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::EstopCommand")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct EstopCommand {
     /// When it was sent (monotonic ns).
     pub t_ns: u64,

@@ -22,6 +22,7 @@ use iceoryx2::service::port_factory::{event, publish_subscribe};
 
 use crate::msg::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, TickReport};
 use crate::prefix::Prefix;
+use crate::uds::Datagram;
 
 /// The iceoryx2 service variant of every graph: inter-process.
 pub type Ipc = iceoryx2::service::ipc::Service;
@@ -290,7 +291,7 @@ impl Graph {
         Ok((full, factory))
     }
 
-    fn publisher<T: ZeroCopySend + core::fmt::Debug + Copy>(
+    fn publisher<T: ZeroCopySend + core::fmt::Debug + Datagram>(
         &self,
         s: &TopicSettings,
     ) -> Result<TopicPublisher<T>, IpcError> {
@@ -326,7 +327,7 @@ impl Graph {
         })
     }
 
-    fn subscriber<T: ZeroCopySend + core::fmt::Debug + Copy>(
+    fn subscriber<T: ZeroCopySend + core::fmt::Debug + Datagram>(
         &self,
         s: &TopicSettings,
         wake: bool,
@@ -497,7 +498,7 @@ pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
 
 // One per port, made once per process: the size of the variants does not matter.
 #[allow(clippy::large_enum_variant)]
-enum PubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+enum PubInner<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {
     Iox {
         publisher: Publisher<Ipc, T, ()>,
         notifier: Notifier<Ipc>,
@@ -505,13 +506,14 @@ enum PubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
     Uds(std::cell::RefCell<crate::uds::UdsPublisher<T>>),
 }
 
-/// A publisher that wakes the topic's listeners after each send.
-pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+/// A publisher that wakes the topic's listeners after each send. Its message type is also a
+/// [`Datagram`], since either transport may carry it.
+pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {
     service: String,
     inner: PubInner<T>,
 }
 
-impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicPublisher<T> {
+impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> {
     /// Sends `msg` (iceoryx2: loan, write, send through shared memory, then notify) and
     /// returns the number of subscribers that received it.
     pub fn send(&self, msg: T) -> Result<usize, IpcError> {
@@ -547,7 +549,7 @@ impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicPublisher<T> {
 
 // One per port, made once per process: the size of the variants does not matter.
 #[allow(clippy::large_enum_variant)]
-enum SubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+enum SubInner<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {
     Iox {
         subscriber: Subscriber<Ipc, T, ()>,
         listener: Option<Listener<Ipc>>,
@@ -555,13 +557,14 @@ enum SubInner<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
     Uds(crate::uds::UdsSubscriber<T>),
 }
 
-/// A subscriber with an optional wake-up listener.
-pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> {
+/// A subscriber with an optional wake-up listener. Its message type is also a [`Datagram`],
+/// since either transport may carry it.
+pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {
     service: String,
     inner: SubInner<T>,
 }
 
-impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> TopicSubscriber<T> {
+impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T> {
     /// Wraps a subscriber of a topic opened elsewhere in this crate (the control topics),
     /// without a wake-up listener.
     pub(crate) fn without_listener(service: String, subscriber: Subscriber<Ipc, T, ()>) -> Self {
@@ -670,7 +673,7 @@ pub trait Wakeable {
     fn consume_wake(&self);
 }
 
-impl<T: ZeroCopySend + core::fmt::Debug + Copy + 'static> Wakeable for TopicSubscriber<T> {
+impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Wakeable for TopicSubscriber<T> {
     fn fd(&self) -> Option<i32> {
         self.wake_fd()
     }

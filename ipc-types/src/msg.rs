@@ -1,6 +1,9 @@
 //! The message types of the graph.
 //!
-//! Every message is fixed-size, `Copy`, `#[repr(C)]`, free of pointers, and carries
+//! Every message is fixed-size, `Copy`, `#[repr(C)]`, free of pointers and of padding (a gap
+//! is an explicit `reserved` field, always 0; the `zerocopy` derives refuse a message with
+//! padding or with invalid bit patterns at compile time, so [`crate::uds`] can send its
+//! bytes), and carries
 //! * the tick it belongs to (the bridge's clock is the only clock; see [`RobotState::tick`]),
 //! * `t_ns`, the monotonic time at which it was produced ([`crate::time::now_ns`]),
 //! * the timestamps it inherited from the messages it was computed from,
@@ -10,6 +13,7 @@
 //! connect. Joint arrays are sized by [`MAX_JOINTS`] with an explicit count.
 
 use iceoryx2::prelude::ZeroCopySend;
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
 /// Capacity of every joint array. The Gen3 lite uses 6.
 pub const MAX_JOINTS: usize = 8;
@@ -40,6 +44,7 @@ pub mod buttons {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::JoystickInput")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct JoystickInput {
     /// Newest [`RobotState::tick`] the joystick process had seen when it took this sample
     /// ([`NO_TICK`] before the first).
@@ -91,6 +96,7 @@ pub mod state_flags {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::RobotState")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct RobotState {
     /// Tick number, from 0, one every period (25 ms at 40 Hz).
     pub tick: u64,
@@ -158,6 +164,7 @@ pub mod mapper_flags {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::MapperCommand")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct MapperCommand {
     /// The tick of the robot state this command was computed from.
     pub tick: u64,
@@ -246,6 +253,7 @@ pub mod safe_flags {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::SafeCommand")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct SafeCommand {
     /// The tick this command is for; the bridge executes it only at this tick.
     pub tick: u64,
@@ -286,6 +294,7 @@ pub struct SafeCommand {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::TickReport")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct TickReport {
     /// The tick.
     pub tick: u64,
@@ -384,6 +393,7 @@ pub mod safety_state {
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::NodeStatus")]
 #[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct NodeStatus {
     /// When it was published (monotonic ns).
     pub t_ns: u64,
@@ -416,6 +426,9 @@ pub struct NodeStatus {
     pub mode: u32,
     /// Mapper: mode switches since the mapper started (presses of the mode button).
     pub mode_switches: u32,
+    /// Padding, always 0 (the struct's tail was implicit padding before; the size is
+    /// unchanged).
+    pub reserved: u32,
 }
 
 impl NodeStatus {
@@ -437,6 +450,7 @@ impl NodeStatus {
             rule_counts: [0; 16],
             mode: 0,
             mode_switches: 0,
+            reserved: 0,
         }
     }
 }

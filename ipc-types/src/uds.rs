@@ -6,8 +6,9 @@
 //! Each subscriber binds a socket file in the topic's directory
 //! (`/tmp/scl-uds/<prefix>/<topic>/`); a publisher sends every message to every socket in that
 //! directory, without blocking (a full receiver drops the message, like iceoryx2's safe
-//! overflow). Messages are sent as their bytes: every message type is `#[repr(C)]`, `Copy` and
-//! pointer-free.
+//! overflow). Messages are sent as their bytes, so the transport takes only a [`Datagram`]: a
+//! type whose `zerocopy` derives prove it has no padding (every byte sent is initialised) and
+//! that any bytes of its size are a valid value (nothing read from a socket is undefined).
 
 use std::io::ErrorKind;
 use std::marker::PhantomData;
@@ -16,6 +17,8 @@ use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
+
+use zerocopy::{FromBytes, Immutable, IntoBytes};
 
 /// Root of every graph's socket directories.
 pub const ROOT: &str = "/tmp/scl-uds";
@@ -66,13 +69,64 @@ pub fn remove_graph(prefix: &str) {
     let _ = std::fs::remove_dir_all(Path::new(ROOT).join(prefix));
 }
 
-fn as_bytes<T: Copy>(msg: &T) -> &[u8] {
-    // SAFETY: T is a `#[repr(C)]`, `Copy`, pointer-free message; its padding is always
-    // written as explicit zero fields, so every byte is initialised.
-    unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) }
-}
+/// What the socket transport carries: a `Copy` type whose bytes are all initialised (no
+/// padding: [`IntoBytes`]), any bytes of whose size are a valid value ([`FromBytes`]: no
+/// `bool`, `char`, enum or reference inside) and without interior mutability
+/// ([`Immutable`]). Implemented for every such type; a message gets it by deriving the three
+/// `zerocopy` traits on its `#[repr(C)]` definition, which fails to compile if the layout has
+/// padding.
+pub trait Datagram: IntoBytes + FromBytes + Immutable + Copy {}
+
+impl<T: IntoBytes + FromBytes + Immutable + Copy> Datagram for T {}
 
 /// A publisher of `T` on one topic.
+///
+/// ```no_run
+/// use ipc_types::uds::{UdsPublisher, topic_dir};
+///
+/// #[derive(Clone, Copy, zerocopy::IntoBytes, zerocopy::FromBytes, zerocopy::Immutable)]
+/// #[repr(C)]
+/// struct Sample {
+///     seq: u32,
+///     value: f32,
+/// }
+///
+/// let mut p = UdsPublisher::<Sample>::new(&topic_dir("doc", "samples")).unwrap();
+/// p.send(&Sample { seq: 1, value: 0.5 });
+/// ```
+///
+/// A type with padding has uninitialised bytes, which must not be sent: it cannot derive
+/// `IntoBytes`, so it is not a [`Datagram`]:
+///
+/// ```compile_fail
+/// use ipc_types::uds::{UdsPublisher, topic_dir};
+///
+/// #[derive(Clone, Copy, zerocopy::IntoBytes, zerocopy::FromBytes, zerocopy::Immutable)]
+/// #[repr(C)]
+/// struct Sample {
+///     seq: u8, // three bytes of padding follow
+///     value: f32,
+/// }
+///
+/// let mut p = UdsPublisher::<Sample>::new(&topic_dir("doc", "samples")).unwrap();
+/// p.send(&Sample { seq: 1, value: 0.5 });
+/// ```
+///
+/// and being `Copy` (the bound before `Datagram`) is not enough:
+///
+/// ```compile_fail
+/// use ipc_types::uds::{UdsPublisher, topic_dir};
+///
+/// #[derive(Clone, Copy)]
+/// #[repr(C)]
+/// struct Sample {
+///     seq: u8,
+///     value: f32,
+/// }
+///
+/// let mut p = UdsPublisher::<Sample>::new(&topic_dir("doc", "samples")).unwrap();
+/// p.send(&Sample { seq: 1, value: 0.5 });
+/// ```
 #[derive(Debug)]
 pub struct UdsPublisher<T> {
     dir: PathBuf,
@@ -84,7 +138,7 @@ pub struct UdsPublisher<T> {
     _t: PhantomData<T>,
 }
 
-impl<T: Copy> UdsPublisher<T> {
+impl<T: Datagram> UdsPublisher<T> {
     /// A publisher on the topic directory `dir`.
     pub fn new(dir: &Path) -> Result<Self, UdsError> {
         std::fs::create_dir_all(dir).map_err(|e| io("create", dir, e))?;
@@ -119,7 +173,7 @@ impl<T: Copy> UdsPublisher<T> {
         if self.scanned.is_none_or(|t| t.elapsed() > RESCAN) {
             self.rescan();
         }
-        let bytes = as_bytes(msg);
+        let bytes = msg.as_bytes();
         let mut delivered = 0;
         let mut stale = false;
         for p in &self.peers {
@@ -143,6 +197,41 @@ impl<T: Copy> UdsPublisher<T> {
 static NEXT: AtomicU32 = AtomicU32::new(0);
 
 /// A subscriber of `T` on one topic: a bound socket, removed when dropped.
+///
+/// ```no_run
+/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+///
+/// let s = UdsSubscriber::<ipc_types::RobotState>::new(&topic_dir("doc", "robot_state")).unwrap();
+/// s.drain(|state| println!("tick {}", state.tick)).unwrap();
+/// ```
+///
+/// Only types for which every bit pattern is a value can be received, since the bytes come
+/// from another process: not a `bool` (only 0 and 1 are valid),
+///
+/// ```compile_fail
+/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+///
+/// let s = UdsSubscriber::<bool>::new(&topic_dir("doc", "flags")).unwrap();
+/// s.drain(|flag| println!("{flag}")).unwrap();
+/// ```
+///
+/// nor a reference (an address from another process):
+///
+/// ```compile_fail
+/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+///
+/// let s = UdsSubscriber::<&'static u64>::new(&topic_dir("doc", "refs")).unwrap();
+/// s.drain(|r| println!("{r}")).unwrap();
+/// ```
+///
+/// and neither can be sent:
+///
+/// ```compile_fail
+/// use ipc_types::uds::{UdsPublisher, topic_dir};
+///
+/// let mut p = UdsPublisher::<bool>::new(&topic_dir("doc", "flags")).unwrap();
+/// p.send(&true);
+/// ```
 #[derive(Debug)]
 pub struct UdsSubscriber<T> {
     path: PathBuf,
@@ -150,7 +239,7 @@ pub struct UdsSubscriber<T> {
     _t: PhantomData<T>,
 }
 
-impl<T: Copy> UdsSubscriber<T> {
+impl<T: Datagram> UdsSubscriber<T> {
     /// A subscriber on the topic directory `dir`.
     pub fn new(dir: &Path) -> Result<Self, UdsError> {
         std::fs::create_dir_all(dir).map_err(|e| io("create", dir, e))?;
@@ -174,19 +263,16 @@ impl<T: Copy> UdsSubscriber<T> {
         let mut n = 0;
         loop {
             match self.socket.recv(&mut buf) {
-                Ok(len) if len == size_of::<T>() => {
-                    // SAFETY: `len` bytes of a `T` sent by `UdsPublisher::send`; read
-                    // unaligned from the byte buffer.
-                    let msg = unsafe { std::ptr::read_unaligned(buf.as_ptr().cast::<T>()) };
-                    f(&msg);
-                    n += 1;
-                }
                 Ok(len) => {
-                    return Err(UdsError::Size {
+                    // A copy out of the byte buffer (unaligned); refused unless exactly
+                    // `size_of::<T>()` bytes arrived.
+                    let msg = T::read_from_bytes(&buf[..len]).map_err(|_| UdsError::Size {
                         path: self.path.clone(),
                         found: len,
                         expected: size_of::<T>(),
-                    });
+                    })?;
+                    f(&msg);
+                    n += 1;
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(n),
                 Err(e) if e.kind() == ErrorKind::Interrupted => continue,
@@ -259,6 +345,23 @@ mod tests {
         drop(a);
         remove_graph(&format!("ut{}", std::process::id()));
         assert!(!dir.exists());
+    }
+
+    #[test]
+    fn a_message_arrives_as_it_was_sent() {
+        let dir = topic_dir(&format!("uw{}", std::process::id()), "status");
+        let s = UdsSubscriber::<crate::NodeStatus>::new(&dir).unwrap();
+        let mut p = UdsPublisher::<crate::NodeStatus>::new(&dir).unwrap();
+        let mut sent = crate::NodeStatus::new(crate::NodeRole::Safety, crate::phase::RUNNING, 7);
+        sent.rule_counts[3] = 42;
+        sent.joint_travel_rad = 1.5;
+        assert_eq!(p.send(&sent), 1);
+        std::thread::sleep(Duration::from_millis(5));
+        let mut got = Vec::new();
+        s.drain(|m| got.push(*m)).unwrap();
+        assert_eq!(got, vec![sent]);
+        drop(s);
+        remove_graph(&format!("uw{}", std::process::id()));
     }
 
     #[test]

@@ -18,7 +18,7 @@ fn decode(c: &mut Criterion) {
     for (name, gs, kernel) in [
         ("scl_decode_m6_d2", true, Kernel::detect()),
         ("scl_decode_m6_d2_no_gram_schmidt", false, Kernel::detect()),
-        ("scl_decode_m6_d2_portable_kernel", true, Kernel::Portable),
+        ("scl_decode_m6_d2_portable_kernel", true, Kernel::portable()),
     ] {
         let mut map = common::scl_model(gs).scl_map().unwrap();
         map.set_kernel(kernel);

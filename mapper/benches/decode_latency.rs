@@ -29,7 +29,7 @@ fn main() {
     let clock_ns = percentile(&clock, 0.5);
     for (name, gs, kernel) in [
         ("scl_decode_m6_d2", true, Kernel::detect()),
-        ("scl_decode_m6_d2_portable_kernel", true, Kernel::Portable),
+        ("scl_decode_m6_d2_portable_kernel", true, Kernel::portable()),
     ] {
         let mut map = common::scl_model(gs).scl_map().unwrap();
         map.set_kernel(kernel);

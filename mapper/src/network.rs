@@ -459,7 +459,8 @@ impl SclMap {
         &self.norms[..self.d]
     }
 
-    /// Uses the given kernel instead of the detected one (benchmarks, tests).
+    /// Uses the given kernel instead of the detected one (benchmarks, tests). Any [`Kernel`]
+    /// is one this CPU runs: the AVX2 copy only comes from a run-time check.
     pub fn set_kernel(&mut self, kernel: Kernel) {
         self.kernel = kernel;
     }

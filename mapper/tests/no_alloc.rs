@@ -180,7 +180,7 @@ fn mapper_step_never_allocates() {
 fn both_kernels_evaluate_without_allocating() {
     use mapper::ActionMap;
     use mapper::nn::Kernel;
-    for kernel in [Kernel::Portable, Kernel::detect()] {
+    for kernel in [Kernel::portable(), Kernel::detect()] {
         let mut map = network_model(ModelKind::Scl, true).scl_map().unwrap();
         map.set_kernel(kernel);
         let mut out = [0.0; 6];

@@ -7,15 +7,43 @@
 //! The weights are first rearranged once ([`Packed`]) so that this stream is sequential in
 //! memory (the 256 × 256 layer, 256 KiB, does not fit in L1 and is read from L2 every call;
 //! that read is most of the cost). On x86-64 CPUs with AVX2 and FMA a copy of the loops
-//! compiled for those features is chosen at run time ([`Kernel::detect`]); otherwise the
-//! portable copy (SSE2) runs. No function here allocates.
+//! compiled for those features is chosen at run time ([`Kernel::detect`]; only a run-time check
+//! makes that [`Kernel`]); otherwise the portable copy (SSE2) runs. No function here allocates.
 
 use super::mlp::Dense;
 use super::tanh::tanh_in_place_body;
 
-/// Which compiled copy of the loops to run.
+/// Which compiled copy of the loops to run: a token that the CPU can run it.
+///
+/// The AVX2 / FMA copy is only obtainable from a run-time check of this CPU
+/// ([`Kernel::detect`], [`Kernel::avx2_fma`]), so safe code cannot run instructions the CPU
+/// lacks. Which copy a kernel is shows in its `Debug` form (`Portable`, `Avx2Fma`) and in
+/// [`Kernel::is_avx2_fma`].
+///
+/// ```
+/// use mapper::nn::Kernel;
+///
+/// let best = Kernel::detect();
+/// assert_eq!(best.is_avx2_fma(), Kernel::avx2_fma().is_some());
+/// assert!(!Kernel::portable().is_avx2_fma());
+/// ```
+///
+/// The kernel cannot be built by hand, so the AVX2 copy cannot be chosen on a CPU without
+/// AVX2:
+///
+/// ```compile_fail
+/// let k = mapper::nn::Kernel::Avx2Fma;
+/// ```
+///
+/// ```compile_fail
+/// let k = mapper::nn::Kernel(mapper::nn::kernel::Isa::Avx2Fma);
+/// ```
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Kernel(Isa);
+
+/// The compiled copies (private: a [`Kernel`] of `Avx2Fma` proves that the CPU has both).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kernel {
+enum Isa {
     /// Baseline x86-64 / other architectures.
     Portable,
     /// x86-64 with AVX2 and FMA (fused multiply-add in the dense loops).
@@ -26,11 +54,33 @@ pub enum Kernel {
 impl Kernel {
     /// The best copy this CPU can run.
     pub fn detect() -> Self {
+        Self::avx2_fma().unwrap_or(Self::portable())
+    }
+
+    /// The portable copy (SSE2 on x86-64), which every CPU runs.
+    pub const fn portable() -> Self {
+        Self(Isa::Portable)
+    }
+
+    /// The AVX2 / FMA copy if this CPU has both features (checked now), `None` otherwise
+    /// and on other architectures.
+    pub fn avx2_fma() -> Option<Self> {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-            return Self::Avx2Fma;
+            return Some(Self(Isa::Avx2Fma));
         }
-        Self::Portable
+        None
+    }
+
+    /// Whether this is the AVX2 / FMA copy.
+    pub fn is_avx2_fma(self) -> bool {
+        self != Self::portable()
+    }
+}
+
+impl std::fmt::Debug for Kernel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
     }
 }
 
@@ -226,12 +276,12 @@ pub fn forward(
     scratch_b: &mut [f32],
     out: &mut [f32],
 ) {
-    match kernel {
-        Kernel::Portable => forward_body::<false>(net, x, scratch_a, scratch_b, out),
+    match kernel.0 {
+        Isa::Portable => forward_body::<false>(net, x, scratch_a, scratch_b, out),
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Kernel::Avx2Fma` is only constructed by `Kernel::detect` after it found
-        // AVX2 and FMA on this CPU.
-        Kernel::Avx2Fma => unsafe { forward_avx2(net, x, scratch_a, scratch_b, out) },
+        // SAFETY: a `Kernel` of `Isa::Avx2Fma` is only made by `Kernel::avx2_fma`, after it
+        // found AVX2 and FMA on this CPU (the field is private to this module).
+        Isa::Avx2Fma => unsafe { forward_avx2(net, x, scratch_a, scratch_b, out) },
     }
 }
 
@@ -288,8 +338,8 @@ mod tests {
             let x: Vec<f32> = (0..sizes[0]).map(|_| r.normal() as f32).collect();
             let expect = reference(&layers, &x);
             let n_out = *sizes.last().unwrap();
-            let mut kernels = vec![Kernel::Portable];
-            if Kernel::detect() != Kernel::Portable {
+            let mut kernels = vec![Kernel::portable()];
+            if Kernel::detect() != Kernel::portable() {
                 kernels.push(Kernel::detect());
             }
             for k in kernels {

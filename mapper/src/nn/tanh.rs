@@ -45,8 +45,8 @@ pub fn tanh(x: f32) -> f32 {
 /// Applies [`tanh`] to every element, using AVX2 when the CPU has it.
 pub fn tanh_in_place(xs: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
-    if crate::nn::kernel::Kernel::detect() == crate::nn::kernel::Kernel::Avx2Fma {
-        // SAFETY: `detect` found AVX2 and FMA on this CPU.
+    if crate::nn::kernel::Kernel::avx2_fma().is_some() {
+        // SAFETY: `avx2_fma` found AVX2 and FMA on this CPU.
         unsafe { tanh_in_place_avx2(xs) };
         return;
     }
