@@ -30,10 +30,10 @@ pub mod planar5;
 pub mod robot;
 
 pub use cartesian::TcpPose;
-pub use chain::{Chain, Jacobian, JointKind, KinError, LinkId, MAX_DOF};
+pub use chain::{Chain, Jacobian, JointAxis, JointKind, KinError, LinkId, MAX_DOF};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
-pub use robot::{JointSpec, JointType, RobotModel, UrdfError};
+pub use robot::{JointSpec, JointType, Mimic, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.
 #[derive(Debug, Clone, PartialEq)]
