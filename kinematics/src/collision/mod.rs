@@ -9,13 +9,17 @@
 //! * The pairs are built at load: every capsule against every capsule of another link,
 //!   except the link pairs the file excludes (adjacent links, and those Kinova's MoveIt
 //!   configuration marks as never colliding; each exclusion carries its reason).
-//! * [`CollisionModel::clearance`] computes, for joint angles `q` and a [`Scene`], every
-//!   pair's exact signed distance (self pairs, then each link against the table, then against
-//!   each box), the closest pair with its closest points, into a caller-owned [`Clearance`]:
-//!   fixed arrays, no allocation.
+//! * [`CollisionModel::clearance`] computes, for joint angles `q` (the six arm joints, and
+//!   the gripper joint if known) and a [`Scene`], every pair's exact signed distance (self
+//!   pairs, then each link against the table, then against each box), the closest pair with
+//!   its closest points, into a caller-owned [`Clearance`]: fixed arrays, no allocation. The
+//!   base is not checked against the table: it stands on it by design (nor is the shoulder,
+//!   which joint 1 only turns about the vertical: its height above the table is fixed).
 //! * [`Clearance::rate_row`] gives the row `g` with `d_dot = g · qdot` for a pair's distance:
-//!   `g = nᵀ (J_a - J_b)`, `n` the unit normal between the closest points and `J` the
-//!   translational Jacobians of those points (zero for the scene's point).
+//!   `g = nᵀ (J_a - J_b)`, `n` the unit normal between the closest points (for a capsule deep
+//!   in a box where two faces are equally near, the weighted mix of their normals that is the
+//!   depth's exact gradient) and `J` the translational Jacobians of those points as points of
+//!   their links (zero for the scene's point).
 //!
 //! ```
 //! use kinematics::collision::{CollisionModel, Clearance, Scene};
