@@ -60,6 +60,36 @@ pub(crate) struct ChainJoint {
     pub velocity: f64,
 }
 
+/// A movable joint's axis in the base frame at one configuration (see [`Chain::link_poses`]):
+/// what the Jacobian of any point moved by the joint is made of.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointAxis {
+    /// How the joint moves.
+    pub kind: JointKind,
+    /// A point on the axis: the joint frame's origin (m, base frame).
+    pub origin: Vector3<f64>,
+    /// The unit direction of the axis (base frame).
+    pub direction: Vector3<f64>,
+}
+
+impl JointAxis {
+    /// An unused entry (a revolute axis along z through the origin).
+    pub const UNUSED: JointAxis = JointAxis {
+        kind: JointKind::Revolute,
+        origin: Vector3::new(0.0, 0.0, 0.0),
+        direction: Vector3::new(0.0, 0.0, 1.0),
+    };
+
+    /// Velocity of the point `p` (base frame) per unit rate of this joint, when `p` moves
+    /// with it: `direction x (p - origin)` for a revolute joint, `direction` for a prismatic one.
+    pub fn point_velocity(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        match self.kind {
+            JointKind::Revolute => self.direction.cross(&(p - self.origin)),
+            JointKind::Prismatic => self.direction,
+        }
+    }
+}
+
 /// A link of the chain, by position: see [`Chain::link_id`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct LinkId(usize);
@@ -240,6 +270,20 @@ impl Chain {
         self.links.iter().position(|l| l.name == name).map(LinkId)
     }
 
+    /// Number of links along the chain (base and tip included), the length of
+    /// [`Chain::link_names`].
+    pub fn n_links(&self) -> usize {
+        self.links.len()
+    }
+    /// How many movable joints (the first ones of the chain) move a link: 0 for the base.
+    pub fn joints_before(&self, link: LinkId) -> usize {
+        self.links.get(link.0).map_or(self.n, |l| l.after)
+    }
+    /// The position of a link along the chain (its index in [`Chain::link_names`]).
+    pub fn link_index(&self, link: LinkId) -> usize {
+        link.0
+    }
+
     /// Whether every joint of `q` is inside its position limits.
     pub fn within_limits(&self, q: &[f64]) -> bool {
         q.len() == self.n
@@ -312,6 +356,47 @@ impl Chain {
         Ok(self.walk(q, l.after, &mut frames) * l.offset)
     }
 
+    /// Poses of the links along the chain in the base frame, in one pass: `links[i]` gets the
+    /// pose of the `i`-th of [`Chain::link_names`] (entries beyond `links.len()` are not
+    /// computed, extra entries are left alone), and `axes[i]` the axis of movable joint `i` at
+    /// `q` (entries from [`Chain::n_joints`] on are [`JointAxis::UNUSED`]). Allocation-free.
+    pub fn link_poses(
+        &self,
+        q: &[f64],
+        links: &mut [Isometry3<f64>],
+        axes: &mut [JointAxis; MAX_DOF],
+    ) -> Result<(), KinError> {
+        self.check(q)?;
+        *axes = [JointAxis::UNUSED; MAX_DOF];
+        let mut t = Isometry3::identity();
+        let mut done = 0;
+        for (l, out) in self.links.iter().zip(links.iter_mut()) {
+            while done < l.after {
+                t *= self.origins[done];
+                axes[done] = JointAxis {
+                    kind: self.kinds[done],
+                    origin: t.translation.vector,
+                    direction: t.rotation * self.axes[done].into_inner(),
+                };
+                t *= self.motion(done, q[done]);
+                done += 1;
+            }
+            *out = t * l.offset;
+        }
+        // Axes of joints past the last link asked for.
+        while done < self.n {
+            t *= self.origins[done];
+            axes[done] = JointAxis {
+                kind: self.kinds[done],
+                origin: t.translation.vector,
+                direction: t.rotation * self.axes[done].into_inner(),
+            };
+            t *= self.motion(done, q[done]);
+            done += 1;
+        }
+        Ok(())
+    }
+
     /// Pose of the tip and the geometric Jacobian of the tip, in one pass, written into
     /// `jac` (which is resized to this chain). Allocation-free.
     pub fn fk_jacobian(&self, q: &[f64], jac: &mut Jacobian) -> Result<Isometry3<f64>, KinError> {
@@ -381,6 +466,38 @@ mod tests {
         let cc = c.link_pose(&q, c.link_id("c").unwrap()).unwrap();
         assert!((cc.translation.vector - Vector3::new(0.0, 1.25, 0.0)).norm() < 1e-12);
         assert!(c.link_id("zz").is_none());
+        // All link poses in one pass, and the joint axes.
+        let mut poses = [Isometry3::identity(); 4];
+        let mut axes = [JointAxis::UNUSED; MAX_DOF];
+        c.link_poses(&q, &mut poses, &mut axes).unwrap();
+        assert_eq!(c.n_links(), 4);
+        for (i, name) in ["a", "b", "c", "d"].into_iter().enumerate() {
+            let id = c.link_id(name).unwrap();
+            assert_eq!(c.link_index(id), i);
+            let want = c.link_pose(&q, id).unwrap();
+            assert!((poses[i].translation.vector - want.translation.vector).norm() < 1e-12);
+            assert!(poses[i].rotation.angle_to(&want.rotation) < 1e-12);
+        }
+        assert_eq!(c.joints_before(c.link_id("a").unwrap()), 0);
+        assert_eq!(c.joints_before(c.link_id("b").unwrap()), 1);
+        assert_eq!(c.joints_before(c.link_id("d").unwrap()), 2);
+        // The axes make the Jacobian's linear rows for the tip.
+        let tip = t.translation.vector;
+        for (i, axis) in axes.iter().take(2).enumerate() {
+            let v = axis.point_velocity(&tip);
+            for r in 0..3 {
+                assert!((v[r] - j.get(r, i)).abs() < 1e-12);
+            }
+        }
+        assert_eq!(axes[1].kind, JointKind::Prismatic);
+        assert_eq!(axes[2], JointAxis::UNUSED);
+        // Fewer slots than links: the first ones are filled, the axes all the same.
+        let mut two = [Isometry3::identity(); 2];
+        let mut axes2 = [JointAxis::UNUSED; MAX_DOF];
+        c.link_poses(&q, &mut two, &mut axes2).unwrap();
+        assert_eq!(two[1], poses[1]);
+        assert_eq!(axes2, axes);
+        assert!(c.link_poses(&[0.0], &mut two, &mut axes2).is_err());
     }
 
     #[test]

@@ -12,6 +12,9 @@
 //!   poses, rates.
 //! * [`planar5`]: the paper's 5-DOF planar reaching arm (`robots/planar5.urdf`).
 //! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
+//! * [`collision`]: the Gen3 lite's capsule model (`robots/gen3_lite_collision.toml`,
+//!   embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
+//!   distances with closest points and the rate of change of a distance, allocation-free.
 //!
 //! ```
 //! use kinematics::gen3_lite::{self, Gen3Lite};
@@ -24,16 +27,18 @@
 
 pub mod cartesian;
 pub mod chain;
+pub mod collision;
 pub mod dls;
 pub mod gen3_lite;
 pub mod planar5;
 pub mod robot;
 
 pub use cartesian::TcpPose;
-pub use chain::{Chain, Jacobian, JointKind, KinError, LinkId, MAX_DOF};
+pub use chain::{Chain, Jacobian, JointAxis, JointKind, KinError, LinkId, MAX_DOF};
+pub use collision::{Clearance, CollisionError, CollisionLink, CollisionModel, Scene};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
-pub use robot::{JointSpec, JointType, RobotModel, UrdfError};
+pub use robot::{JointSpec, JointType, Mimic, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.
 #[derive(Debug, Clone, PartialEq)]

@@ -174,7 +174,18 @@ pub struct JointSpec {
     /// Effort limit (N·m or N; 0 when the file gives none).
     pub effort: f64,
     /// The joint this one mimics, if any.
-    pub mimic: Option<String>,
+    pub mimic: Option<Mimic>,
+}
+
+/// A joint that follows another: `q = multiplier * q_followed + offset`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mimic {
+    /// The joint followed.
+    pub joint: String,
+    /// Factor on the followed joint's value (1 when the file gives none).
+    pub multiplier: f64,
+    /// Offset added (rad or m; 0 when the file gives none).
+    pub offset: f64,
 }
 
 /// A robot description: the links and checked joints of one URDF file.
@@ -345,8 +356,8 @@ impl RobotModel {
             };
             if let (Some(_), Some(m)) = (kind, &j.mimic) {
                 return Err(unsupported(format!(
-                    "joint `{}` mimics `{m}`; chains through mimic joints are not modelled",
-                    j.name
+                    "joint `{}` mimics `{}`; chains through mimic joints are not modelled",
+                    j.name, m.joint
                 )));
             }
             joints.push(ChainJoint {
@@ -449,6 +460,24 @@ fn check_joint(j: &urdf_rs::Joint, file: &str) -> Result<JointSpec, UrdfError> {
         }
         JointType::Fixed | JointType::Other => (f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY),
     };
+    let mimic = match &j.mimic {
+        None => None,
+        Some(m) => {
+            let multiplier = m.multiplier.unwrap_or(1.0);
+            let offset = m.offset.unwrap_or(0.0);
+            if !(multiplier.is_finite() && offset.is_finite()) {
+                return Err(bad(format!(
+                    "<mimic joint=\"{}\" multiplier=\"{multiplier}\" offset=\"{offset}\">: both must be finite numbers",
+                    m.joint
+                )));
+            }
+            Some(Mimic {
+                joint: m.joint.clone(),
+                multiplier,
+                offset,
+            })
+        }
+    };
     Ok(JointSpec {
         name: j.name.clone(),
         kind,
@@ -464,7 +493,7 @@ fn check_joint(j: &urdf_rs::Joint, file: &str) -> Result<JointSpec, UrdfError> {
         } else {
             0.0
         },
-        mimic: j.mimic.as_ref().map(|m| m.joint.clone()),
+        mimic,
     })
 }
 
@@ -586,7 +615,7 @@ mod tests {
         );
         let e = err(&URDF.replace("<link name=\"tool_frame\"/>", "<link name=\"tool_frame\"/"));
         assert!(e.starts_with("bad.urdf: not well-formed XML: "), "{e}");
-        assert!(e.contains("Line: 29"), "{e}");
+        assert!(e.contains("Line: 36"), "{e}");
         assert_eq!(
             err(""),
             "bad.urdf: not well-formed XML: there is no element"
@@ -744,6 +773,35 @@ mod tests {
         let e = m.chain("base_link", "tool_frame").unwrap_err().to_string();
         assert!(
             e.contains("joint `tool_frame_joint` is of a type the kinematics does not model"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn mimic_factors_are_read() {
+        let m = RobotModel::from_urdf_str(URDF, "g.urdf").unwrap();
+        let tip = m.joint("left_finger_tip_joint").unwrap();
+        assert_eq!(
+            tip.mimic,
+            Some(Mimic {
+                joint: "right_finger_bottom_joint".into(),
+                multiplier: -0.676,
+                offset: 0.149
+            })
+        );
+        assert_eq!(m.joint("right_finger_bottom_joint").unwrap().mimic, None);
+        let defaults = URDF.replace("multiplier=\"-1.0\" offset=\"0.0\"", "");
+        let m = RobotModel::from_urdf_str(&defaults, "g.urdf").unwrap();
+        let left = m
+            .joint("left_finger_bottom_joint")
+            .unwrap()
+            .mimic
+            .clone()
+            .unwrap();
+        assert_eq!((left.multiplier, left.offset), (1.0, 0.0));
+        let e = err(&URDF.replace("multiplier=\"-1.0\"", "multiplier=\"inf\""));
+        assert!(
+            e.starts_with("bad.urdf: <joint name=\"left_finger_bottom_joint\">: <mimic"),
             "{e}"
         );
     }

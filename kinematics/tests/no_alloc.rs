@@ -1,5 +1,6 @@
-//! The control-path calls allocate nothing: FK, FK + Jacobian, link poses, a DLS step and a
-//! whole IK solve, counted by a global allocator that counts this thread's allocations.
+//! The control-path calls allocate nothing: FK, FK + Jacobian, link poses, a DLS step, a
+//! whole IK solve, and the collision model's clearance with its rate rows, counted by a global
+//! allocator that counts this thread's allocations.
 //!
 //! One test in this file, so no other test shares the process's allocator while it counts.
 #![allow(clippy::unwrap_used)]
@@ -7,8 +8,9 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use kinematics::{Dls, Gen3Lite, Ik, Jacobian, gen3_lite, pose_error};
-use nalgebra::{Isometry3, Translation3};
+use kinematics::collision::{Clearance, CollisionModel, Scene};
+use kinematics::{Dls, Gen3Lite, Ik, Jacobian, JointAxis, MAX_DOF, gen3_lite, pose_error};
+use nalgebra::{Isometry3, Point3, Translation3};
 
 struct Counting;
 
@@ -54,6 +56,14 @@ fn the_hot_path_does_not_allocate() {
     let flange = arm.link_id("end_effector_link").unwrap();
     let home = arm.fk(&gen3_lite::HOME).unwrap();
     let target = Isometry3::from_parts(Translation3::new(0.35, -0.1, 0.3), home.rotation);
+    let collision = CollisionModel::get();
+    let mut scene = Scene::default();
+    scene
+        .add_box(Point3::new(0.3, -0.3, 0.0), Point3::new(0.5, -0.1, 0.2))
+        .unwrap();
+    let mut clearance = Box::new(Clearance::default());
+    let mut poses = [Isometry3::identity(); 8];
+    let mut axes = [JointAxis::UNUSED; MAX_DOF];
 
     // The counter sees allocations (so a zero below means something).
     let before = allocations();
@@ -74,6 +84,19 @@ fn the_hot_path_does_not_allocate() {
         let e = pose_error(&tcp, &target);
         let s = dls.step(&jac, &e, &mut dq).unwrap();
         acc += s.damping + dq[0];
+        arm.link_poses(&q, &mut poses, &mut axes).unwrap();
+        acc += poses[3].translation.z;
+        // The collision model, with and without the gripper's value.
+        collision.clearance(&q, &scene, &mut clearance).unwrap();
+        let mut qg = [0.0; 7];
+        qg[..6].copy_from_slice(&q);
+        qg[6] = 0.3;
+        collision.clearance(&qg, &scene, &mut clearance).unwrap();
+        acc += clearance.min_distance_m();
+        acc += clearance.closest_rate_row().map_or(0.0, |g| g[1]);
+        if let Some(c) = clearance.contact(k % clearance.distances_m().len()) {
+            acc += clearance.rate_row(&c).map_or(0.0, |g| g[0]);
+        }
     }
     // Including the singular zero pose.
     arm.fk_jacobian(&gen3_lite::ZERO, &mut jac).unwrap();

@@ -1,0 +1,518 @@
+//! Reading and checking a collision model file, and building the model on a robot
+//! description: the link frames, the capsules with the margin, the pairs.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use nalgebra::Point3;
+use serde::Deserialize;
+
+use super::model::{LinkGeom, Parent, Source};
+use super::{
+    CHAIN_TIP, COLLISION_TOML, COLLISION_TOML_NAME, Capsule, CapsuleRef, CollisionLink,
+    CollisionModel, Exclusion, FILE_VERSION, MAX_CAPSULES, MAX_CHAIN_LINKS, MAX_SELF_PAIRS, PairId,
+    Target,
+};
+use crate::chain::Chain;
+use crate::gen3_lite::{self, BASE_LINK, GRIPPER_JOINT, JOINT_NAMES};
+use crate::robot::{JointType, RobotModel, UrdfError};
+
+/// Why a collision model could not be loaded. Every message starts with the file.
+#[derive(Debug, thiserror::Error)]
+pub enum CollisionError {
+    /// The file could not be read.
+    #[error("{path}: cannot read the collision model: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Not TOML, or not of the expected form (a missing or unknown key, a wrong type).
+    #[error("{file}: {reason}")]
+    Parse {
+        /// The file.
+        file: String,
+        /// The TOML reader's message (with line and column).
+        reason: String,
+    },
+    /// A format version this crate does not read.
+    #[error("{file}: version = {found}: this build reads version {FILE_VERSION}")]
+    Version {
+        /// The file.
+        file: String,
+        /// The version in the file.
+        found: u32,
+    },
+    /// A link name that is not one of the Gen3 lite's links with geometry.
+    #[error(
+        "{file}: {field}: `{name}` is not a link of the Gen3 lite with geometry (links: {known})"
+    )]
+    UnknownLink {
+        /// The file.
+        file: String,
+        /// Where the name is (`link[3].name`, `exclude[2].links`).
+        field: String,
+        /// The name given.
+        name: String,
+        /// The known names, comma-separated.
+        known: String,
+    },
+    /// A link is listed twice, or not at all, or with no capsule.
+    #[error("{file}: link `{link}`: {reason}")]
+    Link {
+        /// The file.
+        file: String,
+        /// The link.
+        link: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A value is out of range: a radius that is not positive and finite, a coordinate that
+    /// is not finite or implausibly large, a negative margin.
+    #[error("{file}: link `{link}`: {field} = {value}: {reason}")]
+    Value {
+        /// The file.
+        file: String,
+        /// The link (`(file)` for a top-level key).
+        link: String,
+        /// The field, e.g. `capsule[1].radius_m`.
+        field: String,
+        /// The value given.
+        value: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An `[[exclude]]` entry is unusable.
+    #[error("{file}: exclude[{index}]: {reason}")]
+    Exclusion {
+        /// The file.
+        file: String,
+        /// Its position among the `[[exclude]]` entries.
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// More capsules or pairs than the fixed capacity.
+    #[error("{file}: {reason}")]
+    Capacity {
+        /// The file.
+        file: String,
+        /// What is over capacity.
+        reason: String,
+    },
+    /// The robot description does not fit the collision model (a link missing, a finger
+    /// joint that is neither the gripper joint nor mimics it).
+    #[error("{file}: {reason}")]
+    Robot {
+        /// The robot description.
+        file: String,
+        /// What does not fit.
+        reason: String,
+    },
+    /// The robot description itself did not load.
+    #[error(transparent)]
+    Urdf(#[from] UrdfError),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileToml {
+    version: u32,
+    margin_m: f64,
+    gripper_default_rad: f64,
+    link: Vec<LinkToml>,
+    #[serde(default)]
+    exclude: Vec<ExcludeToml>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LinkToml {
+    name: String,
+    #[serde(default = "yes")]
+    table: bool,
+    #[serde(default)]
+    capsule: Vec<CapsuleToml>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CapsuleToml {
+    a: [f64; 3],
+    b: [f64; 3],
+    radius_m: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ExcludeToml {
+    links: [String; 2],
+    why: String,
+}
+
+/// Largest plausible capsule coordinate in a link frame (m): a larger one is a unit mistake.
+const MAX_COORDINATE_M: f64 = 2.0;
+
+static MODEL: OnceLock<CollisionModel> = OnceLock::new();
+
+impl CollisionModel {
+    /// The embedded model ([`COLLISION_TOML`]) on the embedded URDF.
+    pub fn load() -> Result<Self, CollisionError> {
+        Self::from_toml_str(
+            COLLISION_TOML,
+            COLLISION_TOML_NAME,
+            gen3_lite::Gen3Lite::get().model(),
+        )
+    }
+
+    /// The embedded model, loaded once per process.
+    ///
+    /// # Panics
+    ///
+    /// If the embedded `robots/gen3_lite_collision.toml` does not load, a build defect that
+    /// the crate's tests catch (`the_embedded_model_loads`).
+    pub fn get() -> &'static CollisionModel {
+        MODEL.get_or_init(|| match Self::load() {
+            Ok(m) => m,
+            Err(e) => panic!("the embedded Gen3 lite collision model is broken: {e}"),
+        })
+    }
+
+    /// Reads a collision model file of the same form as the embedded one, on the embedded
+    /// URDF.
+    pub fn from_file(path: &Path) -> Result<Self, CollisionError> {
+        let text = std::fs::read_to_string(path).map_err(|source| CollisionError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_toml_str(
+            &text,
+            &path.display().to_string(),
+            gen3_lite::Gen3Lite::get().model(),
+        )
+    }
+
+    /// Parses and checks a collision model (`file` names it in errors) for the links of
+    /// `robot`, a Gen3 lite description.
+    pub fn from_toml_str(
+        text: &str,
+        file: &str,
+        robot: &RobotModel,
+    ) -> Result<Self, CollisionError> {
+        let parsed: FileToml = toml::from_str(text).map_err(|e| CollisionError::Parse {
+            file: file.to_owned(),
+            reason: e.to_string().trim_end().to_owned(),
+        })?;
+        if parsed.version != FILE_VERSION {
+            return Err(CollisionError::Version {
+                file: file.to_owned(),
+                found: parsed.version,
+            });
+        }
+        let value = |link: &str, field: &str, v: String, reason: &str| CollisionError::Value {
+            file: file.to_owned(),
+            link: link.to_owned(),
+            field: field.to_owned(),
+            value: v,
+            reason: reason.to_owned(),
+        };
+        if !(parsed.margin_m.is_finite() && (0.0..=0.1).contains(&parsed.margin_m)) {
+            return Err(value(
+                "(file)",
+                "margin_m",
+                parsed.margin_m.to_string(),
+                "the margin must be a finite number of metres in [0, 0.1]",
+            ));
+        }
+        if !parsed.gripper_default_rad.is_finite() {
+            return Err(value(
+                "(file)",
+                "gripper_default_rad",
+                parsed.gripper_default_rad.to_string(),
+                "must be a finite angle (rad)",
+            ));
+        }
+        // Links: each known one exactly once, with at least one capsule.
+        let mut by_link: [Option<usize>; CollisionLink::COUNT] = [None; CollisionLink::COUNT];
+        for (i, l) in parsed.link.iter().enumerate() {
+            let Some(link) = CollisionLink::from_name(&l.name) else {
+                return Err(CollisionError::UnknownLink {
+                    file: file.to_owned(),
+                    field: format!("link[{i}].name"),
+                    name: l.name.clone(),
+                    known: CollisionLink::known(),
+                });
+            };
+            if by_link[link.index()].is_some() {
+                return Err(CollisionError::Link {
+                    file: file.to_owned(),
+                    link: l.name.clone(),
+                    reason: "listed twice; give all its capsules under one [[link]]".into(),
+                });
+            }
+            if l.capsule.is_empty() {
+                return Err(CollisionError::Link {
+                    file: file.to_owned(),
+                    link: l.name.clone(),
+                    reason: "has no [[link.capsule]]; every link needs at least one".into(),
+                });
+            }
+            for (k, c) in l.capsule.iter().enumerate() {
+                for (end, p) in [("a", c.a), ("b", c.b)] {
+                    if let Some(v) = p
+                        .iter()
+                        .find(|v| !(v.is_finite() && v.abs() <= MAX_COORDINATE_M))
+                    {
+                        return Err(value(
+                            &l.name,
+                            &format!("capsule[{k}].{end}"),
+                            format!("{p:?}"),
+                            &format!(
+                                "{v} is not a finite coordinate within {MAX_COORDINATE_M} m of the link frame (the unit is metres)"
+                            ),
+                        ));
+                    }
+                }
+                if !(c.radius_m.is_finite() && c.radius_m > 0.0 && c.radius_m <= MAX_COORDINATE_M) {
+                    return Err(value(
+                        &l.name,
+                        &format!("capsule[{k}].radius_m"),
+                        c.radius_m.to_string(),
+                        "a radius must be a positive finite number of metres",
+                    ));
+                }
+            }
+            by_link[link.index()] = Some(i);
+        }
+        if let Some(missing) = CollisionLink::ALL
+            .into_iter()
+            .find(|l| by_link[l.index()].is_none())
+        {
+            return Err(CollisionError::Link {
+                file: file.to_owned(),
+                link: missing.name().to_owned(),
+                reason: "has no [[link]] entry; every link of the Gen3 lite needs capsules".into(),
+            });
+        }
+        let n_capsules: usize = parsed.link.iter().map(|l| l.capsule.len()).sum();
+        if n_capsules > MAX_CAPSULES {
+            return Err(CollisionError::Capacity {
+                file: file.to_owned(),
+                reason: format!("{n_capsules} capsules; a model holds at most {MAX_CAPSULES}"),
+            });
+        }
+
+        // Exclusions.
+        let mut exclusions: Vec<Exclusion> = Vec::with_capacity(parsed.exclude.len());
+        for (index, e) in parsed.exclude.iter().enumerate() {
+            let bad = |reason: String| CollisionError::Exclusion {
+                file: file.to_owned(),
+                index,
+                reason,
+            };
+            let mut pair = [CollisionLink::Base; 2];
+            for (slot, name) in pair.iter_mut().zip(&e.links) {
+                *slot =
+                    CollisionLink::from_name(name).ok_or_else(|| CollisionError::UnknownLink {
+                        file: file.to_owned(),
+                        field: format!("exclude[{index}].links"),
+                        name: name.clone(),
+                        known: CollisionLink::known(),
+                    })?;
+            }
+            let [a, b] = pair;
+            if a == b {
+                return Err(bad(format!("`{a}` is paired with itself")));
+            }
+            if e.why.trim().is_empty() {
+                return Err(bad(format!(
+                    "{a} / {b}: `why` is empty; say why the pair cannot collide"
+                )));
+            }
+            if exclusions
+                .iter()
+                .any(|x| (x.a == a && x.b == b) || (x.a == b && x.b == a))
+            {
+                return Err(bad(format!("{a} / {b} is excluded twice")));
+            }
+            exclusions.push(Exclusion {
+                a,
+                b,
+                why: e.why.clone(),
+            });
+        }
+
+        // Kinematics: the arm chain to the gripper base, the fingers hung from it.
+        let chain = robot.chain(BASE_LINK, CHAIN_TIP)?;
+        let robot_err = |reason: String| CollisionError::Robot {
+            file: robot.file().to_owned(),
+            reason,
+        };
+        if chain.joint_names() != JOINT_NAMES {
+            return Err(robot_err(format!(
+                "the chain {BASE_LINK} -> {CHAIN_TIP} has the joints {:?}; a Gen3 lite has {JOINT_NAMES:?}",
+                chain.joint_names()
+            )));
+        }
+        if chain.n_links() > MAX_CHAIN_LINKS {
+            return Err(robot_err(format!(
+                "the chain {BASE_LINK} -> {CHAIN_TIP} has {} links; at most {MAX_CHAIN_LINKS} are supported",
+                chain.n_links()
+            )));
+        }
+        let mut links: Vec<LinkGeom> = Vec::with_capacity(CollisionLink::COUNT);
+        let mut capsules = Vec::with_capacity(n_capsules);
+        let mut refs = Vec::with_capacity(n_capsules);
+        for link in CollisionLink::ALL {
+            let source = match chain.link_id(link.name()) {
+                Some(id) => Source::Chain(chain.link_index(id)),
+                None => hang(robot, &chain, link, &robot_err)?,
+            };
+            let moved_by = match &source {
+                Source::Chain(i) => chain_moved_by(&chain, *i),
+                Source::Joint { parent, .. } => match parent {
+                    Parent::Chain(i) => chain_moved_by(&chain, *i),
+                    Parent::Link(k) => links[*k].moved_by,
+                },
+            };
+            let entry = &parsed.link[by_link[link.index()].unwrap_or_default()];
+            let first = capsules.len();
+            for (k, c) in entry.capsule.iter().enumerate() {
+                capsules.push(Capsule::new(
+                    Point3::from(c.a),
+                    Point3::from(c.b),
+                    c.radius_m + parsed.margin_m,
+                ));
+                refs.push(CapsuleRef {
+                    link,
+                    index: u8::try_from(k).unwrap_or(u8::MAX),
+                });
+            }
+            links.push(LinkGeom {
+                source,
+                moved_by,
+                first,
+                end: capsules.len(),
+                table: entry.table,
+            });
+        }
+
+        // Pairs.
+        let excluded = |a: CollisionLink, b: CollisionLink| {
+            exclusions
+                .iter()
+                .any(|x| (x.a == a && x.b == b) || (x.a == b && x.b == a))
+        };
+        let mut self_pairs = Vec::new();
+        let mut self_ids = Vec::new();
+        for (i, la) in CollisionLink::ALL.into_iter().enumerate() {
+            for lb in CollisionLink::ALL.into_iter().skip(i + 1) {
+                if excluded(la, lb) {
+                    continue;
+                }
+                for ca in links[la.index()].first..links[la.index()].end {
+                    for cb in links[lb.index()].first..links[lb.index()].end {
+                        self_pairs.push((ca as u16, cb as u16));
+                        self_ids.push(PairId {
+                            a: refs[ca],
+                            b: Target::Capsule(refs[cb]),
+                        });
+                    }
+                }
+            }
+        }
+        if self_pairs.len() > MAX_SELF_PAIRS {
+            return Err(CollisionError::Capacity {
+                file: file.to_owned(),
+                reason: format!(
+                    "{} capsule pairs to check; at most {MAX_SELF_PAIRS} are supported (exclude more link pairs or use fewer capsules)",
+                    self_pairs.len()
+                ),
+            });
+        }
+        let table_capsules = links
+            .iter()
+            .filter(|l| l.table)
+            .flat_map(|l| (l.first..l.end).map(|c| c as u16))
+            .collect();
+        Ok(Self {
+            file: file.to_owned(),
+            margin_m: parsed.margin_m,
+            gripper_default_rad: parsed.gripper_default_rad,
+            chain,
+            links,
+            capsules,
+            refs,
+            self_pairs,
+            self_ids,
+            table_capsules,
+            exclusions,
+        })
+    }
+}
+
+/// How many arm joints move the `i`-th link of the chain.
+fn chain_moved_by(chain: &Chain, i: usize) -> usize {
+    chain
+        .link_names()
+        .nth(i)
+        .and_then(|name| chain.link_id(name))
+        .map_or(0, |id| chain.joints_before(id))
+}
+
+/// The frame of a link off the arm chain: the one URDF joint above it, which must be fixed,
+/// the gripper joint, or a joint mimicking it, and whose parent is on the chain or a link
+/// before it in [`CollisionLink::ALL`].
+fn hang(
+    robot: &RobotModel,
+    chain: &Chain,
+    link: CollisionLink,
+    robot_err: &dyn Fn(String) -> CollisionError,
+) -> Result<Source, CollisionError> {
+    let name = link.name();
+    let Some(j) = robot.joints().iter().find(|j| j.child == name) else {
+        return Err(robot_err(format!(
+            "no joint has the link `{name}` as its child: the collision model needs it"
+        )));
+    };
+    let parent = match (
+        chain.link_id(&j.parent),
+        CollisionLink::from_name(&j.parent),
+    ) {
+        (Some(id), _) => Parent::Chain(chain.link_index(id)),
+        (None, Some(p)) if p.index() < link.index() => Parent::Link(p.index()),
+        _ => {
+            return Err(robot_err(format!(
+                "joint `{}`: the parent of `{name}` is `{}`, neither on the arm chain nor a link with geometry before it",
+                j.name, j.parent
+            )));
+        }
+    };
+    let (multiplier, offset) = match (j.kind, &j.mimic) {
+        (JointType::Fixed, _) => (0.0, 0.0),
+        (JointType::Revolute | JointType::Continuous, None) if j.name == GRIPPER_JOINT => {
+            (1.0, 0.0)
+        }
+        (JointType::Revolute | JointType::Continuous, Some(m)) if m.joint == GRIPPER_JOINT => {
+            (m.multiplier, m.offset)
+        }
+        _ => {
+            return Err(robot_err(format!(
+                "joint `{}` above `{name}` is neither fixed, nor the gripper joint `{GRIPPER_JOINT}`, nor a revolute joint mimicking it",
+                j.name
+            )));
+        }
+    };
+    Ok(Source::Joint {
+        parent,
+        origin: j.origin,
+        axis: j.axis,
+        multiplier,
+        offset,
+    })
+}

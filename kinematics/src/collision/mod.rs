@@ -1,0 +1,275 @@
+//! The Gen3 lite's collision model: capsules on every link, the pairs that can touch, a scene
+//! (table and boxes), and the clearance of a joint state with the rate at which it changes.
+//!
+//! * The geometry is data: `robots/gen3_lite_collision.toml` (embedded, [`COLLISION_TOML`]),
+//!   one or two capsules per link in the link's own frame, each with the reference fit it
+//!   comes from; a margin is added to every radius at load. [`CollisionModel::load`] reads and
+//!   checks it against the embedded URDF (errors name the file, the link and the field);
+//!   [`CollisionModel::from_file`] reads a user's file of the same form.
+//! * The pairs are built at load: every capsule against every capsule of another link,
+//!   except the link pairs the file excludes (adjacent links, and those Kinova's MoveIt
+//!   configuration marks as never colliding; each exclusion carries its reason).
+//! * [`CollisionModel::clearance`] computes, for joint angles `q` (the six arm joints, and
+//!   the gripper joint if known) and a [`Scene`], every pair's exact signed distance (self
+//!   pairs, then each link against the table, then against each box), the closest pair with
+//!   its closest points, into a caller-owned [`Clearance`]: fixed arrays, no allocation. The
+//!   base is not checked against the table: it stands on it by design (nor is the shoulder,
+//!   which joint 1 only turns about the vertical: its height above the table is fixed).
+//! * [`Clearance::rate_row`] gives the row `g` with `d_dot = g · qdot` for a pair's distance:
+//!   `g = nᵀ (J_a - J_b)`, `n` the unit normal between the closest points (for a capsule deep
+//!   in a box where two faces are equally near, the weighted mix of their normals that is the
+//!   depth's exact gradient) and `J` the translational Jacobians of those points as points of
+//!   their links (zero for the scene's point).
+//!
+//! ```
+//! use kinematics::collision::{CollisionModel, Clearance, Scene};
+//! use kinematics::gen3_lite;
+//!
+//! let model = CollisionModel::get();
+//! let mut out = Clearance::default();
+//! model.clearance(&gen3_lite::HOME, &Scene::default(), &mut out).unwrap();
+//! let closest = out.closest().unwrap();
+//! assert!(closest.distance_m > 0.0, "{}", closest.pair);
+//! let g = out.rate_row(closest).unwrap();
+//! let qdot = [0.1, 0.0, 0.0, 0.0, 0.0, 0.0];
+//! let d_dot: f64 = g.iter().zip(qdot).map(|(g, v)| g * v).sum();
+//! assert!(d_dot.is_finite());
+//! ```
+
+mod clearance;
+pub mod geometry;
+mod load;
+mod model;
+pub mod scene;
+
+use std::fmt;
+
+use nalgebra::{Point3, Vector3};
+
+pub use clearance::Clearance;
+pub use geometry::{Aabb, Capsule, Proximity};
+pub use load::CollisionError;
+pub use model::CollisionModel;
+pub use scene::{MAX_BOXES, Scene, SceneError};
+
+/// The collision model, `robots/gen3_lite_collision.toml`, embedded at build time.
+pub const COLLISION_TOML: &str = include_str!("../../../robots/gen3_lite_collision.toml");
+
+/// How the embedded collision model is named in messages.
+pub const COLLISION_TOML_NAME: &str = "robots/gen3_lite_collision.toml";
+
+/// The version of the file format this crate reads.
+pub const FILE_VERSION: u32 = 1;
+
+/// Most capsules a model may have.
+pub const MAX_CAPSULES: usize = 32;
+
+/// Most capsule pairs a model may check against each other.
+pub const MAX_SELF_PAIRS: usize = 256;
+
+/// Most pairs a [`Clearance`] holds: the self pairs, and every capsule against the table and
+/// each box.
+pub const MAX_PAIRS: usize = MAX_SELF_PAIRS + MAX_CAPSULES * (1 + MAX_BOXES);
+
+/// The link the arm chain of the model ends at (the gripper is fixed to the flange).
+pub(super) const CHAIN_TIP: &str = "gripper_base_link";
+
+/// Most links along the arm chain `base_link -> gripper_base_link`.
+pub(super) const MAX_CHAIN_LINKS: usize = 16;
+
+/// A link of the Gen3 lite that has collision geometry, base to fingertips.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum CollisionLink {
+    /// `base_link`: fixed on the table.
+    Base,
+    /// `shoulder_link`: turned by joint 1.
+    Shoulder,
+    /// `arm_link`, the upper arm: joint 2.
+    Arm,
+    /// `forearm_link`: joint 3.
+    Forearm,
+    /// `lower_wrist_link`: joint 4.
+    LowerWrist,
+    /// `upper_wrist_link`: joint 5.
+    UpperWrist,
+    /// `gripper_base_link`: joint 6 (fixed to the flange).
+    GripperBase,
+    /// `right_finger_prox_link`: the actuated finger joint.
+    RightFingerProx,
+    /// `right_finger_dist_link`.
+    RightFingerDist,
+    /// `left_finger_prox_link`.
+    LeftFingerProx,
+    /// `left_finger_dist_link`.
+    LeftFingerDist,
+}
+
+impl CollisionLink {
+    /// Every link, parents before children.
+    pub const ALL: [CollisionLink; 11] = [
+        CollisionLink::Base,
+        CollisionLink::Shoulder,
+        CollisionLink::Arm,
+        CollisionLink::Forearm,
+        CollisionLink::LowerWrist,
+        CollisionLink::UpperWrist,
+        CollisionLink::GripperBase,
+        CollisionLink::RightFingerProx,
+        CollisionLink::RightFingerDist,
+        CollisionLink::LeftFingerProx,
+        CollisionLink::LeftFingerDist,
+    ];
+
+    /// Number of links.
+    pub const COUNT: usize = Self::ALL.len();
+
+    /// The URDF name.
+    pub fn name(self) -> &'static str {
+        match self {
+            CollisionLink::Base => "base_link",
+            CollisionLink::Shoulder => "shoulder_link",
+            CollisionLink::Arm => "arm_link",
+            CollisionLink::Forearm => "forearm_link",
+            CollisionLink::LowerWrist => "lower_wrist_link",
+            CollisionLink::UpperWrist => "upper_wrist_link",
+            CollisionLink::GripperBase => "gripper_base_link",
+            CollisionLink::RightFingerProx => "right_finger_prox_link",
+            CollisionLink::RightFingerDist => "right_finger_dist_link",
+            CollisionLink::LeftFingerProx => "left_finger_prox_link",
+            CollisionLink::LeftFingerDist => "left_finger_dist_link",
+        }
+    }
+
+    /// The link with this URDF name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|l| l.name() == name)
+    }
+
+    /// Position in [`CollisionLink::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    pub(super) fn known() -> String {
+        Self::ALL.map(CollisionLink::name).join(", ")
+    }
+}
+
+impl fmt::Display for CollisionLink {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One capsule of the model: its link and its position among that link's capsules.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct CapsuleRef {
+    /// The link.
+    pub link: CollisionLink,
+    /// Index among the link's capsules (file order).
+    pub index: u8,
+}
+
+impl fmt::Display for CapsuleRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}[{}]", self.link, self.index)
+    }
+}
+
+/// What a capsule is checked against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Target {
+    /// A capsule of another link.
+    Capsule(CapsuleRef),
+    /// The scene's table.
+    Table,
+    /// The scene's box of this index ([`Scene::boxes`]).
+    Box(u8),
+}
+
+/// A checked pair: a capsule of the arm and what it must keep clear of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PairId {
+    /// The arm's capsule (for a self pair, the one nearer the base).
+    pub a: CapsuleRef,
+    /// The other side.
+    pub b: Target,
+}
+
+impl PairId {
+    /// Whether the two sides are links `x` and `y` (in either order; a scene target never
+    /// matches).
+    pub fn is_links(&self, x: CollisionLink, y: CollisionLink) -> bool {
+        match self.b {
+            Target::Capsule(b) => {
+                (self.a.link == x && b.link == y) || (self.a.link == y && b.link == x)
+            }
+            _ => false,
+        }
+    }
+}
+
+impl fmt::Display for PairId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.b {
+            Target::Capsule(b) => write!(f, "{} / {b}", self.a),
+            Target::Table => write!(f, "{} / table", self.a),
+            Target::Box(k) => write!(f, "{} / box {k}", self.a),
+        }
+    }
+}
+
+/// A pair with its distance and closest points at one state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contact {
+    /// Which pair.
+    pub pair: PairId,
+    /// Its index in [`Clearance::distances_m`].
+    pub index: usize,
+    /// Signed distance (m): the gap, negative when the shapes overlap.
+    pub distance_m: f64,
+    /// Closest point of `pair.a` (base frame).
+    pub point_a: Point3<f64>,
+    /// Closest point of `pair.b` (base frame).
+    pub point_b: Point3<f64>,
+    /// Unit vector from `point_b` towards `point_a`: moving `a` along it opens the gap.
+    /// `None` when undefined (the axes of two capsules cross: deep overlap).
+    pub normal: Option<Vector3<f64>>,
+    /// `d_dot = gradient · (v_a - v_b)` for the velocities of the closest points as points
+    /// of their bodies: `normal`, except for a capsule deep in a box (see
+    /// [`geometry::Proximity::gradient`]).
+    pub gradient: Option<Vector3<f64>>,
+}
+
+/// A link pair the file leaves unchecked, and why.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Exclusion {
+    /// One link.
+    pub a: CollisionLink,
+    /// The other.
+    pub b: CollisionLink,
+    /// The file's reason.
+    pub why: String,
+}
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_embedded_model_loads() {
+        let m = CollisionModel::load().unwrap();
+        assert_eq!(m.file(), COLLISION_TOML_NAME);
+        assert_eq!(m.margin_m(), 0.005);
+        assert_eq!(m.capsule_refs().len(), 15);
+        assert_eq!(m.exclusions().len(), 34);
+        assert_eq!(m.self_pairs().len(), 42);
+        assert!(!m.checks_table(CollisionLink::Base));
+        assert!(m.checks_table(CollisionLink::Forearm));
+        let c = m.link_capsules(CollisionLink::Shoulder);
+        assert_eq!(c.len(), 1);
+        assert!((c[0].radius_m - (0.0447 + 0.005)).abs() < 1e-15);
+        for link in CollisionLink::ALL {
+            assert_eq!(CollisionLink::from_name(link.name()), Some(link));
+        }
+    }
+}
