@@ -51,6 +51,10 @@ impl Text {
 /// Tells safety which mapper's commands reach the arm, from which tick on, and whether to
 /// hold the arm (stop it until released) because a process of the input side is down. The
 /// topic keeps the newest message as history, so a restarted safety learns both.
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::SafetyControl")]
 #[repr(C)]
@@ -83,6 +87,10 @@ pub mod estop_action {
 
 /// `scl estop` / `scl reset`: latches or releases safety's e-stop. The supervisor relays the
 /// state into [`SafetyControl`], so a restarted safety comes up still latched.
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::EstopCommand")]
 #[repr(C)]
@@ -91,6 +99,7 @@ pub struct EstopCommand {
     /// When it was sent (monotonic ns).
     pub t_ns: u64,
     /// [`estop_action`] value.
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::estop_action_names())))]
     pub action: u32,
     /// Process id of the sender.
     pub source_pid: u32,

@@ -11,10 +11,14 @@
 //!   active-mapper switch the supervisor sends to safety.
 //! * [`uds`]: the comparison transport (Unix-domain datagram sockets) for benchmarks.
 //! * [`time`]: the monotonic clock every process stamps its messages with.
+//! * `json` (feature `json`): the messages' JSON form and JSON schema, derived from the types
+//!   (serde, schemars); the recording crate enables it.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
 pub mod graph;
+#[cfg(feature = "json")]
+pub mod json;
 pub mod msg;
 pub mod prefix;
 pub mod signals;

@@ -38,16 +38,27 @@ pub mod buttons {
     /// The input device is gone (unplugged, or not found yet): the sample is neutral and the
     /// joystick process is waiting for the device to come back.
     pub const NO_DEVICE: u32 = 1 << 4;
+    /// Short names of the bits, in bit order.
+    pub const NAMES: [&str; 5] = ["deadman", "mode", "estop", "gripper", "no-device"];
 }
 
 /// One sample of the operator's input device.
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::JoystickInput")]
 #[repr(C)]
 #[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
 pub struct JoystickInput {
     /// Newest [`RobotState::tick`] the joystick process had seen when it took this sample
-    /// ([`NO_TICK`] before the first).
+    /// ([`NO_TICK`] before the first; `null` in JSON).
+    #[cfg_attr(
+        feature = "json",
+        serde(with = "crate::json::tick"),
+        schemars(with = "crate::json::tick::Schema")
+    )]
     pub tick: u64,
     /// When the device was read (monotonic ns).
     pub t_ns: u64,
@@ -58,6 +69,7 @@ pub struct JoystickInput {
     /// Gripper rate input in `[-1, 1]`: positive closes, negative opens.
     pub gripper: f32,
     /// Button bits, see [`buttons`].
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = buttons::NAMES)))]
     pub buttons: u32,
 }
 
@@ -90,9 +102,22 @@ pub mod state_flags {
     /// The command executed during the last period was a stop decided by the safety filter
     /// (its `SafeCommand` carried `safe_flags::STOP`).
     pub const SAFETY_STOP: u32 = 1 << 5;
+    /// Short names of the bits, in bit order.
+    pub const NAMES: [&str; 6] = [
+        "stopping",
+        "missed",
+        "shutdown",
+        "at-limit",
+        "mock",
+        "safety-stop",
+    ];
 }
 
 /// The arm's state at tick `tick`, published by the hardware bridge (the graph's only clock).
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::RobotState")]
 #[repr(C)]
@@ -103,13 +128,19 @@ pub struct RobotState {
     /// When the state was published (monotonic ns).
     pub t_ns: u64,
     /// The tick of the command executed during the period that ended with this state, or
-    /// [`NO_TICK`] if the bridge executed a stop instead.
+    /// [`NO_TICK`] (`null` in JSON) if the bridge executed a stop instead.
+    #[cfg_attr(
+        feature = "json",
+        serde(with = "crate::json::tick"),
+        schemars(with = "crate::json::tick::Schema")
+    )]
     pub applied_tick: u64,
     /// Ticks missed since the bridge started (cumulative).
     pub missed: u64,
     /// Number of valid entries in the joint arrays.
     pub n_joints: u32,
     /// [`state_flags`] bits.
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = state_flags::NAMES)))]
     pub flags: u32,
     /// Joint angles (rad).
     pub q_rad: [f64; MAX_JOINTS],
@@ -140,6 +171,11 @@ impl RobotState {
     pub fn q(&self) -> &[f64] {
         &self.q_rad[..(self.n_joints as usize).min(MAX_JOINTS)]
     }
+
+    /// The valid joint velocities.
+    pub fn qdot(&self) -> &[f64] {
+        &self.qdot_rad_s[..(self.n_joints as usize).min(MAX_JOINTS)]
+    }
 }
 
 /// [`MapperCommand::flags`] bits.
@@ -158,9 +194,22 @@ pub mod mapper_flags {
     /// The newest joystick sample answers a tick two or more before this one: the joystick,
     /// which answers every tick, has stopped. The action was zero; safety stops the arm.
     pub const INPUT_STALE: u32 = 1 << 5;
+    /// Short names of the bits, in bit order.
+    pub const NAMES: [&str; 6] = [
+        "no-input",
+        "input-non-finite",
+        "input-clamped",
+        "output-non-finite",
+        "state-invalid",
+        "input-stale",
+    ];
 }
 
 /// A joint-velocity command for tick `tick`, produced by one mapper process.
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::MapperCommand")]
 #[repr(C)]
@@ -187,8 +236,10 @@ pub struct MapperCommand {
     /// Number of valid entries in `qdot_rad_s`.
     pub n_joints: u32,
     /// [`mapper_flags`] bits.
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = mapper_flags::NAMES)))]
     pub flags: u32,
     /// Inherited: the joystick's [`buttons`] bits (deadman, e-stop) of the sample used.
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = buttons::NAMES)))]
     pub buttons: u32,
     /// The action `a` after clamping, as fed to the map.
     pub action: [f32; ACTION_DIM],
@@ -250,6 +301,10 @@ pub mod safe_flags {
 
 /// The command the arm executes at tick `tick`: the safety process's output, the only one the
 /// bridge accepts. The service admits exactly one publisher.
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::SafeCommand")]
 #[repr(C)]
@@ -280,8 +335,10 @@ pub struct SafeCommand {
     /// Number of valid entries in `qdot_rad_s`.
     pub n_joints: u32,
     /// [`safe_flags`] bits: which rules acted.
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = safe_flags::NAMES)))]
     pub flags: u32,
-    /// Padding, always 0.
+    /// Padding, always 0 (not in JSON).
+    #[cfg_attr(feature = "json", serde(skip))]
     pub reserved: u32,
     /// Joint velocities to execute (rad/s).
     pub qdot_rad_s: [f64; MAX_JOINTS],
@@ -387,9 +444,15 @@ pub mod safety_state {
     pub const ESTOP: u32 = 1 << 0;
     /// The supervisor holds the arm.
     pub const HOLD: u32 = 1 << 1;
+    /// Short names of the bits, in bit order.
+    pub const NAMES: [&str; 2] = ["e-stop", "hold"];
 }
 
 /// Heartbeat of one process, published once per tick it handled (and once when ready).
+#[cfg_attr(
+    feature = "json",
+    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scl::NodeStatus")]
 #[repr(C)]
@@ -397,7 +460,12 @@ pub mod safety_state {
 pub struct NodeStatus {
     /// When it was published (monotonic ns).
     pub t_ns: u64,
-    /// Newest tick the node handled ([`NO_TICK`] before the first).
+    /// Newest tick the node handled ([`NO_TICK`] before the first; `null` in JSON).
+    #[cfg_attr(
+        feature = "json",
+        serde(with = "crate::json::tick"),
+        schemars(with = "crate::json::tick::Schema")
+    )]
     pub tick: u64,
     /// Ticks handled since the node started.
     pub handled: u64,
@@ -412,14 +480,18 @@ pub struct NodeStatus {
     /// Process id.
     pub pid: u32,
     /// [`NodeRole`] as u32.
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::role_names())))]
     pub role: u32,
     /// [`phase`] value.
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::phase_names())))]
     pub phase: u32,
     /// Mapper id (mappers: their own; safety and bridge: the active / last executed one).
     pub mapper_id: u32,
     /// Safety: [`safety_state`] bits.
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = safety_state::NAMES)))]
     pub safety_state: u32,
     /// Safety: how many ticks each rule of [`safe_flags`] acted, by bit.
+    #[cfg_attr(feature = "json", schemars(extend("x-item-names" = safe_flags::NAMES)))]
     pub rule_counts: [u32; 16],
     /// Mapper: the map's current mode plus one (mode switching: 1 x-y, 2 z-yaw,
     /// 3 roll-pitch); 0 for a map without modes.
@@ -427,7 +499,8 @@ pub struct NodeStatus {
     /// Mapper: mode switches since the mapper started (presses of the mode button).
     pub mode_switches: u32,
     /// Padding, always 0 (the struct's tail was implicit padding before; the size is
-    /// unchanged).
+    /// unchanged). Not recorded.
+    #[cfg_attr(feature = "json", serde(skip))]
     pub reserved: u32,
 }
 
@@ -481,6 +554,19 @@ mod tests {
         assert_eq!(std::mem::size_of::<SafeCommand>(), 168);
         assert_eq!(std::mem::size_of::<TickReport>(), 120);
         assert_eq!(std::mem::size_of::<NodeStatus>(), 152);
+    }
+
+    #[test]
+    fn bit_names_name_every_bit() {
+        let highest = |b: u32| b.trailing_zeros() as usize + 1;
+        assert_eq!(buttons::NAMES.len(), highest(buttons::NO_DEVICE));
+        assert_eq!(state_flags::NAMES.len(), highest(state_flags::SAFETY_STOP));
+        assert_eq!(
+            mapper_flags::NAMES.len(),
+            highest(mapper_flags::INPUT_STALE)
+        );
+        assert_eq!(safe_flags::NAMES.len(), highest(safe_flags::ESTOP));
+        assert_eq!(safety_state::NAMES.len(), highest(safety_state::HOLD));
     }
 
     #[test]

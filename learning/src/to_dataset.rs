@@ -13,10 +13,10 @@
 use std::path::{Path, PathBuf};
 
 use crate::dataset::{Dataset, Trajectory};
-use ipc_types::state_flags;
+use ipc_types::{RobotState, state_flags};
 
 use crate::ToolError;
-use recording::{self, Event, RobotStateJson, Topic};
+use recording::{self, Event, Topic};
 
 /// Joint-space speed (rad/s) and gripper rate (1/s) below which the arm counts as resting.
 pub const REST_SPEED: f64 = 1e-3;
@@ -108,8 +108,8 @@ const NOT_A_DEMONSTRATION: u32 =
     state_flags::MISSED | state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
 
 /// The runs of valid consecutive tuples of `states` (any order; sorted by tick here).
-fn runs(states: &[RobotStateJson]) -> Vec<Vec<Tuple>> {
-    let mut sorted: Vec<&RobotStateJson> = states.iter().collect();
+fn runs(states: &[RobotState]) -> Vec<Vec<Tuple>> {
+    let mut sorted: Vec<&RobotState> = states.iter().collect();
     // The bridge's shutdown state repeats its last tick: the running state comes first and
     // is the one kept.
     sorted.sort_by_key(|s| (s.tick, s.flags & state_flags::SHUTDOWN != 0));
@@ -122,9 +122,8 @@ fn runs(states: &[RobotStateJson]) -> Vec<Vec<Tuple>> {
         let ok = b.tick == a.tick + 1
             && a.flags & state_flags::SHUTDOWN == 0
             && b.flags & NOT_A_DEMONSTRATION == 0
-            && a.q_rad.len() == b.q_rad.len()
-            && b.qdot_rad_s.len() == a.q_rad.len()
-            && !a.q_rad.is_empty()
+            && a.n_joints == b.n_joints
+            && !a.q().is_empty()
             && dt_s > 0.0;
         if !ok {
             if !cur.is_empty() {
@@ -135,9 +134,9 @@ fn runs(states: &[RobotStateJson]) -> Vec<Vec<Tuple>> {
         cur.push(Tuple {
             tick: a.tick,
             t_ns: a.t_ns,
-            q: a.q_rad.clone(),
+            q: a.q().to_vec(),
             c: a.gripper,
-            qd: b.qdot_rad_s.clone(),
+            qd: b.qdot().to_vec(),
             cd: (b.gripper - a.gripper) / dt_s,
         });
     }
@@ -215,11 +214,7 @@ fn cut_length(piece: Vec<Tuple>, max_s: f64) -> Vec<Vec<Tuple>> {
 
 /// The trajectories of one recording's robot states; `stem` names them
 /// (`<stem>-<index>-tick<first tick>.csv`).
-pub fn trajectories(
-    states: &[RobotStateJson],
-    stem: &str,
-    o: &Options,
-) -> (Vec<Trajectory>, LeftOut) {
+pub fn trajectories(states: &[RobotState], stem: &str, o: &Options) -> (Vec<Trajectory>, LeftOut) {
     let mut left = LeftOut::default();
     let mut out = Vec::new();
     for run in runs(states) {
@@ -264,9 +259,7 @@ pub fn split(trajs: Vec<Trajectory>, val_fraction: f64) -> Dataset {
 }
 
 /// The robot states of recording `path`, and how far it could be read.
-pub fn robot_states(
-    path: &Path,
-) -> Result<(Vec<RobotStateJson>, recording::ReadSummary), ToolError> {
+pub fn robot_states(path: &Path) -> Result<(Vec<RobotState>, recording::ReadSummary), ToolError> {
     let mut states = Vec::new();
     let channel = Topic::RobotState.channel();
     let summary = recording::read_file(path, |ev| {
@@ -278,7 +271,7 @@ pub fn robot_states(
         } = ev
             && c.topic == channel
         {
-            states.push(recording::decode(path, &c.topic, sequence, data)?);
+            states.push(recording::decode_robot_state(path, c, sequence, data)?);
         }
         Ok(())
     })?;
@@ -382,22 +375,18 @@ mod tests {
     const DT_NS: u64 = 25_000_000;
 
     /// A state at `tick` moving joint 0 at `v` rad/s (the velocity that brought it there).
-    fn st(tick: u64, q0: f64, v: f64) -> RobotStateJson {
-        RobotStateJson {
-            tick,
-            t_ns: 1_000_000_000 + tick * DT_NS,
-            applied_tick: tick.checked_sub(1),
-            missed: 0,
-            flags: state_flags::MOCK,
-            flag_names: vec![],
-            q_rad: vec![q0, 0.5],
-            qdot_rad_s: vec![v, 0.0],
-            gripper: 0.01 * tick as f64,
-        }
+    fn st(tick: u64, q0: f64, v: f64) -> RobotState {
+        let mut s = RobotState::at_rest(tick, 1_000_000_000 + tick * DT_NS, 2);
+        s.applied_tick = tick.wrapping_sub(1);
+        s.flags = state_flags::MOCK;
+        s.q_rad[..2].copy_from_slice(&[q0, 0.5]);
+        s.qdot_rad_s[0] = v;
+        s.gripper = 0.01 * tick as f64;
+        s
     }
 
     /// Ticks `from..to` moving at `v` from `q0`.
-    fn moving(from: u64, to: u64, v: f64) -> Vec<RobotStateJson> {
+    fn moving(from: u64, to: u64, v: f64) -> Vec<RobotState> {
         (from..to)
             .map(|k| st(k, v * (k - from) as f64 * 0.025, v))
             .collect()
@@ -422,7 +411,7 @@ mod tests {
         assert_eq!(t.name, "r-000-tick0.csv");
         assert_eq!(t.len(), 9, "the last state has no successor");
         assert_eq!(t.qdot[4][0], 0.7);
-        assert_eq!(t.q[4], s[4].q_rad);
+        assert_eq!(t.q[4], s[4].q());
         assert!((t.t[3] - 0.075).abs() < 1e-12);
         assert!((t.cdot[0] - 0.4).abs() < 1e-9, "{}", t.cdot[0]);
     }
@@ -435,7 +424,7 @@ mod tests {
         s.last_mut().unwrap().flags |= state_flags::SHUTDOWN;
         // Out of order and with a duplicate, as two sources might give them.
         s.swap(0, 3);
-        s.push(s[7].clone());
+        s.push(s[7]);
         let (trajs, left) = trajectories(&s, "r", &opts(0.0, 100.0));
         let ranges: Vec<(&str, usize)> = trajs.iter().map(|t| (t.name.as_str(), t.len())).collect();
         // 0..=8, then 12..=15 (16 -> 17 was a miss), then the lone tuple 17 (18 -> 19 is the
@@ -452,15 +441,12 @@ mod tests {
         // 20 ticks moving, 60 at rest (1.5 s), 20 moving, 10 at rest (0.25 s), 20 moving.
         let mut s = moving(0, 20, 0.2);
         let q_end = s.last().unwrap().q_rad[0];
-        s.extend((20..80).map(|k| RobotStateJson {
-            q_rad: vec![q_end, 0.5],
-            qdot_rad_s: vec![0.0, 0.0],
+        s.extend((20..80).map(|k| RobotState {
             gripper: 0.0,
-            ..st(k, 0.0, 0.0)
+            ..st(k, q_end, 0.0)
         }));
         s.extend(moving(80, 100, 0.3));
-        s.extend((100..110).map(|k| RobotStateJson {
-            qdot_rad_s: vec![0.0, 0.0],
+        s.extend((100..110).map(|k| RobotState {
             gripper: 0.0,
             ..st(k, 0.0, 0.0)
         }));

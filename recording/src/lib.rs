@@ -10,23 +10,28 @@
 //!   its CRC: a file cut anywhere reads back up to its last complete chunk ([`read`] tolerates
 //!   the cut, [`recover`] rewrites the readable prefix as a finished file).
 //!
-//! [`Payload`] is a message as it came off shared memory; its JSON form is a mirror struct
-//! per type (`*Json`), whose fields the schemas describe one by one.
+//! [`Payload`] is a message as it came off shared memory. Its JSON form and the channel's
+//! schema are derived from the message type itself (`serde` and `schemars` derives in
+//! `ipc-types`, feature `json`): the struct's fields, joint arrays whole with their count, a
+//! tick of "none" as `null`; the schema is `schemars::schema_for!(T)`. Channels carry their
+//! format in the [`FORMAT_KEY`] metadata; recordings made before (format 1, hand-written
+//! mirror structs, no such key) still read, and their robot states still decode
+//! ([`decode_robot_state`]).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
+use ipc_types::control::{EstopCommand, SafetyControl};
 use ipc_types::{
-    JoystickInput, MapperCommand, NO_TICK, NodeRole, NodeStatus, RobotState, SafeCommand, buttons,
-    mapper_flags, phase, safe_flags, state_flags,
+    JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState, SafeCommand,
 };
 use mcap::records::{MessageHeader, Metadata};
 use mcap::write::NoSeek;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
+
+pub mod check;
 
 /// Metadata record written when a recording starts.
 pub const START_METADATA: &str = "scl.recording";
@@ -34,6 +39,12 @@ pub const START_METADATA: &str = "scl.recording";
 pub const END_METADATA: &str = "scl.recording.end";
 /// Metadata record [`recover`] adds to the file it writes.
 pub const RECOVERED_METADATA: &str = "scl.recovered";
+/// Channel metadata key of the JSON format of a graph topic's channel ([`FORMAT`]); a channel
+/// without it is format 1 (recordings made before the JSON was derived from the types).
+pub const FORMAT_KEY: &str = "scl.format";
+/// The JSON format [`LogWriter::add_topic`] writes: 2, the message types' serde / schemars
+/// derives. Format 1 had mirror structs (joint arrays cut to the valid joints, flag names).
+pub const FORMAT: u32 = 2;
 
 /// Why a recording could not be written, read or recovered.
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +79,20 @@ pub enum RecordError {
     /// A `--topics` entry is not a topic of the graph.
     #[error("unknown topic `{0}` in --topics; known topics: {known}", known = Topic::known())]
     UnknownTopic(String),
+    /// A channel in a format this build does not decode as message types: format 1 (recorded
+    /// before the JSON was derived from the message types; its robot states decode with
+    /// [`decode_robot_state`]) or a newer one.
+    #[error(
+        "{path}: channel {topic} is in recording format {format}; this scl decodes format {FORMAT} (and the robot states of format 1)"
+    )]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// The channel's topic.
+        topic: String,
+        /// The channel's format.
+        format: u32,
+    },
     /// A message does not decode as the type its channel names.
     #[error("{path}: message {sequence} on {topic} does not decode: {reason}")]
     Decode {
@@ -185,9 +210,19 @@ impl Topic {
         Self::ALL.map(Topic::name).join(", ")
     }
 
-    /// The JSON schema (draft 2020-12) of the topic's messages.
+    /// The JSON schema (draft 2020-12) of the topic's messages: `schemars::schema_for!` of
+    /// the message type.
     pub fn schema(self) -> Value {
-        schema::of(self)
+        match self {
+            Topic::Joystick => schemars::schema_for!(JoystickInput),
+            Topic::RobotState => schemars::schema_for!(RobotState),
+            Topic::MapperCommand => schemars::schema_for!(MapperCommand),
+            Topic::SafeCommand => schemars::schema_for!(SafeCommand),
+            Topic::Status => schemars::schema_for!(NodeStatus),
+            Topic::SafetyControl => schemars::schema_for!(SafetyControl),
+            Topic::Estop => schemars::schema_for!(EstopCommand),
+        }
+        .to_value()
     }
 }
 
@@ -240,571 +275,13 @@ impl Payload {
     /// Appends its JSON form to `out`.
     pub fn write_json(&self, out: &mut Vec<u8>) -> serde_json::Result<()> {
         match self {
-            Payload::Joystick(m) => serde_json::to_writer(out, &JoystickJson::from(m)),
-            Payload::RobotState(m) => serde_json::to_writer(out, &RobotStateJson::from(m)),
-            Payload::MapperCommand(m) => serde_json::to_writer(out, &MapperCommandJson::from(m)),
-            Payload::SafeCommand(m) => serde_json::to_writer(out, &SafeCommandJson::from(m)),
-            Payload::Status(m) => serde_json::to_writer(out, &NodeStatusJson::from(m)),
-            Payload::SafetyControl(m) => serde_json::to_writer(out, &SafetyControlJson::from(m)),
-            Payload::Estop(m) => serde_json::to_writer(out, &EstopJson::from(m)),
-        }
-    }
-}
-
-fn tick_or_none(t: u64) -> Option<u64> {
-    (t != NO_TICK).then_some(t)
-}
-
-fn bit_names(bits: u32, names: &[&str]) -> Vec<String> {
-    names
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| bits & (1 << i) != 0)
-        .map(|(_, n)| (*n).to_owned())
-        .collect()
-}
-
-const BUTTON_NAMES: [&str; 4] = ["deadman", "mode", "estop", "gripper"];
-const STATE_FLAG_NAMES: [&str; 6] = [
-    "stopping",
-    "missed",
-    "shutdown",
-    "at-limit",
-    "mock",
-    "safety-stop",
-];
-const MAPPER_FLAG_NAMES: [&str; 6] = [
-    "no-input",
-    "input-non-finite",
-    "input-clamped",
-    "output-non-finite",
-    "state-invalid",
-    "input-stale",
-];
-
-// The bit positions the name tables above rely on.
-const _: () = {
-    assert!(buttons::GRIPPER == 1 << 3);
-    assert!(state_flags::SAFETY_STOP == 1 << 5);
-    assert!(mapper_flags::STATE_INVALID == 1 << 4);
-    assert!(mapper_flags::INPUT_STALE == 1 << 5);
-};
-
-fn joints(v: &[f64; ipc_types::MAX_JOINTS], n: u32) -> Vec<f64> {
-    v[..(n as usize).min(ipc_types::MAX_JOINTS)].to_vec()
-}
-
-/// JSON form of [`JoystickInput`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct JoystickJson {
-    /// Newest robot tick seen when sampled (`null` before the first).
-    pub tick: Option<u64>,
-    /// Sample time (monotonic ns).
-    pub t_ns: u64,
-    /// Sample counter.
-    pub seq: u64,
-    /// The two axes.
-    pub axes: [f32; 2],
-    /// Gripper rate input.
-    pub gripper: f32,
-    /// Button bits.
-    pub buttons: u32,
-    /// Names of the pressed buttons.
-    pub pressed: Vec<String>,
-}
-
-impl From<&JoystickInput> for JoystickJson {
-    fn from(m: &JoystickInput) -> Self {
-        Self {
-            tick: tick_or_none(m.tick),
-            t_ns: m.t_ns,
-            seq: m.seq,
-            axes: m.axes,
-            gripper: m.gripper,
-            buttons: m.buttons,
-            pressed: bit_names(m.buttons, &BUTTON_NAMES),
-        }
-    }
-}
-
-/// JSON form of [`RobotState`]; joint arrays hold the valid joints only.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RobotStateJson {
-    /// Tick number.
-    pub tick: u64,
-    /// Publication time (monotonic ns).
-    pub t_ns: u64,
-    /// Tick of the command executed during the period before (`null`: a stop).
-    pub applied_tick: Option<u64>,
-    /// Ticks missed since the bridge started.
-    pub missed: u64,
-    /// Flag bits.
-    pub flags: u32,
-    /// Names of the set flags.
-    pub flag_names: Vec<String>,
-    /// Joint angles (rad).
-    pub q_rad: Vec<f64>,
-    /// Joint velocities (rad/s).
-    pub qdot_rad_s: Vec<f64>,
-    /// Gripper state (0 open .. 1 closed).
-    pub gripper: f64,
-}
-
-impl From<&RobotState> for RobotStateJson {
-    fn from(m: &RobotState) -> Self {
-        Self {
-            tick: m.tick,
-            t_ns: m.t_ns,
-            applied_tick: tick_or_none(m.applied_tick),
-            missed: m.missed,
-            flags: m.flags,
-            flag_names: bit_names(m.flags, &STATE_FLAG_NAMES),
-            q_rad: joints(&m.q_rad, m.n_joints),
-            qdot_rad_s: joints(&m.qdot_rad_s, m.n_joints),
-            gripper: m.gripper,
-        }
-    }
-}
-
-/// JSON form of [`MapperCommand`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MapperCommandJson {
-    /// Tick of the robot state it answers.
-    pub tick: u64,
-    /// Publication time (monotonic ns).
-    pub t_ns: u64,
-    /// The robot state's time.
-    pub state_t_ns: u64,
-    /// When the mapper received the robot state.
-    pub state_rx_ns: u64,
-    /// The joystick sample's time (0: none).
-    pub joystick_t_ns: u64,
-    /// When the mapper received the joystick sample (0: none).
-    pub joystick_rx_ns: u64,
-    /// The joystick sample's counter.
-    pub joystick_seq: u64,
-    /// Time in the map (ns).
-    pub compute_ns: u64,
-    /// The mapper's id.
-    pub mapper_id: u32,
-    /// Flag bits.
-    pub flags: u32,
-    /// Names of the set flags.
-    pub flag_names: Vec<String>,
-    /// The joystick buttons of the sample used.
-    pub buttons: u32,
-    /// The action fed to the map.
-    pub action: [f32; 2],
-    /// Commanded joint velocities (rad/s).
-    pub qdot_rad_s: Vec<f64>,
-    /// Commanded gripper rate (1/s).
-    pub gripper_rate: f64,
-}
-
-impl From<&MapperCommand> for MapperCommandJson {
-    fn from(m: &MapperCommand) -> Self {
-        Self {
-            tick: m.tick,
-            t_ns: m.t_ns,
-            state_t_ns: m.state_t_ns,
-            state_rx_ns: m.state_rx_ns,
-            joystick_t_ns: m.joystick_t_ns,
-            joystick_rx_ns: m.joystick_rx_ns,
-            joystick_seq: m.joystick_seq,
-            compute_ns: m.compute_ns,
-            mapper_id: m.mapper_id,
-            flags: m.flags,
-            flag_names: bit_names(m.flags, &MAPPER_FLAG_NAMES),
-            buttons: m.buttons,
-            action: m.action,
-            qdot_rad_s: joints(&m.qdot_rad_s, m.n_joints),
-            gripper_rate: m.gripper_rate,
-        }
-    }
-}
-
-/// JSON form of [`SafeCommand`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SafeCommandJson {
-    /// The tick it is for.
-    pub tick: u64,
-    /// Publication time (monotonic ns).
-    pub t_ns: u64,
-    /// The robot state's time.
-    pub state_t_ns: u64,
-    /// When the mapper received the robot state.
-    pub state_rx_ns: u64,
-    /// The joystick sample's time.
-    pub joystick_t_ns: u64,
-    /// When the mapper received the joystick sample.
-    pub joystick_rx_ns: u64,
-    /// The mapper command's time.
-    pub mapper_t_ns: u64,
-    /// When safety received the mapper command.
-    pub mapper_rx_ns: u64,
-    /// The mapper's compute time (ns).
-    pub mapper_compute_ns: u64,
-    /// Time in the safety filter (ns).
-    pub compute_ns: u64,
-    /// The mapper it came from.
-    pub mapper_id: u32,
-    /// Rule bits.
-    pub flags: u32,
-    /// Names of the rules that acted.
-    pub rules: Vec<String>,
-    /// Joint velocities to execute (rad/s).
-    pub qdot_rad_s: Vec<f64>,
-    /// Gripper rate (1/s).
-    pub gripper_rate: f64,
-}
-
-impl From<&SafeCommand> for SafeCommandJson {
-    fn from(m: &SafeCommand) -> Self {
-        Self {
-            tick: m.tick,
-            t_ns: m.t_ns,
-            state_t_ns: m.state_t_ns,
-            state_rx_ns: m.state_rx_ns,
-            joystick_t_ns: m.joystick_t_ns,
-            joystick_rx_ns: m.joystick_rx_ns,
-            mapper_t_ns: m.mapper_t_ns,
-            mapper_rx_ns: m.mapper_rx_ns,
-            mapper_compute_ns: m.mapper_compute_ns,
-            compute_ns: m.compute_ns,
-            mapper_id: m.mapper_id,
-            flags: m.flags,
-            rules: bit_names(m.flags, &safe_flags::NAMES),
-            qdot_rad_s: joints(&m.qdot_rad_s, m.n_joints),
-            gripper_rate: m.gripper_rate,
-        }
-    }
-}
-
-/// JSON form of [`NodeStatus`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct NodeStatusJson {
-    /// Publication time (monotonic ns).
-    pub t_ns: u64,
-    /// Newest tick handled (`null` before the first).
-    pub tick: Option<u64>,
-    /// Ticks handled.
-    pub handled: u64,
-    /// Faults (bridge: missed ticks; recorder: dropped messages).
-    pub faults: u64,
-    /// Bridge: end-to-end latency of this tick (ns).
-    pub latency_ns: u64,
-    /// Bridge: lateness of this tick (ns).
-    pub lateness_ns: u64,
-    /// Bridge: joint travel (rad).
-    pub joint_travel_rad: f64,
-    /// Process id.
-    pub pid: u32,
-    /// Role name.
-    pub role: String,
-    /// Phase name.
-    pub phase: String,
-    /// Mapper id.
-    pub mapper_id: u32,
-    /// Safety: state bits (1 e-stop, 2 hold).
-    pub safety_state: u32,
-    /// Safety: ticks each rule acted, by rule name.
-    pub rule_counts: BTreeMap<String, u32>,
-}
-
-impl From<&NodeStatus> for NodeStatusJson {
-    fn from(m: &NodeStatus) -> Self {
-        Self {
-            t_ns: m.t_ns,
-            tick: tick_or_none(m.tick),
-            handled: m.handled,
-            faults: m.faults,
-            latency_ns: m.latency_ns,
-            lateness_ns: m.lateness_ns,
-            joint_travel_rad: m.joint_travel_rad,
-            pid: m.pid,
-            role: NodeRole::from_u32(m.role)
-                .map_or_else(|| format!("role-{}", m.role), |r| r.name().to_owned()),
-            phase: match m.phase {
-                phase::READY => "ready".to_owned(),
-                phase::RUNNING => "running".to_owned(),
-                phase::STOPPING => "stopping".to_owned(),
-                other => format!("phase-{other}"),
-            },
-            mapper_id: m.mapper_id,
-            safety_state: m.safety_state,
-            rule_counts: safe_flags::NAMES
-                .iter()
-                .zip(m.rule_counts)
-                .map(|(n, c)| ((*n).to_owned(), c))
-                .collect(),
-        }
-    }
-}
-
-/// JSON form of [`SafetyControl`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SafetyControlJson {
-    /// The supervisor's counter.
-    pub seq: u64,
-    /// Publication time (monotonic ns).
-    pub t_ns: u64,
-    /// First tick of the active mapper.
-    pub from_tick: u64,
-    /// The mapper safety forwards.
-    pub active_mapper: u32,
-    /// Whether the arm is held.
-    pub hold: bool,
-    /// E-stop change counter.
-    pub estop_seq: u32,
-    /// Whether the relayed e-stop is latched.
-    pub estop: bool,
-}
-
-impl From<&SafetyControl> for SafetyControlJson {
-    fn from(m: &SafetyControl) -> Self {
-        Self {
-            seq: m.seq,
-            t_ns: m.t_ns,
-            from_tick: m.from_tick,
-            active_mapper: m.active_mapper,
-            hold: m.hold != 0,
-            estop_seq: m.estop_seq,
-            estop: m.estop != 0,
-        }
-    }
-}
-
-/// JSON form of [`EstopCommand`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EstopJson {
-    /// When it was sent (monotonic ns).
-    pub t_ns: u64,
-    /// `estop`, `reset` or `unknown`.
-    pub action: String,
-    /// The sender's pid.
-    pub source_pid: u32,
-}
-
-impl From<&EstopCommand> for EstopJson {
-    fn from(m: &EstopCommand) -> Self {
-        Self {
-            t_ns: m.t_ns,
-            action: match m.action {
-                estop_action::ESTOP => "estop",
-                estop_action::RESET => "reset",
-                _ => "unknown",
-            }
-            .to_owned(),
-            source_pid: m.source_pid,
-        }
-    }
-}
-
-/// The JSON schemas, written out field by field (the `*Json` structs are their source).
-mod schema {
-    use serde_json::{Value, json};
-
-    use super::Topic;
-
-    fn int(d: &str) -> Value {
-        json!({"type": "integer", "minimum": 0, "description": d})
-    }
-    fn opt_int(d: &str) -> Value {
-        json!({"type": ["integer", "null"], "minimum": 0, "description": d})
-    }
-    fn num(d: &str) -> Value {
-        json!({"type": "number", "description": d})
-    }
-    fn boolean(d: &str) -> Value {
-        json!({"type": "boolean", "description": d})
-    }
-    fn text(d: &str) -> Value {
-        json!({"type": "string", "description": d})
-    }
-    fn nums(d: &str) -> Value {
-        json!({"type": "array", "items": {"type": "number"}, "description": d})
-    }
-    fn names(d: &str) -> Value {
-        json!({"type": "array", "items": {"type": "string"}, "description": d})
-    }
-    fn pair(d: &str) -> Value {
-        json!({"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2, "description": d})
-    }
-
-    fn object(title: &str, description: &str, fields: Vec<(&str, Value)>) -> Value {
-        let required: Vec<&str> = fields.iter().map(|(k, _)| *k).collect();
-        let properties: serde_json::Map<String, Value> =
-            fields.into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
-        json!({
-            "$schema": "https://json-schema.org/draft/2020-12/schema",
-            "title": title,
-            "description": description,
-            "type": "object",
-            "properties": properties,
-            "required": required,
-            "additionalProperties": false,
-        })
-    }
-
-    pub(super) fn of(topic: Topic) -> Value {
-        let t_ns = || int("when it was produced (CLOCK_MONOTONIC ns)");
-        match topic {
-            Topic::Joystick => object(
-                "scl.JoystickInput",
-                "one sample of the operator's input device",
-                vec![
-                    ("tick", opt_int("newest robot tick seen when sampled")),
-                    ("t_ns", t_ns()),
-                    ("seq", int("sample counter")),
-                    ("axes", pair("the two axes, nominally in [-1, 1]")),
-                    (
-                        "gripper",
-                        num("gripper rate input in [-1, 1], positive closes"),
-                    ),
-                    ("buttons", int("button bits")),
-                    ("pressed", names("names of the pressed buttons")),
-                ],
-            ),
-            Topic::RobotState => object(
-                "scl.RobotState",
-                "the arm's state at a tick, from the bridge (the graph's clock)",
-                vec![
-                    ("tick", int("tick number")),
-                    ("t_ns", t_ns()),
-                    (
-                        "applied_tick",
-                        opt_int("tick of the command executed in the period before; null: a stop"),
-                    ),
-                    ("missed", int("ticks missed since the bridge started")),
-                    ("flags", int("state flag bits")),
-                    ("flag_names", names("names of the set flags")),
-                    ("q_rad", nums("joint angles (rad)")),
-                    ("qdot_rad_s", nums("joint velocities (rad/s)")),
-                    ("gripper", num("gripper state, 0 open .. 1 closed")),
-                ],
-            ),
-            Topic::MapperCommand => object(
-                "scl.MapperCommand",
-                "a joint-velocity command from one mapper",
-                vec![
-                    ("tick", int("tick of the robot state it answers")),
-                    ("t_ns", t_ns()),
-                    ("state_t_ns", int("t_ns of the robot state used")),
-                    ("state_rx_ns", int("when the mapper received that state")),
-                    (
-                        "joystick_t_ns",
-                        int("t_ns of the joystick sample used (0: none)"),
-                    ),
-                    (
-                        "joystick_rx_ns",
-                        int("when the mapper received that sample (0: none)"),
-                    ),
-                    ("joystick_seq", int("seq of the joystick sample used")),
-                    ("compute_ns", int("time in the map (ns)")),
-                    ("mapper_id", int("the mapper's id")),
-                    ("flags", int("mapper flag bits")),
-                    ("flag_names", names("names of the set flags")),
-                    ("buttons", int("joystick buttons of the sample used")),
-                    ("action", pair("the action fed to the map")),
-                    ("qdot_rad_s", nums("commanded joint velocities (rad/s)")),
-                    ("gripper_rate", num("commanded gripper rate (1/s)")),
-                ],
-            ),
-            Topic::SafeCommand => object(
-                "scl.SafeCommand",
-                "the command the arm executes at its tick (safety's output)",
-                vec![
-                    ("tick", int("the tick it is for")),
-                    ("t_ns", t_ns()),
-                    ("state_t_ns", int("t_ns of the robot state of this tick")),
-                    ("state_rx_ns", int("when the mapper received that state")),
-                    (
-                        "joystick_t_ns",
-                        int("t_ns of the joystick sample behind it"),
-                    ),
-                    (
-                        "joystick_rx_ns",
-                        int("when the mapper received that sample"),
-                    ),
-                    ("mapper_t_ns", int("t_ns of the mapper command")),
-                    (
-                        "mapper_rx_ns",
-                        int("when safety received the mapper command"),
-                    ),
-                    ("mapper_compute_ns", int("the mapper's compute time (ns)")),
-                    ("compute_ns", int("time in the safety filter (ns)")),
-                    ("mapper_id", int("the mapper it came from")),
-                    ("flags", int("safety rule bits")),
-                    ("rules", names("names of the rules that acted")),
-                    ("qdot_rad_s", nums("joint velocities to execute (rad/s)")),
-                    ("gripper_rate", num("gripper rate (1/s)")),
-                ],
-            ),
-            Topic::Status => object(
-                "scl.NodeStatus",
-                "a process's heartbeat",
-                vec![
-                    ("t_ns", t_ns()),
-                    ("tick", opt_int("newest tick handled")),
-                    (
-                        "handled",
-                        int("ticks handled (recorder: messages received)"),
-                    ),
-                    (
-                        "faults",
-                        int(
-                            "bridge: missed ticks; recorder: dropped messages; others: refused inputs",
-                        ),
-                    ),
-                    (
-                        "latency_ns",
-                        int("bridge: RobotState(k) to SafeCommand(k) (ns)"),
-                    ),
-                    (
-                        "lateness_ns",
-                        int("bridge: lateness against the tick grid (ns)"),
-                    ),
-                    (
-                        "joint_travel_rad",
-                        num("bridge: joint-space path length (rad)"),
-                    ),
-                    ("pid", int("process id")),
-                    ("role", text("joystick, mapper, safety, bridge or recorder")),
-                    ("phase", text("ready, running or stopping")),
-                    ("mapper_id", int("mapper id (own, active or last executed)")),
-                    ("safety_state", int("safety: 1 e-stop latched, 2 hold")),
-                    (
-                        "rule_counts",
-                        json!({
-                            "type": "object",
-                            "additionalProperties": {"type": "integer", "minimum": 0},
-                            "description": "safety: ticks each rule acted, by rule name",
-                        }),
-                    ),
-                ],
-            ),
-            Topic::SafetyControl => object(
-                "scl.SafetyControl",
-                "the supervisor's switch, hold and e-stop relay to safety",
-                vec![
-                    ("seq", int("the supervisor's counter")),
-                    ("t_ns", t_ns()),
-                    ("from_tick", int("first tick of the active mapper")),
-                    ("active_mapper", int("the mapper safety forwards")),
-                    ("hold", boolean("the arm is held")),
-                    ("estop_seq", int("e-stop change counter")),
-                    ("estop", boolean("the relayed e-stop is latched")),
-                ],
-            ),
-            Topic::Estop => object(
-                "scl.EstopCommand",
-                "scl estop / scl reset",
-                vec![
-                    ("t_ns", t_ns()),
-                    ("action", text("estop, reset or unknown")),
-                    ("source_pid", int("the sender's pid")),
-                ],
-            ),
+            Payload::Joystick(m) => serde_json::to_writer(out, m),
+            Payload::RobotState(m) => serde_json::to_writer(out, m),
+            Payload::MapperCommand(m) => serde_json::to_writer(out, m),
+            Payload::SafeCommand(m) => serde_json::to_writer(out, m),
+            Payload::Status(m) => serde_json::to_writer(out, m),
+            Payload::SafetyControl(m) => serde_json::to_writer(out, m),
+            Payload::Estop(m) => serde_json::to_writer(out, m),
         }
     }
 }
@@ -822,6 +299,16 @@ pub struct ChannelInfo {
     pub metadata: BTreeMap<String, String>,
     /// Its schema, if it has one.
     pub schema: Option<SchemaInfo>,
+}
+
+impl ChannelInfo {
+    /// The JSON format of its messages: the [`FORMAT_KEY`] metadata, 1 without it.
+    pub fn format(&self) -> u32 {
+        self.metadata
+            .get(FORMAT_KEY)
+            .and_then(|f| f.parse().ok())
+            .unwrap_or(1)
+    }
 }
 
 /// A schema of a recording, as read back.
@@ -918,7 +405,7 @@ impl<W: Write> LogWriter<W> {
     }
 
     /// Adds the channel of a graph topic (JSON messages with the topic's JSON schema);
-    /// `metadata` goes on the channel (e.g. the graph prefix).
+    /// `metadata` goes on the channel (e.g. the graph prefix), with [`FORMAT_KEY`].
     pub fn add_topic(
         &mut self,
         topic: Topic,
@@ -929,7 +416,9 @@ impl<W: Write> LogWriter<W> {
             encoding: "jsonschema".to_owned(),
             data: topic.schema().to_string().into_bytes(),
         };
-        let id = self.add_channel(&topic.channel(), Some(&schema), "json", metadata)?;
+        let mut metadata = metadata.clone();
+        metadata.insert(FORMAT_KEY.to_owned(), FORMAT.to_string());
+        let id = self.add_channel(&topic.channel(), Some(&schema), "json", &metadata)?;
         self.topics[topic.index()] = Some(id);
         Ok(id)
     }
@@ -1198,19 +687,89 @@ pub fn read_file(
     read(std::io::BufReader::new(f), path, on)
 }
 
-/// Decodes a message of `topic` from its JSON.
+/// Decodes a message of `channel` (of recording `path`) from its JSON, as the message type
+/// `T` of the channel's topic. A channel of another format is refused ([`RecordError::Format`]);
+/// use [`decode_robot_state`] for robot states of any format.
 pub fn decode<T: serde::de::DeserializeOwned>(
     path: &Path,
-    topic: &str,
+    channel: &ChannelInfo,
+    sequence: u32,
+    data: &[u8],
+) -> Result<T, RecordError> {
+    let format = channel.format();
+    if format != FORMAT {
+        return Err(RecordError::Format {
+            path: path.to_owned(),
+            topic: channel.topic.clone(),
+            format,
+        });
+    }
+    from_json(path, channel, sequence, data)
+}
+
+fn from_json<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    channel: &ChannelInfo,
     sequence: u32,
     data: &[u8],
 ) -> Result<T, RecordError> {
     serde_json::from_slice(data).map_err(|e| RecordError::Decode {
         path: path.to_owned(),
-        topic: topic.to_owned(),
+        topic: channel.topic.clone(),
         sequence,
         reason: e.to_string(),
     })
+}
+
+/// A robot state as format 1 wrote it: joint arrays cut to the valid joints (their length is
+/// the joint count), a stop's `applied_tick` `null`; its other fields (`flag_names`) are
+/// ignored. Only for reading old recordings.
+#[derive(serde::Deserialize)]
+struct RobotStateV1 {
+    tick: u64,
+    t_ns: u64,
+    applied_tick: Option<u64>,
+    missed: u64,
+    flags: u32,
+    q_rad: Vec<f64>,
+    qdot_rad_s: Vec<f64>,
+    gripper: f64,
+}
+
+/// Decodes a message of the `/robot_state` channel `channel` of recording `path`, in the
+/// current format or in format 1.
+pub fn decode_robot_state(
+    path: &Path,
+    channel: &ChannelInfo,
+    sequence: u32,
+    data: &[u8],
+) -> Result<RobotState, RecordError> {
+    match channel.format() {
+        1 => {
+            let v: RobotStateV1 = from_json(path, channel, sequence, data)?;
+            let n = v.q_rad.len();
+            if n > MAX_JOINTS || v.qdot_rad_s.len() != n {
+                return Err(RecordError::Decode {
+                    path: path.to_owned(),
+                    topic: channel.topic.clone(),
+                    sequence,
+                    reason: format!(
+                        "{n} joint angles and {} velocities (at most {MAX_JOINTS}, as many of each)",
+                        v.qdot_rad_s.len()
+                    ),
+                });
+            }
+            let mut s = RobotState::at_rest(v.tick, v.t_ns, n as u32);
+            s.applied_tick = v.applied_tick.unwrap_or(NO_TICK);
+            s.missed = v.missed;
+            s.flags = v.flags;
+            s.q_rad[..n].copy_from_slice(&v.q_rad);
+            s.qdot_rad_s[..n].copy_from_slice(&v.qdot_rad_s);
+            s.gripper = v.gripper;
+            Ok(s)
+        }
+        _ => decode(path, channel, sequence, data),
+    }
 }
 
 /// Opens `path` for a new file, refusing to replace an existing one.
@@ -1331,7 +890,10 @@ pub fn recover_into<R: Read, W: Write>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use serde_json::json;
+    use ipc_types::control::estop_action;
+    use ipc_types::{
+        NodeRole, buttons, mapper_flags, phase, safe_flags, safety_state, state_flags,
+    };
 
     fn state(tick: u64) -> RobotState {
         let mut s = RobotState::at_rest(tick, 1_000_000 + tick * 25_000_000, 6);
@@ -1345,33 +907,44 @@ mod tests {
         s
     }
 
+    /// One message per topic, every field set to a value of its own (no zeros, no defaults),
+    /// so a field the JSON lost or renamed shows.
     pub(crate) fn samples() -> Vec<Payload> {
         let mut status = NodeStatus::new(NodeRole::Safety, phase::RUNNING, 7);
-        status.rule_counts[4] = 3;
-        let mut safe = SafeCommand {
+        status.tick = 11;
+        status.handled = 12;
+        status.faults = 13;
+        status.latency_ns = 14;
+        status.lateness_ns = 15;
+        status.joint_travel_rad = 1.5;
+        status.mapper_id = 2;
+        status.safety_state = safety_state::HOLD;
+        status.rule_counts = std::array::from_fn(|i| 100 + i as u32);
+        status.mode = 3;
+        status.mode_switches = 4;
+        let safe = SafeCommand {
             tick: 3,
             t_ns: 9,
             state_t_ns: 8,
-            state_rx_ns: 8,
+            state_rx_ns: 18,
             joystick_t_ns: 5,
             joystick_rx_ns: 6,
-            mapper_t_ns: 8,
-            mapper_rx_ns: 9,
+            mapper_t_ns: 28,
+            mapper_rx_ns: 29,
             mapper_compute_ns: 100,
             compute_ns: 200,
             mapper_id: 1,
             n_joints: 6,
             flags: safe_flags::VELOCITY_SCALED | safe_flags::ACCEL_LIMITED,
             reserved: 0,
-            qdot_rad_s: [0.5; 8],
-            gripper_rate: 0.0,
+            qdot_rad_s: std::array::from_fn(|j| 0.5 - 0.1 * j as f64),
+            gripper_rate: -0.75,
         };
-        safe.qdot_rad_s[6] = 99.0; // beyond n_joints: not recorded
         let mapper = MapperCommand {
             tick: 3,
             t_ns: 8,
             state_t_ns: 7,
-            state_rx_ns: 7,
+            state_rx_ns: 17,
             joystick_t_ns: 5,
             joystick_rx_ns: 6,
             joystick_seq: 2,
@@ -1381,26 +954,34 @@ mod tests {
             flags: mapper_flags::INPUT_CLAMPED,
             buttons: buttons::DEADMAN,
             action: [0.6, -0.8],
-            qdot_rad_s: [0.1; 8],
+            qdot_rad_s: std::array::from_fn(|j| 0.1 * j as f64 - 0.3),
             gripper_rate: 0.5,
         };
-        let mut joy = JoystickInput::neutral(5);
-        joy.axes = [0.6, -0.8];
-        joy.buttons = buttons::DEADMAN | buttons::ESTOP;
+        let joy = JoystickInput {
+            tick: 4,
+            t_ns: 5,
+            seq: 6,
+            axes: [0.6, -0.8],
+            gripper: -0.25,
+            buttons: buttons::DEADMAN | buttons::ESTOP,
+        };
+        let mut robot = state(3);
+        robot.missed = 2;
+        robot.q_rad[7] = 9.0; // beyond n_joints: recorded as the struct holds it
         vec![
             Payload::Joystick(joy),
-            Payload::RobotState(state(3)),
+            Payload::RobotState(robot),
             Payload::MapperCommand(mapper),
             Payload::SafeCommand(safe),
             Payload::Status(status),
             Payload::SafetyControl(SafetyControl {
                 seq: 1,
                 t_ns: 2,
-                from_tick: 0,
+                from_tick: 10,
                 active_mapper: 1,
                 hold: 1,
-                estop_seq: 0,
-                estop: 0,
+                estop_seq: 3,
+                estop: 1,
             }),
             Payload::Estop(EstopCommand {
                 t_ns: 4,
@@ -1410,125 +991,85 @@ mod tests {
         ]
     }
 
-    /// Checks `v` against the subset of JSON schema the schemas use; returns what is wrong.
-    fn check(v: &Value, s: &Value, at: &str) -> Vec<String> {
-        let mut errs = Vec::new();
-        let types: Vec<&str> = match &s["type"] {
-            Value::String(t) => vec![t.as_str()],
-            Value::Array(ts) => ts.iter().filter_map(Value::as_str).collect(),
-            _ => vec![],
-        };
-        let is = |t: &str| match t {
-            "object" => v.is_object(),
-            "array" => v.is_array(),
-            "string" => v.is_string(),
-            "boolean" => v.is_boolean(),
-            "null" => v.is_null(),
-            "integer" => v.is_u64() || v.is_i64(),
-            "number" => v.is_number(),
-            _ => false,
-        };
-        if !types.is_empty() && !types.iter().any(|t| is(t)) {
-            errs.push(format!("{at}: {v} is not {types:?}"));
-            return errs;
-        }
-        if let Some(min) = s["minimum"].as_f64()
-            && v.as_f64().is_some_and(|x| x < min)
-        {
-            errs.push(format!("{at}: {v} < {min}"));
-        }
-        if let (Some(obj), Some(props)) = (v.as_object(), s["properties"].as_object()) {
-            for (k, val) in obj {
-                match props.get(k) {
-                    Some(ps) => errs.extend(check(val, ps, &format!("{at}.{k}"))),
-                    None => errs.push(format!("{at}: field `{k}` is not in the schema")),
-                }
-            }
-            for r in s["required"].as_array().into_iter().flatten() {
-                if let Some(r) = r.as_str()
-                    && !obj.contains_key(r)
-                {
-                    errs.push(format!("{at}: required field `{r}` is missing"));
-                }
-            }
-        }
-        if let (Some(obj), Some(ap)) = (v.as_object(), s.get("additionalProperties"))
-            && ap.is_object()
-        {
-            for (k, val) in obj {
-                errs.extend(check(val, ap, &format!("{at}.{k}")));
-            }
-        }
-        if let (Some(items), Some(is)) = (v.as_array(), s.get("items")) {
-            for (i, x) in items.iter().enumerate() {
-                errs.extend(check(x, is, &format!("{at}[{i}]")));
-            }
-            if let Some(n) = s["minItems"].as_u64()
-                && (items.len() as u64) < n
-            {
-                errs.push(format!("{at}: fewer than {n} items"));
-            }
-        }
-        errs
-    }
-
-    #[test]
-    fn every_message_matches_its_schema() {
-        let all = samples();
-        assert_eq!(all.len(), Topic::COUNT);
-        for p in &all {
-            let mut buf = Vec::new();
-            p.write_json(&mut buf).unwrap();
-            let v: Value = serde_json::from_slice(&buf).unwrap();
-            let errs = check(&v, &p.topic().schema(), p.topic().name());
-            assert!(errs.is_empty(), "{errs:#?}");
-        }
-        // The checker itself catches a wrong type and an extra field.
-        let s = Topic::Estop.schema();
-        assert!(
-            !check(
-                &json!({"t_ns": -1, "action": "estop", "source_pid": 1}),
-                &s,
-                "e"
-            )
-            .is_empty()
-        );
-        assert!(!check(&json!({"t_ns": 1, "action": 3, "source_pid": 1}), &s, "e").is_empty());
-        assert!(
-            !check(
-                &json!({"t_ns": 1, "action": "x", "source_pid": 1, "extra": 0}),
-                &s,
-                "e"
-            )
-            .is_empty()
-        );
-        assert!(!check(&json!({"t_ns": 1, "action": "x"}), &s, "e").is_empty());
-    }
-
-    #[test]
-    fn json_forms_keep_the_values() {
-        let s = state(7);
+    fn json_of(p: &Payload) -> Value {
         let mut buf = Vec::new();
-        Payload::RobotState(s).write_json(&mut buf).unwrap();
-        let back: RobotStateJson = serde_json::from_slice(&buf).unwrap();
-        assert_eq!(back.tick, 7);
-        assert_eq!(back.applied_tick, Some(6));
-        assert_eq!(back.q_rad.len(), 6);
-        for j in 0..6 {
-            assert!((back.q_rad[j] - s.q_rad[j]).abs() < 1e-15);
+        p.write_json(&mut buf).unwrap();
+        serde_json::from_slice(&buf).unwrap()
+    }
+
+    /// The message `v` decodes to, as a payload of `topic`.
+    fn payload_of(topic: Topic, v: Value) -> Payload {
+        let p = match topic {
+            Topic::Joystick => serde_json::from_value(v).map(Payload::Joystick),
+            Topic::RobotState => serde_json::from_value(v).map(Payload::RobotState),
+            Topic::MapperCommand => serde_json::from_value(v).map(Payload::MapperCommand),
+            Topic::SafeCommand => serde_json::from_value(v).map(Payload::SafeCommand),
+            Topic::Status => serde_json::from_value(v).map(Payload::Status),
+            Topic::SafetyControl => serde_json::from_value(v).map(Payload::SafetyControl),
+            Topic::Estop => serde_json::from_value(v).map(Payload::Estop),
+        };
+        p.unwrap()
+    }
+
+    #[test]
+    fn every_message_matches_its_schema_and_keeps_its_values() {
+        let mut all = samples();
+        assert_eq!(all.len(), Topic::COUNT);
+        // The "no tick" forms as well.
+        all.push(Payload::RobotState(RobotState::at_rest(0, 1, 6)));
+        all.push(Payload::Status(NodeStatus::new(
+            NodeRole::Recorder,
+            phase::READY,
+            1,
+        )));
+        all.push(Payload::Joystick(JoystickInput::neutral(1)));
+        for p in &all {
+            let topic = p.topic();
+            let schema = topic.schema();
+            assert_eq!(
+                schema["$schema"], "https://json-schema.org/draft/2020-12/schema",
+                "{topic:?}"
+            );
+            let v = json_of(p);
+            let errs = check::validate(&v, &schema);
+            assert!(errs.is_empty(), "{topic:?}: {errs:#?}\n{v}\n{schema:#}");
+            // Every field of the schema is in the data (none only optional) ...
+            let props = schema["properties"].as_object().unwrap();
+            let required = schema["required"].as_array().unwrap();
+            assert_eq!(props.len(), required.len(), "{topic:?}");
+            assert_eq!(v.as_object().unwrap().len(), props.len(), "{topic:?}");
+            // ... and the data is the message, exactly.
+            assert_eq!(payload_of(topic, v), *p, "{topic:?}");
         }
-        assert_eq!(back.flag_names, vec!["mock".to_owned()]);
-        let at_rest = RobotState::at_rest(0, 1, 6);
-        buf.clear();
-        Payload::RobotState(at_rest).write_json(&mut buf).unwrap();
-        let v: Value = serde_json::from_slice(&buf).unwrap();
+    }
+
+    #[test]
+    fn the_json_is_the_struct_with_none_ticks_null() {
+        let v = json_of(&Payload::RobotState(RobotState::at_rest(0, 1, 6)));
         assert!(v["applied_tick"].is_null(), "NO_TICK is null: {v}");
-        let safe = samples()[3];
-        buf.clear();
-        safe.write_json(&mut buf).unwrap();
-        let v: SafeCommandJson = serde_json::from_slice(&buf).unwrap();
-        assert_eq!(v.rules, vec!["velocity", "acceleration"]);
-        assert_eq!(v.qdot_rad_s.len(), 6);
+        assert_eq!(v["n_joints"], 6);
+        let v = json_of(&samples()[1]);
+        assert_eq!(v["applied_tick"], 2);
+        // Joint arrays whole, as the struct holds them; the count says which are valid.
+        assert_eq!(v["q_rad"].as_array().unwrap().len(), MAX_JOINTS);
+        assert_eq!(v["q_rad"][7], 9.0);
+        // Padding is not data.
+        let v = json_of(&samples()[3]);
+        assert!(v.get("reserved").is_none(), "{v}");
+        assert_eq!(v["flags"], 16 | 128);
+        // The schema names the bits and codes.
+        let s = Topic::SafeCommand.schema();
+        assert_eq!(s["properties"]["flags"]["x-bit-names"][4], "velocity");
+        let s = Topic::Status.schema();
+        assert_eq!(s["properties"]["role"]["x-value-names"]["5"], "recorder");
+        assert_eq!(s["properties"]["phase"]["x-value-names"]["2"], "running");
+        assert_eq!(s["properties"]["rule_counts"]["x-item-names"][12], "e-stop");
+        let s = Topic::Joystick.schema();
+        assert_eq!(s["properties"]["buttons"]["x-bit-names"][4], "no-device");
+        assert_eq!(
+            Topic::Estop.schema()["properties"]["action"]["x-value-names"]["2"],
+            "reset"
+        );
     }
 
     #[test]
@@ -1613,8 +1154,7 @@ mod tests {
             } = ev
                 && channel.topic == "/robot_state"
             {
-                let m: RobotStateJson =
-                    decode(Path::new("mem.mcap"), &channel.topic, sequence, data)?;
+                let m = decode_robot_state(Path::new("mem.mcap"), channel, sequence, data)?;
                 ticks.push(m.tick);
             }
             Ok(())
@@ -1759,5 +1299,121 @@ mod tests {
         let _ = w.write(&Payload::RobotState(state(11)));
         assert!(w.flush().is_err());
         assert!(w.finish(None).is_err());
+    }
+
+    /// Messages as format 1 wrote them (from a recording of the mock graph made before the
+    /// JSON was derived from the message types).
+    const V1_STATES: [&str; 2] = [
+        r#"{"tick":0,"t_ns":3317184494774,"applied_tick":null,"missed":0,"flags":16,"flag_names":["mock"],"q_rad":[0.0,-0.28,1.309,0.0,-1.047,0.0],"qdot_rad_s":[0.0,0.0,0.0,0.0,0.0,0.0],"gripper":0.0}"#,
+        r#"{"tick":1,"t_ns":3317209503637,"applied_tick":0,"missed":0,"flags":16,"flag_names":["mock"],"q_rad":[0.0,-0.28,1.309,0.0,-1.047,0.5],"qdot_rad_s":[0.0,0.0,0.0,0.0,0.0,0.25],"gripper":0.0}"#,
+    ];
+    const V1_STATUS: &str = r#"{"t_ns":3317022825666,"tick":null,"handled":0,"faults":0,"latency_ns":0,"lateness_ns":0,"joint_travel_rad":0.0,"pid":23402,"role":"recorder","phase":"ready","mapper_id":0,"safety_state":0,"rule_counts":{"acceleration":0,"bad-shape":0,"deadman":0,"e-stop":0,"hold":0,"non-finite":0,"position":0,"stale-command":0,"stale-joystick":0,"stale-state":0,"stop":0,"velocity":0,"workspace":0}}"#;
+
+    /// A finished format-1 recording: its channels have no format key.
+    fn v1_recording() -> Vec<u8> {
+        let mut w = LogWriter::new(Vec::new(), Path::new("old.mcap"), None).unwrap();
+        let schema = |name: &str| SchemaInfo {
+            name: name.to_owned(),
+            encoding: "jsonschema".to_owned(),
+            data: br#"{"type":"object"}"#.to_vec(),
+        };
+        let meta = BTreeMap::from([("prefix".to_owned(), "old".to_owned())]);
+        let states = w
+            .add_channel(
+                "/robot_state",
+                Some(&schema("scl.RobotState")),
+                "json",
+                &meta,
+            )
+            .unwrap();
+        let status = w
+            .add_channel("/status", Some(&schema("scl.NodeStatus")), "json", &meta)
+            .unwrap();
+        w.write_raw(status, 1, 1, 1, V1_STATUS.as_bytes()).unwrap();
+        for (i, m) in V1_STATES.iter().enumerate() {
+            w.write_raw(states, i as u32 + 1, 2, 2, m.as_bytes())
+                .unwrap();
+        }
+        w.finish(None).unwrap()
+    }
+
+    /// Robot states decoded from `bytes`, and the first error another topic's decode gave.
+    fn v1_contents(bytes: &[u8]) -> (Vec<RobotState>, Option<RecordError>) {
+        let path = Path::new("old.mcap");
+        let (mut states, mut other) = (Vec::new(), None);
+        read(bytes, path, |ev| {
+            if let Event::Message {
+                channel,
+                sequence,
+                data,
+                ..
+            } = ev
+            {
+                if channel.topic == "/robot_state" {
+                    states.push(decode_robot_state(path, channel, sequence, data)?);
+                } else if other.is_none() {
+                    other = decode::<NodeStatus>(path, channel, sequence, data).err();
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+        (states, other)
+    }
+
+    #[test]
+    fn recordings_of_format_1_still_read_and_recover() {
+        let old = v1_recording();
+        let (states, other) = v1_contents(&old);
+        assert_eq!(states.len(), 2);
+        let s = &states[1];
+        assert_eq!(
+            (s.tick, s.t_ns, s.applied_tick, s.flags),
+            (1, 3317209503637, 0, 16)
+        );
+        assert_eq!(s.q(), &[0.0, -0.28, 1.309, 0.0, -1.047, 0.5]);
+        assert_eq!(s.qdot()[5], 0.25);
+        assert_eq!(states[0].applied_tick, NO_TICK);
+        // Other topics are refused, naming the file and the format.
+        let e = other.unwrap();
+        assert!(
+            e.to_string()
+                .starts_with("old.mcap: channel /status is in recording format 1"),
+            "{e}"
+        );
+        // --recover keeps the channels as they were: the copy reads the same.
+        let (report, fixed) = recover_into(
+            old.as_slice(),
+            Path::new("old.mcap"),
+            Vec::new(),
+            Path::new("f.mcap"),
+        )
+        .unwrap();
+        assert_eq!(report.messages, 3);
+        assert_eq!(v1_contents(&fixed).0, states);
+        // A cut-off format-1 robot state is a decode error naming the file, not a panic.
+        let bad = br#"{"tick":1,"t_ns":1,"applied_tick":0,"missed":0,"flags":0,"q_rad":[0.0],"qdot_rad_s":[],"gripper":0.0}"#;
+        let ch = ChannelInfo {
+            id: 1,
+            topic: "/robot_state".into(),
+            message_encoding: "json".into(),
+            metadata: BTreeMap::new(),
+            schema: None,
+        };
+        let e = decode_robot_state(Path::new("old.mcap"), &ch, 7, bad).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("old.mcap: message 7 on /robot_state"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn new_channels_say_their_format() {
+        let (_, bytes) = recording(1, 1, true);
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        for c in summary.channels.values() {
+            assert_eq!(c.metadata[FORMAT_KEY], FORMAT.to_string(), "{}", c.topic);
+        }
     }
 }

@@ -10,7 +10,7 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use ipc_types::{NodeRole, RobotState, state_flags};
-use recording::{self, Event, ReadSummary, RobotStateJson};
+use recording::{self, Event, ReadSummary};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
     wait_clean,
@@ -24,12 +24,17 @@ struct Contents {
     channels: BTreeMap<String, (String, String)>,
     /// Messages per channel topic.
     counts: BTreeMap<String, u64>,
-    states: Vec<RobotStateJson>,
+    states: Vec<RobotState>,
     metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// Messages that do not agree with their channel's schema, with what is wrong.
+    disagreements: Vec<String>,
 }
 
+/// Every message of `path` read, every message checked against its channel's schema (as
+/// stored in the file), the robot states decoded.
 fn contents(path: &Path) -> Contents {
     let mut c = Contents::default();
+    let mut schemas: BTreeMap<String, serde_json::Value> = BTreeMap::new();
     c.summary = recording::read_file(path, |ev| {
         match ev {
             Event::Channel(ch) => {
@@ -39,6 +44,9 @@ fn contents(path: &Path) -> Contents {
                     .map_or(String::new(), |s| s.encoding.clone());
                 c.channels
                     .insert(ch.topic.clone(), (ch.message_encoding.clone(), schema));
+                if let Some(s) = &ch.schema {
+                    schemas.insert(ch.topic.clone(), serde_json::from_slice(&s.data).unwrap());
+                }
             }
             Event::Message {
                 channel,
@@ -47,9 +55,15 @@ fn contents(path: &Path) -> Contents {
                 ..
             } => {
                 *c.counts.entry(channel.topic.clone()).or_default() += 1;
+                let value: serde_json::Value = serde_json::from_slice(data).unwrap();
+                for e in recording::check::validate(&value, &schemas[&channel.topic]) {
+                    c.disagreements
+                        .push(format!("{} #{sequence}: {e}", channel.topic));
+                }
                 if channel.topic == "/robot_state" {
-                    c.states
-                        .push(recording::decode(path, &channel.topic, sequence, data).unwrap());
+                    c.states.push(
+                        recording::decode_robot_state(path, channel, sequence, data).unwrap(),
+                    );
                 }
             }
             Event::Metadata { name, entries } => {
@@ -63,7 +77,7 @@ fn contents(path: &Path) -> Contents {
 }
 
 /// The recorded states match the test's own recorder's, tick for tick.
-fn assert_same_states(file: &[RobotStateJson], seen: &[RobotState], what: &str) {
+fn assert_same_states(file: &[RobotState], seen: &[RobotState], what: &str) {
     for s in file {
         // The bridge's shutdown state repeats its last tick: match the publication time too.
         let r = seen
@@ -75,16 +89,8 @@ fn assert_same_states(file: &[RobotStateJson], seen: &[RobotState], what: &str) 
                     s.tick, s.t_ns
                 )
             });
-        assert_eq!(s.flags, r.flags, "{what}: tick {}", s.tick);
-        assert_eq!(s.q_rad.len(), r.n_joints as usize);
-        for j in 0..s.q_rad.len() {
-            assert!(
-                (s.q_rad[j] - r.q_rad[j]).abs() < 1e-12,
-                "{what}: tick {}",
-                s.tick
-            );
-            assert!((s.qdot_rad_s[j] - r.qdot_rad_s[j]).abs() < 1e-12);
-        }
+        // The recording keeps the message exactly, every field of it.
+        assert_eq!(s, r, "{what}: tick {}", s.tick);
     }
 }
 
@@ -131,6 +137,8 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
             "{topic}"
         );
     }
+    // Every message of every topic agrees with its channel's schema.
+    assert_eq!(c.disagreements, Vec::<String>::new());
     let running: Vec<RobotState> = rec
         .robot_states
         .iter()
