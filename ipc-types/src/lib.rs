@@ -11,6 +11,7 @@
 //!   active-mapper switch the supervisor sends to safety.
 //! * [`uds`]: the comparison transport (Unix-domain datagram sockets) for benchmarks.
 //! * [`time`]: the monotonic clock every process stamps its messages with.
+//! * [`stats`]: the one quantile definition (latency percentiles, experiment quartiles).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
@@ -18,6 +19,7 @@ pub mod graph;
 pub mod msg;
 pub mod prefix;
 pub mod signals;
+pub mod stats;
 pub mod time;
 pub mod uds;
 
