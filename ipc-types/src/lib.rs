@@ -13,6 +13,7 @@
 //! * [`time`]: the monotonic clock every process stamps its messages with.
 //! * `json` (feature `json`): the messages' JSON form and JSON schema, derived from the types
 //!   (serde, schemars); the recording crate enables it.
+//! * [`stats`]: the one quantile definition (latency percentiles, experiment quartiles).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
@@ -22,6 +23,7 @@ pub mod json;
 pub mod msg;
 pub mod prefix;
 pub mod signals;
+pub mod stats;
 pub mod time;
 pub mod uds;
 

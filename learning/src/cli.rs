@@ -192,26 +192,35 @@ pub fn train_network(
     Ok(outcome)
 }
 
+/// One row of the loss log.
+#[derive(serde::Serialize)]
+struct LossRow {
+    seed: u64,
+    epoch: usize,
+    #[serde(serialize_with = "crate::table::sci")]
+    train_loss: f64,
+    #[serde(serialize_with = "crate::table::sci_opt")]
+    val_loss: Option<f64>,
+}
+
 /// Writes `seed,epoch,train_loss,val_loss` rows ((rad/s)²; empty `val_loss` without a
 /// validation split).
 pub fn write_loss_log(path: &Path, runs: &[SeedRun]) -> Result<(), LearningError> {
-    let mut s = String::from("seed,epoch,train_loss,val_loss\n");
-    for r in runs {
-        for e in &r.history {
-            let _ = writeln!(
-                s,
-                "{},{},{:.9e},{}",
-                r.seed,
-                e.epoch,
-                e.train_loss,
-                e.val_loss.map_or(String::new(), |v| format!("{v:.9e}"))
-            );
-        }
-    }
-    std::fs::write(path, s).map_err(|source| LearningError::Write {
+    let rows = runs.iter().flat_map(|r| {
+        r.history.iter().map(|e| LossRow {
+            seed: r.seed,
+            epoch: e.epoch,
+            train_loss: e.train_loss,
+            val_loss: e.val_loss,
+        })
+    });
+    let err = |source| LearningError::Write {
         path: path.to_owned(),
         source,
-    })
+    };
+    let text = crate::table::to_csv_or_header("seed,epoch,train_loss,val_loss", rows)
+        .map_err(|e| err(e.into()))?;
+    std::fs::write(path, text).map_err(err)
 }
 
 /// Registers a system sans-serif font with the plotting library, once; `false` when none of

@@ -171,27 +171,38 @@ pub fn header(m: usize) -> String {
     h
 }
 
-/// Parses one trajectory from CSV text; `path` names it in errors.
+/// Parses one trajectory from CSV text; `path` names it in errors (with the line, from csv's
+/// record position).
 pub fn parse_csv(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
-    let mut lines = text.lines();
-    let head = lines.next().ok_or_else(|| DatasetError::Header {
+    let mut rdr = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        // Rows of another length are reported below, by line, with both counts.
+        .flexible(true)
+        .from_reader(text.as_bytes());
+    let header_error = |reason: String| DatasetError::Header {
         path: path.to_owned(),
-        reason: "the file is empty".into(),
-    })?;
-    let cols: Vec<&str> = head.split(',').map(str::trim).collect();
+        reason,
+    };
+    let cols = rdr
+        .headers()
+        .map_err(|e| header_error(e.to_string()))?
+        .clone();
+    if cols.is_empty() {
+        return Err(header_error("the file is empty".into()));
+    }
     if cols.len() < 5 || !(cols.len() - 3).is_multiple_of(2) {
-        return Err(DatasetError::Header {
-            path: path.to_owned(),
-            reason: format!("{} columns; expected t,q0..,c,qd0..,cd", cols.len()),
-        });
+        return Err(header_error(format!(
+            "{} columns; expected t,q0..,c,qd0..,cd",
+            cols.len()
+        )));
     }
     let m = (cols.len() - 3) / 2;
     let expected = header(m);
-    if cols.join(",") != expected {
-        return Err(DatasetError::Header {
-            path: path.to_owned(),
-            reason: format!("expected `{expected}`, found `{head}`"),
-        });
+    let found = cols.iter().collect::<Vec<_>>().join(",");
+    if found != expected {
+        return Err(header_error(format!(
+            "expected `{expected}`, found `{found}`"
+        )));
     }
     let mut traj = Trajectory {
         name: path
@@ -199,43 +210,50 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
             .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
         ..Trajectory::default()
     };
-    let mut row = vec![0.0; cols.len()];
-    for (i, line) in lines.enumerate() {
-        let lineno = i + 2;
-        if line.trim().is_empty() {
+    let mut record = csv::StringRecord::new();
+    loop {
+        let read = rdr.read_record(&mut record);
+        let line = line_ending_at(text, rdr.position().byte());
+        let bad = |reason: String| DatasetError::Row {
+            path: path.to_owned(),
+            line,
+            reason,
+        };
+        if !read.map_err(|e| bad(e.to_string()))? {
+            break;
+        }
+        // A line of blanks.
+        if record.len() == 1 && record[0].is_empty() {
             continue;
         }
-        let fields: Vec<&str> = line.split(',').collect();
-        if fields.len() != cols.len() {
-            return Err(DatasetError::Row {
-                path: path.to_owned(),
-                line: lineno,
-                reason: format!("{} fields, expected {}", fields.len(), cols.len()),
-            });
+        if record.len() != cols.len() {
+            return Err(bad(format!(
+                "{} fields, expected {}",
+                record.len(),
+                cols.len()
+            )));
         }
-        for (k, f) in fields.iter().enumerate() {
-            let v: f64 = f.trim().parse().map_err(|_| DatasetError::Row {
-                path: path.to_owned(),
-                line: lineno,
-                reason: format!("column `{}` is `{}`, not a number", cols[k], f.trim()),
-            })?;
-            if !v.is_finite() {
-                return Err(DatasetError::Row {
-                    path: path.to_owned(),
-                    line: lineno,
-                    reason: format!("column `{}` is {v}", cols[k]),
-                });
-            }
-            row[k] = v;
+        let row: Vec<f64> = record.deserialize(None).map_err(|e| {
+            let k = match e.kind() {
+                csv::ErrorKind::Deserialize { err, .. } => err.field().map_or(0, |k| k as usize),
+                _ => 0,
+            };
+            bad(format!(
+                "column `{}` is `{}`, not a number",
+                &cols[k],
+                record.get(k).unwrap_or_default()
+            ))
+        })?;
+        if let Some(k) = row.iter().position(|v| !v.is_finite()) {
+            return Err(bad(format!("column `{}` is {}", &cols[k], row[k])));
         }
         if let Some(&last) = traj.t.last()
             && row[0] <= last
         {
-            return Err(DatasetError::Row {
-                path: path.to_owned(),
-                line: lineno,
-                reason: format!("time {} does not increase (previous {last})", row[0]),
-            });
+            return Err(bad(format!(
+                "time {} does not increase (previous {last})",
+                row[0]
+            )));
         }
         traj.t.push(row[0]);
         traj.q.push(row[1..=m].to_vec());
@@ -246,23 +264,51 @@ pub fn parse_csv(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
     Ok(traj)
 }
 
-/// Renders a trajectory as CSV text.
-pub fn to_csv(traj: &Trajectory) -> String {
-    let m = traj.n_joints();
-    let mut s = header(m);
-    s.push('\n');
-    for k in 0..traj.len() {
-        let _ = write!(s, "{:.4}", traj.t[k]);
-        for v in &traj.q[k] {
-            let _ = write!(s, ",{v:.6}");
-        }
-        let _ = write!(s, ",{:.6}", traj.c[k]);
-        for v in &traj.qdot[k] {
-            let _ = write!(s, ",{v:.6}");
-        }
-        let _ = writeln!(s, ",{:.6}", traj.cdot[k]);
+/// The line (1-based) of the one-line record of `text` that ends at byte `end` (the reader's
+/// position after reading it). Not csv's own record position: measured with csv 1.4, that
+/// leaves out the blank lines it skips (in `t,..\n\n0,..\n\n0.1,x,..` it puts the last record
+/// on line 4, not 5) and comment lines altogether, and its byte offset is where the skipped
+/// lines start; where a record ends is exact.
+pub(crate) fn line_ending_at(text: &str, end: u64) -> usize {
+    let upto = text.get(..end as usize).unwrap_or(text);
+    1 + upto.trim_end_matches(['\r', '\n']).matches('\n').count()
+}
+
+/// Numbers with `D` decimals, the data sets' fixed format (`t` with 4, the rest with 6): a
+/// file's bytes, and so the data set's hash, depend only on the values to that precision.
+struct Decimals<'a, const D: usize>(&'a [f64]);
+
+impl<const D: usize> serde::Serialize for Decimals<'_, D> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.0.iter().map(|v| format!("{v:.D$}")))
     }
-    s
+}
+
+/// One tuple as a CSV row, in the header's column order.
+#[derive(serde::Serialize)]
+struct Row<'a> {
+    t: Decimals<'a, 4>,
+    q: Decimals<'a, 6>,
+    c: Decimals<'a, 6>,
+    qd: Decimals<'a, 6>,
+    cd: Decimals<'a, 6>,
+}
+
+/// Writes a trajectory as CSV (the header, then one row per tuple).
+pub fn write_csv(w: impl std::io::Write, traj: &Trajectory) -> Result<(), csv::Error> {
+    let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(w);
+    w.write_record(header(traj.n_joints()).split(','))?;
+    for k in 0..traj.len() {
+        w.serialize(Row {
+            t: Decimals(std::slice::from_ref(&traj.t[k])),
+            q: Decimals(&traj.q[k]),
+            c: Decimals(std::slice::from_ref(&traj.c[k])),
+            qd: Decimals(&traj.qdot[k]),
+            cd: Decimals(std::slice::from_ref(&traj.cdot[k])),
+        })?;
+    }
+    w.flush()?;
+    Ok(())
 }
 
 /// Parses the authors' JSON demonstrations (see the module docs); `path` names the file in
@@ -505,10 +551,17 @@ pub fn write_dir(dir: &Path, ds: &Dataset) -> Result<Vec<PathBuf>, DatasetError>
                 source,
             })?;
         }
-        std::fs::write(&p, to_csv(t)).map_err(|source| DatasetError::Io {
+        let io = |source| DatasetError::Io {
             path: p.clone(),
             source,
-        })?;
+        };
+        // `create_new`: a file that appeared since the check above is not replaced either.
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&p)
+            .map_err(io)?;
+        write_csv(std::io::BufWriter::new(file), t).map_err(|e| io(e.into()))?;
         written.push(p);
     }
     Ok(written)
@@ -537,8 +590,24 @@ mod tests {
     #[test]
     fn csv_round_trip() {
         let t = traj("a.csv");
-        let back = parse_csv(&to_csv(&t), Path::new("a.csv")).unwrap();
+        let mut bytes = Vec::new();
+        write_csv(&mut bytes, &t).unwrap();
+        // The fixed format: t with 4 decimals, the rest with 6.
+        assert_eq!(
+            String::from_utf8(bytes.clone()).unwrap(),
+            "t,q0,q1,c,qd0,qd1,cd\n\
+             0.0000,0.100000,0.200000,0.000000,0.400000,0.400000,0.000000\n\
+             0.0250,0.110000,0.210000,0.000000,0.400000,0.400000,0.000000\n"
+        );
+        let back = parse_csv(std::str::from_utf8(&bytes).unwrap(), Path::new("a.csv")).unwrap();
         assert_eq!(back, t);
+        // Blanks around fields and blank lines are fine; the line numbers count them.
+        let e = parse_csv(
+            "t, q0 ,c,qd0,cd\n\n 0,1,0,1,0\n\n0.1,x,0,1,0\n",
+            Path::new("b.csv"),
+        )
+        .unwrap_err();
+        assert_eq!(e.to_string(), "b.csv:5: column `q0` is `x`, not a number");
     }
 
     #[test]

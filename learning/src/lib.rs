@@ -14,6 +14,7 @@
 //! * [`rollout`]: forward-then-reverse runs of the served command on a simulated arm.
 //! * [`greedy`]: the paper's simulated greedy user, batched over its candidate actions.
 //! * [`experiments`]: the paper's experiments end to end (`scl eval EXPERIMENT --out DIR`).
+//! * [`table`]: the result tables' CSV rows (serde + csv, the files' number formats).
 //! * [`cli`], [`tools`], [`plot`], [`to_dataset`]: the commands' implementations.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
@@ -27,6 +28,7 @@ pub mod import;
 pub mod pca;
 pub mod plot;
 pub mod rollout;
+pub mod table;
 pub mod tasks;
 pub mod to_dataset;
 pub mod tools;

@@ -9,12 +9,9 @@ mod common;
 use std::hint::black_box;
 use std::time::Instant;
 
+use ipc_types::stats::quantile as percentile;
 use mapper::ActionMap;
 use mapper::nn::Kernel;
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() as f64 - 1.0) * p).round() as usize]
-}
 
 fn main() {
     // `cargo bench` passes --bench; nothing else is expected.

@@ -1,10 +1,8 @@
 //! The mapper's tick never touches the heap: `MapperStep::step` with every kind of model
 //! (SCL with and without Gram-Schmidt, CAE, PCA) is run under a counting global allocator.
-//! The allocator counts only on the test's own thread and only while counting is switched on.
+//! The allocator (`test_support`) counts only the test's own thread.
 #![allow(missing_docs, clippy::unwrap_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::Path;
 
 use ipc_types::{JoystickInput, RobotState};
@@ -16,58 +14,10 @@ use mapper::network::NetworkModel;
 use mapper::nn::Mlp;
 use mapper::rng::Rng;
 use mapper::step::MapperStep;
-
-struct Counting;
-
-thread_local! {
-    static ACTIVE: Cell<bool> = const { Cell::new(false) };
-    static COUNT: Cell<usize> = const { Cell::new(0) };
-}
-
-fn note() {
-    // `try_with`: the allocator may run while thread-locals are being torn down.
-    let _ = ACTIVE.try_with(|a| {
-        if a.get() {
-            let _ = COUNT.try_with(|c| c.set(c.get() + 1));
-        }
-    });
-}
-
-// SAFETY: every call is forwarded unchanged to the system allocator; the bookkeeping only
-// touches const-initialised thread-locals, which never allocate.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note();
-        // SAFETY: same contract as ours.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as ours.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note();
-        // SAFETY: same contract as ours.
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note();
-        // SAFETY: same contract as ours.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use test_support::count_allocations;
 
 #[global_allocator]
-static ALLOCATOR: Counting = Counting;
-
-/// Allocations made by `f` on this thread.
-fn allocations(f: impl FnOnce()) -> usize {
-    COUNT.with(|c| c.set(0));
-    ACTIVE.with(|a| a.set(true));
-    f();
-    ACTIVE.with(|a| a.set(false));
-    COUNT.with(|c| c.get())
-}
+static ALLOCATOR: test_support::CountingAllocator = test_support::CountingAllocator;
 
 fn network_model(kind: ModelKind, gram_schmidt: bool) -> NetworkModel {
     let (m, d) = (6, 2);
@@ -138,7 +88,7 @@ fn joystick(i: usize) -> JoystickInput {
 #[test]
 fn the_counter_sees_allocations() {
     // Without this the test below could pass with a broken counter.
-    let n = allocations(|| {
+    let n = count_allocations(|| {
         let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(4));
         drop(v);
     });
@@ -161,7 +111,7 @@ fn mapper_step_never_allocates() {
         let mut step = MapperStep::new(1, model, 6).unwrap();
         let mut state = RobotState::at_rest(0, 0, 6);
         let mut moved = 0.0;
-        let n = allocations(|| {
+        let n = count_allocations(|| {
             for i in 0..100 {
                 state.tick = i as u64;
                 state.q_rad[0] = (i as f64 * 0.01).sin();
@@ -184,7 +134,7 @@ fn both_kernels_evaluate_without_allocating() {
         let mut map = network_model(ModelKind::Scl, true).scl_map().unwrap();
         map.set_kernel(kernel);
         let mut out = [0.0; 6];
-        let n = allocations(|| {
+        let n = count_allocations(|| {
             for i in 0..100 {
                 let q = [0.01 * i as f64, 0.2, -0.3, 0.4, 0.0, 0.1];
                 map.eval(&q, 0.5, &[0.3, -0.4], &mut out);

@@ -28,8 +28,9 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+
+use rayon::prelude::*;
 
 use crate::dataset::Trajectory;
 use crate::eval::AnyModel;
@@ -124,8 +125,9 @@ impl Unit {
     }
 }
 
-/// One test trajectory's outcome for one model.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One test trajectory's outcome for one model (a row of the evaluation cache, whose
+/// header is the field names: `trajectory,steps,start_distance,forward_error,return_error`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrajResult {
     /// Index of the test trajectory.
     pub trajectory: usize,
@@ -134,8 +136,10 @@ pub struct TrajResult {
     /// `|q_0 − q_end|` (rad).
     pub start_distance: f64,
     /// Distance to the end state after the first leg (rad).
+    #[serde(rename = "forward_error")]
     pub forward: f64,
     /// Distance to the start after the second leg (rad).
+    #[serde(rename = "return_error")]
     pub back: f64,
 }
 
@@ -492,53 +496,38 @@ fn cache_key(args: &GreedyUserArgs, cfg: &GreedyConfig, model_bytes: &[u8]) -> S
     )
 }
 
-const CACHE_HEADER: &str = "trajectory,steps,start_distance,forward_error,return_error";
-
+/// A cached evaluation: its key line, then the rows (CSV, header included), all `n` of them
+/// in trajectory order; `None` when anything differs (the evaluation is then redone).
 fn read_cache(path: &Path, key: &str, n: usize) -> Option<Vec<TrajResult>> {
     let text = std::fs::read_to_string(path).ok()?;
-    let mut lines = text.lines();
-    if lines.next()? != key || lines.next()? != CACHE_HEADER {
+    let (first, table) = text.split_once('\n')?;
+    if first != key {
         return None;
     }
-    let rows: Vec<TrajResult> = lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            let num = |i: usize| f.get(i).and_then(|s| s.parse::<f64>().ok());
-            Some(TrajResult {
-                trajectory: f.first()?.parse().ok()?,
-                steps: f.get(1)?.parse().ok()?,
-                start_distance: num(2)?,
-                forward: num(3)?,
-                back: num(4)?,
-            })
-        })
-        .collect::<Option<_>>()?;
+    let rows: Vec<TrajResult> = csv::Reader::from_reader(table.as_bytes())
+        .deserialize()
+        .collect::<Result<_, _>>()
+        .ok()?;
     (rows.len() == n && rows.iter().enumerate().all(|(i, r)| r.trajectory == i)).then_some(rows)
 }
 
 fn write_cache(path: &Path, key: &str, rows: &[TrajResult]) -> Result<(), ExperimentError> {
-    let mut s = format!("{key}\n{CACHE_HEADER}\n");
-    for r in rows {
-        let _ = writeln!(
-            s,
-            "{},{},{:e},{:e},{:e}",
-            r.trajectory, r.steps, r.start_distance, r.forward, r.back
-        );
-    }
+    let table = crate::table::to_csv(rows).map_err(|e| super::write_error(path, e))?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| ExperimentError::Write {
             path: dir.to_owned(),
             source,
         })?;
     }
-    std::fs::write(path, s).map_err(|source| ExperimentError::Write {
+    std::fs::write(path, format!("{key}\n{table}")).map_err(|source| ExperimentError::Write {
         path: path.to_owned(),
         source,
     })
 }
 
 /// Runs the greedy user for every model and test trajectory (cached evaluations are read
-/// back), `run.threads` at a time. Returns each entry's rows.
+/// back), on `run.threads` threads. Returns each entry's rows; each row depends only on its
+/// model and trajectory, never on the schedule.
 fn evaluate(
     run: &Run,
     args: &GreedyUserArgs,
@@ -559,12 +548,8 @@ fn evaluate(
         keys.push(key);
     }
     let todo: Vec<usize> = (0..entries.len()).filter(|i| done[*i].is_none()).collect();
-    let items: Vec<(usize, usize)> = todo
-        .iter()
-        .flat_map(|&e| (0..n).map(move |t| (e, t)))
-        .collect();
-    run.add_work(items.len() as u64);
-    if items.is_empty() {
+    run.add_work((todo.len() * n) as u64);
+    if todo.is_empty() {
         return Ok(done.into_iter().map(Option::unwrap_or_default).collect());
     }
     run.message(format!(
@@ -578,97 +563,67 @@ fn evaluate(
         trajectories = n,
         "greedy user"
     );
-    let table: Mutex<Vec<Vec<Option<TrajResult>>>> = Mutex::new(vec![vec![None; n]; entries.len()]);
-    let counts: Vec<AtomicUsize> = (0..entries.len()).map(|_| AtomicUsize::new(0)).collect();
-    let next = AtomicUsize::new(0);
-    let cancel = AtomicBool::new(false);
-    let errors: Mutex<Vec<ToolError>> = Mutex::new(Vec::new());
-    let work = |(e, t): (usize, usize)| -> Result<(), ToolError> {
+    // One model's trajectories, evaluated in parallel and collected in trajectory order; its
+    // evaluation is cached as soon as it is complete.
+    let evaluate_entry = |e: usize| -> Result<Vec<TrajResult>, ToolError> {
         let entry = &entries[e];
-        let spec = &legs[t];
-        let mut user =
-            GreedyUser::new(&entry.model, cfg.clone()).map_err(|err| ExperimentError::Model {
-                path: entry.path.clone(),
-                reason: err.to_string(),
-            })?;
-        // The same candidates for every model on a trajectory.
-        let mut rng = Rng::new(
-            args.seed
-                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                .wrapping_add(t as u64 + 1),
-        );
-        let r = user
-            .forward_back(
-                &spec.start,
-                &spec.end,
-                spec.c,
-                spec.steps,
-                spec.steps,
-                &mut rng,
-            )
-            .map_err(|err| ExperimentError::Model {
-                path: entry.path.clone(),
-                reason: err.to_string(),
-            })?;
-        let row = TrajResult {
-            trajectory: t,
-            steps: spec.steps,
-            start_distance: r.start_distance,
-            forward: r.forward.error,
-            back: r.back.error,
-        };
-        let finished = {
-            let mut tab = table.lock().map_err(|_| poisoned())?;
-            tab[e][t] = Some(row);
-            counts[e].fetch_add(1, Ordering::SeqCst) + 1 == n
-        };
-        if finished && let Some(path) = &entry.cache {
-            let rows: Vec<TrajResult> = {
-                let tab = table.lock().map_err(|_| poisoned())?;
-                tab[e].iter().flatten().copied().collect()
-            };
+        let rows = (0..n)
+            .into_par_iter()
+            .map(|t| {
+                if signals::stop_requested() {
+                    return Err(ExperimentError::Interrupted.into());
+                }
+                let spec = &legs[t];
+                let mut user = GreedyUser::new(&entry.model, cfg.clone()).map_err(|err| {
+                    ExperimentError::Model {
+                        path: entry.path.clone(),
+                        reason: err.to_string(),
+                    }
+                })?;
+                // The same candidates for every model on a trajectory, whatever the schedule.
+                let mut rng = Rng::new(
+                    args.seed
+                        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                        .wrapping_add(t as u64 + 1),
+                );
+                let r = user
+                    .forward_back(
+                        &spec.start,
+                        &spec.end,
+                        spec.c,
+                        spec.steps,
+                        spec.steps,
+                        &mut rng,
+                    )
+                    .map_err(|err| ExperimentError::Model {
+                        path: entry.path.clone(),
+                        reason: err.to_string(),
+                    })?;
+                run.done(1);
+                Ok(TrajResult {
+                    trajectory: t,
+                    steps: spec.steps,
+                    start_distance: r.start_distance,
+                    forward: r.forward.error,
+                    back: r.back.error,
+                })
+            })
+            .collect::<Result<Vec<_>, ToolError>>()?;
+        if let Some(path) = &entry.cache {
             write_cache(path, &keys[e], &rows)?;
         }
-        run.done(1);
-        Ok(())
+        Ok(rows)
     };
-    std::thread::scope(|scope| {
-        for _ in 0..run.threads.min(items.len()).max(1) {
-            scope.spawn(|| {
-                loop {
-                    if signals::stop_requested() {
-                        cancel.store(true, Ordering::Relaxed);
-                    }
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    if i >= items.len() || cancel.load(Ordering::Relaxed) {
-                        break;
-                    }
-                    if let Err(err) = work(items[i]) {
-                        cancel.store(true, Ordering::Relaxed);
-                        if let Ok(mut errs) = errors.lock() {
-                            errs.push(err);
-                        }
-                    }
-                }
-            });
-        }
-    });
-    if let Some(err) = errors.into_inner().ok().and_then(|mut v| v.pop()) {
-        return Err(err);
-    }
-    if cancel.load(Ordering::Relaxed) {
-        return Err(ExperimentError::Interrupted.into());
-    }
-    let tab = table.into_inner().map_err(|_| poisoned())?;
+    let fresh = run.pool()?.install(|| {
+        todo.par_iter()
+            .map(|&e| evaluate_entry(e))
+            .collect::<Result<Vec<_>, ToolError>>()
+    })?;
+    let mut fresh = fresh.into_iter();
     Ok(done
         .into_iter()
-        .zip(tab)
-        .map(|(cached, fresh)| cached.unwrap_or_else(|| fresh.into_iter().flatten().collect()))
+        .map(|cached| cached.unwrap_or_else(|| fresh.next().unwrap_or_default()))
         .collect())
-}
-
-fn poisoned() -> ToolError {
-    ToolError::Graph("greedy-user: a worker thread panicked".into())
 }
 
 /// Picks the paper's groups, runs the tests and checks the paper's statements.
@@ -826,6 +781,92 @@ fn checks(o: &Outcome, scl: Option<usize>, no_gs: Option<usize>) -> Vec<Check> {
     out
 }
 
+/// A row of `errors.csv`: one test trajectory of one model.
+#[derive(serde::Serialize)]
+struct ErrorRow<'a> {
+    group: &'a str,
+    model: usize,
+    file: String,
+    trajectory: usize,
+    steps: usize,
+    #[serde(serialize_with = "crate::table::sci")]
+    start_distance: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    return_error: f64,
+}
+
+/// A row of `models.csv`: one model.
+#[derive(serde::Serialize)]
+struct ModelRow<'a> {
+    group: &'a str,
+    model: usize,
+    file: String,
+    #[serde(serialize_with = "crate::table::sci_opt")]
+    val_loss: Option<f64>,
+    #[serde(serialize_with = "crate::table::sci")]
+    mean_forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    mean_return_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    median_forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    median_return_error: f64,
+}
+
+/// A row of `groups.csv`: one group, over every trajectory of its models.
+#[derive(serde::Serialize)]
+struct GroupRow<'a> {
+    group: &'a str,
+    label: &'a str,
+    #[serde(serialize_with = "crate::table::display")]
+    kind: ModelKind,
+    models: usize,
+    trajectories: usize,
+    #[serde(serialize_with = "crate::table::sci")]
+    mean_val_loss: f64,
+    best_cae: bool,
+    #[serde(serialize_with = "crate::table::sci")]
+    median_forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    q25_forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    q75_forward_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    median_return_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    q25_return_error: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    q75_return_error: f64,
+}
+
+/// The header of `stats.csv` (written alone when nothing could be tested).
+const STATS_HEADER: &str =
+    "family,metric,unit,test,group_a,group_b,n,statistic,df,p,p_holm,p_bonferroni";
+
+/// A row of `stats.csv`: a Kruskal-Wallis test (`n`, `df`) or a Dunn pair (`group_a`,
+/// `group_b`, the adjusted p-values); `statistic` is H or z.
+#[derive(serde::Serialize)]
+struct StatsRow<'a> {
+    family: &'a str,
+    metric: &'a str,
+    unit: &'a str,
+    test: &'a str,
+    group_a: Option<&'a str>,
+    group_b: Option<&'a str>,
+    n: Option<usize>,
+    #[serde(serialize_with = "crate::table::sci")]
+    statistic: f64,
+    df: Option<usize>,
+    #[serde(serialize_with = "crate::table::sci")]
+    p: f64,
+    #[serde(serialize_with = "crate::table::sci_opt")]
+    p_holm: Option<f64>,
+    #[serde(serialize_with = "crate::table::sci_opt")]
+    p_bonferroni: Option<f64>,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn write_outputs(
     run: &Run,
@@ -836,103 +877,101 @@ fn write_outputs(
     legs: &[LegSpec],
     o: &Outcome,
 ) -> Result<(), ToolError> {
-    let mut errors = String::from(
-        "group,model,file,trajectory,steps,start_distance,forward_error,return_error\n",
-    );
-    let mut models = String::from(
-        "group,model,file,val_loss,mean_forward_error,mean_return_error,median_forward_error,median_return_error\n",
-    );
+    let csv = |name: &str, text: Result<String, csv::Error>| -> Result<PathBuf, ExperimentError> {
+        run.write(
+            name,
+            &text.map_err(|e| super::write_error(&run.path(name), e))?,
+        )
+    };
+    let mut errors = Vec::new();
+    let mut models = Vec::new();
     for g in &o.groups {
         for m in &g.models {
             let file = super::display_rel(&m.path, &run.out);
             for r in &m.rows {
-                let _ = writeln!(
-                    errors,
-                    "{},{},{file},{},{},{},{},{}",
-                    g.name,
-                    m.index,
-                    r.trajectory,
-                    r.steps,
-                    super::csv_num(r.start_distance),
-                    super::csv_num(r.forward),
-                    super::csv_num(r.back)
-                );
+                errors.push(ErrorRow {
+                    group: &g.name,
+                    model: m.index,
+                    file: file.clone(),
+                    trajectory: r.trajectory,
+                    steps: r.steps,
+                    start_distance: r.start_distance,
+                    forward_error: r.forward,
+                    return_error: r.back,
+                });
             }
             let fw: Vec<f64> = m.rows.iter().map(|r| r.forward).collect();
             let bk: Vec<f64> = m.rows.iter().map(|r| r.back).collect();
-            let _ = writeln!(
-                models,
-                "{},{},{file},{},{},{},{},{}",
-                g.name,
-                m.index,
-                m.val_loss.map_or(String::new(), super::csv_num),
-                super::csv_num(m.mean(Metric::Forward)),
-                super::csv_num(m.mean(Metric::Return)),
-                super::csv_num(stats::median(&fw)),
-                super::csv_num(stats::median(&bk))
-            );
+            models.push(ModelRow {
+                group: &g.name,
+                model: m.index,
+                file,
+                val_loss: m.val_loss,
+                mean_forward_error: m.mean(Metric::Forward),
+                mean_return_error: m.mean(Metric::Return),
+                median_forward_error: stats::median(&fw),
+                median_return_error: stats::median(&bk),
+            });
         }
     }
-    run.write("errors.csv", &errors)?;
-    run.write("models.csv", &models)?;
-    let mut groups_csv = String::from(
-        "group,label,kind,models,trajectories,mean_val_loss,best_cae,median_forward_error,q25_forward_error,q75_forward_error,median_return_error,q25_return_error,q75_return_error\n",
-    );
-    for (i, g) in o.groups.iter().enumerate() {
+    csv("errors.csv", crate::table::to_csv(&errors))?;
+    csv("models.csv", crate::table::to_csv(&models))?;
+    let groups = o.groups.iter().enumerate().map(|(i, g)| {
         let f = g.errors(Metric::Forward);
         let b = g.errors(Metric::Return);
-        let _ = writeln!(
-            groups_csv,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            csv_text(&g.name),
-            csv_text(&g.label),
-            g.kind,
-            g.models.len(),
-            f.len(),
-            super::csv_num(g.mean_val_loss()),
-            o.best_cae == Some(i),
-            super::csv_num(stats::median(&f)),
-            super::csv_num(stats::quantile(&f, 0.25)),
-            super::csv_num(stats::quantile(&f, 0.75)),
-            super::csv_num(stats::median(&b)),
-            super::csv_num(stats::quantile(&b, 0.25)),
-            super::csv_num(stats::quantile(&b, 0.75)),
-        );
-    }
-    run.write("groups.csv", &groups_csv)?;
-    let mut stats_csv = String::from(
-        "family,metric,unit,test,group_a,group_b,n,statistic,df,p,p_holm,p_bonferroni\n",
-    );
+        GroupRow {
+            group: &g.name,
+            label: &g.label,
+            kind: g.kind,
+            models: g.models.len(),
+            trajectories: f.len(),
+            mean_val_loss: g.mean_val_loss(),
+            best_cae: o.best_cae == Some(i),
+            median_forward_error: stats::median(&f),
+            q25_forward_error: stats::quantile(&f, 0.25),
+            q75_forward_error: stats::quantile(&f, 0.75),
+            median_return_error: stats::median(&b),
+            q25_return_error: stats::quantile(&b, 0.25),
+            q75_return_error: stats::quantile(&b, 0.75),
+        }
+    });
+    csv("groups.csv", crate::table::to_csv(groups))?;
+    let mut tests = Vec::new();
     for f in &o.families {
         let Some(t) = &f.tests else { continue };
-        let _ = writeln!(
-            stats_csv,
-            "{},{},{},kruskal-wallis,,,{},{},{},{},,",
-            f.name,
-            f.metric.name(),
-            f.unit.name(),
-            t.kruskal.n,
-            super::csv_num(t.kruskal.h),
-            t.kruskal.df,
-            super::csv_num(t.kruskal.p)
-        );
+        let row = |test, statistic, p| StatsRow {
+            family: f.name,
+            metric: f.metric.name(),
+            unit: f.unit.name(),
+            test,
+            group_a: None,
+            group_b: None,
+            n: None,
+            statistic,
+            df: None,
+            p,
+            p_holm: None,
+            p_bonferroni: None,
+        };
+        tests.push(StatsRow {
+            n: Some(t.kruskal.n),
+            df: Some(t.kruskal.df),
+            ..row("kruskal-wallis", t.kruskal.h, t.kruskal.p)
+        });
         for d in &t.dunn {
-            let _ = writeln!(
-                stats_csv,
-                "{},{},{},dunn,{},{},,{},,{},{},{}",
-                f.name,
-                f.metric.name(),
-                f.unit.name(),
-                csv_text(&o.groups[f.groups[d.a]].name),
-                csv_text(&o.groups[f.groups[d.b]].name),
-                super::csv_num(d.z),
-                super::csv_num(d.p),
-                super::csv_num(d.p_holm),
-                super::csv_num(d.p_bonferroni)
-            );
+            tests.push(StatsRow {
+                group_a: Some(&o.groups[f.groups[d.a]].name),
+                group_b: Some(&o.groups[f.groups[d.b]].name),
+                p_holm: Some(d.p_holm),
+                p_bonferroni: Some(d.p_bonferroni),
+                ..row("dunn", d.z, d.p)
+            });
         }
     }
-    run.write("stats.csv", &stats_csv)?;
+    csv(
+        "stats.csv",
+        crate::table::to_csv_or_header(STATS_HEADER, &tests),
+    )?;
     figure::write(
         &Violins {
             groups: &o.groups,
@@ -944,14 +983,6 @@ fn write_outputs(
     let summary = summary(run, args, data_dir, ds, cfg, legs, o);
     run.write("summary.md", &summary)?;
     Ok(())
-}
-
-fn csv_text(s: &str) -> String {
-    if s.contains(',') || s.contains('"') {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_owned()
-    }
 }
 
 #[allow(clippy::too_many_arguments)]

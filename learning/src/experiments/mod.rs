@@ -23,8 +23,10 @@ pub mod stats;
 pub mod theorem;
 
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use rayon::prelude::*;
 
 use crate::dataset::{self, Dataset};
 use crate::eval::AnyModel;
@@ -242,6 +244,19 @@ impl Run {
         })
     }
 
+    /// The pool of `threads` workers the run trains and evaluates on.
+    pub fn pool(&self) -> Result<rayon::ThreadPool, ExperimentError> {
+        let name = self.name;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(self.threads)
+            .thread_name(move |i| format!("{name}-{i}"))
+            .build()
+            .map_err(|e| ExperimentError::Option {
+                option: "--threads",
+                reason: format!("cannot start {} threads: {e}", self.threads),
+            })
+    }
+
     /// A path under the output directory.
     pub fn path(&self, rel: &str) -> PathBuf {
         self.out.join(rel)
@@ -380,8 +395,8 @@ impl Run {
     }
 
     /// Makes sure every job's model file exists: checks the cached ones against their
-    /// settings and trains the missing ones (`threads` at a time, each single-threaded, so
-    /// results do not depend on the thread count). Ctrl-C stops training; the finished
+    /// settings and trains the missing ones ([`Run::pool`]: `threads` at a time, each
+    /// single-threaded, so results do not depend on the thread count or the schedule). Ctrl-C stops training; the finished
     /// models are kept.
     pub fn ensure_models(&self, jobs: &[Job]) -> Result<(), ToolError> {
         let mut missing = Vec::new();
@@ -408,28 +423,21 @@ impl Run {
                 "training"
             );
         });
-        let next = AtomicUsize::new(0);
+        // The first error stops the other jobs (at their next epoch) and is returned.
         let cancel = AtomicBool::new(false);
-        let errors: Mutex<Vec<ToolError>> = Mutex::new(Vec::new());
-        std::thread::scope(|scope| {
-            for _ in 0..self.threads.min(missing.len()) {
-                scope.spawn(|| {
-                    loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed);
-                        if i >= missing.len() || cancel.load(Ordering::Relaxed) {
-                            break;
-                        }
-                        if let Err(e) = self.train_job(missing[i], &cancel) {
-                            cancel.store(true, Ordering::Relaxed);
-                            if let Ok(mut errs) = errors.lock() {
-                                errs.push(e);
-                            }
-                        }
-                    }
-                });
-            }
+        let first_error = OnceLock::new();
+        self.pool()?.install(|| {
+            missing.par_iter().for_each(|job| {
+                if cancel.load(Ordering::Relaxed) {
+                    return;
+                }
+                if let Err(e) = self.train_job(job, &cancel) {
+                    cancel.store(true, Ordering::Relaxed);
+                    let _ = first_error.set(e);
+                }
+            });
         });
-        if let Some(e) = errors.into_inner().ok().and_then(|mut v| v.pop()) {
+        if let Some(e) = first_error.into_inner() {
             return Err(e);
         }
         if cancel.load(Ordering::Relaxed) {
@@ -457,11 +465,13 @@ impl Run {
                 cancel.store(true, Ordering::Relaxed);
             }
         };
-        let outcome = train::train(cfg, &job.data, &self.command, &on_progress, cancel)?;
+        let outcome = train::train(cfg, &job.data, &self.command, &on_progress, cancel);
         if cancel.load(Ordering::Relaxed) {
-            // A partly trained model is never cached.
+            // A partly trained model is never cached (nor is an error reported that only
+            // says the training was stopped).
             return Ok(());
         }
+        let outcome = outcome?;
         let bytes = outcome.model.to_bytes()?;
         mapper::model::write_file(&job.path, &bytes, false)?;
         crate::cli::write_loss_log(&crate::cli::loss_log_path(&job.path), &outcome.runs)?;
@@ -835,12 +845,11 @@ pub fn display_rel(path: &Path, base: &Path) -> String {
         .to_string()
 }
 
-/// Formats `value` for CSV (empty when not finite).
-pub fn csv_num(value: f64) -> String {
-    if value.is_finite() {
-        format!("{value:.9e}")
-    } else {
-        String::new()
+/// A result table that could not be rendered, as a write error of its file.
+pub fn write_error(path: &Path, e: csv::Error) -> ExperimentError {
+    ExperimentError::Write {
+        path: path.to_owned(),
+        source: e.into(),
     }
 }
 

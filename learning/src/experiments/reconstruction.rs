@@ -171,17 +171,21 @@ pub fn run(args: &ReconstructionArgs, command: &str) -> Result<Outcome, ToolErro
         }
     }
     run.finish();
-    let mut csv = String::from("task,variant,settings,val_mse\n");
-    for e in &entries {
-        let _ = writeln!(
-            csv,
-            "{},{},\"{}\",{}",
-            e.task,
-            e.variant,
-            e.settings,
-            super::csv_num(e.val_mse)
-        );
+    #[derive(serde::Serialize)]
+    struct CsvRow<'a> {
+        task: &'a str,
+        variant: &'a str,
+        settings: &'a str,
+        #[serde(serialize_with = "crate::table::sci")]
+        val_mse: f64,
     }
+    let csv = crate::table::to_csv(entries.iter().map(|e| CsvRow {
+        task: &e.task,
+        variant: &e.variant,
+        settings: &e.settings,
+        val_mse: e.val_mse,
+    }))
+    .map_err(|e| super::write_error(&run.path("reconstruction.csv"), e))?;
     let table = markdown(&entries);
     run.write("reconstruction.csv", &csv)?;
     run.write("reconstruction.md", &table)?;

@@ -83,6 +83,48 @@ pub struct Point {
     pub reverse_max_inside: f64,
 }
 
+/// A row of `runs.csv`: one rollout.
+#[derive(serde::Serialize)]
+struct RunRow {
+    #[serde(serialize_with = "crate::table::display")]
+    kind: ModelKind,
+    model: usize,
+    file: String,
+    state: usize,
+    #[serde(serialize_with = "crate::table::display")]
+    alpha: f64,
+    #[serde(serialize_with = "crate::table::fixed::<9, _>")]
+    theta: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    forward_rad: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    reverse_rad: f64,
+    at_limit: bool,
+}
+
+/// A row of `curves.csv`: one point of the figure.
+#[derive(serde::Serialize)]
+struct CurveRow {
+    #[serde(serialize_with = "crate::table::display")]
+    kind: ModelKind,
+    #[serde(serialize_with = "crate::table::display")]
+    alpha: f64,
+    n: usize,
+    #[serde(serialize_with = "crate::table::sci")]
+    forward_mean_rad: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    forward_std_rad: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    reverse_mean_rad: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    reverse_std_rad: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    reverse_max_rad: f64,
+    at_limit_runs: usize,
+    #[serde(serialize_with = "crate::table::sci")]
+    reverse_max_inside_rad: f64,
+}
+
 /// One expected-shape statement and whether the measurement bears it out.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Check {
@@ -251,8 +293,7 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
     let ticks = (1.0 / period_s).round().max(1.0) as usize;
     run.add_work((models.len() * states.len()) as u64);
     run.message("rollouts on the mock arm");
-    let mut csv =
-        String::from("kind,model,file,state,alpha,theta,forward_rad,reverse_rad,at_limit\n");
+    let mut csv_rows = Vec::new();
     // (kind, alpha index) -> (forward, reverse, at limit) samples.
     type Samples = (Vec<f64>, Vec<f64>, Vec<bool>);
     let mut samples: Vec<Vec<Samples>> =
@@ -280,15 +321,17 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
                 samples[g][j].0.push(r.forward);
                 samples[g][j].1.push(r.reverse);
                 samples[g][j].2.push(r.limited);
-                let _ = writeln!(
-                    csv,
-                    "{},{},{file},{i},{alpha},{theta:.9},{},{},{}",
-                    m.kind,
-                    m.index,
-                    super::csv_num(r.forward),
-                    super::csv_num(r.reverse),
-                    r.limited
-                );
+                csv_rows.push(RunRow {
+                    kind: m.kind,
+                    model: m.index,
+                    file: file.clone(),
+                    state: i,
+                    alpha,
+                    theta,
+                    forward_rad: r.forward,
+                    reverse_rad: r.reverse,
+                    at_limit: r.limited,
+                });
             }
             run.done(1);
         }
@@ -331,27 +374,24 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
         out: run.out.clone(),
     };
     outcome.checks = checks(&outcome);
-    run.write("runs.csv", &csv)?;
-    let mut curves_csv = String::from(
-        "kind,alpha,n,forward_mean_rad,forward_std_rad,reverse_mean_rad,reverse_std_rad,reverse_max_rad,at_limit_runs,reverse_max_inside_rad\n",
-    );
-    for (kind, pts) in &outcome.curves {
-        for p in pts {
-            let _ = writeln!(
-                curves_csv,
-                "{kind},{},{},{},{},{},{},{},{},{}",
-                p.alpha,
-                p.n,
-                super::csv_num(p.forward_mean),
-                super::csv_num(p.forward_std),
-                super::csv_num(p.reverse_mean),
-                super::csv_num(p.reverse_std),
-                super::csv_num(p.reverse_max),
-                p.limited,
-                super::csv_num(p.reverse_max_inside)
-            );
-        }
-    }
+    let runs_csv = crate::table::to_csv(&csv_rows)
+        .map_err(|e| super::write_error(&run.path("runs.csv"), e))?;
+    run.write("runs.csv", &runs_csv)?;
+    let curves_csv = crate::table::to_csv(outcome.curves.iter().flat_map(|(kind, pts)| {
+        pts.iter().map(|p| CurveRow {
+            kind: *kind,
+            alpha: p.alpha,
+            n: p.n,
+            forward_mean_rad: p.forward_mean,
+            forward_std_rad: p.forward_std,
+            reverse_mean_rad: p.reverse_mean,
+            reverse_std_rad: p.reverse_std,
+            reverse_max_rad: p.reverse_max,
+            at_limit_runs: p.limited,
+            reverse_max_inside_rad: p.reverse_max_inside,
+        })
+    }))
+    .map_err(|e| super::write_error(&run.path("curves.csv"), e))?;
     run.write("curves.csv", &curves_csv)?;
     figure::write(
         &CurvesFigure {

@@ -62,6 +62,57 @@ pub struct Row {
     pub min_model_fraction: f64,
 }
 
+/// A row of `models.csv`: one model on one state set and transition.
+#[derive(serde::Serialize)]
+struct ModelRow {
+    group: String,
+    file: String,
+    #[serde(serialize_with = "crate::table::display")]
+    kind: ModelKind,
+    gram_schmidt: bool,
+    #[serde(serialize_with = "crate::table::display_opt")]
+    lipschitz_bound: Option<f64>,
+    #[serde(serialize_with = "crate::table::display")]
+    speed_scale: f64,
+    states: &'static str,
+    transition: &'static str,
+    #[serde(serialize_with = "crate::table::display")]
+    step: f64,
+    theorem_applies: bool,
+    trials: usize,
+    held: usize,
+    no_motion: usize,
+    #[serde(serialize_with = "crate::table::display")]
+    fraction: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    mean_ratio: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    worst_ratio: f64,
+}
+
+/// A row of `theorem.csv`: one group ([`Row`]).
+#[derive(serde::Serialize)]
+struct GroupRow<'a> {
+    group: &'a str,
+    #[serde(serialize_with = "crate::table::display")]
+    kind: ModelKind,
+    theorem_applies: bool,
+    states: &'a str,
+    transition: &'a str,
+    models: usize,
+    trials: usize,
+    held: usize,
+    no_motion: usize,
+    #[serde(serialize_with = "crate::table::display")]
+    fraction: f64,
+    #[serde(serialize_with = "crate::table::display")]
+    min_model_fraction: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    mean_ratio: f64,
+    #[serde(serialize_with = "crate::table::sci")]
+    worst_ratio: f64,
+}
+
 /// What the experiment measured.
 #[derive(Debug, Clone)]
 pub struct Outcome {
@@ -169,9 +220,7 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
     ));
     run.add_work((members.len() * sets.len() * 2) as u64);
     run.message("checking the inequality");
-    let mut model_csv = String::from(
-        "group,file,kind,gram_schmidt,lipschitz_bound,speed_scale,states,transition,step,theorem_applies,trials,held,no_motion,fraction,mean_ratio,worst_ratio\n",
-    );
+    let mut model_rows = Vec::new();
     // (group, set, transition) -> (kind, applies, per-model fractions)
     type Acc = (ModelKind, bool, Vec<Fraction>);
     let mut groups: Vec<(String, &'static str, &'static str, Acc)> = Vec::new();
@@ -196,20 +245,24 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
                 let applies = h.kind == ModelKind::Scl
                     && !gs
                     && h.lipschitz_bound.is_some_and(|l| step * l <= 1.0);
-                let _ = writeln!(
-                    model_csv,
-                    "{},{},{},{gs},{},{s},{set},{transition},{step},{applies},{},{},{},{},{},{}",
-                    m.group,
-                    super::display_rel(&m.path, &run.out),
-                    h.kind,
-                    h.lipschitz_bound.map_or(String::new(), |l| l.to_string()),
-                    f.total,
-                    f.held,
-                    f.no_motion,
-                    f.value(),
-                    super::csv_num(f.mean_ratio),
-                    super::csv_num(f.worst_ratio)
-                );
+                model_rows.push(ModelRow {
+                    group: m.group.clone(),
+                    file: super::display_rel(&m.path, &run.out),
+                    kind: h.kind,
+                    gram_schmidt: gs,
+                    lipschitz_bound: h.lipschitz_bound,
+                    speed_scale: s,
+                    states: set,
+                    transition,
+                    step,
+                    theorem_applies: applies,
+                    trials: f.total,
+                    held: f.held,
+                    no_motion: f.no_motion,
+                    fraction: f.value(),
+                    mean_ratio: f.mean_ratio,
+                    worst_ratio: f.worst_ratio,
+                });
                 match groups
                     .iter_mut()
                     .find(|(g, st, tr, _)| *g == m.group && st == set && *tr == transition)
@@ -259,31 +312,26 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
             "the soft-reversibility inequality failed where the theorem applies: this is a bug"
         );
     }
-    let mut csv = String::from(
-        "group,kind,theorem_applies,states,transition,models,trials,held,no_motion,fraction,min_model_fraction,mean_ratio,worst_ratio\n",
-    );
-    for r in &rows {
-        let f = &r.fraction;
-        let _ = writeln!(
-            csv,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            r.group,
-            r.kind,
-            r.theorem_applies,
-            r.states,
-            r.transition,
-            r.models,
-            f.total,
-            f.held,
-            f.no_motion,
-            f.value(),
-            r.min_model_fraction,
-            super::csv_num(f.mean_ratio),
-            super::csv_num(f.worst_ratio)
-        );
-    }
+    let models_csv = crate::table::to_csv(&model_rows)
+        .map_err(|e| super::write_error(&run.path("models.csv"), e))?;
+    let csv = crate::table::to_csv(rows.iter().map(|r| GroupRow {
+        group: &r.group,
+        kind: r.kind,
+        theorem_applies: r.theorem_applies,
+        states: r.states,
+        transition: r.transition,
+        models: r.models,
+        trials: r.fraction.total,
+        held: r.fraction.held,
+        no_motion: r.fraction.no_motion,
+        fraction: r.fraction.value(),
+        min_model_fraction: r.min_model_fraction,
+        mean_ratio: r.fraction.mean_ratio,
+        worst_ratio: r.fraction.worst_ratio,
+    }))
+    .map_err(|e| super::write_error(&run.path("theorem.csv"), e))?;
     let table = markdown(&rows);
-    run.write("models.csv", &model_csv)?;
+    run.write("models.csv", &models_csv)?;
     run.write("theorem.csv", &csv)?;
     run.write("theorem.md", &table)?;
     let mut s = run.summary_head(

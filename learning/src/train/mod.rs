@@ -17,14 +17,15 @@
 //!
 //! Every seed is deterministic: its weights, batch order and sampled values come from
 //! [`Rng`] seeded with `base_seed + index`, and the arithmetic is single-threaded, so the
-//! result does not depend on how many seeds run in parallel (one thread per seed,
-//! [`TrainConfig::threads`] at a time).
+//! result does not depend on how many seeds run in parallel (a rayon pool of
+//! [`TrainConfig::threads`], one seed per task; results are collected in seed order).
 
 pub mod li;
 
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+
+use rayon::prelude::*;
 
 use crate::dataset::Dataset;
 use mapper::model::{
@@ -830,7 +831,8 @@ pub fn train_seed(
     ))
 }
 
-/// Trains `cfg.seeds` seeds on `ds` (in parallel, one thread per seed) and returns the best
+/// Trains `cfg.seeds` seeds on `ds` (in parallel on a pool of [`TrainConfig::threads`], each
+/// seed single-threaded) and returns the best
 /// model with its header filled in. `command` is recorded in the header; `on_progress` is
 /// called from the worker threads after every epoch; setting `cancel` stops every seed after
 /// its current epoch (the best weights so far are kept).
@@ -849,34 +851,25 @@ pub fn train(
     }
     .min(cfg.seeds);
     let start = Instant::now();
-    let next = AtomicUsize::new(0);
-    type SeedResult = Result<(SeedRun, Nets), TrainError>;
-    let results: Mutex<Vec<Option<SeedResult>>> =
-        Mutex::new((0..cfg.seeds).map(|_| None).collect());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| {
-                loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    if i >= cfg.seeds {
-                        break;
-                    }
-                    let r =
-                        train_seed(cfg, &data, cfg.base_seed + i as u64, i, on_progress, cancel);
-                    if let Ok(mut guard) = results.lock() {
-                        guard[i] = Some(r);
-                    }
-                }
-            });
-        }
-    });
+    let seed_run =
+        |i: usize| train_seed(cfg, &data, cfg.base_seed + i as u64, i, on_progress, cancel);
+    // Results in seed order, each from its own generator: the same whatever the schedule.
+    let results: Vec<Result<(SeedRun, Nets), TrainError>> = if threads <= 1 {
+        // On the caller's thread (an experiment's pool runs one single-threaded job per
+        // worker: a pool inside it would only add threads).
+        (0..cfg.seeds).map(seed_run).collect()
+    } else {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("train-{i}"))
+            .build()
+            .map_err(|e| TrainError::Data(format!("cannot start {threads} training threads: {e}")))?
+            .install(|| (0..cfg.seeds).into_par_iter().map(seed_run).collect())
+    };
     let train_seconds = start.elapsed().as_secs_f64();
-    let results = results
-        .into_inner()
-        .map_err(|_| TrainError::Data("a training thread panicked".into()))?;
     let mut runs = Vec::new();
     let mut nets_all = Vec::new();
-    for r in results.into_iter().flatten() {
+    for r in results {
         let (run, nets) = r?;
         runs.push(run);
         nets_all.push(nets);

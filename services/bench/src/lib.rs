@@ -37,8 +37,9 @@ use ipc_types::{Graph, Prefix, TickReport, Transport};
 use serde::Serialize;
 
 use ipc_types::signals;
+use ipc_types::stats::quantile;
 use scl_node::config::GraphConfig;
-use scl_node::stats::quantile;
+use scl_node::stats::sorted_us;
 
 /// What `scl bench latency` was asked to do.
 #[derive(Debug, Clone)]
@@ -77,15 +78,14 @@ pub struct Dist {
 impl Dist {
     /// The distribution of samples given in ns.
     pub fn of(samples_ns: &[u64]) -> Self {
-        let mut s = samples_ns.to_vec();
-        s.sort_unstable();
-        let us = |q: f64| quantile(&s, q) as f64 / 1000.0;
+        let s = sorted_us(samples_ns);
+        let us = |q: f64| if s.is_empty() { 0.0 } else { quantile(&s, q) };
         Self {
             p50: us(0.5),
             p90: us(0.9),
             p99: us(0.99),
             p999: us(0.999),
-            max: s.last().map_or(0.0, |v| *v as f64 / 1000.0),
+            max: us(1.0),
             n: s.len(),
         }
     }

@@ -6,26 +6,45 @@
 //! ```text
 //! # comment lines start with '#'
 //! t_s,a0,a1,gripper,buttons
-//! 0.000000,0.000000,0.000000,0.000000,0
-//! 1.250000,0.800000,0.000000,0.000000,1
-//! 3.000000,0.000000,0.000000,0.000000,0
+//! 0.0,0.0,0.0,0.0,0
+//! 1.25,0.8,0.0,0.0,1
+//! 3.0,0.0,0.0,0.0,0
 //! ```
 //!
 //! `t_s` is seconds since the first row (non-decreasing), `a0`, `a1` the axes and `gripper` the
-//! gripper rate, each in `[-1, 1]`, `buttons` the [`ipc_types::buttons`] bits in decimal. The
+//! gripper rate, each in `[-1, 1]`, `buttons` the [`ipc_types::buttons`] bits in decimal. Any
+//! decimal notation reads; the recorder writes the shortest that reads back to the same value
+//! (so a replay publishes exactly the recorded `f32`s). Read and written with `csv` through
+//! [`Row`]; errors name the file and the line. The
 //! last row ends the recording: after it a replay is neutral. `scl joystick --record-input FILE`
 //! writes such a file (on a writer thread, so the loop never waits on the disk) from any source,
 //! and `--source replay --replay FILE` plays one back.
 
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crossbeam_channel::{Receiver, Sender};
 
 use super::{Input, JoystickError};
 
-/// The header row.
+/// The header row: [`Row`]'s field names.
 pub const HEADER: &str = "t_s,a0,a1,gripper,buttons";
+
+/// One row: read with `f64` axes (to check their range), written with the `f32` ones
+/// published.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Row<A> {
+    /// Seconds since the first row.
+    pub t_s: f64,
+    /// First axis.
+    pub a0: A,
+    /// Second axis.
+    pub a1: A,
+    /// Gripper rate.
+    pub gripper: A,
+    /// [`ipc_types::buttons`] bits.
+    pub buttons: u32,
+}
 
 /// A recording in memory.
 #[derive(Debug, Clone, PartialEq)]
@@ -54,43 +73,71 @@ impl Recording {
             line,
             reason,
         };
-        let mut rows = Vec::new();
-        let mut header_seen = false;
-        for (i, raw) in text.lines().enumerate() {
-            let line = i + 1;
-            let l = raw.trim();
-            if l.is_empty() || l.starts_with('#') {
+        let mut rdr = csv::ReaderBuilder::new()
+            .comment(Some(b'#'))
+            .trim(csv::Trim::All)
+            // Rows of another length are reported below, by line.
+            .flexible(true)
+            .from_reader(text.as_bytes());
+        let header = rdr.headers().map_err(|e| bad(0, e.to_string()))?.clone();
+        if header.is_empty() {
+            return Err(bad(0, "no rows".into()));
+        }
+        if header.iter().collect::<Vec<_>>().join(",") != HEADER {
+            return Err(bad(
+                line_ending_at(text, rdr.position().byte()),
+                format!("the header must be `{HEADER}`"),
+            ));
+        }
+        let mut rows: Vec<(f64, Input)> = Vec::new();
+        let mut record = csv::StringRecord::new();
+        loop {
+            let read = rdr.read_record(&mut record);
+            let line = line_ending_at(text, rdr.position().byte());
+            if !read.map_err(|e| bad(line, e.to_string()))? {
+                break;
+            }
+            // A line of blanks, or an indented comment.
+            if record.len() == 1 && (record[0].is_empty() || record[0].starts_with('#')) {
                 continue;
             }
-            if !header_seen {
-                if l.replace(' ', "") != HEADER {
-                    return Err(bad(line, format!("the header must be `{HEADER}`")));
-                }
-                header_seen = true;
-                continue;
-            }
-            let fields: Vec<&str> = l.split(',').map(str::trim).collect();
-            if fields.len() != 5 {
+            if record.len() != 5 {
                 return Err(bad(
                     line,
-                    format!("{} fields, expected 5 ({HEADER})", fields.len()),
+                    format!("{} fields, expected 5 ({HEADER})", record.len()),
                 ));
             }
-            let mut v = [0.0f64; 4];
-            for (k, name) in ["t_s", "a0", "a1", "gripper"].iter().enumerate() {
-                v[k] = fields[k]
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| bad(line, format!("{name} `{}` is not a number", fields[k])))?;
-                if k > 0 && v[k].abs() > 1.0 {
-                    return Err(bad(line, format!("{name} {} is outside [-1, 1]", v[k])));
+            let not_a = |k: usize| {
+                let (name, what) = match k {
+                    4 => ("buttons", "a bit mask"),
+                    k => (&header[k], "a number"),
+                };
+                bad(
+                    line,
+                    format!(
+                        "{name} `{}` is not {what}",
+                        record.get(k).unwrap_or_default()
+                    ),
+                )
+            };
+            let row: Row<f64> = record
+                .deserialize(Some(&header))
+                .map_err(|e| match e.kind() {
+                    csv::ErrorKind::Deserialize { err, .. } => {
+                        not_a(err.field().map_or(0, |k| k as usize))
+                    }
+                    _ => bad(line, e.to_string()),
+                })?;
+            let values = [row.t_s, row.a0, row.a1, row.gripper];
+            if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+                return Err(not_a(k));
+            }
+            for (name, v) in [("a0", row.a0), ("a1", row.a1), ("gripper", row.gripper)] {
+                if v.abs() > 1.0 {
+                    return Err(bad(line, format!("{name} {v} is outside [-1, 1]")));
                 }
             }
-            let buttons: u32 = fields[4]
-                .parse()
-                .map_err(|_| bad(line, format!("buttons `{}` is not a bit mask", fields[4])))?;
-            let t = v[0];
+            let t = row.t_s;
             if t < 0.0 {
                 return Err(bad(line, format!("t_s {t} is negative")));
             }
@@ -105,9 +152,9 @@ impl Recording {
             rows.push((
                 t,
                 Input {
-                    axes: [v[1] as f32, v[2] as f32],
-                    gripper: v[3] as f32,
-                    buttons,
+                    axes: [row.a0 as f32, row.a1 as f32],
+                    gripper: row.gripper as f32,
+                    buttons: row.buttons,
                 },
             ));
         }
@@ -143,12 +190,25 @@ impl Recording {
     }
 }
 
-/// One CSV row for `input` at `t_s`.
-pub fn row(t_s: f64, input: &Input) -> String {
-    format!(
-        "{t_s:.6},{:.6},{:.6},{:.6},{}",
-        input.axes[0], input.axes[1], input.gripper, input.buttons
-    )
+/// The line (1-based) of the one-line record of `text` that ends at byte `end` (the reader's
+/// position after reading it). Not csv's own record position, which leaves out the comment and
+/// blank lines it skips (measured with csv 1.4; `learning::dataset` has the same helper).
+fn line_ending_at(text: &str, end: u64) -> usize {
+    let upto = text.get(..end as usize).unwrap_or(text);
+    1 + upto.trim_end_matches(['\r', '\n']).matches('\n').count()
+}
+
+impl Row<f32> {
+    /// The row of `input` at `t_s`.
+    pub fn of(t_s: f64, input: &Input) -> Self {
+        Self {
+            t_s,
+            a0: input.axes[0],
+            a1: input.axes[1],
+            gripper: input.gripper,
+            buttons: input.buttons,
+        }
+    }
 }
 
 /// Writes the published input to a file on its own thread.
@@ -218,16 +278,19 @@ impl InputRecorder {
     }
 }
 
-fn write_rows(file: std::fs::File, rx: &Receiver<(f64, Input)>) -> std::io::Result<usize> {
-    let mut w = BufWriter::new(file);
+fn write_rows(mut file: std::fs::File, rx: &Receiver<(f64, Input)>) -> std::io::Result<usize> {
     writeln!(
-        w,
+        file,
         "# scl recorded joystick input: seconds since the first sample, axes, gripper rate, button bits"
     )?;
-    writeln!(w, "{HEADER}")?;
+    // csv buffers the rows; the header is written even when no row follows.
+    let mut w = csv::WriterBuilder::new()
+        .has_headers(false)
+        .from_writer(file);
+    w.write_record(HEADER.split(','))?;
     let mut n = 0;
     for (t, input) in rx {
-        writeln!(w, "{}", row(t, &input))?;
+        w.serialize(Row::of(t, &input))?;
         n += 1;
     }
     w.flush()?;
@@ -285,6 +348,12 @@ mod tests {
                 "not a number",
             ),
             ("# nothing\nt_s,a0,a1,gripper,buttons\n", 0, "no rows"),
+            (
+                "# a\n\nt_s,a0,a1,gripper,buttons\n# b\n0,0,0,0,0\n\n  # c\n1,0,y,0,0\n",
+                8,
+                "a1 `y`",
+            ),
+            ("# a\nt_s,a0\n", 2, "header"),
         ];
         for (text, line, needle) in cases {
             let e = Recording::parse(text, Path::new("rec.csv")).unwrap_err();
@@ -314,6 +383,11 @@ mod tests {
             rec.record(*t, i);
         }
         assert_eq!(rec.finish(1.0).unwrap(), 4);
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            text.contains("\nt_s,a0,a1,gripper,buttons\n0.0,0.0,0.0,0.0,0\n0.2,0.25,-0.5,0.0,"),
+            "{text}"
+        );
         // Refuses to overwrite.
         assert!(InputRecorder::create(&p).is_err());
         let r = Recording::load(&p).unwrap();

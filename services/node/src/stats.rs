@@ -1,5 +1,8 @@
-//! Percentiles of latency samples, as the status line and the JSON summary report them.
+//! Percentiles of latency samples, as the status line and the JSON summary report them
+//! (the quantile is [`ipc_types::stats::quantile`]: linear interpolation between the closest
+//! ranks).
 
+use ipc_types::stats::quantile;
 use serde::Serialize;
 
 /// p50 / p99 / max of a set of samples, in microseconds.
@@ -13,24 +16,23 @@ pub struct Percentiles {
     pub max: f64,
 }
 
-/// The `q`-quantile (0..=1) of sorted samples, nearest rank.
-pub fn quantile(sorted: &[u64], q: f64) -> u64 {
-    if sorted.is_empty() {
-        return 0;
-    }
-    let rank = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    sorted[rank - 1]
+/// Samples in ns as µs, sorted: the input of [`ipc_types::stats::quantile`].
+pub fn sorted_us(samples_ns: &[u64]) -> Vec<f64> {
+    let mut s: Vec<f64> = samples_ns.iter().map(|ns| *ns as f64 / 1000.0).collect();
+    s.sort_by(f64::total_cmp);
+    s
 }
 
-/// Percentiles in µs of samples given in ns.
+/// Percentiles in µs of samples given in ns (zeros when there are none).
 pub fn percentiles_us(samples_ns: &[u64]) -> Percentiles {
-    let mut s = samples_ns.to_vec();
-    s.sort_unstable();
-    let us = |ns: u64| ns as f64 / 1000.0;
+    let s = sorted_us(samples_ns);
+    if s.is_empty() {
+        return Percentiles::default();
+    }
     Percentiles {
-        p50: us(quantile(&s, 0.50)),
-        p99: us(quantile(&s, 0.99)),
-        max: us(s.last().copied().unwrap_or(0)),
+        p50: quantile(&s, 0.50),
+        p99: quantile(&s, 0.99),
+        max: s[s.len() - 1],
     }
 }
 
@@ -39,13 +41,12 @@ mod tests {
     use super::*;
 
     #[test]
-    fn nearest_rank() {
-        let s: Vec<u64> = (1..=100).collect();
-        assert_eq!(quantile(&s, 0.5), 50);
-        assert_eq!(quantile(&s, 0.99), 99);
-        assert_eq!(quantile(&s, 1.0), 100);
-        assert_eq!(quantile(&[], 0.5), 0);
+    fn percentiles_interpolate() {
         let p = percentiles_us(&[3000, 1000, 2000]);
-        assert_eq!((p.p50, p.p99, p.max), (2.0, 3.0, 3.0));
+        assert_eq!((p.p50, p.max), (2.0, 3.0));
+        assert!((p.p99 - 2.98).abs() < 1e-12, "{p:?}");
+        assert_eq!(percentiles_us(&[]), Percentiles::default());
+        let s = sorted_us(&[2500, 500]);
+        assert_eq!(s, vec![0.5, 2.5]);
     }
 }
