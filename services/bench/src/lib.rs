@@ -396,10 +396,11 @@ fn run_one(
     {
         reports.drain(|r| samples.take(r))?;
         if signals::stop_requested() {
-            // SAFETY: signalling our own child.
-            unsafe {
-                libc::kill(up.id() as libc::pid_t, libc::SIGTERM);
-            }
+            // Our own child; an error means it has exited, which try_wait sees next.
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(up.id() as i32),
+                nix::sys::signal::Signal::SIGTERM,
+            );
         }
         let el = t0.elapsed().as_secs_f64();
         if el >= next {
