@@ -11,6 +11,8 @@
 //!   its teleoperation limits ([`ArmLimits`], position limits read from the URDF), named
 //!   poses, rates.
 //! * [`planar5`]: the paper's 5-DOF planar reaching arm (`robots/planar5.urdf`).
+//! * [`profile`]: [`RobotProfile`], the robot the graph drives, chosen by name
+//!   (`RobotProfile::by_name`): description, arm chain, limits, named poses, rates.
 //! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
 //!
 //! ```
@@ -27,12 +29,14 @@ pub mod chain;
 pub mod dls;
 pub mod gen3_lite;
 pub mod planar5;
+pub mod profile;
 pub mod robot;
 
 pub use cartesian::TcpPose;
 pub use chain::{Chain, Jacobian, JointKind, KinError, LinkId, MAX_DOF};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
+pub use profile::{ProfileError, ProfileSpec, RobotProfile};
 pub use robot::{JointSpec, JointType, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.

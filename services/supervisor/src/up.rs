@@ -612,7 +612,11 @@ impl<'a> Supervisor<'a> {
         }
         let model = req.path.as_string();
         let new_id = self.next_mapper_id;
-        if let Err(e) = scl_mapper_node::load_step(&model, new_id) {
+        let loaded = self.opts.config.profile().map_or_else(
+            |e| Err(e.into()),
+            |robot| scl_mapper_node::load_step(&model, new_id, robot),
+        );
+        if let Err(e) = loaded {
             refuse(&request, &e.to_string());
             return;
         }
@@ -759,7 +763,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     cfg.validate()?;
     scl_joystick::validate(&cfg.joystick)?;
     // Refuse a bad model, or a recording over an existing file, before anything starts.
-    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id)?;
+    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, cfg.profile()?)?;
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }
