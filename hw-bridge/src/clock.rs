@@ -2,6 +2,11 @@
 //! (`clock_nanosleep(TIMER_ABSTIME)`), which does not drift the way a relative sleep does, and
 //! the real-time settings the bridge asks for.
 
+use nix::errno::Errno;
+use nix::sys::mman::{MlockAllFlags, mlockall};
+use nix::sys::time::TimeSpec;
+use nix::time::{ClockId, ClockNanosleepFlags, clock_nanosleep};
+
 /// What [`Clock::wait`] returned.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Wake {
@@ -25,11 +30,8 @@ pub struct Clock {
     next_ns: u64,
 }
 
-fn to_timespec(ns: u64) -> libc::timespec {
-    libc::timespec {
-        tv_sec: (ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (ns % 1_000_000_000) as libc::c_long,
-    }
+fn to_timespec(ns: u64) -> TimeSpec {
+    TimeSpec::from(std::time::Duration::from_nanos(ns))
 }
 
 impl Clock {
@@ -49,16 +51,12 @@ impl Clock {
     /// Sleeps until the next deadline.
     pub fn wait(&mut self) -> Wake {
         let ts = to_timespec(self.next_ns);
-        // SAFETY: `ts` is a valid timespec; a null remainder is allowed with TIMER_ABSTIME.
-        let rc = unsafe {
-            libc::clock_nanosleep(
-                libc::CLOCK_MONOTONIC,
-                libc::TIMER_ABSTIME,
-                &ts,
-                std::ptr::null_mut(),
-            )
-        };
-        if rc == libc::EINTR {
+        let rc = clock_nanosleep(
+            ClockId::CLOCK_MONOTONIC,
+            ClockNanosleepFlags::TIMER_ABSTIME,
+            &ts,
+        );
+        if rc == Err(Errno::EINTR) {
             return Wake::Interrupted;
         }
         self.on_wake(ipc_types::time::now_ns())
@@ -116,22 +114,15 @@ pub fn request_realtime(priority: i32) -> RtReport {
     let param = libc::sched_param {
         sched_priority: priority,
     };
-    // SAFETY: plain system calls on the calling process with valid arguments.
-    let fifo = unsafe {
-        if libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) == 0 {
-            Ok(priority)
-        } else {
-            Err(std::io::Error::last_os_error().to_string())
-        }
+    // libc: nix 0.29 has no sched_setscheduler.
+    // SAFETY: a plain system call on the calling process with a valid sched_param.
+    let fifo = if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+        Ok(priority)
+    } else {
+        Err(std::io::Error::last_os_error().to_string())
     };
-    // SAFETY: as above.
-    let mlock = unsafe {
-        if libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) == 0 {
-            Ok(())
-        } else {
-            Err(std::io::Error::last_os_error().to_string())
-        }
-    };
+    let mlock = mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE)
+        .map_err(|e| std::io::Error::from(e).to_string());
     RtReport { fifo, mlock }
 }
 

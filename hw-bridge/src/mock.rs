@@ -1,10 +1,11 @@
-//! The mock Gen3 lite: a kinematic simulation that closes the loop in tests and is the default
-//! when no robot is attached.
+//! The mock arm: a kinematic simulation of the graph's robot profile
+//! ([`kinematics::RobotProfile`]: its joint limits, named poses and gripper lag) that closes
+//! the loop in tests and is the default when no robot is attached.
 
 use std::collections::VecDeque;
 
 use ipc_types::MAX_JOINTS;
-use kinematics::{ArmLimits, gen3_lite};
+use kinematics::{ArmLimits, RobotProfile};
 use serde::{Deserialize, Serialize};
 
 use crate::{Reading, Robot, RobotError};
@@ -13,7 +14,8 @@ use crate::{Reading, Robot, RobotError};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MockConfig {
-    /// Start pose: `home`, `zero` or `retract`.
+    /// Start pose: one of the robot profile's named poses (`home`, `zero` or `retract` on the
+    /// default arm).
     pub initial_pose: String,
     /// Initial gripper state in `[0, 1]`.
     pub initial_gripper: f64,
@@ -26,11 +28,19 @@ pub struct MockConfig {
 }
 
 impl Default for MockConfig {
+    /// [`MockConfig::for_robot`] of the default robot profile.
     fn default() -> Self {
+        Self::for_robot(RobotProfile::default_robot())
+    }
+}
+
+impl MockConfig {
+    /// The defaults for `robot`: its `home` pose, open gripper with its lag, no faults.
+    pub fn for_robot(robot: &RobotProfile) -> Self {
         Self {
             initial_pose: "home".into(),
             initial_gripper: 0.0,
-            gripper_time_constant_s: gen3_lite::GRIPPER_TIME_CONSTANT_S,
+            gripper_time_constant_s: robot.gripper_time_constant_s(),
             latency_ticks: 0,
             drop_every: 0,
         }
@@ -46,6 +56,8 @@ pub struct MockConfigError {
     /// What is wrong.
     pub reason: String,
 }
+
+const _: () = assert!(kinematics::MAX_DOF <= MAX_JOINTS);
 
 /// The simulated arm.
 #[derive(Debug, Clone)]
@@ -64,15 +76,27 @@ pub struct MockArm {
 }
 
 impl MockArm {
-    /// A mock Gen3 lite with the given settings.
+    /// A mock of the default robot profile with the given settings
+    /// ([`MockArm::for_robot`]).
     pub fn new(cfg: MockConfig) -> Result<Self, MockConfigError> {
-        let pose = gen3_lite::named_pose(&cfg.initial_pose).ok_or_else(|| MockConfigError {
-            key: "initial_pose",
-            reason: format!(
-                "`{}` is not a named pose; use home, zero or retract",
-                cfg.initial_pose
-            ),
-        })?;
+        Self::for_robot(RobotProfile::default_robot(), cfg)
+    }
+
+    /// A mock of `robot` with the given settings.
+    pub fn for_robot(robot: &RobotProfile, cfg: MockConfig) -> Result<Self, MockConfigError> {
+        // A chain has at most MAX_DOF joints, which the messages carry (asserted below).
+        let n = robot.n_joints();
+        let pose = robot
+            .named_pose(&cfg.initial_pose)
+            .ok_or_else(|| MockConfigError {
+                key: "initial_pose",
+                reason: format!(
+                    "`{}` is not a named pose of {}; use {}",
+                    cfg.initial_pose,
+                    robot.name(),
+                    robot.pose_names().collect::<Vec<_>>().join(", ")
+                ),
+            })?;
         if !(0.0..=1.0).contains(&cfg.initial_gripper) {
             return Err(MockConfigError {
                 key: "initial_gripper",
@@ -86,9 +110,9 @@ impl MockArm {
             });
         }
         let mut q = [0.0; MAX_JOINTS];
-        q[..gen3_lite::N_JOINTS].copy_from_slice(&pose);
+        q[..n].copy_from_slice(pose);
         Ok(Self {
-            limits: gen3_lite::limits(),
+            limits: robot.limits().clone(),
             q,
             qdot: [0.0; MAX_JOINTS],
             cmd: [0.0; MAX_JOINTS],
@@ -237,6 +261,7 @@ impl Robot for MockArm {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use kinematics::gen3_lite;
 
     const DT: f64 = 0.025;
 
@@ -345,5 +370,32 @@ mod tests {
         })
         .unwrap_err();
         assert_eq!(e.key, "gripper_time_constant_s");
+    }
+
+    /// The mock follows the profile it is given: another arm's joints, limits and poses.
+    #[test]
+    fn simulates_the_robot_profile_it_is_given() {
+        let planar = RobotProfile::new(&kinematics::ProfileSpec::planar5()).unwrap();
+        let mut arm = MockArm::for_robot(&planar, MockConfig::for_robot(&planar)).unwrap();
+        assert_eq!(arm.n_joints(), 5);
+        arm.set_command(&[10.0, 0.0, 0.0, 0.0, 0.0, 7.0], 0.0);
+        let mut r = arm.step(DT);
+        for _ in 0..100 {
+            r = arm.step(DT);
+        }
+        assert_eq!(r.q_rad[0], planar.limits().upper_rad[0]);
+        assert_eq!(r.q_rad[5], 0.0, "no sixth joint");
+        let e = MockArm::for_robot(
+            &planar,
+            MockConfig {
+                initial_pose: "retract".into(),
+                ..MockConfig::for_robot(&planar)
+            },
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.reason,
+            "`retract` is not a named pose of planar5; use home"
+        );
     }
 }

@@ -296,24 +296,27 @@ impl<T> Drop for UdsSubscriber<T> {
 /// Waits until one of `fds` is readable or `timeout` passes; returns a bit per fd (bit `i`
 /// for `fds[i]`, at most 64). A signal ends the wait early with no bit set.
 pub fn poll_readable(fds: &[i32], timeout: Duration) -> u64 {
-    let mut pfds: Vec<libc::pollfd> = fds
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    use std::os::fd::BorrowedFd;
+    let mut pfds: Vec<PollFd<'_>> = fds
         .iter()
-        .map(|fd| libc::pollfd {
-            fd: *fd,
-            events: libc::POLLIN,
-            revents: 0,
+        .map(|fd| {
+            // SAFETY: the callers' descriptors (their subscribers' and wakers') stay open for
+            // the duration of this call, which is as long as the borrow lives.
+            let fd = unsafe { BorrowedFd::borrow_raw(*fd) };
+            PollFd::new(fd, PollFlags::POLLIN)
         })
         .collect();
-    let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
-    // SAFETY: `pfds` is a valid array of `pfds.len()` pollfd structs.
-    let rc = unsafe { libc::poll(pfds.as_mut_ptr(), pfds.len() as libc::nfds_t, ms) };
-    if rc <= 0 {
-        return 0;
+    let timeout = PollTimeout::try_from(timeout).unwrap_or(PollTimeout::MAX);
+    match poll(&mut pfds, timeout) {
+        Ok(n) if n > 0 => {}
+        // Nothing ready, or a signal (EINTR) ended the wait.
+        _ => return 0,
     }
     pfds.iter()
         .take(64)
         .enumerate()
-        .filter(|(_, p)| p.revents & libc::POLLIN != 0)
+        .filter(|(_, p)| p.revents().is_some_and(|r| r.contains(PollFlags::POLLIN)))
         .fold(0, |bits, (i, _)| bits | (1 << i))
 }
 

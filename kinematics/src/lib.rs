@@ -11,6 +11,8 @@
 //!   its teleoperation limits ([`ArmLimits`], position limits read from the URDF), named
 //!   poses, rates.
 //! * [`planar5`]: the paper's 5-DOF planar reaching arm (`robots/planar5.urdf`).
+//! * [`profile`]: [`RobotProfile`], the robot the graph drives, chosen by name
+//!   (`RobotProfile::by_name`): description, arm chain, limits, named poses, rates.
 //! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
 //! * [`collision`]: the Gen3 lite's capsule model (`robots/gen3_lite_collision.toml`,
 //!   embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
@@ -31,6 +33,7 @@ pub mod collision;
 pub mod dls;
 pub mod gen3_lite;
 pub mod planar5;
+pub mod profile;
 pub mod robot;
 
 pub use cartesian::TcpPose;
@@ -38,6 +41,7 @@ pub use chain::{Chain, Jacobian, JointAxis, JointKind, KinError, LinkId, MAX_DOF
 pub use collision::{Clearance, CollisionError, CollisionLink, CollisionModel, Scene};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
+pub use profile::{ProfileError, ProfileSpec, RobotProfile};
 pub use robot::{JointSpec, JointType, Mimic, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.

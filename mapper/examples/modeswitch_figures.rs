@@ -35,7 +35,7 @@ fn main() {
             .into_iter()
             .flat_map(|x| [(x, 20), (x, 40)])
         {
-            let mut map = ModeSwitchMap::new(params, SPEC).unwrap();
+            let mut map = ModeSwitchMap::new(params.clone(), SPEC).unwrap();
             while map.current_mode() != mode {
                 map.press(ipc_types::buttons::MODE);
             }
@@ -99,7 +99,7 @@ fn main() {
         ("stretched", [0.0, 1.2, 0.2, 0.0, 0.2, 0.0]),
         ("wrist flat", [0.0, -0.28, 1.309, 0.0, 0.02, 0.0]),
     ] {
-        let mut m = ModeSwitchMap::new(params, SPEC).unwrap();
+        let mut m = ModeSwitchMap::new(params.clone(), SPEC).unwrap();
         m.eval(&q, 0.0, &[1.0, 0.0], &mut qd);
         let d = m.diagnostics();
         println!(
@@ -108,7 +108,7 @@ fn main() {
         );
     }
 
-    let mut map = ModeSwitchMap::new(params, SPEC).unwrap();
+    let mut map = ModeSwitchMap::new(params.clone(), SPEC).unwrap();
     let n = 200_000;
     let mut q = gen3_lite::HOME;
     let t0 = Instant::now();

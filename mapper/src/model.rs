@@ -331,14 +331,23 @@ impl std::fmt::Debug for LoadedModel {
 }
 
 impl LoadedModel {
-    /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary, or
-    /// `modeswitch[:key=value,...]` for the mode-switching map ([`crate::modeswitch::SPEC`]).
+    /// Loads `spec` for the default robot profile ([`LoadedModel::load_for`]).
     pub fn load(spec: &str) -> Result<Self, ModelError> {
+        Self::load_for(spec, kinematics::RobotProfile::default_robot())
+    }
+
+    /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary, or
+    /// `modeswitch[:key=value,...]` for the mode-switching map ([`crate::modeswitch::SPEC`]),
+    /// which drives `robot`'s arm with its kinematics and limits.
+    pub fn load_for(
+        spec: &str,
+        robot: &'static kinematics::RobotProfile,
+    ) -> Result<Self, ModelError> {
         if spec == BUNDLED_NAME {
-            return Self::from_bytes(BUNDLED, Path::new(BUNDLED_NAME));
+            return Self::from_bytes_for(BUNDLED, Path::new(BUNDLED_NAME), robot);
         }
         if crate::modeswitch::is_spec(spec) {
-            let (header, map) = crate::modeswitch::ModeSwitchMap::from_spec(spec)?;
+            let (header, map) = crate::modeswitch::ModeSwitchMap::from_spec_for(robot, spec)?;
             return Ok(Self {
                 source: spec.to_owned(),
                 header,
@@ -350,11 +359,21 @@ impl LoadedModel {
             path: path.to_owned(),
             source,
         })?;
-        Self::from_bytes(&bytes, path)
+        Self::from_bytes_for(&bytes, path, robot)
     }
 
-    /// Parses and checks a model from its bytes; `path` names it in errors.
+    /// [`LoadedModel::from_bytes_for`] the default robot profile.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ModelError> {
+        Self::from_bytes_for(bytes, path, kinematics::RobotProfile::default_robot())
+    }
+
+    /// Parses and checks a model from its bytes (a mode-switching file drives `robot`'s arm);
+    /// `path` names it in errors.
+    pub fn from_bytes_for(
+        bytes: &[u8],
+        path: &Path,
+        robot: &'static kinematics::RobotProfile,
+    ) -> Result<Self, ModelError> {
         let st = SafeTensors::deserialize(bytes).map_err(|e| ModelError::NotSafetensors {
             path: path.to_owned(),
             reason: e.to_string(),
@@ -365,8 +384,8 @@ impl LoadedModel {
             ModelKind::Scl | ModelKind::Cae => {
                 NetworkModel::from_tensors(&st, header.clone(), path)?.into_map()
             }
-            ModelKind::ModeSwitch => Box::new(crate::modeswitch::ModeSwitchMap::from_file(
-                bytes, &header, path,
+            ModelKind::ModeSwitch => Box::new(crate::modeswitch::ModeSwitchMap::from_file_for(
+                robot, bytes, &header, path,
             )?),
         };
         Ok(Self {

@@ -12,6 +12,10 @@
 //! [`ModeSwitchParams::slowdown_min_fraction`] at [`ModeSwitchParams::slowdown_full_condition`]
 //! and beyond (never to zero, so the operator can drive back out).
 //!
+//! The map drives the arm of a robot profile ([`kinematics::RobotProfile`], the graph's robot;
+//! [`ModeSwitchMap::new_for`], [`LoadedModel::load_for`](crate::LoadedModel::load_for)): its
+//! chain gives the Jacobian, its teleoperation limits the joint limits below.
+//!
 //! The arm's joint limits (the safety filter's defaults) shape the twist before the safety
 //! filter has to: a twist the joints cannot follow is scaled down as a whole, and the twist is
 //! ramped: each tick's is `x P + y T`, last tick's `P` and the input's `T` blended as close to
@@ -39,7 +43,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use kinematics::{Chain, Dls, Gen3Lite, Jacobian, TaskMask, gen3_lite};
+use kinematics::{Chain, Dls, Jacobian, RobotProfile, TaskMask};
 use nalgebra::{Matrix6, Vector6};
 use serde::{Deserialize, Serialize};
 
@@ -232,8 +236,9 @@ impl Mode {
     }
 }
 
-/// Parameters of a mode-switching map; every one has a default.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// Parameters of a mode-switching map; every one has a default (the arm's from its robot
+/// profile, [`ModeSwitchParams::for_robot`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModeSwitchParams {
     /// TCP speed at full deflection in a translation (m/s); Kinova's twist limit.
@@ -259,17 +264,27 @@ pub struct ModeSwitchParams {
     pub period_s: f64,
     /// Joint speed limits (rad/s), the safety filter's defaults: a twist that would need more
     /// is scaled down as a whole (as the safety filter would) before it is ramped to.
-    pub max_joint_velocity_rad_s: [f64; gen3_lite::N_JOINTS],
+    pub max_joint_velocity_rad_s: Vec<f64>,
     /// Joint acceleration limits the twist is ramped within (rad/s²), the safety filter's
     /// defaults: the twist changes (towards the input, and back to rest) only as fast as the
     /// joints may follow, so the safety filter's joint-space acceleration limit, which would
     /// bend the tool's path, does not have to act.
-    pub max_joint_acceleration_rad_s2: [f64; gen3_lite::N_JOINTS],
+    pub max_joint_acceleration_rad_s2: Vec<f64>,
 }
 
 impl Default for ModeSwitchParams {
+    /// [`ModeSwitchParams::for_robot`] of the default robot profile.
     fn default() -> Self {
+        Self::for_robot(RobotProfile::default_robot())
+    }
+}
+
+impl ModeSwitchParams {
+    /// The defaults on `robot`: its control period, its teleoperation joint limits (the safety
+    /// filter's defaults), the twist limits and damping for any arm.
+    pub fn for_robot(robot: &RobotProfile) -> Self {
         let dls = Dls::default();
+        let rate_hz = robot.control_rate_hz();
         Self {
             max_linear_m_s: 0.3,
             max_angular_rad_s: 0.85,
@@ -278,15 +293,13 @@ impl Default for ModeSwitchParams {
             slowdown_min_fraction: 0.2,
             dls_singular_threshold: dls.singular_threshold,
             dls_max_damping: dls.max_damping,
-            lookahead_s: 0.5 / gen3_lite::CONTROL_RATE_HZ,
-            period_s: 1.0 / gen3_lite::CONTROL_RATE_HZ,
-            max_joint_velocity_rad_s: gen3_lite::DEFAULT_VELOCITY_RAD_S,
-            max_joint_acceleration_rad_s2: gen3_lite::DEFAULT_ACCELERATION_RAD_S2,
+            lookahead_s: 0.5 / rate_hz,
+            period_s: 1.0 / rate_hz,
+            max_joint_velocity_rad_s: robot.limits().max_velocity_rad_s.clone(),
+            max_joint_acceleration_rad_s2: robot.limits().max_acceleration_rad_s2.clone(),
         }
     }
-}
 
-impl ModeSwitchParams {
     /// Checks every value; the error names the model (`model`) and the key.
     pub fn validate(&self, model: &str) -> Result<(), ModelError> {
         self.check()
@@ -439,9 +452,10 @@ pub struct Diagnostics {
     pub speed_cap: f64,
 }
 
-/// The mode-switching map on the Gen3 lite arm.
+/// The mode-switching map on a robot profile's arm.
 #[derive(Debug, Clone)]
 pub struct ModeSwitchMap {
+    robot: &'static RobotProfile,
     chain: &'static Chain,
     params: ModeSwitchParams,
     dls: Dls,
@@ -455,20 +469,50 @@ pub struct ModeSwitchMap {
 }
 
 impl ModeSwitchMap {
-    /// A map on the Gen3 lite arm, in the x-y mode; `model` names it in the error when a
-    /// parameter is out of range.
+    /// A map on the default robot profile's arm ([`ModeSwitchMap::new_for`]).
     pub fn new(params: ModeSwitchParams, model: &str) -> Result<Self, ModelError> {
+        Self::new_for(RobotProfile::default_robot(), params, model)
+    }
+
+    /// A map on `robot`'s arm, in the x-y mode; `model` names it in the error when a
+    /// parameter is out of range or the joint limits do not fit the arm.
+    pub fn new_for(
+        robot: &'static RobotProfile,
+        params: ModeSwitchParams,
+        model: &str,
+    ) -> Result<Self, ModelError> {
         params.validate(model)?;
-        let chain = Gen3Lite::get().arm();
+        let chain = robot.arm();
+        let n = chain.n_joints();
+        for (key, values) in [
+            ("max_joint_velocity_rad_s", &params.max_joint_velocity_rad_s),
+            (
+                "max_joint_acceleration_rad_s2",
+                &params.max_joint_acceleration_rad_s2,
+            ),
+        ] {
+            if values.len() != n {
+                return Err(ModelError::Parameters {
+                    model: model.to_owned(),
+                    reason: format!(
+                        "{key}: {} entries; {} has {n} joints",
+                        values.len(),
+                        robot.name()
+                    ),
+                });
+            }
+        }
+        let dls = Dls {
+            mask: TaskMask::POSE,
+            singular_threshold: params.dls_singular_threshold,
+            max_damping: params.dls_max_damping,
+            ..Dls::default()
+        };
         Ok(Self {
+            robot,
             chain,
             params,
-            dls: Dls {
-                mask: TaskMask::POSE,
-                singular_threshold: params.dls_singular_threshold,
-                max_damping: params.dls_max_damping,
-                ..Dls::default()
-            },
+            dls,
             mode: Mode::XY,
             switches: 0,
             jac: Jacobian::zeros(chain.n_joints()),
@@ -493,19 +537,27 @@ impl ModeSwitchMap {
         self.last
     }
 
-    /// The header of a mode-switching model on the Gen3 lite (speed scale 1: the output is
-    /// in rad/s).
+    /// The robot profile the map drives.
+    pub fn robot(&self) -> &'static RobotProfile {
+        self.robot
+    }
+
+    /// The header of a mode-switching model on the default robot profile
+    /// ([`ModeSwitchMap::header_for`]).
     pub fn header(command: &str) -> ModelHeader {
+        Self::header_for(RobotProfile::default_robot(), command)
+    }
+
+    /// The header of a mode-switching model on `robot` (speed scale 1: the output is in
+    /// rad/s).
+    pub fn header_for(robot: &RobotProfile, command: &str) -> ModelHeader {
         ModelHeader {
             format: FORMAT.to_owned(),
             version: VERSION,
             kind: ModelKind::ModeSwitch,
-            n_joints: gen3_lite::N_JOINTS,
+            n_joints: robot.n_joints(),
             latent_dim: ipc_types::ACTION_DIM,
-            joint_names: gen3_lite::JOINT_NAMES
-                .iter()
-                .map(|s| (*s).to_owned())
-                .collect(),
+            joint_names: robot.joint_names().to_vec(),
             speed_scale_rad_s: 1.0,
             lipschitz_bound: None,
             network: None,
@@ -516,37 +568,52 @@ impl ModeSwitchMap {
         }
     }
 
-    /// The map and header for a spec `modeswitch[:key=value,...]`.
+    /// The map and header for a spec `modeswitch[:key=value,...]` on the default robot
+    /// profile ([`ModeSwitchMap::from_spec_for`]).
     pub fn from_spec(spec: &str) -> Result<(ModelHeader, Self), ModelError> {
+        Self::from_spec_for(RobotProfile::default_robot(), spec)
+    }
+
+    /// The map and header for a spec `modeswitch[:key=value,...]` on `robot`.
+    pub fn from_spec_for(
+        robot: &'static RobotProfile,
+        spec: &str,
+    ) -> Result<(ModelHeader, Self), ModelError> {
         let overrides = spec.strip_prefix(SPEC).unwrap_or_default();
         let overrides = overrides.strip_prefix(':').unwrap_or(overrides);
         let bad = |reason: String| ModelError::Parameters {
             model: spec.to_owned(),
             reason,
         };
-        let params = ModeSwitchParams::default()
+        let params = ModeSwitchParams::for_robot(robot)
             .with_overrides(overrides)
             .map_err(bad)?;
-        let map = Self::new(params, spec)?;
-        Ok((Self::header(spec), map))
+        let map = Self::new_for(robot, params, spec)?;
+        Ok((Self::header_for(robot, spec), map))
     }
 
-    /// The map of a header-only model file of kind `modeswitch`: parameters from the
-    /// metadata entry [`PARAMS_KEY`] (defaults where absent). The header must describe the
-    /// Gen3 lite arm.
+    /// The map of a header-only model file of kind `modeswitch` on the default robot profile
+    /// ([`ModeSwitchMap::from_file_for`]).
     pub fn from_file(bytes: &[u8], header: &ModelHeader, path: &Path) -> Result<Self, ModelError> {
-        let names_match = header.joint_names.len() == gen3_lite::N_JOINTS
-            && header
-                .joint_names
-                .iter()
-                .zip(gen3_lite::JOINT_NAMES)
-                .all(|(a, b)| a == b);
-        if !names_match {
+        Self::from_file_for(RobotProfile::default_robot(), bytes, header, path)
+    }
+
+    /// The map of a header-only model file of kind `modeswitch` on `robot`: parameters from
+    /// the metadata entry [`PARAMS_KEY`] (the robot's defaults where absent). The header must
+    /// name the robot's arm joints.
+    pub fn from_file_for(
+        robot: &'static RobotProfile,
+        bytes: &[u8],
+        header: &ModelHeader,
+        path: &Path,
+    ) -> Result<Self, ModelError> {
+        if header.joint_names != robot.joint_names() {
             return Err(ModelError::BadHeader {
                 path: path.to_owned(),
                 reason: format!(
-                    "a modeswitch model drives the Gen3 lite's joints {:?}, the header names {:?}",
-                    gen3_lite::JOINT_NAMES,
+                    "a modeswitch model drives the {}'s joints {:?}, the header names {:?}",
+                    robot.description(),
+                    robot.joint_names(),
                     header.joint_names
                 ),
             });
@@ -564,9 +631,9 @@ impl ModeSwitchMap {
         let params = match meta.metadata().as_ref().and_then(|m| m.get(PARAMS_KEY)) {
             Some(json) => serde_json::from_str(json)
                 .map_err(|e| bad(format!("metadata `{PARAMS_KEY}`: {e}")))?,
-            None => ModeSwitchParams::default(),
+            None => ModeSwitchParams::for_robot(robot),
         };
-        Self::new(params, &path.display().to_string())
+        Self::new_for(robot, params, &path.display().to_string())
     }
 
     /// The inner product of twists that weighs a rotation at the angular limit like a
@@ -781,10 +848,20 @@ impl ActionMap for ModeSwitchMap {
     }
 }
 
-/// A header-only model file of kind `modeswitch` holding `params` (safetensors bytes, no
-/// tensors). `command` is recorded in the header's provenance.
+/// A header-only model file of kind `modeswitch` on the default robot profile
+/// ([`to_bytes_for`]).
 pub fn to_bytes(params: &ModeSwitchParams, command: &str) -> Result<Vec<u8>, ModelError> {
-    let header = ModeSwitchMap::header(command);
+    to_bytes_for(RobotProfile::default_robot(), params, command)
+}
+
+/// A header-only model file of kind `modeswitch` on `robot` holding `params` (safetensors
+/// bytes, no tensors). `command` is recorded in the header's provenance.
+pub fn to_bytes_for(
+    robot: &RobotProfile,
+    params: &ModeSwitchParams,
+    command: &str,
+) -> Result<Vec<u8>, ModelError> {
+    let header = ModeSwitchMap::header_for(robot, command);
     let encode = |e: serde_json::Error| ModelError::BadHeader {
         path: Path::new(SPEC).to_owned(),
         reason: e.to_string(),
@@ -819,6 +896,7 @@ mod tests {
     use crate::LoadedModel;
     use crate::step::MapperStep;
     use ipc_types::{JoystickInput, NO_TICK, RobotState, buttons};
+    use kinematics::{Gen3Lite, gen3_lite};
     use nalgebra::{Isometry3, Vector3};
 
     const DT: f64 = 0.025;
@@ -933,8 +1011,8 @@ mod tests {
     /// Parameters without joint limits to speak of, so the Cartesian ones act alone.
     fn cartesian_only() -> ModeSwitchParams {
         ModeSwitchParams {
-            max_joint_velocity_rad_s: [100.0; 6],
-            max_joint_acceleration_rad_s2: [1e6; 6],
+            max_joint_velocity_rad_s: vec![100.0; 6],
+            max_joint_acceleration_rad_s2: vec![1e6; 6],
             ..ModeSwitchParams::default()
         }
     }
@@ -942,7 +1020,7 @@ mod tests {
     #[test]
     fn the_twist_ramps_within_the_joint_limits() {
         let p = ModeSwitchParams::default();
-        let mut map = ModeSwitchMap::new(p, SPEC).unwrap();
+        let mut map = ModeSwitchMap::new(p.clone(), SPEC).unwrap();
         let mut q = gen3_lite::HOME;
         let mut prev = [0.0; 6];
         let mut qd = [0.0; 6];
@@ -1017,7 +1095,7 @@ mod tests {
         // With the joint limits, a full deflection is scaled down as a whole: the input's
         // direction is kept and no joint goes past its speed limit.
         let p = ModeSwitchParams::default();
-        let mut map = ModeSwitchMap::new(p, SPEC).unwrap();
+        let mut map = ModeSwitchMap::new(p.clone(), SPEC).unwrap();
         let mut qd = [0.0; 6];
         for _ in 0..400 {
             map.eval(&q, 0.0, &[0.6, 0.8], &mut qd);
@@ -1031,7 +1109,7 @@ mod tests {
             .fold(0.0, f64::max);
         assert!((worst - 1.0).abs() < 0.02, "{worst}");
         // At rest, a zero input is a zero command, without touching the kinematics.
-        let mut map = ModeSwitchMap::new(p, SPEC).unwrap();
+        let mut map = ModeSwitchMap::new(p.clone(), SPEC).unwrap();
         let mut qd = [1.0; 6];
         map.eval(&gen3_lite::HOME, 0.0, &[0.0, 0.0], &mut qd);
         assert_eq!(qd, [0.0; 6]);
@@ -1082,7 +1160,7 @@ mod tests {
         let mid = 0.5 * (p.slowdown_start_condition + p.slowdown_full_condition);
         assert!((p.slowdown(mid) - 0.5 * (1.0 + p.slowdown_min_fraction)).abs() < 1e-12);
 
-        let mut map = ModeSwitchMap::new(p, SPEC).unwrap();
+        let mut map = ModeSwitchMap::new(p.clone(), SPEC).unwrap();
         let mut qd = [0.0; 6];
         map.eval(&gen3_lite::HOME, 0.0, &[1.0, 0.0], &mut qd);
         let home = map.diagnostics();
@@ -1202,5 +1280,40 @@ mod tests {
             assert_eq!(Mode::from_index(m.index()), Some(m));
         }
         assert_eq!(Mode::from_index(3), None);
+    }
+
+    /// The map drives the arm of the robot profile it is given: its chain, joints and limits.
+    #[test]
+    fn a_map_on_another_arm_drives_that_arm() {
+        let planar: &'static RobotProfile = Box::leak(Box::new(
+            RobotProfile::new(&kinematics::ProfileSpec::planar5()).unwrap(),
+        ));
+        let (header, mut map) = ModeSwitchMap::from_spec_for(planar, SPEC).unwrap();
+        assert_eq!(header.n_joints, 5);
+        assert_eq!(header.joint_names, planar.joint_names());
+        assert_eq!(map.params().max_joint_velocity_rad_s, [1.0; 5]);
+        // Bent arm; +y on the stick moves the tip along +y.
+        let q = [0.3, 0.4, 0.3, 0.2, 0.1];
+        let mut qd = [0.0; 5];
+        for _ in 0..10 {
+            map.eval(&q, 0.0, &[0.0, 1.0], &mut qd);
+        }
+        assert!(
+            qd.iter().all(|v| v.is_finite() && v.abs() <= 1.0 + 1e-9),
+            "{qd:?}"
+        );
+        let arm = planar.arm();
+        let mut next = q;
+        for j in 0..5 {
+            next[j] += qd[j] * 1e-3;
+        }
+        let dp = arm.fk(&next).unwrap().translation.vector - arm.fk(&q).unwrap().translation.vector;
+        assert!(dp.y > 0.0 && dp.y > 10.0 * dp.x.abs(), "{dp:?}");
+        // Joint limits of the wrong length are refused, naming the robot.
+        let params = ModeSwitchParams::default();
+        let e = ModeSwitchMap::new_for(planar, params, SPEC)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("planar5 has 5 joints"), "{e}");
     }
 }

@@ -1,6 +1,6 @@
 //! The `[safety]` table of the graph TOML, checked against the robot at start-up.
 
-use kinematics::ArmLimits;
+use kinematics::{ArmLimits, RobotProfile};
 use serde::{Deserialize, Serialize};
 
 /// Configuration of the filter.
@@ -8,11 +8,11 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields, default)]
 pub struct SafetyConfig {
     /// Joint speed limits (rad/s), one per joint, at most the URDF's velocity limits.
-    /// Default: the Gen3 lite teleoperation limits (`kinematics::gen3_lite::limits()`: the
-    /// planning defaults capped by the URDF).
+    /// Default: the robot profile's teleoperation limits (`RobotProfile::limits`: its
+    /// defaults capped by the URDF).
     pub max_velocity_rad_s: Vec<f64>,
-    /// Joint acceleration limits (rad/s²), one per joint. Default: the Gen3 lite teleoperation
-    /// accelerations (the simulator's).
+    /// Joint acceleration limits (rad/s²), one per joint. Default: the robot profile's
+    /// teleoperation accelerations.
     pub max_acceleration_rad_s2: Vec<f64>,
     /// Distance kept from each joint's position limits (rad).
     pub joint_margin_rad: f64,
@@ -35,13 +35,18 @@ pub struct SafetyConfig {
 }
 
 impl Default for SafetyConfig {
-    /// [`SafetyConfig::from_limits`] of the Gen3 lite (`kinematics::gen3_lite::limits()`).
+    /// [`SafetyConfig::for_robot`] of the default robot profile.
     fn default() -> Self {
-        Self::from_limits(&kinematics::gen3_lite::limits())
+        Self::for_robot(RobotProfile::default_robot())
     }
 }
 
 impl SafetyConfig {
+    /// The defaults for `robot`: [`SafetyConfig::from_limits`] of its teleoperation limits.
+    pub fn for_robot(robot: &RobotProfile) -> Self {
+        Self::from_limits(robot.limits())
+    }
+
     /// The defaults for a robot with the teleoperation limits `limits` (velocity limits
     /// already capped by its URDF): its speed and acceleration limits, the rest the defaults.
     pub fn from_limits(limits: &ArmLimits) -> Self {
@@ -114,10 +119,16 @@ fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
 }
 
 impl SafetyConfig {
-    /// Checks the configuration for the Gen3 lite: [`SafetyConfig::validate_for`] with the
-    /// velocity limits of the embedded URDF (`robots/gen3_lite.urdf`).
+    /// Checks the configuration for the default robot profile's arm with the joint limits
+    /// `limits`: [`SafetyConfig::validate_for`] with that profile's URDF velocity limits.
+    /// For the graph's robot, use [`SafetyConfig::validate_for_robot`].
     pub fn validate(&self, limits: &ArmLimits) -> Result<(), ConfigError> {
-        self.validate_for(limits, kinematics::Gen3Lite::get().arm().velocity_limits())
+        self.validate_for(limits, RobotProfile::default_robot().urdf_velocity_rad_s())
+    }
+
+    /// Checks the configuration for `robot`: its limits and its URDF's velocity limits.
+    pub fn validate_for_robot(&self, robot: &RobotProfile) -> Result<(), ConfigError> {
+        self.validate_for(robot.limits(), robot.urdf_velocity_rad_s())
     }
 
     /// Checks the configuration for a robot with the joint limits `limits` whose robot

@@ -128,11 +128,28 @@ fn all_finite(v: &[f64]) -> bool {
 }
 
 impl SafetyFilter {
-    /// A filter for an arm with `limits`, ticking every `period_s` seconds; refuses an
-    /// invalid configuration. Without [`SafetyFilter::with_tcp_model`] the workspace rule is
-    /// inactive.
+    /// A filter for an arm of the default robot profile with `limits`, ticking every
+    /// `period_s` seconds; refuses an invalid configuration. Without
+    /// [`SafetyFilter::with_tcp_model`] the workspace rule is inactive.
     pub fn new(cfg: SafetyConfig, limits: &ArmLimits, period_s: f64) -> Result<Self, ConfigError> {
         cfg.validate(limits)?;
+        Self::checked(cfg, limits, period_s)
+    }
+
+    /// A filter for `robot`'s arm (its limits; the configuration checked against its URDF),
+    /// ticking every `period_s` seconds. Without [`SafetyFilter::with_tcp_model`] (e.g.
+    /// [`ChainTcp::of`] the same robot) the workspace rule is inactive.
+    pub fn for_robot(
+        cfg: SafetyConfig,
+        robot: &kinematics::RobotProfile,
+        period_s: f64,
+    ) -> Result<Self, ConfigError> {
+        cfg.validate_for_robot(robot)?;
+        Self::checked(cfg, robot.limits(), period_s)
+    }
+
+    /// The filter of a configuration already checked against `limits`.
+    fn checked(cfg: SafetyConfig, limits: &ArmLimits, period_s: f64) -> Result<Self, ConfigError> {
         if !(period_s.is_finite() && period_s > 0.0) {
             return Err(ConfigError {
                 key: "period".into(),
@@ -521,6 +538,11 @@ mod tests {
 
     fn limits() -> ArmLimits {
         gen3_lite::limits()
+    }
+
+    /// The Gen3 lite's tool model (`base_link -> tool_frame`).
+    fn gen3_lite_tcp() -> ChainTcp {
+        ChainTcp::of(kinematics::RobotProfile::by_name("gen3_lite").unwrap())
     }
 
     fn state(tick: u64) -> RobotState {
@@ -1192,7 +1214,7 @@ mod tests {
                 .find(|a| { q[1] = *a; (z(&q[..6]) - 0.02 - height).abs() < 0.005 });
             prop_assume!(shoulder.is_some());
             prop_assume!(!limits().clamp_position(&mut q[..6].to_vec()));
-            let mut f = filter().with_tcp_model(Box::new(ChainTcp::gen3_lite()));
+            let mut f = filter().with_tcp_model(Box::new(gen3_lite_tcp()));
             let mut prev = [0.0; MAX_JOINTS];
             for (k, qdot) in cmds.into_iter().enumerate() {
                 let tick = k as u64 + 1;
@@ -1242,7 +1264,7 @@ mod tests {
                 1..12,
             ),
         ) {
-            let mut model = ChainTcp::gen3_lite();
+            let mut model = gen3_lite_tcp();
             let tool = |model: &mut ChainTcp, q: &[f64]| {
                 let (mut p, mut jv) = ([0.0; 3], [[0.0; MAX_JOINTS]; 3]);
                 model.tcp(q, &mut p, &mut jv);
@@ -1258,7 +1280,7 @@ mod tests {
             let w = cfg.workspace.clone();
             let mut f = SafetyFilter::new(cfg, &limits(), DT)
                 .unwrap()
-                .with_tcp_model(Box::new(ChainTcp::gen3_lite()));
+                .with_tcp_model(Box::new(gen3_lite_tcp()));
             let mut prev = [0.0; MAX_JOINTS];
             let mut tick = 0;
             for (qdot, hold, executed) in cmds {
@@ -1377,7 +1399,7 @@ mod tests {
             };
             let mut f = SafetyFilter::new(cfg, &limits(), DT).unwrap();
             if tool {
-                f = f.with_tcp_model(Box::new(ChainTcp::gen3_lite()));
+                f = f.with_tcp_model(Box::new(gen3_lite_tcp()));
             }
             // The arm moves at rest or near the velocity the command asks for (within one
             // tick's acceleration of it), so the acceleration limit does not have to act.
@@ -1420,5 +1442,30 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The filter takes the arm from the robot profile it is given.
+    #[test]
+    fn a_filter_for_another_arm() {
+        let planar = kinematics::RobotProfile::new(&kinematics::ProfileSpec::planar5()).unwrap();
+        let cfg = SafetyConfig::for_robot(&planar);
+        assert_eq!(cfg.max_velocity_rad_s, [1.0; 5]);
+        // Checked against the default arm's description, five joints are refused ...
+        assert!(SafetyFilter::new(cfg.clone(), planar.limits(), DT).is_err());
+        // ... and accepted for their own robot, with its tool model.
+        let mut f = SafetyFilter::for_robot(cfg, &planar, DT)
+            .unwrap()
+            .with_tcp_model(Box::new(ChainTcp::of(&planar)));
+        let mut s = RobotState::at_rest(5, NOW - 1_000_000, 5);
+        s.applied_tick = 4;
+        s.q_rad[..5].copy_from_slice(&[0.3, 0.4, 0.3, 0.2, 0.1]);
+        let mut m = cmd(5, [5.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        m.n_joints = 5;
+        let out = f.step(&m, &s, NOW);
+        assert!(
+            out.qdot_rad_s[0] > 0.0 && out.qdot_rad_s[0] <= 1.0,
+            "{out:?}"
+        );
+        assert_eq!(out.qdot_rad_s[5], 0.0);
     }
 }

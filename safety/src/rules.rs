@@ -118,9 +118,9 @@ impl ChainTcp {
         Self { chain, jac }
     }
 
-    /// The Gen3 lite's `base_link -> tool_frame` chain.
-    pub fn gen3_lite() -> Self {
-        Self::new(kinematics::Gen3Lite::get().arm().clone())
+    /// The tool model of a robot profile: its arm chain, base to tool centre point.
+    pub fn of(robot: &kinematics::RobotProfile) -> Self {
+        Self::new(robot.arm().clone())
     }
 }
 

@@ -507,7 +507,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
-        Cmd::Top(args) => Ok(scl_dashboard::cli(&prefix, &args)?),
+        Cmd::Top(args) => Ok(scl_dashboard::cli(&prefix, &args, cfg.profile()?)?),
         Cmd::Swap { model, timeout } => {
             let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {

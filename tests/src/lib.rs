@@ -12,6 +12,7 @@ use ipc_types::{
     Graph, JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand,
     TopicSubscriber,
 };
+pub use nix::sys::signal::Signal;
 
 /// Path of the `scl` binary of this build, built once per test process. `cargo test` does
 /// not build other packages' binaries for a test crate, so this asks cargo (a no-op when the
@@ -187,16 +188,19 @@ impl ChildGuard {
     }
 }
 
+/// Sends `signal` to process `pid` (a child of the test or a process of the graph under
+/// test); a process already gone is not an error here.
+pub fn send_signal(pid: u32, signal: Signal) {
+    let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid as i32), signal);
+}
+
 impl Drop for ChildGuard {
     fn drop(&mut self) {
         let Some(child) = self.0.as_mut() else {
             return;
         };
         if let Ok(None) = child.try_wait() {
-            // SAFETY: signalling our own child.
-            unsafe {
-                libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
-            }
+            send_signal(child.id(), Signal::SIGTERM);
             let t0 = Instant::now();
             while let Ok(None) = child.try_wait() {
                 if t0.elapsed() > Duration::from_secs(5) {

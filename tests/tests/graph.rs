@@ -8,8 +8,8 @@ use std::time::Duration;
 use ipc_types::{NO_TICK, NodeRole, mapper_flags, safe_flags, state_flags, time::now_ns};
 use mapper::LoadedModel;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, leftovers, scl_binary, serial,
-    unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, Signal, assert_stop_within_two_ticks, leftovers, scl_binary,
+    serial, unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
@@ -234,24 +234,15 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
             .collect::<Vec<_>>()
     };
     assert!(rec.poll_until(Duration::from_secs(30), |r| running(r).len() >= 40));
-    let pid = rec.pid_of(NodeRole::Bridge).unwrap() as libc::pid_t;
+    let pid = rec.pid_of(NodeRole::Bridge).unwrap();
     let before = running(&rec).len();
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(pid, libc::SIGSTOP);
-    }
+    scl_tests::send_signal(pid, Signal::SIGSTOP);
     std::thread::sleep(Duration::from_millis(60));
-    // SAFETY: as above.
-    unsafe {
-        libc::kill(pid, libc::SIGCONT);
-    }
+    scl_tests::send_signal(pid, Signal::SIGCONT);
     assert!(rec.poll_until(Duration::from_secs(30), |r| {
         scl_tests::clean_run_at_end(&running(r)) >= 40 && running(r).len() >= before + 60
     }));
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(guard.child().id() as libc::pid_t, libc::SIGTERM);
-    }
+    scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
     while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
         std::thread::sleep(Duration::from_millis(2));
@@ -304,10 +295,7 @@ fn kill_child_and_check(role: NodeRole) {
     );
     let pid = rec.pid_of(role).unwrap();
     let t_kill = now_ns();
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(pid as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(pid, Signal::SIGKILL);
     let t0 = std::time::Instant::now();
     while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
@@ -481,10 +469,7 @@ fn scl_up_leaves_nothing_behind_by_itself() {
     std::thread::sleep(Duration::from_secs(1));
     let mappers = children_with(up_pid, " mapper");
     assert_eq!(mappers.len(), 1, "mapper children: {mappers:?}");
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(mappers[0] as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(mappers[0], Signal::SIGKILL);
     let out = guard.take().wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");

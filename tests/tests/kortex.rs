@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, Fault, Function};
 use ipc_types::{NodeRole, state_flags};
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_misses_only_held_up, clean_run_at_end, miss_report,
-    scl_binary, serial, unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, Signal, assert_misses_only_held_up, clean_run_at_end,
+    miss_report, scl_binary, serial, unique_prefix, wait_clean,
 };
 
 const USER: &str = "kx-operator";
@@ -143,10 +143,7 @@ fn the_graph_drives_the_fake_kortex_arm_for_400_ticks_without_a_miss() {
         clean_run_at_end(&running_states(r)) >= 400
     });
     // Stop the graph (SIGTERM: bridge first) whether or not it got there.
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(guard.child().id() as libc::pid_t, libc::SIGTERM);
-    }
+    scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
     let out = wait_for_exit(&mut rec, &mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
     let misses = miss_report(&log_text);
@@ -265,10 +262,7 @@ fn killing_the_bridge_lets_the_robot_stop_the_arm_on_its_connection_timeout() {
         "the arm is not moving: {before:?}"
     );
     let pid = rec.pid_of(NodeRole::Bridge).unwrap();
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(pid as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(pid, Signal::SIGKILL);
     // Nobody stops the arm but the robot's own watchdog.
     let t0 = Instant::now();
     while fake.snapshot().stats.connection_timeouts == 0 {
@@ -346,10 +340,7 @@ fn a_restarted_bridge_reconnects_after_the_robot_stopped_the_arm_itself() {
     );
     let last_before = *rec.robot_states.last().unwrap();
     let pid = rec.pid_of(NodeRole::Bridge).unwrap();
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(pid as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(pid, Signal::SIGKILL);
     // The robot's watchdog stops the arm before any new session exists (the restart waits
     // for its backoff, 1 s).
     let t0 = Instant::now();
@@ -402,10 +393,7 @@ fn a_restarted_bridge_reconnects_after_the_robot_stopped_the_arm_itself() {
         "the new bridge did not start from a stop"
     );
 
-    // SAFETY: signalling the graph under test to stop.
-    unsafe {
-        libc::kill(guard.child().id() as libc::pid_t, libc::SIGTERM);
-    }
+    scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
     let out = wait_for_exit(&mut rec, &mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(out.status.success(), "{log_text}");

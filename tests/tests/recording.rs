@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use ipc_types::{NodeRole, RobotState, state_flags};
 use recording::{self, Event, ReadSummary};
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, run_polling, scl, serial, temp_dir, unique_prefix,
+    ChildGuard, DomainGuard, Recorder, Signal, run_polling, scl, serial, temp_dir, unique_prefix,
     wait_clean,
 };
 
@@ -299,10 +299,7 @@ fn a_killed_recorder_leaves_a_readable_recording() {
         std::thread::sleep(Duration::from_millis(50));
     };
     let pid = rec.pid_of(NodeRole::Recorder).unwrap();
-    // SAFETY: signalling a process of our own graph.
-    unsafe {
-        libc::kill(pid as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(pid, Signal::SIGKILL);
     // The recorder's restart policy is `never`: the graph stops, bridge first, naming it.
     let t0 = Instant::now();
     while guard.child().try_wait().unwrap().is_none() {
@@ -483,10 +480,7 @@ fn top_and_a_standalone_recorder_attach_to_a_running_graph() {
 
     // Stop the recorder (SIGTERM, as Ctrl-C would): it finishes the file and reports.
     let mut child = recorder.take();
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
-    }
+    scl_tests::send_signal(child.id(), Signal::SIGTERM);
     let t0 = Instant::now();
     while child.try_wait().unwrap().is_none() {
         rec.poll();
@@ -537,10 +531,7 @@ fn top_and_a_standalone_recorder_attach_to_a_running_graph() {
     );
 
     // The graph goes on until stopped; it stops cleanly.
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(graph.child().id() as libc::pid_t, libc::SIGTERM);
-    }
+    scl_tests::send_signal(graph.child().id(), Signal::SIGTERM);
     let out = graph.take().wait_with_output().unwrap();
     assert!(
         out.status.success(),

@@ -11,8 +11,8 @@ use ipc_types::{
 };
 use kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, assert_stop_within_two_ticks, joint_reach_pca, run_polling,
-    scl, serial, temp_dir, unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, Signal, assert_stop_within_two_ticks, joint_reach_pca,
+    run_polling, scl, serial, temp_dir, unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
@@ -50,20 +50,17 @@ fn status_json(prefix: &Prefix, rec: &mut Recorder) -> serde_json::Value {
 
 /// Stops `scl up` with SIGTERM; see [`stop_up_with`].
 fn stop_up(guard: ChildGuard, rec: &mut Recorder) -> serde_json::Value {
-    stop_up_with(guard, rec, libc::SIGTERM)
+    stop_up_with(guard, rec, Signal::SIGTERM)
 }
 
 /// Stops `scl up` with `signal` (SIGTERM, or SIGINT as a terminal's Ctrl-C sends it) and
 /// returns its JSON summary, after checking the shutdown order: the bridge stopped the arm
 /// and published its last state, flagged `SHUTDOWN`, before any other process of the graph
 /// said it was stopping.
-fn stop_up_with(mut guard: ChildGuard, rec: &mut Recorder, signal: i32) -> serde_json::Value {
+fn stop_up_with(mut guard: ChildGuard, rec: &mut Recorder, signal: Signal) -> serde_json::Value {
     rec.poll();
     let t_signal = now_ns();
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(guard.child().id() as libc::pid_t, signal);
-    }
+    scl_tests::send_signal(guard.child().id(), signal);
     while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
         std::thread::sleep(Duration::from_millis(2));
@@ -362,10 +359,7 @@ fn killed_processes_are_restarted_and_the_arm_stops_meanwhile() {
         let pid = rec.pid_of(role).unwrap();
         let last_before = *rec.robot_states.last().unwrap();
         let t_kill = now_ns();
-        // SAFETY: signalling a process of the graph under test.
-        unsafe {
-            libc::kill(pid as libc::pid_t, libc::SIGKILL);
-        }
+        scl_tests::send_signal(pid, Signal::SIGKILL);
         assert!(
             rec.poll_until(Duration::from_secs(20), |r| restarted_pid(r, role, pid)
                 .is_some()),
@@ -554,10 +548,7 @@ fn a_swap_that_never_warms_up_is_refused_and_the_old_mapper_keeps_driving() {
         "the second new mapper never reported"
     );
     let victim = mapper_pid(&rec, 3).unwrap();
-    // SAFETY: signalling a process of the graph under test.
-    unsafe {
-        libc::kill(victim as libc::pid_t, libc::SIGKILL);
-    }
+    scl_tests::send_signal(victim, Signal::SIGKILL);
     while swap.try_wait().unwrap().is_none() {
         rec.poll();
         std::thread::sleep(Duration::from_millis(2));
@@ -629,7 +620,7 @@ fn ctrl_c_stops_the_bridge_first_and_leaves_nothing_behind() {
     up.args(["up", "--for", "120s", "--json"]);
     let guard = ChildGuard(Some(up.stdout(Stdio::piped()).spawn().unwrap()));
     assert!(rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 40));
-    let summary = stop_up_with(guard, &mut rec, libc::SIGINT);
+    let summary = stop_up_with(guard, &mut rec, Signal::SIGINT);
     assert!(summary["failure"].is_null(), "{summary}");
     assert!(summary["ticks"].as_u64().unwrap() > 40, "{summary}");
     // `scl up` left no dead process's resources behind; only the observer is still there.

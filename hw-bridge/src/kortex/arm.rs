@@ -1,9 +1,10 @@
-//! [`KortexArm`]: the Gen3 lite over one Kortex TCP session, as a [`Robot`].
+//! [`KortexArm`]: a Kinova arm (the graph's robot profile; the Gen3 lite by default) over one
+//! Kortex TCP session, as a [`Robot`].
 //!
 //! Start-up (each call waits for its reply, bounded by `reply_timeout_ms`):
 //! CreateSession (credentials, session and connection inactivity timeouts; the session id is
 //! read from the reply), SetServoingMode(single-level), ClearFaults, GetActuatorCount (must be
-//! 6), GetKinematicHardLimits (the bridge scales every command into the robot's own joint speed
+//! the profile's joint count), GetKinematicHardLimits (the bridge scales every command into the robot's own joint speed
 //! limits), RefreshFeedback (the first reading).
 //!
 //! The 40 Hz loop is pipelined and never waits on the socket: a reader thread owns the
@@ -30,7 +31,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TryRecvError};
 use ipc_types::MAX_JOINTS;
-use kinematics::{ArmLimits, gen3_lite};
+use kinematics::{ArmLimits, RobotProfile};
 use prost::Message as _;
 
 use super::wire::{Decoded, Frame, FrameDecoder, FrameType, WireError};
@@ -125,8 +126,9 @@ struct Reply {
     frame: Frame,
 }
 
-/// The Gen3 lite over a Kortex session. See the module documentation.
+/// A Kinova arm over a Kortex session. See the module documentation.
 pub struct KortexArm {
+    robot: &'static RobotProfile,
     addr: SocketAddr,
     stream: TcpStream,
     events: Receiver<ReaderEvent>,
@@ -164,10 +166,19 @@ impl std::fmt::Debug for KortexArm {
 }
 
 impl KortexArm {
-    /// Connects to the robot of `cfg`, opens a session with `credentials` and prepares it for
-    /// joint speed control (see the module documentation). On any failure the session is
-    /// closed again and the error names what failed.
+    /// [`KortexArm::connect_to`] for the default robot profile.
     pub fn connect(cfg: &KortexConfig, credentials: &Credentials) -> Result<Self, KortexError> {
+        Self::connect_to(RobotProfile::default_robot(), cfg, credentials)
+    }
+
+    /// Connects to the robot of `cfg`, an arm of profile `robot`, opens a session with
+    /// `credentials` and prepares it for joint speed control (see the module documentation).
+    /// On any failure the session is closed again and the error names what failed.
+    pub fn connect_to(
+        robot: &'static RobotProfile,
+        cfg: &KortexConfig,
+        credentials: &Credentials,
+    ) -> Result<Self, KortexError> {
         let addr = cfg.socket_addr()?;
         let stream = TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT)
             .map_err(|source| KortexError::Connect { addr, source })?;
@@ -191,8 +202,9 @@ impl KortexArm {
             .name("kortex-reader".into())
             .spawn(move || reader_loop(rx_stream, tx))
             .map_err(|e| io("starting the reader thread", e))?;
-        let limits = gen3_lite::limits();
+        let limits = robot.limits().clone();
         let mut arm = Self {
+            robot,
             addr,
             stream,
             events,
@@ -205,7 +217,7 @@ impl KortexArm {
             next_message_id: 1,
             pending: Vec::with_capacity(16),
             tick: 0,
-            dt: 1.0 / gen3_lite::CONTROL_RATE_HZ,
+            dt: 1.0 / robot.control_rate_hz(),
             speed_limit_rad_s: [0.0; MAX_JOINTS],
             reading: Reading {
                 q_rad: [0.0; MAX_JOINTS],
@@ -247,11 +259,12 @@ impl KortexArm {
         self.call(Function::ClearFaults, Vec::new())?;
         let reply = self.call(Function::GetActuatorCount, Vec::new())?;
         let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
-        let n = gen3_lite::N_JOINTS;
+        let n = self.robot.n_joints();
         if count.count as usize != n {
             return Err(KortexError::ActuatorCount {
                 found: count.count,
                 expected: n,
+                robot: self.robot.description().to_owned(),
             });
         }
         let reply = self.call(Function::GetKinematicHardLimits, Vec::new())?;
@@ -295,7 +308,7 @@ impl KortexArm {
 
     /// The robot's joint speed limits the commands are scaled into (rad/s).
     pub fn speed_limits_rad_s(&self) -> &[f64] {
-        &self.speed_limit_rad_s[..gen3_lite::N_JOINTS]
+        &self.speed_limit_rad_s[..self.robot.n_joints()]
     }
 
     /// Whether the session is open (false after a fault or shutdown).
@@ -525,12 +538,16 @@ impl KortexArm {
                 self.feedback_pending = None;
             }
             let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
-            self.reading =
-                reading_from_feedback(&fb, gen3_lite::N_JOINTS, &self.limits, self.reading.gripper)
-                    .map_err(|reason| KortexError::Payload {
-                        function: Function::RefreshFeedback.name(),
-                        reason,
-                    })?;
+            self.reading = reading_from_feedback(
+                &fb,
+                self.robot.n_joints(),
+                &self.limits,
+                self.reading.gripper,
+            )
+            .map_err(|reason| KortexError::Payload {
+                function: Function::RefreshFeedback.name(),
+                reason,
+            })?;
         }
         Ok(())
     }
@@ -606,8 +623,12 @@ impl KortexArm {
             && self.connected
             && let Ok(reply) = self.call(Function::RefreshFeedback, Vec::new())
             && let Ok(fb) = decode::<msg::Feedback>(Function::RefreshFeedback, &reply)
-            && let Ok(r) =
-                reading_from_feedback(&fb, gen3_lite::N_JOINTS, &self.limits, self.reading.gripper)
+            && let Ok(r) = reading_from_feedback(
+                &fb,
+                self.robot.n_joints(),
+                &self.limits,
+                self.reading.gripper,
+            )
         {
             self.reading = r;
         }
@@ -684,7 +705,7 @@ fn speed_limits_from(
 
 impl Robot for KortexArm {
     fn n_joints(&self) -> usize {
-        gen3_lite::N_JOINTS
+        self.robot.n_joints()
     }
 
     fn advance(&mut self, dt: f64) -> Result<Reading, RobotError> {
@@ -709,7 +730,7 @@ impl Robot for KortexArm {
     fn command(&mut self, qdot_rad_s: &[f64], gripper_rate: f64) -> Result<(), RobotError> {
         let r = self.ensure_open();
         self.in_loop(r)?;
-        let n = gen3_lite::N_JOINTS;
+        let n = self.robot.n_joints();
         let mut v = [0.0; MAX_JOINTS];
         let m = n.min(qdot_rad_s.len());
         v[..m].copy_from_slice(&qdot_rad_s[..m]);

@@ -385,13 +385,15 @@ pub enum KortexError {
         /// What was wrong.
         reason: String,
     },
-    /// The robot is not a Gen3 lite.
-    #[error("the robot reports {found} actuators; a Gen3 lite has {expected}")]
+    /// The robot is not the arm of the graph's robot profile.
+    #[error("the robot reports {found} actuators; a {robot} has {expected}")]
     ActuatorCount {
         /// What the robot reported.
         found: u32,
         /// What the bridge drives.
         expected: usize,
+        /// The profile's robot, as people call it.
+        robot: String,
     },
     /// The robot's kinematic hard limits are unusable.
     #[error("the robot's kinematic hard limits are unusable: {reason}")]

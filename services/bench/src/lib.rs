@@ -286,6 +286,8 @@ pub struct LatencyReport {
 /// The settings of a benchmark's graph, as reported in its JSON.
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchSettings {
+    /// The robot profile the mock arm simulates (`[graph] robot`).
+    pub robot: String,
     /// The mapper's model (`bundled`, a file, or a spec such as `modeswitch`).
     pub model: String,
     /// The scripted joystick's pattern.
@@ -396,10 +398,11 @@ fn run_one(
     {
         reports.drain(|r| samples.take(r))?;
         if signals::stop_requested() {
-            // SAFETY: signalling our own child.
-            unsafe {
-                libc::kill(up.id() as libc::pid_t, libc::SIGTERM);
-            }
+            // Our own child; an error means it has exited, which try_wait sees next.
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(up.id() as i32),
+                nix::sys::signal::Signal::SIGTERM,
+            );
         }
         let el = t0.elapsed().as_secs_f64();
         if el >= next {
@@ -587,6 +590,7 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
     }
     let machine = Machine::detect();
     let settings = BenchSettings {
+        robot: opts.config.graph.robot.clone(),
         model: opts.config.mapper.model.clone(),
         script: opts.config.joystick.script.clone(),
         rate_hz: opts.config.bridge.rate_hz,
@@ -630,8 +634,8 @@ pub fn render(r: &LatencyReport) -> String {
     );
     let _ = writeln!(
         s,
-        "graph: model {}, scripted joystick ({}), mock arm at {} Hz",
-        r.settings.model, r.settings.script, r.settings.rate_hz
+        "graph: model {}, scripted joystick ({}), mock {} at {} Hz",
+        r.settings.model, r.settings.script, r.settings.robot, r.settings.rate_hz
     );
     for run in &r.runs {
         let _ = writeln!(

@@ -191,9 +191,10 @@ pub fn run(
     creds: &CredentialArgs,
 ) -> Result<(), BridgeNodeError> {
     // Everything that can be refused without touching the network, first.
+    let robot = graph_cfg.profile()?;
     let backend = match cfg.robot.as_str() {
         "mock" => {
-            let mut arm = MockArm::new(cfg.mock.clone())
+            let mut arm = MockArm::for_robot(robot, cfg.mock.clone())
                 .map_err(|e| BridgeNodeError::Graph(format!("config: {e}")))?;
             if let Some((q, c)) = &resume.pose {
                 arm.resume(q, *c);
@@ -220,7 +221,8 @@ pub fn run(
         Backend::Kortex(credentials) => {
             // Connect as late as possible: from here on a frame must go out at least every
             // connection_timeout_ms, and the first tick follows within one period.
-            let arm = KortexArm::connect(&cfg.kortex, &credentials).map_err(RobotError::from)?;
+            let arm = KortexArm::connect_to(robot, &cfg.kortex, &credentials)
+                .map_err(RobotError::from)?;
             tick_loop(&ctx, arm)
         }
     }

@@ -21,7 +21,7 @@ use ipc_types::{
     Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, buttons,
     phase, safe_flags, safety_state, time::now_ns,
 };
-use kinematics::ArmLimits;
+use kinematics::{ArmLimits, RobotProfile};
 use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout};
 use ratatui::style::{Color, Modifier, Style};
@@ -891,11 +891,11 @@ pub fn key_action(k: &ratatui::crossterm::event::KeyEvent) -> Option<Action> {
     }
 }
 
-fn run_terminal(prefix: &Prefix) -> Result<(), TopError> {
+fn run_terminal(prefix: &Prefix, robot: &RobotProfile) -> Result<(), TopError> {
     use ratatui::crossterm::event::{self, Event};
 
     let feed = Feed::open(prefix)?;
-    let mut model = Model::new(prefix.as_str(), kinematics::gen3_lite::limits());
+    let mut model = Model::new(prefix.as_str(), robot.limits().clone());
     let mut terminal = ratatui::try_init().map_err(TopError::Terminal)?;
     let mut pending: Vec<std::sync::mpsc::Receiver<String>> = Vec::new();
     let mut last_alive = Instant::now() - Duration::from_secs(10);
@@ -943,11 +943,16 @@ fn run_terminal(prefix: &Prefix) -> Result<(), TopError> {
     result
 }
 
-/// `scl top`.
-pub fn cli(prefix: &Prefix, args: &TopArgs) -> Result<std::process::ExitCode, TopError> {
+/// `scl top` on a graph driving `robot` (the graph config's robot profile): the joints are
+/// shown against its limits.
+pub fn cli(
+    prefix: &Prefix,
+    args: &TopArgs,
+    robot: &RobotProfile,
+) -> Result<std::process::ExitCode, TopError> {
     if args.once {
         let feed = Feed::open(prefix)?;
-        let mut model = Model::new(prefix.as_str(), kinematics::gen3_lite::limits());
+        let mut model = Model::new(prefix.as_str(), robot.limits().clone());
         let t0 = Instant::now();
         while t0.elapsed() < ONCE_LISTEN {
             feed.poll(&mut model)?;
@@ -960,7 +965,7 @@ pub fn cli(prefix: &Prefix, args: &TopArgs) -> Result<std::process::ExitCode, To
         }
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    run_terminal(prefix)?;
+    run_terminal(prefix, robot)?;
     Ok(std::process::ExitCode::SUCCESS)
 }
 

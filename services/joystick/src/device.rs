@@ -3,6 +3,7 @@
 //! reading thread that hands its events to the joystick loop over a channel, reports an
 //! unplugged device and reopens it when it comes back.
 
+use std::os::fd::{AsFd, BorrowedFd};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -246,15 +247,10 @@ pub fn snapshot(path: &Path, dev: &evdev::Device) -> Snapshot {
 }
 
 /// Waits up to `timeout` for `fd` to become readable (or report an error).
-fn wait_readable(fd: i32, timeout: Duration) -> bool {
-    let mut p = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
-    // SAFETY: one valid pollfd for the duration of the call.
-    unsafe { libc::poll(&mut p, 1, ms) > 0 }
+fn wait_readable(fd: BorrowedFd<'_>, timeout: Duration) -> bool {
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    let timeout = PollTimeout::try_from(timeout).unwrap_or(PollTimeout::MAX);
+    poll(&mut [PollFd::new(fd, PollFlags::POLLIN)], timeout).is_ok_and(|n| n > 0)
 }
 
 /// Starts the thread that reads the device `selector` names (see [`open`]) and hands its
@@ -299,12 +295,11 @@ pub fn spawn_reader(
                 if !send(DeviceMsg::Connected(snapshot(&path, &dev))) {
                     return;
                 }
-                let fd = std::os::fd::AsRawFd::as_raw_fd(&dev);
                 loop {
                     if stop.load(Ordering::Relaxed) {
                         return;
                     }
-                    if !wait_readable(fd, Duration::from_millis(100)) {
+                    if !wait_readable(dev.as_fd(), Duration::from_millis(100)) {
                         continue;
                     }
                     match dev.fetch_events() {

@@ -17,13 +17,18 @@
 //! was borrowed from (the supervisor, which stops the graph in order), as the terminal's own
 //! Ctrl-C would have.
 
-use std::io::Write;
+use std::io::{IsTerminal, Write};
+use std::os::fd::AsFd;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use crossbeam_channel::Sender;
 use ipc_types::buttons;
+use nix::errno::Errno;
+use nix::sys::signal::{self, SigHandler, Signal};
+use nix::sys::termios::{self, LocalFlags, SetArg, SpecialCharacterIndices, Termios};
+use nix::unistd::{Pid, getpgrp, tcgetpgrp, tcsetpgrp};
 
 use super::{Input, JoystickError, Waker};
 
@@ -250,9 +255,9 @@ pub fn key_of(ev: &crossterm::event::KeyEvent) -> Option<(Key, KeyAction)> {
 
 /// The terminal, set up for the keyboard source; restored when dropped.
 pub struct Terminal {
-    saved: libc::termios,
+    saved: Termios,
     /// The foreground process group the terminal was borrowed from (under `scl up`).
-    borrowed_from: Option<libc::pid_t>,
+    borrowed_from: Option<Pid>,
     /// The kitty keyboard protocol was asked for (and must be popped).
     enhanced: bool,
     restored: bool,
@@ -271,45 +276,40 @@ impl Terminal {
     /// Takes the terminal on standard input: foreground (borrowed if another process group
     /// has it), no canonical line editing, no echo, no signal keys (Ctrl-C arrives as a key).
     pub fn take() -> Result<Self, JoystickError> {
-        let fd = libc::STDIN_FILENO;
-        // SAFETY: isatty only inspects the descriptor.
-        if unsafe { libc::isatty(fd) } != 1 {
+        let stdin = std::io::stdin();
+        if !stdin.is_terminal() {
             return Err(JoystickError::NoTerminal);
         }
-        let os = |what: &'static str| JoystickError::Terminal {
-            what,
-            source: std::io::Error::last_os_error(),
-        };
-        // SAFETY: plain signal dispositions; a process group borrowing the terminal must not
-        // be stopped by SIGTTOU / SIGTTIN while it changes or reads it.
-        unsafe {
-            libc::signal(libc::SIGTTOU, libc::SIG_IGN);
-            libc::signal(libc::SIGTTIN, libc::SIG_IGN);
-        }
-        // SAFETY: getpgrp and tcgetpgrp have no memory effects.
-        let (me, fg) = unsafe { (libc::getpgrp(), libc::tcgetpgrp(fd)) };
-        let mut borrowed_from = None;
-        if fg > 0 && fg != me {
-            // SAFETY: as above; SIGTTOU is ignored, so this takes effect from the background.
-            if unsafe { libc::tcsetpgrp(fd, me) } != 0 {
-                return Err(os("take the terminal's foreground"));
+        let fd = stdin.as_fd();
+        let os = |what: &'static str| {
+            move |e: Errno| JoystickError::Terminal {
+                what,
+                source: e.into(),
             }
+        };
+        // A process group borrowing the terminal must not be stopped by SIGTTOU / SIGTTIN
+        // while it changes or reads it.
+        for sig in [Signal::SIGTTOU, Signal::SIGTTIN] {
+            // SAFETY: setting a disposition to "ignore" installs no handler code.
+            let _ = unsafe { signal::signal(sig, SigHandler::SigIgn) };
+        }
+        let me = getpgrp();
+        let mut borrowed_from = None;
+        if let Ok(fg) = tcgetpgrp(fd)
+            && fg.as_raw() > 0
+            && fg != me
+        {
+            // SIGTTOU is ignored, so this takes effect from the background.
+            tcsetpgrp(fd, me).map_err(os("take the terminal's foreground"))?;
             borrowed_from = Some(fg);
         }
-        // SAFETY: termios is a plain C struct, fully written by tcgetattr before use.
-        let mut saved: libc::termios = unsafe { std::mem::zeroed() };
-        // SAFETY: fd is a terminal; saved is a valid termios.
-        if unsafe { libc::tcgetattr(fd, &mut saved) } != 0 {
-            return Err(os("read the terminal settings"));
-        }
-        let mut t = saved;
-        t.c_lflag &= !(libc::ICANON | libc::ECHO | libc::ISIG);
-        t.c_cc[libc::VMIN] = 1;
-        t.c_cc[libc::VTIME] = 0;
-        // SAFETY: fd is a terminal; t is a valid termios.
-        if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-            return Err(os("set the terminal to read single keys"));
-        }
+        let saved = termios::tcgetattr(fd).map_err(os("read the terminal settings"))?;
+        let mut t = saved.clone();
+        t.local_flags &= !(LocalFlags::ICANON | LocalFlags::ECHO | LocalFlags::ISIG);
+        t.control_chars[SpecialCharacterIndices::VMIN as usize] = 1;
+        t.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
+        termios::tcsetattr(fd, SetArg::TCSANOW, &t)
+            .map_err(os("set the terminal to read single keys"))?;
         let mut term = Self {
             saved,
             borrowed_from,
@@ -338,25 +338,22 @@ impl Terminal {
             return;
         }
         self.restored = true;
-        let fd = libc::STDIN_FILENO;
+        let stdin = std::io::stdin();
+        let fd = stdin.as_fd();
         if self.enhanced {
             let _ = crossterm::execute!(
                 std::io::stderr(),
                 crossterm::event::PopKeyboardEnhancementFlags
             );
         }
-        // SAFETY: restoring the settings read in `take` on the same terminal.
-        unsafe {
-            libc::tcsetattr(fd, libc::TCSANOW, &self.saved);
-        }
+        // Restoring the settings read in `take` on the same terminal; nothing to do on failure.
+        let _ = termios::tcsetattr(fd, SetArg::TCSANOW, &self.saved);
         if let Some(pg) = self.borrowed_from {
-            // SAFETY: handing the foreground back (SIGTTOU is ignored) and signalling the
-            // group that had it, as the terminal's Ctrl-C would have.
-            unsafe {
-                libc::tcsetpgrp(fd, pg);
-                if interrupt {
-                    libc::kill(-pg, libc::SIGINT);
-                }
+            // Handing the foreground back (SIGTTOU is ignored) and signalling the group that
+            // had it, as the terminal's Ctrl-C would have.
+            let _ = tcsetpgrp(fd, pg);
+            if interrupt {
+                let _ = signal::killpg(pg, Signal::SIGINT);
             }
         }
         let _ = writeln!(std::io::stderr());

@@ -27,7 +27,9 @@ pub mod pad;
 pub mod replay;
 pub mod script;
 
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::AsRawFd;
+
+use nix::sys::eventfd::{EfdFlags, EventFd};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -135,35 +137,20 @@ pub enum JoystickError {
 /// beside the robot state's event ([`ipc_types::wait_any`]).
 #[derive(Debug)]
 pub struct Waker {
-    fd: OwnedFd,
+    fd: EventFd,
 }
 
 impl Waker {
     /// A new, unsignalled waker.
     pub fn new() -> std::io::Result<Self> {
-        // SAFETY: eventfd has no memory effects; the descriptor is checked and owned below.
-        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
-        if fd < 0 {
-            return Err(std::io::Error::last_os_error());
-        }
-        // SAFETY: fd is a fresh descriptor nothing else owns.
-        Ok(Self {
-            fd: unsafe { OwnedFd::from_raw_fd(fd) },
-        })
+        let fd = EventFd::from_value_and_flags(0, EfdFlags::EFD_NONBLOCK | EfdFlags::EFD_CLOEXEC)?;
+        Ok(Self { fd })
     }
 
     /// Wakes the loop.
     pub fn notify(&self) {
-        let one: u64 = 1;
-        // SAFETY: writes 8 bytes from a live u64 to our own eventfd; a full counter (never in
-        // practice) only means the loop is already due to wake.
-        unsafe {
-            libc::write(
-                self.fd.as_raw_fd(),
-                (&raw const one).cast::<libc::c_void>(),
-                8,
-            );
-        }
+        // A full counter (never in practice) only means the loop is already due to wake.
+        let _ = self.fd.arm();
     }
 }
 
@@ -173,11 +160,8 @@ impl Wakeable for Waker {
     }
 
     fn consume_wake(&self) {
-        let mut v: u64 = 0;
-        // SAFETY: reads 8 bytes into a live u64 from our own non-blocking eventfd.
-        unsafe {
-            libc::read(self.fd.as_raw_fd(), (&raw mut v).cast::<libc::c_void>(), 8);
-        }
+        // Non-blocking: nothing pending (EAGAIN) is fine.
+        let _ = self.fd.read();
     }
 }
 

@@ -25,11 +25,15 @@ use mapper::step::MapperStep;
 use ipc_types::signals;
 use scl_node::config::{FaultConfig, GraphSection, RtRole};
 
-/// Loads and checks the model `spec` for the Gen3 lite: every problem is reported here, at
-/// start-up, never at tick time.
-pub fn load_step(spec: &str, id: u32) -> Result<MapperStep, MapperNodeError> {
-    let model = LoadedModel::load(spec)?;
-    Ok(MapperStep::new(id, model, kinematics::gen3_lite::N_JOINTS)?)
+/// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile): every
+/// problem is reported here, at start-up, never at tick time.
+pub fn load_step(
+    spec: &str,
+    id: u32,
+    robot: &'static kinematics::RobotProfile,
+) -> Result<MapperStep, MapperNodeError> {
+    let model = LoadedModel::load_for(spec, robot)?;
+    Ok(MapperStep::new(id, model, robot.n_joints())?)
 }
 
 /// Runs the mapper process until a shutdown is requested.
@@ -40,7 +44,7 @@ pub fn run(
     model: &str,
     id: u32,
 ) -> Result<(), MapperNodeError> {
-    let mut step = load_step(model, id)?;
+    let mut step = load_step(model, id, graph_cfg.profile()?)?;
     let graph = Graph::join_with(prefix, &format!("mapper-{id}"), graph_cfg.transport)?;
     let states = graph.robot_state_subscriber(true)?;
     let joystick = graph.joystick_subscriber(true)?;

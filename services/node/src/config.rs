@@ -1,16 +1,22 @@
 //! The graph configuration: one TOML file, every key optional, every default written out in
 //! `examples/graph.toml`. Unknown keys are errors that name the key, so a typo never silently
 //! falls back to a default.
+//!
+//! `[graph] robot` names the robot profile ([`kinematics::RobotProfile::by_name`]); the keys
+//! that depend on the arm (speed and acceleration limits, tick rate, the mock's gripper lag)
+//! default to that profile's values ([`GraphConfig::for_robot`]), so another arm needs only
+//! its name here.
 
 use std::path::{Path, PathBuf};
 
 use hw_bridge::kortex::KortexConfig;
 use hw_bridge::mock::MockConfig;
+use kinematics::RobotProfile;
 use safety::SafetyConfig;
 use serde::{Deserialize, Serialize};
 
 /// The whole graph configuration.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GraphConfig {
     /// `[graph]`: graph-wide settings.
@@ -27,6 +33,13 @@ pub struct GraphConfig {
     pub supervisor: SupervisorConfig,
     /// `[faults]`: fault injection for tests and drills; all off by default.
     pub faults: FaultConfig,
+}
+
+impl Default for GraphConfig {
+    /// [`GraphConfig::for_robot`] of the default robot profile.
+    fn default() -> Self {
+        Self::for_robot(RobotProfile::default_robot())
+    }
 }
 
 /// `[faults]`: make a process misbehave on purpose, to see the stack stop the arm. 0 is off.
@@ -132,6 +145,9 @@ impl Default for SupervisorConfig {
 pub struct GraphSection {
     /// Service-name prefix; `--prefix` and `SCL_PREFIX` override it.
     pub prefix: String,
+    /// The robot profile the graph drives ([`RobotProfile::by_name`]): its joint limits,
+    /// kinematics, named poses and rate; the arm-dependent keys default to its values.
+    pub robot: String,
     /// How long `scl up` waits for each child to report ready (s).
     pub start_timeout_s: f64,
     /// The control-path processes (bridge, safety, mappers, joystick) ask for SCHED_FIFO and
@@ -163,6 +179,14 @@ pub enum RtRole {
 }
 
 impl GraphSection {
+    /// The robot profile named by `robot`; the error names the key and the known robots.
+    pub fn profile(&self) -> Result<&'static RobotProfile, ConfigError> {
+        RobotProfile::by_name(&self.robot).map_err(|e| ConfigError::Value {
+            key: "graph.robot".into(),
+            reason: e.to_string(),
+        })
+    }
+
     /// The SCHED_FIFO priority of `role`, or `None` when real-time is off.
     pub fn rt_priority_of(&self, role: RtRole) -> Option<i32> {
         let below = match role {
@@ -180,6 +204,7 @@ impl Default for GraphSection {
     fn default() -> Self {
         Self {
             prefix: ipc_types::prefix::DEFAULT_PREFIX.to_owned(),
+            robot: RobotProfile::default_name().to_owned(),
             start_timeout_s: 10.0,
             realtime: true,
             rt_priority: 80,
@@ -279,15 +304,17 @@ impl Default for MapperConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BridgeConfig {
-    /// Robot backend: `mock` (the simulation) or `kortex` (a Gen3 lite over the Kortex API,
-    /// settings in `[bridge.kortex]`).
+    /// Robot backend: `mock` (the simulation of the graph's robot profile) or `kortex` (the
+    /// arm over the Kortex API, settings in `[bridge.kortex]`).
     pub robot: String,
-    /// Tick rate (Hz). The Gen3 lite's high-level API runs at 40 Hz.
+    /// Tick rate (Hz). Default: the robot profile's control rate (the Gen3 lite's high-level
+    /// API runs at 40 Hz).
     pub rate_hz: f64,
     /// How far into the period the bridge waits for the tick's command, as a fraction of the
     /// period; a command later than this is a miss.
     pub command_deadline: f64,
-    /// Acceleration limits for the bridge's controlled stop (rad/s²).
+    /// Acceleration limits for the bridge's controlled stop (rad/s²). Default: the robot
+    /// profile's teleoperation accelerations.
     pub stop_acceleration_rad_s2: Vec<f64>,
     /// `[bridge.mock]`: the mock arm.
     pub mock: MockConfig,
@@ -296,13 +323,22 @@ pub struct BridgeConfig {
 }
 
 impl Default for BridgeConfig {
+    /// [`BridgeConfig::for_robot`] of the default robot profile.
     fn default() -> Self {
+        Self::for_robot(RobotProfile::default_robot())
+    }
+}
+
+impl BridgeConfig {
+    /// The defaults for `robot`: the mock backend at the robot's control rate, stopping within
+    /// its accelerations.
+    pub fn for_robot(robot: &RobotProfile) -> Self {
         Self {
             robot: "mock".into(),
-            rate_hz: kinematics::gen3_lite::CONTROL_RATE_HZ,
+            rate_hz: robot.control_rate_hz(),
             command_deadline: 0.6,
-            stop_acceleration_rad_s2: kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2.to_vec(),
-            mock: MockConfig::default(),
+            stop_acceleration_rad_s2: robot.limits().max_acceleration_rad_s2.clone(),
+            mock: MockConfig::for_robot(robot),
             kortex: KortexConfig::default(),
         }
     }
@@ -358,7 +394,74 @@ pub fn resolve_joystick_paths(cfg: &mut JoystickConfig, dir: &Path) {
     fix(&mut cfg.record_input);
 }
 
+/// Sets every key of `over` in `base`, descending into tables present in both.
+fn merge_tables(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 impl GraphConfig {
+    /// The defaults for the robot profile `robot` (`[graph] robot` names it): its speed and
+    /// acceleration limits in `[safety]`, its control rate and accelerations in `[bridge]`,
+    /// its gripper lag in `[bridge.mock]`; everything else as for any arm.
+    pub fn for_robot(robot: &RobotProfile) -> Self {
+        Self {
+            graph: GraphSection {
+                robot: robot.name().to_owned(),
+                ..GraphSection::default()
+            },
+            joystick: JoystickConfig::default(),
+            mapper: MapperConfig::default(),
+            safety: SafetyConfig::for_robot(robot),
+            bridge: BridgeConfig::for_robot(robot),
+            supervisor: SupervisorConfig::default(),
+            faults: FaultConfig::default(),
+        }
+    }
+
+    /// The robot profile of `[graph] robot`.
+    pub fn profile(&self) -> Result<&'static RobotProfile, ConfigError> {
+        self.graph.profile()
+    }
+
+    /// Parses a graph TOML: keys it leaves out take the defaults of the robot it names
+    /// ([`GraphConfig::for_robot`]); `path` names the file in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let parse_err = |reason: String| ConfigError::Parse {
+            path: path.to_owned(),
+            reason,
+        };
+        // Typed first, so errors name the key and its line.
+        let cfg: Self = toml::from_str(text).map_err(|e| parse_err(e.to_string()))?;
+        let Ok(robot) = cfg.profile() else {
+            // An unknown robot: `validate` names it.
+            return Ok(cfg);
+        };
+        if robot.name() == RobotProfile::default_name() {
+            return Ok(cfg);
+        }
+        Self::parse_for(text, path, robot)
+    }
+
+    /// Parses a graph TOML whose left-out keys take `robot`'s defaults.
+    fn parse_for(text: &str, path: &Path, robot: &RobotProfile) -> Result<Self, ConfigError> {
+        let parse_err = |reason: String| ConfigError::Parse {
+            path: path.to_owned(),
+            reason,
+        };
+        let over: toml::Table = toml::from_str(text).map_err(|e| parse_err(e.to_string()))?;
+        let mut table = toml::Table::try_from(Self::for_robot(robot))
+            .map_err(|e| parse_err(format!("the defaults of robot {}: {e}", robot.name())))?;
+        merge_tables(&mut table, over);
+        table.try_into().map_err(|e| parse_err(e.to_string()))
+    }
+
     /// Reads `path`, or the defaults if `None`. Relative model paths are resolved against
     /// the file's directory.
     pub fn load(path: Option<&Path>) -> Result<Self, ConfigError> {
@@ -369,10 +472,7 @@ impl GraphConfig {
             path: path.to_owned(),
             source,
         })?;
-        let mut cfg: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-            path: path.to_owned(),
-            reason: e.to_string(),
-        })?;
+        let mut cfg = Self::parse(&text, path)?;
         if let Some(dir) = path.parent() {
             resolve_joystick_paths(&mut cfg.joystick, dir);
         }
@@ -406,6 +506,7 @@ impl GraphConfig {
         };
         ipc_types::Prefix::new(&self.graph.prefix)
             .map_err(|e| err("graph.prefix", e.to_string()))?;
+        let robot = self.profile()?;
         if !(self.graph.start_timeout_s.is_finite() && self.graph.start_timeout_s > 0.0) {
             return Err(err(
                 "graph.start_timeout_s",
@@ -443,7 +544,7 @@ impl GraphConfig {
                 ),
             ));
         }
-        let n = kinematics::gen3_lite::N_JOINTS;
+        let n = robot.n_joints();
         if b.stop_acceleration_rad_s2.len() != n
             || b.stop_acceleration_rad_s2
                 .iter()
@@ -454,13 +555,13 @@ impl GraphConfig {
                 format!("needs {n} positive numbers"),
             ));
         }
-        hw_bridge::mock::MockArm::new(b.mock.clone())
+        hw_bridge::mock::MockArm::for_robot(robot, b.mock.clone())
             .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
         b.kortex
             .validate(1.0 / b.rate_hz)
             .map_err(|e| err(&format!("bridge.kortex.{}", e.key), e.reason))?;
         self.safety
-            .validate(&kinematics::gen3_lite::limits())
+            .validate_for_robot(robot)
             .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
         if self.mapper.id == 0 {
             return Err(err("mapper.id", "must be at least 1".into()));
@@ -508,6 +609,38 @@ mod tests {
         let cfg = GraphConfig::load(Some(path)).unwrap();
         assert_eq!(cfg, GraphConfig::default());
         cfg.validate().unwrap();
+    }
+
+    #[test]
+    fn the_robot_is_a_profile_and_its_defaults_follow_it() {
+        let cfg = GraphConfig::default();
+        assert_eq!(cfg.graph.robot, "gen3_lite");
+        let robot = cfg.profile().unwrap();
+        assert_eq!(
+            cfg.safety.max_velocity_rad_s,
+            robot.limits().max_velocity_rad_s
+        );
+        assert_eq!(cfg.bridge.rate_hz, robot.control_rate_hz());
+        // Another arm: the keys a file leaves out take its defaults; the keys it sets win.
+        let planar = RobotProfile::new(&kinematics::ProfileSpec::planar5()).unwrap();
+        let text = "[graph]\nrobot = \"planar5\"\n[safety]\nspeed_override = 0.5\n\
+                    [bridge]\nrate_hz = 20.0\n";
+        let cfg = GraphConfig::parse_for(text, Path::new("g.toml"), &planar).unwrap();
+        assert_eq!(cfg.graph.robot, "planar5");
+        assert_eq!(cfg.safety.max_velocity_rad_s, [1.0; 5]);
+        assert_eq!(cfg.safety.speed_override, 0.5);
+        assert_eq!(cfg.bridge.stop_acceleration_rad_s2, [2.0; 5]);
+        assert_eq!(cfg.bridge.rate_hz, 20.0);
+        assert_eq!(cfg.bridge.mock.gripper_time_constant_s, 0.1);
+        assert_eq!(cfg.joystick, JoystickConfig::default());
+        // An unknown robot is refused by name, with the known ones.
+        let cfg: GraphConfig =
+            GraphConfig::parse("[graph]\nrobot = \"ur5\"\n", Path::new("g.toml")).unwrap();
+        let e = cfg.validate().unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "config: graph.robot: `ur5` is not a known robot; known: gen3_lite"
+        );
     }
 
     #[test]

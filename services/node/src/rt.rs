@@ -32,18 +32,13 @@ pub fn elevate(graph: &GraphSection, role: RtRole) -> String {
 
 /// Pins the calling process to `cpu`.
 pub fn pin_to_cpu(cpu: usize) -> std::io::Result<()> {
-    // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET writes within it for
-    // cpu < CPU_SETSIZE (checked); sched_setaffinity reads it.
-    unsafe {
-        if cpu >= libc::CPU_SETSIZE as usize {
-            return Err(std::io::Error::from(std::io::ErrorKind::InvalidInput));
-        }
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(cpu, &mut set);
-        if libc::sched_setaffinity(0, size_of::<libc::cpu_set_t>(), &set) == 0 {
-            Ok(())
-        } else {
-            Err(std::io::Error::last_os_error())
-        }
+    use nix::sched::{CpuSet, sched_setaffinity};
+    use nix::unistd::Pid;
+    if cpu >= CpuSet::count() {
+        return Err(std::io::Error::from(std::io::ErrorKind::InvalidInput));
     }
+    let mut set = CpuSet::new();
+    set.set(cpu)?;
+    sched_setaffinity(Pid::from_raw(0), &set)?;
+    Ok(())
 }

@@ -286,10 +286,11 @@ pub fn start_pipeline<W: Write + Send + 'static>(
 
 /// The writer thread yields the CPU to everything else in the process and on the machine.
 fn lower_priority() {
-    // SAFETY: gettid and setpriority on the calling thread only; failure is harmless.
+    let tid = nix::unistd::gettid();
+    // libc: nix 0.29 has no setpriority.
+    // SAFETY: setpriority on the calling thread only; failure is harmless.
     unsafe {
-        let tid = libc::gettid();
-        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
+        libc::setpriority(libc::PRIO_PROCESS, tid.as_raw() as libc::id_t, 10);
     }
 }
 

@@ -54,10 +54,11 @@ pub fn run(
     cfg: &SafetyConfig,
     period_s: f64,
 ) -> Result<(), SafetyNodeError> {
-    let mut filter = SafetyFilter::new(cfg.clone(), &kinematics::gen3_lite::limits(), period_s)
+    let robot = graph_cfg.profile()?;
+    let mut filter = SafetyFilter::for_robot(cfg.clone(), robot, period_s)
         .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
     if cfg.workspace.enabled {
-        filter = filter.with_tcp_model(Box::new(safety::ChainTcp::gen3_lite()));
+        filter = filter.with_tcp_model(Box::new(safety::ChainTcp::of(robot)));
     }
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;

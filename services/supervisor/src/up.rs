@@ -34,6 +34,8 @@ use ipc_types::{
     Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, mapper_flags, phase,
     time::now_ns,
 };
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
 use serde::Serialize;
 
 use crate::SupervisorError;
@@ -350,14 +352,15 @@ fn spawn(args: &[String]) -> std::io::Result<Child> {
     let exe = std::env::current_exe()?;
     let mut cmd = Command::new(exe);
     cmd.args(args);
-    // SAFETY: setpgid and prctl are async-signal-safe. Each child gets its own process
-    // group, so a terminal's Ctrl-C reaches only the supervisor, which then stops the graph
-    // in order (bridge first); and each child gets SIGTERM if the supervisor dies, so no
-    // process of the graph outlives it.
+    // SAFETY: setpgid and prctl are async-signal-safe and the closure allocates nothing.
+    // Each child gets its own process group, so a terminal's Ctrl-C reaches only the
+    // supervisor, which then stops the graph in order (bridge first); and each child gets
+    // SIGTERM if the supervisor dies, so no process of the graph outlives it. Failures are
+    // ignored, as before: the child runs either way.
     unsafe {
         cmd.pre_exec(|| {
-            libc::setpgid(0, 0);
-            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            let _ = nix::unistd::setpgid(Pid::from_raw(0), Pid::from_raw(0));
+            let _ = nix::sys::prctl::set_pdeathsig(Signal::SIGTERM);
             Ok(())
         });
     }
@@ -365,10 +368,8 @@ fn spawn(args: &[String]) -> std::io::Result<Child> {
 }
 
 fn terminate(child: &Child) {
-    // SAFETY: sending a signal to our own child's pid.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
-    }
+    // Our own child's pid; an error means it is gone already, which the caller's wait sees.
+    let _ = kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM);
 }
 
 fn signal_and_wait(p: &mut Managed, timeout: Duration) {
@@ -611,7 +612,11 @@ impl<'a> Supervisor<'a> {
         }
         let model = req.path.as_string();
         let new_id = self.next_mapper_id;
-        if let Err(e) = scl_mapper_node::load_step(&model, new_id) {
+        let loaded = self.opts.config.profile().map_or_else(
+            |e| Err(e.into()),
+            |robot| scl_mapper_node::load_step(&model, new_id, robot),
+        );
+        if let Err(e) = loaded {
             refuse(&request, &e.to_string());
             return;
         }
@@ -758,7 +763,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     cfg.validate()?;
     scl_joystick::validate(&cfg.joystick)?;
     // Refuse a bad model, or a recording over an existing file, before anything starts.
-    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id)?;
+    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, cfg.profile()?)?;
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }

@@ -1,0 +1,424 @@
+//! Robot profiles: everything the graph needs to know about the arm it drives, under one name.
+//!
+//! A [`RobotProfile`] bundles the robot description (URDF), the arm chain from the base to the
+//! tool centre point (the tool model: FK and Jacobian for the workspace bounds and the
+//! Cartesian modes), the teleoperation limits ([`ArmLimits`]: positions from the URDF, speeds
+//! capped by it), the named poses, the control rate and the mock gripper's lag. The graph
+//! chooses one by name (`[graph] robot` in the graph TOML) and every node takes its facts from
+//! it, so a second arm is a new entry of [`RobotProfile::names`], not edits across crates.
+//!
+//! This module is the one place that names the robots the graph can drive (a test in
+//! `scl-node` checks that no other crate of the graph names one).
+//!
+//! ```
+//! use kinematics::RobotProfile;
+//!
+//! let arm = RobotProfile::by_name("gen3_lite").unwrap();
+//! assert_eq!(arm.n_joints(), 6);
+//! assert_eq!(arm.control_rate_hz(), 40.0);
+//! let home = arm.named_pose("home").unwrap();
+//! assert!((arm.arm().fk(home).unwrap().translation.x - 0.43882).abs() < 1e-4);
+//! assert!(RobotProfile::by_name("ur5").is_err());
+//! ```
+
+use std::sync::OnceLock;
+
+use crate::ArmLimits;
+use crate::chain::Chain;
+use crate::robot::{RobotModel, UrdfError};
+
+/// The facts that define a profile, checked by [`RobotProfile::new`].
+#[derive(Debug, Clone)]
+pub struct ProfileSpec<'a> {
+    /// The name the graph TOML uses (`[graph] robot`), e.g. `gen3_lite`.
+    pub name: &'a str,
+    /// How people call the robot, for messages (`Gen3 lite`).
+    pub description: &'a str,
+    /// The robot description (URDF text).
+    pub urdf: &'a str,
+    /// How the description is named in messages (`robots/gen3_lite.urdf`).
+    pub urdf_name: &'a str,
+    /// The base link: every pose is expressed in its frame.
+    pub base_link: &'a str,
+    /// The tool centre point: the tip of the arm chain.
+    pub tcp_link: &'a str,
+    /// The arm's joints, base to tip, as the chain `base_link -> tcp_link` must have them.
+    pub joint_names: &'a [&'a str],
+    /// Teleoperation speed defaults (rad/s), one per joint; capped by the URDF's velocity
+    /// limits in [`RobotProfile::limits`].
+    pub teleop_velocity_rad_s: &'a [f64],
+    /// Teleoperation acceleration defaults (rad/s²), one per joint.
+    pub teleop_acceleration_rad_s2: &'a [f64],
+    /// Named poses (rad), within the position limits; `home` is required (the mock's start).
+    pub poses: &'a [(&'a str, &'a [f64])],
+    /// The rate of the robot's control interface (Hz): the graph's default tick rate.
+    pub control_rate_hz: f64,
+    /// The mock gripper's first-order lag (s).
+    pub gripper_time_constant_s: f64,
+}
+
+/// Why a profile could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    /// No profile has this name.
+    #[error("`{name}` is not a known robot; known: {known}")]
+    Unknown {
+        /// The name asked for.
+        name: String,
+        /// The known names, comma-separated.
+        known: String,
+    },
+    /// The robot description does not load or lacks the arm chain.
+    #[error(transparent)]
+    Urdf(#[from] UrdfError),
+    /// A fact of the profile is unusable.
+    #[error("robot {robot}: {reason}")]
+    Spec {
+        /// The profile's name.
+        robot: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// One robot, as the graph sees it. Built once per process by [`RobotProfile::by_name`];
+/// [`RobotProfile::new`] builds one from a [`ProfileSpec`] (tests, experiments).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotProfile {
+    name: String,
+    description: String,
+    urdf_name: String,
+    model: RobotModel,
+    arm: Chain,
+    limits: ArmLimits,
+    poses: Vec<(String, Vec<f64>)>,
+    control_rate_hz: f64,
+    gripper_time_constant_s: f64,
+}
+
+/// The built-in profiles, the default first. A new arm is a new function here.
+const ROBOTS: [fn() -> ProfileSpec<'static>; 1] = [gen3_lite];
+
+/// Each built-in profile, parsed once per process when first asked for.
+static LOADED: [OnceLock<RobotProfile>; ROBOTS.len()] = [const { OnceLock::new() }; ROBOTS.len()];
+
+/// The Kinova Gen3 lite ([`crate::gen3_lite`]).
+fn gen3_lite() -> ProfileSpec<'static> {
+    use crate::gen3_lite as g;
+    const POSES: &[(&str, &[f64])] = &[
+        ("home", &g::HOME),
+        ("zero", &g::ZERO),
+        ("retract", &g::RETRACT),
+    ];
+    ProfileSpec {
+        name: "gen3_lite",
+        description: "Gen3 lite",
+        urdf: g::URDF,
+        urdf_name: g::URDF_NAME,
+        base_link: g::BASE_LINK,
+        tcp_link: g::TCP_LINK,
+        joint_names: &g::JOINT_NAMES,
+        teleop_velocity_rad_s: &g::DEFAULT_VELOCITY_RAD_S,
+        teleop_acceleration_rad_s2: &g::DEFAULT_ACCELERATION_RAD_S2,
+        poses: POSES,
+        control_rate_hz: g::CONTROL_RATE_HZ,
+        gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
+    }
+}
+
+impl ProfileSpec<'static> {
+    /// The paper's planar 5-DOF reaching arm ([`crate::planar5`]) as a profile, for tests and
+    /// experiments that run a node on another arm; not a robot the graph offers by name.
+    pub fn planar5() -> Self {
+        use crate::planar5 as p;
+        const NAMES: [&str; p::N_JOINTS] = ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5"];
+        const POSES: &[(&str, &[f64])] = &[("home", &[0.0; p::N_JOINTS])];
+        ProfileSpec {
+            name: "planar5",
+            description: "planar 5-DOF reaching arm",
+            urdf: p::URDF,
+            urdf_name: p::URDF_NAME,
+            base_link: p::BASE_LINK,
+            tcp_link: p::TIP_LINK,
+            joint_names: &NAMES,
+            teleop_velocity_rad_s: &[1.0; p::N_JOINTS],
+            teleop_acceleration_rad_s2: &[2.0; p::N_JOINTS],
+            poses: POSES,
+            control_rate_hz: 40.0,
+            gripper_time_constant_s: 0.1,
+        }
+    }
+}
+
+impl RobotProfile {
+    /// The built-in profile `name`, parsed once per process.
+    ///
+    /// # Panics
+    ///
+    /// If a built-in profile does not load, which is a build defect that the crate's tests
+    /// catch (`every_builtin_profile_loads`).
+    pub fn by_name(name: &str) -> Result<&'static RobotProfile, ProfileError> {
+        for (spec, cell) in ROBOTS.iter().zip(&LOADED) {
+            let spec = spec();
+            if spec.name == name {
+                return Ok(cell.get_or_init(|| match Self::new(&spec) {
+                    Ok(p) => p,
+                    Err(e) => panic!("the built-in robot profile {name} is broken: {e}"),
+                }));
+            }
+        }
+        Err(ProfileError::Unknown {
+            name: name.to_owned(),
+            known: Self::names().collect::<Vec<_>>().join(", "),
+        })
+    }
+
+    /// The names of the built-in profiles, the default first.
+    pub fn names() -> impl Iterator<Item = &'static str> {
+        ROBOTS.iter().map(|spec| spec().name)
+    }
+
+    /// The name of the default profile (the graph's robot when the TOML names none).
+    pub fn default_name() -> &'static str {
+        ROBOTS[0]().name
+    }
+
+    /// The default profile ([`RobotProfile::default_name`]).
+    pub fn default_robot() -> &'static RobotProfile {
+        match Self::by_name(Self::default_name()) {
+            Ok(p) => p,
+            Err(e) => panic!("{e}"),
+        }
+    }
+
+    /// Builds and checks a profile: the URDF loads, the chain `base_link -> tcp_link` has the
+    /// joints named, every per-joint list has one entry per joint, the poses are within the
+    /// position limits and `home` is one of them.
+    pub fn new(spec: &ProfileSpec<'_>) -> Result<Self, ProfileError> {
+        let bad = |reason: String| ProfileError::Spec {
+            robot: spec.name.to_owned(),
+            reason,
+        };
+        let model = RobotModel::from_urdf_str(spec.urdf, spec.urdf_name)?;
+        let arm = model.chain(spec.base_link, spec.tcp_link)?;
+        if arm.joint_names() != spec.joint_names {
+            return Err(bad(format!(
+                "the chain {} -> {} in {} has the joints {:?}, the profile names {:?}",
+                spec.base_link,
+                spec.tcp_link,
+                spec.urdf_name,
+                arm.joint_names(),
+                spec.joint_names
+            )));
+        }
+        let n = arm.n_joints();
+        for (what, values) in [
+            ("teleop_velocity_rad_s", spec.teleop_velocity_rad_s),
+            (
+                "teleop_acceleration_rad_s2",
+                spec.teleop_acceleration_rad_s2,
+            ),
+        ] {
+            if values.len() != n || values.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(bad(format!(
+                    "{what} needs {n} positive numbers, one per joint"
+                )));
+            }
+        }
+        for (what, v) in [
+            ("control_rate_hz", spec.control_rate_hz),
+            ("gripper_time_constant_s", spec.gripper_time_constant_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(format!("{what} is {v}; it must be a positive number")));
+            }
+        }
+        for (name, q) in spec.poses {
+            if q.len() != n || !arm.within_limits(q) {
+                return Err(bad(format!(
+                    "the pose `{name}` {q:?} is not {n} joint angles within the limits"
+                )));
+            }
+        }
+        if !spec.poses.iter().any(|(name, _)| *name == "home") {
+            return Err(bad("there is no `home` pose".into()));
+        }
+        let limits = ArmLimits {
+            names: arm.joint_names().to_vec(),
+            lower_rad: arm.lower().to_vec(),
+            upper_rad: arm.upper().to_vec(),
+            max_velocity_rad_s: spec
+                .teleop_velocity_rad_s
+                .iter()
+                .zip(arm.velocity_limits())
+                .map(|(d, u)| d.min(*u))
+                .collect(),
+            max_acceleration_rad_s2: spec.teleop_acceleration_rad_s2.to_vec(),
+        };
+        Ok(Self {
+            name: spec.name.to_owned(),
+            description: spec.description.to_owned(),
+            urdf_name: spec.urdf_name.to_owned(),
+            model,
+            arm,
+            limits,
+            poses: spec
+                .poses
+                .iter()
+                .map(|(name, q)| ((*name).to_owned(), q.to_vec()))
+                .collect(),
+            control_rate_hz: spec.control_rate_hz,
+            gripper_time_constant_s: spec.gripper_time_constant_s,
+        })
+    }
+
+    /// The name the graph TOML uses.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// How people call the robot.
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// How the robot description is named in messages.
+    pub fn urdf_name(&self) -> &str {
+        &self.urdf_name
+    }
+
+    /// The parsed robot description.
+    pub fn model(&self) -> &RobotModel {
+        &self.model
+    }
+
+    /// The arm chain from the base to the tool centre point: the tool model (FK, Jacobian).
+    pub fn arm(&self) -> &Chain {
+        &self.arm
+    }
+
+    /// Number of arm joints.
+    pub fn n_joints(&self) -> usize {
+        self.arm.n_joints()
+    }
+
+    /// The arm's joint names, base to tip.
+    pub fn joint_names(&self) -> &[String] {
+        self.arm.joint_names()
+    }
+
+    /// Teleoperation limits: position limits from the URDF; speeds the teleoperation
+    /// defaults capped by the URDF's velocity limits; the default accelerations.
+    pub fn limits(&self) -> &ArmLimits {
+        &self.limits
+    }
+
+    /// The URDF's velocity limits (rad/s): no configured speed may exceed them.
+    pub fn urdf_velocity_rad_s(&self) -> &[f64] {
+        self.arm.velocity_limits()
+    }
+
+    /// A named pose by name.
+    pub fn named_pose(&self, name: &str) -> Option<&[f64]> {
+        self.poses
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, q)| q.as_slice())
+    }
+
+    /// The names of the named poses.
+    pub fn pose_names(&self) -> impl Iterator<Item = &str> {
+        self.poses.iter().map(|(n, _)| n.as_str())
+    }
+
+    /// The rate of the robot's control interface (Hz).
+    pub fn control_rate_hz(&self) -> f64 {
+        self.control_rate_hz
+    }
+
+    /// The mock gripper's first-order lag (s).
+    pub fn gripper_time_constant_s(&self) -> f64 {
+        self.gripper_time_constant_s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gen3_lite::{self, Gen3Lite};
+
+    #[test]
+    fn every_builtin_profile_loads() {
+        for name in RobotProfile::names() {
+            let p = RobotProfile::by_name(name).unwrap();
+            assert_eq!(p.name(), name);
+            assert!(p.named_pose("home").is_some());
+        }
+        assert_eq!(
+            RobotProfile::default_robot().name(),
+            RobotProfile::default_name()
+        );
+    }
+
+    /// The profile says what the Gen3 lite module says.
+    #[test]
+    fn the_gen3_lite_profile_is_the_gen3_lite() {
+        let p = RobotProfile::by_name("gen3_lite").unwrap();
+        assert_eq!(p.limits(), &gen3_lite::limits());
+        assert_eq!(p.arm(), Gen3Lite::get().arm());
+        assert_eq!(p.model(), Gen3Lite::get().model());
+        for name in ["zero", "home", "retract"] {
+            assert_eq!(
+                p.named_pose(name).unwrap(),
+                gen3_lite::named_pose(name).unwrap()
+            );
+        }
+        assert!(p.named_pose("nowhere").is_none());
+        assert_eq!(p.control_rate_hz(), gen3_lite::CONTROL_RATE_HZ);
+        assert_eq!(
+            p.gripper_time_constant_s(),
+            gen3_lite::GRIPPER_TIME_CONSTANT_S
+        );
+        assert_eq!(
+            p.urdf_velocity_rad_s(),
+            Gen3Lite::get().arm().velocity_limits()
+        );
+        assert_eq!(p.description(), "Gen3 lite");
+    }
+
+    #[test]
+    fn unknown_robots_are_named_with_the_known_ones() {
+        let e = RobotProfile::by_name("ur5").unwrap_err().to_string();
+        assert_eq!(e, "`ur5` is not a known robot; known: gen3_lite");
+    }
+
+    /// Another arm is another spec: the planar reaching arm as a profile.
+    #[test]
+    fn a_profile_from_another_description_and_its_checks() {
+        let spec = ProfileSpec::planar5();
+        let p = RobotProfile::new(&spec).unwrap();
+        assert_eq!(p.n_joints(), 5);
+        assert_eq!(p.limits().max_acceleration_rad_s2, [2.0; 5]);
+        let e = RobotProfile::new(&ProfileSpec {
+            poses: &[("rest", &[0.0; 5])],
+            ..spec.clone()
+        })
+        .unwrap_err();
+        assert_eq!(e.to_string(), "robot planar5: there is no `home` pose");
+        let e = RobotProfile::new(&ProfileSpec {
+            teleop_velocity_rad_s: &[1.0; 4],
+            ..spec.clone()
+        })
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("teleop_velocity_rad_s needs 5"),
+            "{e}"
+        );
+        let e = RobotProfile::new(&ProfileSpec {
+            poses: &[("home", &[9.0; 5])],
+            ..spec
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("pose `home`"), "{e}");
+    }
+}
