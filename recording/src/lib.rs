@@ -273,13 +273,14 @@ const STATE_FLAG_NAMES: [&str; 6] = [
     "mock",
     "safety-stop",
 ];
-const MAPPER_FLAG_NAMES: [&str; 6] = [
+const MAPPER_FLAG_NAMES: [&str; 7] = [
     "no-input",
     "input-non-finite",
     "input-clamped",
     "output-non-finite",
     "state-invalid",
     "input-stale",
+    "ignores-input",
 ];
 
 // The bit positions the name tables above rely on.
@@ -288,6 +289,7 @@ const _: () = {
     assert!(state_flags::SAFETY_STOP == 1 << 5);
     assert!(mapper_flags::STATE_INVALID == 1 << 4);
     assert!(mapper_flags::INPUT_STALE == 1 << 5);
+    assert!(mapper_flags::IGNORES_INPUT == 1 << 6);
 };
 
 fn joints(v: &[f64; ipc_types::MAX_JOINTS], n: u32) -> Vec<f64> {
