@@ -44,6 +44,9 @@ fn safety_state_bits(f: &SafetyFilter) -> u32 {
     if f.held() {
         bits |= ipc_types::safety_state::HOLD;
     }
+    if f.awaiting_neutral() {
+        bits |= ipc_types::safety_state::AWAITING_NEUTRAL;
+    }
     bits
 }
 
@@ -124,6 +127,8 @@ pub fn run(
     apply_estop(&mut filter)?;
     scl_node::rt::elevate(graph_cfg, RtRole::Safety);
     st.mapper_id = filter.active_for_tick(0);
+    // At start-up too the arm waits for neutral input (restart prevention).
+    st.safety_state = safety_state_bits(&filter);
     status.send(st)?;
     tracing::info!(
         active_mapper = st.mapper_id,
@@ -178,9 +183,25 @@ pub fn run(
         st.handled += 1;
         st.mapper_id = active;
         st.rule_counts = filter.rule_counts();
+        let was_awaiting = st.safety_state & ipc_types::safety_state::AWAITING_NEUTRAL != 0;
         st.safety_state = safety_state_bits(&filter);
         if safe.flags & ipc_types::safe_flags::STOP != 0 {
             st.faults += 1;
+        }
+        if filter.awaiting_neutral() != was_awaiting {
+            if was_awaiting {
+                tracing::info!(tick = safe.tick, "neutral input seen: motion allowed again");
+            } else {
+                tracing::warn!(
+                    tick = safe.tick,
+                    "waiting for neutral input: the arm moves again once the stick is at rest{}",
+                    if cfg.deadman {
+                        " and the deadman released and pressed again"
+                    } else {
+                        ""
+                    }
+                );
+            }
         }
         // Say when the set of stop reasons changes, not every tick of a stop.
         let stop_flags = if safe.flags & ipc_types::safe_flags::STOP != 0 {
