@@ -246,6 +246,12 @@ impl SafetyFilter {
         self.estop
     }
 
+    /// The graph has stopped sending commands (no mapper, no ticks): whenever they resume,
+    /// the arm waits for neutral input first (as it would on seeing the gap in the ticks).
+    pub fn interrupt(&mut self) {
+        self.restart.interrupt();
+    }
+
     /// Whether the arm waits for the operator's input to pass through neutral before it
     /// moves again (restart prevention, [`restart`]).
     pub fn awaiting_neutral(&self) -> bool {

@@ -146,7 +146,9 @@ pub fn run(
         apply_estop(&mut filter)?;
         if !woke {
             // No commands (no mapper, no ticks): still say what state safety is in, so
-            // `scl estop` can confirm and `scl status` shows it alive.
+            // `scl estop` can confirm and `scl status` shows it alive, and that the arm will
+            // wait for neutral input when commands resume.
+            filter.interrupt();
             st.t_ns = now_ns();
             st.safety_state = safety_state_bits(&filter);
             status.send(st)?;
