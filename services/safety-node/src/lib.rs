@@ -25,6 +25,11 @@ use safety::{SafetyConfig, SafetyFilter};
 use ipc_types::signals;
 use scl_node::config::{GraphSection, RtRole};
 
+/// Without a command for this long (ns) the graph has stopped sending them: the arm will
+/// wait for neutral input when they resume (safety's own gap check says so too, at the next
+/// command; this only shows it meanwhile in the heartbeat).
+const NO_COMMANDS_NS: u64 = 100_000_000;
+
 /// The names of the rules set in `flags`, comma-separated.
 fn rule_names(flags: u32) -> String {
     ipc_types::safe_flags::NAMES
@@ -139,6 +144,7 @@ pub fn run(
     let mut state = None;
     let mut last_tick = NO_TICK;
     let mut last_stop_flags = 0;
+    let mut last_step_ns = now_ns();
     while !signals::stop_requested() {
         let woke = commands.wait(Duration::from_millis(100))?;
         let rx_ns = now_ns();
@@ -146,9 +152,12 @@ pub fn run(
         apply_estop(&mut filter)?;
         if !woke {
             // No commands (no mapper, no ticks): still say what state safety is in, so
-            // `scl estop` can confirm and `scl status` shows it alive, and that the arm will
-            // wait for neutral input when commands resume.
-            filter.interrupt();
+            // `scl estop` can confirm and `scl status` shows it alive, and, after 100 ms
+            // without a command, that the arm will wait for neutral input when they resume
+            // (a wait can also end without one: a signal, another mapper joining).
+            if rx_ns.saturating_sub(last_step_ns) > NO_COMMANDS_NS {
+                filter.interrupt();
+            }
             st.t_ns = now_ns();
             st.safety_state = safety_state_bits(&filter);
             status.send(st)?;
@@ -175,6 +184,7 @@ pub fn run(
         }
         last_tick = cmd.tick;
         let t0 = now_ns();
+        last_step_ns = t0;
         let mut safe = filter.step(&cmd, &state, t0);
         safe.mapper_rx_ns = rx_ns;
         safe.compute_ns = now_ns() - t0;
