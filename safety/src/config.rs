@@ -336,6 +336,43 @@ mod tests {
         assert!(e.to_string().contains("below the period (25 ms)"), "{e}");
     }
 
+    proptest::proptest! {
+        /// Any pair of age limits at any rate from 4 to 1000 Hz: accepted exactly when the
+        /// state's is in (0, period) and the joystick's in [2 periods, 500 ms].
+        #[test]
+        fn age_limits_are_accepted_exactly_within_their_bounds(
+            state_ms in proptest::prop_oneof![
+                4 => -10.0f64..300.0,
+                1 => proptest::strategy::Just(f64::NAN),
+                1 => proptest::strategy::Just(f64::INFINITY),
+            ],
+            joystick_ms in proptest::prop_oneof![
+                4 => -10.0f64..1000.0,
+                1 => proptest::strategy::Just(f64::NAN),
+                1 => proptest::strategy::Just(1e300),
+            ],
+            rate_hz in 4.0f64..1000.0,
+        ) {
+            let period_ms = 1e3 / rate_hz;
+            let cfg = SafetyConfig {
+                max_state_age_ms: state_ms,
+                max_joystick_age_ms: joystick_ms,
+                ..SafetyConfig::default()
+            };
+            let state_ok = state_ms > 0.0 && state_ms < period_ms;
+            let joystick_ok =
+                joystick_ms >= 2.0 * period_ms && joystick_ms <= MAX_JOYSTICK_AGE_LIMIT_MS;
+            match cfg.validate_ages(1.0 / rate_hz) {
+                Ok(()) => proptest::prop_assert!(state_ok && joystick_ok),
+                Err(e) if !state_ok => proptest::prop_assert_eq!(e.key, "max_state_age_ms"),
+                Err(e) => {
+                    proptest::prop_assert!(!joystick_ok);
+                    proptest::prop_assert_eq!(e.key, "max_joystick_age_ms");
+                }
+            }
+        }
+    }
+
     /// The Gen3 lite with its wrist's URDF velocity limit lowered from 3.2 to 1 rad/s.
     fn slow_wrist() -> Gen3Lite {
         let slow = gen3_lite::URDF.replace("velocity=\"3.2\"", "velocity=\"1.0\"");
