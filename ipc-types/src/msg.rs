@@ -194,14 +194,20 @@ pub mod mapper_flags {
     /// The newest joystick sample answers a tick two or more before this one: the joystick,
     /// which answers every tick, has stopped. The action was zero; safety stops the arm.
     pub const INPUT_STALE: u32 = 1 << 5;
+    /// The map ignores the action by design (the drill map `constant:qdot=...`): it moves
+    /// whenever safety lets it, so a command without any joystick sample yet is not stale,
+    /// and with the deadman required its release and press alone re-arm the arm after a
+    /// stop.
+    pub const IGNORES_INPUT: u32 = 1 << 6;
     /// Short names of the bits, in bit order.
-    pub const NAMES: [&str; 6] = [
+    pub const NAMES: [&str; 7] = [
         "no-input",
         "input-non-finite",
         "input-clamped",
         "output-non-finite",
         "state-invalid",
         "input-stale",
+        "ignores-input",
     ];
 }
 
@@ -279,8 +285,13 @@ pub mod safe_flags {
     pub const DEADMAN: u32 = 1 << 11;
     /// The e-stop is latched (joystick button or `scl estop`) until `scl reset`: zero at once.
     pub const ESTOP: u32 = 1 << 12;
+    /// Restart prevention: after a stop a fault caused (and at start-up), the arm stays
+    /// stopped until the operator's input has passed through neutral (the stick within
+    /// `safety::restart::NEUTRAL_MAX_ACTION`, and with the deadman required, the deadman
+    /// released and pressed again). Set on the ticks this is the only reason for the stop.
+    pub const AWAITING_NEUTRAL: u32 = 1 << 13;
     /// Number of flag bits, for per-rule counters.
-    pub const COUNT: usize = 13;
+    pub const COUNT: usize = 14;
     /// Short names of the bits, in bit order, for status displays.
     pub const NAMES: [&str; COUNT] = [
         "non-finite",
@@ -296,6 +307,7 @@ pub mod safe_flags {
         "workspace",
         "deadman",
         "e-stop",
+        "awaiting-neutral",
     ];
 }
 
@@ -444,8 +456,11 @@ pub mod safety_state {
     pub const ESTOP: u32 = 1 << 0;
     /// The supervisor holds the arm.
     pub const HOLD: u32 = 1 << 1;
+    /// Restart prevention: the arm waits for the operator's input to pass through neutral
+    /// before it moves again (see [`super::safe_flags::AWAITING_NEUTRAL`]).
+    pub const AWAITING_NEUTRAL: u32 = 1 << 2;
     /// Short names of the bits, in bit order.
-    pub const NAMES: [&str; 2] = ["e-stop", "hold"];
+    pub const NAMES: [&str; 3] = ["e-stop", "hold", "awaiting-neutral"];
 }
 
 /// Heartbeat of one process, published once per tick it handled (and once when ready).

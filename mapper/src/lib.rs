@@ -6,6 +6,7 @@
 //! * [`pca`]: the paper's linear baseline `qdot = Σ a`, and its fit from demonstrations.
 //! * [`modeswitch`]: Cartesian mode switching (x-y, z-yaw, roll-pitch) by damped least squares
 //!   on the Gen3 lite's Jacobian, with Cartesian speed limits and a slowdown near singularities.
+//! * [`constant`]: the drill map (`constant:qdot=...`), one joint velocity whatever the stick.
 //! * [`model`]: the model file (`*.safetensors` with a JSON header in its metadata) and the
 //!   reader that turns a file into a ready [`ActionMap`], refusing bad files at load time.
 //! * [`dataset`]: demonstrations as CSV trajectories of `(t, q, c, qdot, cdot)`.
@@ -20,6 +21,7 @@
 //!   MapperCommand`.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod constant;
 pub mod model;
 pub mod modeswitch;
 pub mod network;
@@ -50,6 +52,14 @@ pub trait ActionMap: Send {
     /// The current mode, for maps that have modes (mode switching); `None` otherwise.
     fn mode(&self) -> Option<MapMode> {
         None
+    }
+    /// Whether the output depends on the action. A map that ignores it by design (the drill
+    /// map, [`constant`]) says so: its commands carry
+    /// [`ipc_types::mapper_flags::IGNORES_INPUT`], so safety does not take a graph without a
+    /// joystick sample for a stale one, and with the deadman required re-arms on the deadman
+    /// alone after a stop.
+    fn uses_input(&self) -> bool {
+        true
     }
 }
 

@@ -38,10 +38,10 @@ pub const BUNDLED: &[u8] = include_bytes!("../../models/default.safetensors");
 pub const BUNDLED_NAME: &str = "bundled";
 
 /// Whether `spec` names a map built into the binary ([`BUNDLED_NAME`], the mode-switching
-/// spec) rather than a file, so configs and clients leave it as it is instead of resolving it
-/// as a path.
+/// spec, the drill map's spec) rather than a file, so configs and clients leave it as it is
+/// instead of resolving it as a path.
 pub fn is_builtin(spec: &str) -> bool {
-    spec == BUNDLED_NAME || crate::modeswitch::is_spec(spec)
+    spec == BUNDLED_NAME || crate::modeswitch::is_spec(spec) || crate::constant::is_spec(spec)
 }
 
 /// The kind of map a file holds.
@@ -56,6 +56,8 @@ pub enum ModelKind {
     Cae,
     /// Cartesian mode switching ([`crate::modeswitch`]): header only, no tensors.
     ModeSwitch,
+    /// The drill map ([`crate::constant`]): one joint velocity, served from its spec only.
+    Constant,
 }
 
 impl std::fmt::Display for ModelKind {
@@ -65,6 +67,7 @@ impl std::fmt::Display for ModelKind {
             Self::Scl => "scl",
             Self::Cae => "cae",
             Self::ModeSwitch => "modeswitch",
+            Self::Constant => "constant",
         })
     }
 }
@@ -336,15 +339,24 @@ impl LoadedModel {
         Self::load_for(spec, kinematics::RobotProfile::default_robot())
     }
 
-    /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary, or
+    /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary,
     /// `modeswitch[:key=value,...]` for the mode-switching map ([`crate::modeswitch::SPEC`]),
-    /// which drives `robot`'s arm with its kinematics and limits.
+    /// which drives `robot`'s arm with its kinematics and limits, or `constant:qdot=v1,...,v6`
+    /// for the drill map ([`crate::constant::SPEC`]).
     pub fn load_for(
         spec: &str,
         robot: &'static kinematics::RobotProfile,
     ) -> Result<Self, ModelError> {
         if spec == BUNDLED_NAME {
             return Self::from_bytes_for(BUNDLED, Path::new(BUNDLED_NAME), robot);
+        }
+        if crate::constant::is_spec(spec) {
+            let (header, map) = crate::constant::ConstantMap::from_spec_for(robot, spec)?;
+            return Ok(Self {
+                source: spec.to_owned(),
+                header,
+                map: Box::new(map),
+            });
         }
         if crate::modeswitch::is_spec(spec) {
             let (header, map) = crate::modeswitch::ModeSwitchMap::from_spec_for(robot, spec)?;
@@ -387,6 +399,14 @@ impl LoadedModel {
             ModelKind::ModeSwitch => Box::new(crate::modeswitch::ModeSwitchMap::from_file_for(
                 robot, bytes, &header, path,
             )?),
+            ModelKind::Constant => {
+                return Err(ModelError::BadHeader {
+                    path: path.to_owned(),
+                    reason: "the drill map is served from its spec `constant:qdot=...`, \
+                             not from a file"
+                        .into(),
+                });
+            }
         };
         Ok(Self {
             source: path.display().to_string(),

@@ -64,7 +64,11 @@ impl MapperStep {
     /// a missing, non-finite or stale sample leaves the held buttons as they were.
     pub fn step(&mut self, state: &RobotState, joy: Option<&JoystickInput>) -> MapperCommand {
         let m = self.model.header.n_joints;
-        let mut flags = 0;
+        let mut flags = if self.model.map.uses_input() {
+            0
+        } else {
+            mapper_flags::IGNORES_INPUT
+        };
         let mut a = [0.0f64; ACTION_DIM];
         let mut gripper = 0.0;
         match joy {

@@ -20,10 +20,12 @@ pub struct SafetyConfig {
     pub speed_override: f64,
     /// Largest gripper rate passed on (1/s on the `c` scale).
     pub max_gripper_rate: f64,
-    /// A command whose joystick sample is older than this stops the arm (ms).
+    /// A command whose joystick sample is older than this stops the arm (ms). At least two
+    /// periods (50 ms at 40 Hz: a sample answers the previous tick) and at most
+    /// [`MAX_JOYSTICK_AGE_LIMIT_MS`].
     pub max_joystick_age_ms: f64,
-    /// A command computed from a robot state older than this stops the arm (ms). Must be
-    /// shorter than the 25 ms period.
+    /// A command computed from a robot state older than this stops the arm (ms). Above 0 and
+    /// shorter than the period (25 ms at 40 Hz).
     pub max_state_age_ms: f64,
     /// Require the joystick's deadman button to be held; released means stop.
     pub deadman: bool,
@@ -92,6 +94,10 @@ impl Default for WorkspaceConfig {
         }
     }
 }
+
+/// The largest `max_joystick_age_ms` accepted (ms): an operator's input older than half a
+/// second is not trusted to move the arm, whatever the configuration.
+pub const MAX_JOYSTICK_AGE_LIMIT_MS: f64 = 500.0;
 
 /// A configuration value that cannot be used; the message names the key.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -213,8 +219,6 @@ impl SafetyConfig {
             ));
         }
         positive("max_gripper_rate", self.max_gripper_rate)?;
-        positive("max_joystick_age_ms", self.max_joystick_age_ms)?;
-        positive("max_state_age_ms", self.max_state_age_ms)?;
         let w = &self.workspace;
         positive("workspace.deceleration_m_s2", w.deceleration_m_s2)?;
         for i in 0..3 {
@@ -236,6 +240,39 @@ impl SafetyConfig {
                 format!(
                     "{} must be below the box top ({} m)",
                     w.table_z_m, w.box_max_m[2]
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks the age limits against the tick period `period_s`: a limit that would disable
+    /// its check (0, negative, not a number, or so long it never acts) or make it act on every
+    /// tick is an error naming the key, never saturated silently.
+    ///
+    /// * `max_state_age_ms` in `(0, period)`: a state a period old is the previous tick's.
+    /// * `max_joystick_age_ms` in `[2 periods, MAX_JOYSTICK_AGE_LIMIT_MS]`: the sample a
+    ///   command uses answers the previous tick, so a younger limit stops a healthy graph.
+    pub fn validate_ages(&self, period_s: f64) -> Result<(), ConfigError> {
+        let period_ms = period_s * 1e3;
+        let s = self.max_state_age_ms;
+        if !(s.is_finite() && s > 0.0 && s < period_ms) {
+            return Err(err(
+                "max_state_age_ms",
+                format!(
+                    "is {s} ms; it must be above 0 and below the period ({period_ms} ms): \
+                     a state a period old is the previous tick's"
+                ),
+            ));
+        }
+        let j = self.max_joystick_age_ms;
+        let lo = 2.0 * period_ms;
+        if !(j.is_finite() && j >= lo && j <= MAX_JOYSTICK_AGE_LIMIT_MS) {
+            return Err(err(
+                "max_joystick_age_ms",
+                format!(
+                    "is {j} ms; it must be from two periods ({lo} ms: a sample answers the \
+                     previous tick) to {MAX_JOYSTICK_AGE_LIMIT_MS} ms"
                 ),
             ));
         }
@@ -264,6 +301,87 @@ mod tests {
         assert_eq!(d.max_velocity_rad_s, [0.48, 0.48, 0.48, 0.76, 0.76, 1.0]);
         d.validate_for(&g.limits(), g.arm().velocity_limits())
             .unwrap();
+    }
+
+    #[test]
+    fn age_limits_that_disable_their_check_are_refused_naming_the_key() {
+        let d = SafetyConfig::default();
+        d.validate_ages(0.025).unwrap();
+        let key = |cfg: SafetyConfig, period: f64| cfg.validate_ages(period).unwrap_err().key;
+        for bad in [0.0, -1.0, 25.0, 1e300, f64::NAN, f64::INFINITY] {
+            let cfg = SafetyConfig {
+                max_state_age_ms: bad,
+                ..d.clone()
+            };
+            assert_eq!(key(cfg, 0.025), "max_state_age_ms", "{bad}");
+        }
+        for bad in [0.0, -5.0, 49.0, 500.1, 1e300, f64::NAN, f64::INFINITY] {
+            let cfg = SafetyConfig {
+                max_joystick_age_ms: bad,
+                ..d.clone()
+            };
+            assert_eq!(key(cfg, 0.025), "max_joystick_age_ms", "{bad}");
+        }
+        // The bounds themselves are fine.
+        for ok in [50.0, MAX_JOYSTICK_AGE_LIMIT_MS] {
+            SafetyConfig {
+                max_joystick_age_ms: ok,
+                ..d.clone()
+            }
+            .validate_ages(0.025)
+            .unwrap();
+        }
+        // The state's limit follows the period: 20 ms is too long at 100 Hz.
+        assert_eq!(key(d.clone(), 0.01), "max_state_age_ms");
+        // So does the filter, and the message says why.
+        let e = crate::SafetyFilter::new(
+            SafetyConfig {
+                max_state_age_ms: 30.0,
+                ..d
+            },
+            &gen3_lite::limits(),
+            0.025,
+        )
+        .unwrap_err();
+        assert_eq!(e.key, "max_state_age_ms");
+        assert!(e.to_string().contains("below the period (25 ms)"), "{e}");
+    }
+
+    proptest::proptest! {
+        /// Any pair of age limits at any rate from 4 to 1000 Hz: accepted exactly when the
+        /// state's is in (0, period) and the joystick's in [2 periods, 500 ms].
+        #[test]
+        fn age_limits_are_accepted_exactly_within_their_bounds(
+            state_ms in proptest::prop_oneof![
+                4 => -10.0f64..300.0,
+                1 => proptest::strategy::Just(f64::NAN),
+                1 => proptest::strategy::Just(f64::INFINITY),
+            ],
+            joystick_ms in proptest::prop_oneof![
+                4 => -10.0f64..1000.0,
+                1 => proptest::strategy::Just(f64::NAN),
+                1 => proptest::strategy::Just(1e300),
+            ],
+            rate_hz in 4.0f64..1000.0,
+        ) {
+            let period_ms = 1e3 / rate_hz;
+            let cfg = SafetyConfig {
+                max_state_age_ms: state_ms,
+                max_joystick_age_ms: joystick_ms,
+                ..SafetyConfig::default()
+            };
+            let state_ok = state_ms > 0.0 && state_ms < period_ms;
+            let joystick_ok =
+                joystick_ms >= 2.0 * period_ms && joystick_ms <= MAX_JOYSTICK_AGE_LIMIT_MS;
+            match cfg.validate_ages(1.0 / rate_hz) {
+                Ok(()) => proptest::prop_assert!(state_ok && joystick_ok),
+                Err(e) if !state_ok => proptest::prop_assert_eq!(e.key, "max_state_age_ms"),
+                Err(e) => {
+                    proptest::prop_assert!(!joystick_ok);
+                    proptest::prop_assert_eq!(e.key, "max_joystick_age_ms");
+                }
+            }
+        }
     }
 
     /// The Gen3 lite with its wrist's URDF velocity limit lowered from 3.2 to 1 rad/s.

@@ -5,8 +5,12 @@
 //!
 //! Each tick, in this order:
 //! 1. Faults stop the arm: a non-finite value, a mis-shaped command, a stale robot state,
-//!    joystick sample or command, a supervisor hold, a released deadman. The target becomes
-//!    zero and the acceleration limit turns that into a controlled stop.
+//!    joystick sample (also none at all, unless the map ignores the input by design) or
+//!    command, a supervisor hold, a released deadman. The target becomes zero and the
+//!    acceleration limit turns that into a controlled stop. After a fault (these, or ticks
+//!    the bridge did not execute: missed, a process that died or restarted) and at start-up,
+//!    the arm stays stopped until the operator's input has passed through neutral
+//!    ([`restart`], flagged [`safe_flags::AWAITING_NEUTRAL`]).
 //! 2. A latched e-stop (joystick button or `scl estop`, released only by `scl reset`)
 //!    commands zero at once, the one rule that does not wait for the acceleration limit.
 //! 3. The speed override, then the joint velocity limits by one uniform factor (the command
@@ -36,9 +40,11 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod config;
+pub mod restart;
 pub mod rules;
 
 pub use config::{ConfigError, SafetyConfig, WorkspaceConfig};
+pub use restart::{NEUTRAL_MAX_ACTION, RestartGuard, RestartState};
 pub use rules::{Bounds, ChainTcp, TcpModel, limit_change, uniform_scale};
 
 use ipc_types::{
@@ -76,6 +82,7 @@ pub struct SafetyFilter {
     pending: Option<(u32, u64)>,
     hold: bool,
     estop: bool,
+    restart: RestartGuard,
     tcp: Option<Box<dyn TcpModel>>,
     bounds: Bounds,
     counts: [u32; 16],
@@ -114,6 +121,7 @@ impl std::fmt::Debug for SafetyFilter {
             .field("active", &self.active)
             .field("estop", &self.estop)
             .field("hold", &self.hold)
+            .field("restart", &self.restart.state())
             .field("workspace_model", &self.tcp.is_some())
             .finish()
     }
@@ -156,6 +164,7 @@ impl SafetyFilter {
                 reason: format!("{period_s} s is not a positive period"),
             });
         }
+        cfg.validate_ages(period_s)?;
         let n = limits.n_joints().min(MAX_JOINTS);
         let mut f = Self {
             dt: period_s,
@@ -172,6 +181,7 @@ impl SafetyFilter {
             pending: None,
             hold: false,
             estop: false,
+            restart: RestartGuard::new(cfg.deadman),
             tcp: None,
             bounds: Bounds::new(0.0, [0.0; 3], [0.0; 3]),
             counts: [0; 16],
@@ -253,6 +263,18 @@ impl SafetyFilter {
         self.estop
     }
 
+    /// The graph has stopped sending commands (no mapper, no ticks): whenever they resume,
+    /// the arm waits for neutral input first (as it would on seeing the gap in the ticks).
+    pub fn interrupt(&mut self) {
+        self.restart.interrupt();
+    }
+
+    /// Whether the arm waits for the operator's input to pass through neutral before it
+    /// moves again (restart prevention, [`restart`]).
+    pub fn awaiting_neutral(&self) -> bool {
+        !self.restart.armed()
+    }
+
     /// How many ticks each rule acted, by bit of [`safe_flags`].
     pub fn rule_counts(&self) -> [u32; 16] {
         self.counts
@@ -332,23 +354,49 @@ impl SafetyFilter {
         if now_ns.saturating_sub(cmd.state_t_ns) > self.max_state_age_ns {
             flags |= safe_flags::STALE_STATE;
         }
-        if (cmd.joystick_t_ns != 0
-            && now_ns.saturating_sub(cmd.joystick_t_ns) > self.max_joystick_age_ns)
-            || cmd.flags & mapper_flags::INPUT_STALE != 0
-        {
+        let ignores_input = cmd.flags & mapper_flags::IGNORES_INPUT != 0;
+        let joystick_stale = if cmd.joystick_t_ns == 0 {
+            // No sample ever: only a map that ignores the input by design may move.
+            !ignores_input
+        } else {
+            now_ns.saturating_sub(cmd.joystick_t_ns) > self.max_joystick_age_ns
+        };
+        if joystick_stale || cmd.flags & mapper_flags::INPUT_STALE != 0 {
             flags |= safe_flags::STALE_JOYSTICK;
         }
         if self.hold {
             flags |= safe_flags::HOLD;
-        }
-        if self.cfg.deadman && cmd.buttons & buttons::DEADMAN == 0 {
-            flags |= safe_flags::DEADMAN;
         }
         if cmd.buttons & buttons::ESTOP != 0 {
             self.estop = true;
         }
         if self.estop {
             flags |= safe_flags::ESTOP;
+        }
+        // Restart prevention: any fault above, a device that is gone, or ticks the bridge did
+        // not execute since our last command (missed, or a process of the graph died or
+        // restarted meanwhile) wait for neutral input.
+        let device_gone = cmd.buttons & buttons::NO_DEVICE != 0;
+        if self.prev_tick != NO_TICK
+            && !(cmd.tick == self.prev_tick.wrapping_add(1) && state.applied_tick == self.prev_tick)
+        {
+            self.restart.interrupt();
+        }
+        let unusable =
+            mapper_flags::NO_INPUT | mapper_flags::INPUT_NON_FINITE | mapper_flags::INPUT_STALE;
+        let operator =
+            (cmd.flags & unusable == 0 && !device_gone && cmd.action.iter().all(|a| a.is_finite()))
+                .then(|| restart::Operator {
+                    action_norm: f64::from(cmd.action[0]).hypot(f64::from(cmd.action[1])),
+                    deadman: cmd.buttons & buttons::DEADMAN != 0,
+                    uses_input: !ignores_input,
+                });
+        let armed = self.restart.tick(flags != 0 || device_gone, operator);
+        if self.cfg.deadman && cmd.buttons & buttons::DEADMAN == 0 {
+            flags |= safe_flags::DEADMAN;
+        }
+        if !armed && flags == 0 {
+            flags |= safe_flags::AWAITING_NEUTRAL;
         }
         let stop = flags != 0;
 
@@ -705,10 +753,24 @@ mod tests {
     }
 
     #[test]
-    fn no_joystick_sample_yet_is_not_stale() {
+    fn no_joystick_sample_yet_is_stale_unless_the_map_ignores_the_input() {
         let mut c = cmd(5, [0.0; 6]);
         c.joystick_t_ns = 0;
-        assert_eq!(filter().step(&c, &state(5), NOW).flags, 0);
+        c.flags = mapper_flags::NO_INPUT;
+        assert_eq!(
+            filter().step(&c, &state(5), NOW).flags,
+            safe_flags::STALE_JOYSTICK | safe_flags::STOP
+        );
+        c.flags |= mapper_flags::IGNORES_INPUT;
+        let mut f = filter();
+        // Not stale; but no sample is no neutral input either: the arm waits for one.
+        assert_eq!(
+            f.step(&c, &state(5), NOW).flags,
+            safe_flags::AWAITING_NEUTRAL | safe_flags::STOP
+        );
+        let mut c = cmd(6, [0.0; 6]);
+        c.flags = mapper_flags::IGNORES_INPUT;
+        assert_eq!(f.step(&c, &state(6), NOW).flags, 0);
     }
 
     #[test]

@@ -40,7 +40,9 @@ enum Cmd {
         /// Print one JSON summary object on stdout at the end.
         #[arg(long)]
         json: bool,
-        /// Serve this model file (or `bundled`, or `modeswitch` for Cartesian mode switching)
+        /// Serve this model file (or `bundled`, `modeswitch[:key=value,...]` for Cartesian
+        /// mode switching, or the drill map `constant:qdot=v1,...,v6`: that joint velocity in
+        /// rad/s whenever safety lets it, whatever the stick, each within the URDF's limits)
         /// instead of the config's.
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
@@ -66,7 +68,8 @@ enum Cmd {
     /// it at a tick boundary, then stops the old one. A model that does not load is refused
     /// and the old mapper keeps running.
     Swap {
-        /// Model file, `bundled` or `modeswitch`.
+        /// Model file, `bundled`, `modeswitch[:key=value,...]` or the drill map
+        /// `constant:qdot=v1,...,v6` (rad/s, whatever the stick).
         model: String,
         /// How long to wait for the switch-over.
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
@@ -93,7 +96,8 @@ enum Cmd {
     Joystick(scl_joystick::JoystickArgs),
     /// A mapper process serving one model.
     Mapper {
-        /// Model file, `bundled` or `modeswitch[:key=value,...]`.
+        /// Model file, `bundled`, `modeswitch[:key=value,...]` or the drill map
+        /// `constant:qdot=v1,...,v6` (rad/s, whatever the stick).
         #[arg(long, value_name = "FILE")]
         model: Option<String>,
         /// Mapper id (safety forwards only the active id).

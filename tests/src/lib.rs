@@ -281,6 +281,56 @@ pub fn joint_reach_pca(dir: &Path, speed_scale_rad_s: Option<f64>) -> PathBuf {
     out
 }
 
+/// One row of a recorded joystick input (the replay source's CSV): from `t_s` on, the axes
+/// `axes` and the button bits `buttons`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InputRow {
+    /// Seconds from the replay's start (its first robot tick).
+    pub t_s: f64,
+    /// The two axes.
+    pub axes: [f32; 2],
+    /// `ipc_types::buttons` bits.
+    pub buttons: u32,
+}
+
+/// Writes `rows` as a recorded input file the replay source plays (`[joystick] source =
+/// "replay"`); after the last row the input is neutral.
+pub fn write_replay(path: &Path, rows: &[InputRow]) {
+    let mut text = String::from("t_s,a0,a1,gripper,buttons\n");
+    for r in rows {
+        text += &format!("{:.3},{},{},0,{}\n", r.t_s, r.axes[0], r.axes[1], r.buttons);
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// A stick held at `axes` with short returns to neutral: at rest for the first 0.5 s (the
+/// arm's first motion needs a neutral input), then `axes` for `hold_s` and rest for `rest_s`,
+/// repeated until `until_s`. Tests that hold a direction use it instead of the constant
+/// script where the arm must move again after a stop a fault caused (a machine's hold-up of
+/// the bridge is one): it waits for the next neutral pass (restart prevention).
+pub fn pulses(axes: [f32; 2], hold_s: f64, rest_s: f64, until_s: f64) -> Vec<InputRow> {
+    let mut rows = vec![InputRow {
+        t_s: 0.0,
+        axes: [0.0, 0.0],
+        buttons: 0,
+    }];
+    let mut t = 0.5;
+    while t < until_s {
+        rows.push(InputRow {
+            t_s: t,
+            axes,
+            buttons: 0,
+        });
+        rows.push(InputRow {
+            t_s: t + hold_s,
+            axes: [0.0, 0.0],
+            buttons: 0,
+        });
+        t += hold_s + rest_s;
+    }
+    rows
+}
+
 /// A fresh temporary directory for one test.
 pub fn temp_dir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("scl-{tag}-{}", std::process::id()));

@@ -321,7 +321,11 @@ fn a_restarted_bridge_reconnects_after_the_robot_stopped_the_arm_itself() {
         // A restart delay longer than the robot's connection timeout (200 ms), so that the
         // robot's watchdog, not the new bridge, stops the arm (the fake models a new session
         // that comes sooner: a_new_session_does_not_cancel_the_frozen_sessions_connection_timeout).
-        "\n[supervisor]\nbackoff_initial_ms = 1000\n[supervisor.restart]\nbridge = \"on-failure\"\n",
+        // The step script's stick returns to neutral every 2.5 s: the restarted bridge starts
+        // from a stop, and the arm moves again only once the stick has passed through neutral
+        // (restart prevention); the circle never does.
+        "\n[supervisor]\nbackoff_initial_ms = 1000\n[supervisor.restart]\nbridge = \"on-failure\"\n\
+         [joystick]\nscript = \"step\"\n",
     );
     let log = dir.0.join("up.log");
     let prefix = unique_prefix("kxrestart");

@@ -9,8 +9,8 @@ use std::time::Duration;
 use ipc_types::{NodeRole, Prefix, RobotState, SafeCommand, phase, safe_flags, state_flags};
 use kinematics::gen3_lite::{DEFAULT_ACCELERATION_RAD_S2, DEFAULT_VELOCITY_RAD_S};
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, joint_reach_pca, run_polling, scl, serial, temp_dir,
-    unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, InputRow, Recorder, joint_reach_pca, pulses, run_polling, scl, serial,
+    temp_dir, unique_prefix, wait_clean, write_replay,
 };
 
 const DT: f64 = 0.025;
@@ -62,9 +62,25 @@ fn run_graph(
     after_ticks: usize,
     during: impl FnOnce(&Prefix, &mut Recorder),
 ) -> Run {
+    run_graph_with_input(tag, config, &[], secs, after_ticks, during)
+}
+
+/// [`run_graph`] with the recorded input `input` in the run's directory as `input.csv`, for
+/// the replay source (`[joystick] source = "replay"`, `replay_file = "input.csv"`).
+fn run_graph_with_input(
+    tag: &str,
+    config: &str,
+    input: &[InputRow],
+    secs: u32,
+    after_ticks: usize,
+    during: impl FnOnce(&Prefix, &mut Recorder),
+) -> Run {
     let prefix = unique_prefix(tag);
     let domain = DomainGuard(prefix.clone());
     let dir = temp_dir(tag);
+    if !input.is_empty() {
+        write_replay(&dir.join("input.csv"), input);
+    }
     let cfg = dir.join("graph.toml");
     // `@PCA@` stands for a model with known directions (see `joint_reach_pca`).
     let config = config.replace("@PCA@", &joint_reach_pca(&dir, None).display().to_string());
@@ -132,12 +148,23 @@ fn ticks_to_standstill(states: &[RobotState], from_tick: u64) -> u64 {
     panic!("the arm never stood still after tick {from_tick}");
 }
 
+/// The replayed stick of the tests that drive into a bound: held at `axes`, back to neutral
+/// for 0.25 s every 2 s. A released e-stop, and any stop a fault caused (a machine's hold-up
+/// of the bridge), lets the arm move again only once the stick has passed through neutral
+/// (restart prevention); a constant stick never does.
+fn held_with_rests(axes: [f32; 2], secs: u32) -> Vec<InputRow> {
+    pulses(axes, 2.0, 0.25, f64::from(secs))
+}
+
+const REPLAY: &str = "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n";
+
 #[test]
 fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
     let _serial = serial();
-    let run = run_graph(
+    let run = run_graph_with_input(
         "limit",
-        "[mapper]\nmodel = \"@PCA@\"\n[joystick]\nscript = \"constant\"\n",
+        &format!("[mapper]\nmodel = \"@PCA@\"\n{REPLAY}"),
+        &held_with_rests([1.0, 0.0], 14),
         14,
         30,
         |prefix, rec| {
@@ -180,6 +207,20 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
             .iter()
             .any(|c| c.qdot_rad_s.iter().any(|v| *v != 0.0)),
         "motion did not resume after the reset"
+    );
+    // But only once the stick had passed through neutral (it rests every 2 s): the mapper
+    // mapped a neutral stick between the reset and the first motion.
+    let moved = cmds[last + 1..]
+        .iter()
+        .find(|c| c.qdot_rad_s.iter().any(|v| *v != 0.0))
+        .unwrap();
+    assert!(
+        run.rec
+            .mapper_commands
+            .iter()
+            .any(|m| m.tick > cmds[last].tick && m.tick <= moved.tick && m.action == [0.0, 0.0]),
+        "moved at tick {} after the reset without a neutral input",
+        moved.tick
     );
     assert!(
         run.first_command_with(safe_flags::POSITION_LIMITED)
@@ -235,10 +276,11 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
 #[test]
 fn a_nan_from_the_mapper_is_a_controlled_stop_for_that_tick() {
     let _serial = serial();
-    let run = run_graph(
+    let run = run_graph_with_input(
         "nan",
-        "[faults]\nmapper_nan_at_tick = 120\n",
-        5,
+        &format!("[faults]\nmapper_nan_at_tick = 120\n{REPLAY}"),
+        &held_with_rests([1.0, 0.0], 8),
+        8,
         0,
         |_, _| {},
     );
@@ -268,7 +310,8 @@ fn a_nan_from_the_mapper_is_a_controlled_stop_for_that_tick() {
                 <= DEFAULT_ACCELERATION_RAD_S2[j] * DT * (1.0 + 1e-9)
         );
     }
-    // Only that tick: the commands after it are normal again.
+    // Only that tick: the commands after it are normal again, once the operator's input has
+    // passed through neutral (the stick rests every 2 s; until then the arm waits for it).
     assert!(
         run.rec
             .safe_commands
@@ -276,6 +319,29 @@ fn a_nan_from_the_mapper_is_a_controlled_stop_for_that_tick() {
             .filter(|c| c.flags & safe_flags::NON_FINITE != 0)
             .count()
             == 1
+    );
+    let after: Vec<_> = run
+        .rec
+        .safe_commands
+        .iter()
+        .filter(|c| c.tick > 120)
+        .collect();
+    let resumed = after
+        .iter()
+        .position(|c| c.flags & safe_flags::STOP == 0)
+        .expect("the arm never moved again");
+    assert!(resumed > 0, "moved on at once with the stick held");
+    assert!(
+        after[..resumed]
+            .iter()
+            .any(|c| c.flags & safe_flags::AWAITING_NEUTRAL != 0),
+        "the stop after the NaN did not wait for a neutral input"
+    );
+    assert!(
+        after[resumed..]
+            .iter()
+            .any(|c| c.flags == 0 && c.qdot_rad_s.iter().any(|v| *v != 0.0)),
+        "no normal command after the neutral input"
     );
     run.finish();
 }
@@ -296,8 +362,13 @@ fn a_silent_joystick_stops_the_arm_within_the_configured_age() {
         .iter()
         .rfind(|j| j.tick != ipc_types::NO_TICK)
         .unwrap();
-    let stale = run
-        .first_command_with(safe_flags::STALE_JOYSTICK)
+    // The first stale command after the last sample (a command before the joystick's first
+    // sample is stale too: no sample at all).
+    let stale = *run
+        .rec
+        .safe_commands
+        .iter()
+        .find(|c| c.tick > last_sample.tick && c.flags & safe_flags::STALE_JOYSTICK != 0)
         .expect("no stale-joystick stop");
     assert!(stale.flags & safe_flags::STOP != 0);
     // Configured age 100 ms = 4 ticks, plus the tick the last sample answered.
@@ -387,9 +458,10 @@ fn robot_states_that_stop_arriving_end_in_a_controlled_stop() {
 #[test]
 fn driving_into_the_table_stops_at_the_plane() {
     let _serial = serial();
-    let run = run_graph(
+    let run = run_graph_with_input(
         "table",
-        "[mapper]\nmodel = \"@PCA@\"\n[joystick]\nscript = \"constant\"\nconstant_axes = [0.0, -1.0]\n",
+        &format!("[mapper]\nmodel = \"@PCA@\"\n{REPLAY}"),
+        &held_with_rests([0.0, -1.0], 10),
         10,
         0,
         |_, _| {},

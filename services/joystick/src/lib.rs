@@ -13,7 +13,9 @@
 //! Whatever the source, the process publishes one sample at start, one on every change of the
 //! input, and one on every robot tick, answering it (`JoystickInput::tick` is the newest robot
 //! tick seen), so the sample's age is always known downstream and a dead joystick stops the
-//! arm within two ticks. `--record-input FILE` writes every change to a file [`replay`] reads.
+//! arm within two ticks. A press of the e-stop button also goes out on the e-stop topic
+//! ([`EstopButton`]), so it latches with safety alone, whatever the mappers are doing.
+//! `--record-input FILE` writes every change to a file [`replay`] reads.
 //!
 //! The loop waits on the robot state's event and, for the threaded sources, on an eventfd
 //! ([`Waker`]) their threads ring after handing something over: it never polls and never
@@ -197,6 +199,25 @@ impl Outbox {
         self.seq += 1;
         self.last = Some(input);
         Some(s)
+    }
+}
+
+/// The e-stop button's presses: the process publishes each on the e-stop topic itself
+/// ([`ipc_types::control::EstopCommand`], as `scl estop` does), so a press latches safety's
+/// e-stop even while no mapper carries the button's bit (dead, restarting, being swapped).
+#[derive(Debug, Default)]
+pub struct EstopButton {
+    held: bool,
+}
+
+impl EstopButton {
+    /// Whether `buttons` presses the e-stop: a rising edge of [`buttons::ESTOP`]; held at the
+    /// first sample counts as a press.
+    pub fn pressed(&mut self, buttons: u32) -> bool {
+        let held = buttons & buttons::ESTOP != 0;
+        let pressed = held && !self.held;
+        self.held = held;
+        pressed
     }
 }
 
@@ -533,6 +554,28 @@ pub fn run(
     };
     let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
     let publisher = graph.joystick_publisher()?;
+    // Kept for the process's life: a sample of a publisher that is gone is not delivered.
+    let estop_publisher = graph.estop_publisher()?;
+    let mut estop_button = EstopButton::default();
+    let send_estop = |button: &mut EstopButton, input: &Input| -> Result<(), JoystickError> {
+        if button.pressed(input.buttons) {
+            tracing::warn!("e-stop button pressed: E-STOP sent to safety");
+            estop_publisher
+                .send_copy(ipc_types::control::EstopCommand {
+                    t_ns: now_ns(),
+                    action: ipc_types::control::estop_action::ESTOP,
+                    source_pid: std::process::id(),
+                })
+                .map_err(|e| {
+                    JoystickError::Ipc(ipc_types::IpcError::Io {
+                        service: prefix.service(ipc_types::control::ESTOP),
+                        op: "send",
+                        reason: e.to_string(),
+                    })
+                })?;
+        }
+        Ok(())
+    };
     let states = graph.robot_state_subscriber(true)?;
     let status = graph.status_publisher()?;
     let heartbeats = if matches!(source, Source::Keyboard(_)) {
@@ -546,6 +589,7 @@ pub fn run(
     let mut tick = NO_TICK;
     let mut gripper = None;
     let input = source.input(t0, tick, gripper);
+    send_estop(&mut estop_button, &input)?;
     if let Some(s) = outbox.next(input, tick, true, now_ns()) {
         publisher.send(s)?;
         if let Some(r) = recorder.as_mut() {
@@ -582,6 +626,7 @@ pub fn run(
         let input = source.input(now, tick, gripper);
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
+            send_estop(&mut estop_button, &input)?;
             if let Some(sample) = outbox.next(input, tick, new_state.is_some(), now_ns()) {
                 publisher.send(sample)?;
                 if let Some(r) = recorder.as_mut() {
@@ -953,6 +998,21 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
         assert_eq!((s.seq, s.tick, s.axes), (2, 7, [0.5, 0.0]));
         assert!(o.next(a, 7, false, 5).is_none());
         assert_eq!(o.next(a, 8, true, 6).unwrap().tick, 8);
+    }
+
+    #[test]
+    fn the_estop_button_sends_one_command_per_press() {
+        let mut b = EstopButton::default();
+        let e = buttons::ESTOP;
+        assert!(!b.pressed(0));
+        assert!(b.pressed(e | buttons::DEADMAN));
+        // Held: no second command; other buttons do not matter.
+        assert!(!b.pressed(e));
+        assert!(!b.pressed(e | buttons::MODE));
+        assert!(!b.pressed(buttons::DEADMAN));
+        assert!(b.pressed(e));
+        // Held from the first sample on is a press.
+        assert!(EstopButton::default().pressed(e));
     }
 
     #[test]

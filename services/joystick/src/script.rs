@@ -1,9 +1,15 @@
 //! The scripted source: a slow circle, a step pattern or a constant input, evaluated at the
-//! tick the sample answers, so a scripted run is deterministic.
+//! tick the sample answers, so a scripted run is deterministic. Every script starts at rest
+//! for [`START_REST_S`]: safety moves the arm only after the operator's input has passed
+//! through neutral (restart prevention, also at start-up), which a script's rest is.
 
 use ipc_types::{JoystickInput, NO_TICK};
 
 use scl_node::config::JoystickConfig;
+
+/// Every script holds the stick at rest this long from the first robot tick (s), then
+/// starts its pattern from its beginning.
+pub const START_REST_S: f64 = 0.5;
 
 /// A scripted input: `a(t)` with `|a| <= amplitude`.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,18 +92,24 @@ impl Script {
         }
     }
 
-    /// The sample answering robot tick `tick` (time = tick × period).
+    /// The sample answering robot tick `tick` (time = tick × period): at rest until
+    /// [`START_REST_S`], then the pattern from its start.
     pub fn sample(&self, tick: u64, period_s: f64, seq: u64, t_ns: u64) -> JoystickInput {
         let t_s = if tick == NO_TICK {
             0.0
         } else {
             tick as f64 * period_s
         };
+        let axes = if t_s < START_REST_S {
+            [0.0, 0.0]
+        } else {
+            self.axes(t_s - START_REST_S)
+        };
         JoystickInput {
             tick,
             t_ns,
             seq,
-            axes: self.axes(t_s),
+            axes,
             gripper: 0.0,
             buttons: 0,
         }
@@ -147,7 +159,10 @@ mod tests {
         };
         let j = s.sample(80, 0.025, 3, 99);
         assert_eq!((j.tick, j.seq, j.t_ns), (80, 3, 99));
-        assert_eq!(j.axes, s.axes(2.0));
-        assert_eq!(s.sample(NO_TICK, 0.025, 0, 0).axes, s.axes(0.0));
+        assert_eq!(j.axes, s.axes(2.0 - START_REST_S));
+        // At rest before the first tick and for the first half second, then from the start.
+        assert_eq!(s.sample(NO_TICK, 0.025, 0, 0).axes, [0.0, 0.0]);
+        assert_eq!(s.sample(19, 0.025, 0, 0).axes, [0.0, 0.0]);
+        assert_eq!(s.sample(20, 0.025, 0, 0).axes, s.axes(0.0));
     }
 }

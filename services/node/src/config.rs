@@ -560,8 +560,18 @@ impl GraphConfig {
         b.kortex
             .validate(1.0 / b.rate_hz)
             .map_err(|e| err(&format!("bridge.kortex.{}", e.key), e.reason))?;
+        if self.graph.transport == ipc_types::Transport::Uds && b.robot == "kortex" {
+            return Err(err(
+                "graph.transport",
+                "`uds` cannot enforce that safety is the one publisher of the arm's command; \
+                 with bridge.robot = \"kortex\" (a real arm) use `iceoryx2` (`uds` is for \
+                 latency comparisons on the mock arm)"
+                    .into(),
+            ));
+        }
         self.safety
             .validate_for_robot(robot)
+            .and_then(|()| self.safety.validate_ages(self.period_s()))
             .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
         if self.mapper.id == 0 {
             return Err(err("mapper.id", "must be at least 1".into()));
@@ -708,6 +718,38 @@ mod tests {
         );
         let e = cfg.validate().unwrap_err().to_string();
         assert!(e.contains("bridge.kortex.connection_timeout_ms"), "{e}");
+        // The socket transport cannot keep a second publisher off a real arm.
+        std::fs::write(
+            &p,
+            "[graph]\ntransport = \"uds\"\n[bridge]\nrobot = \"kortex\"\n",
+        )
+        .unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("graph.transport") && e.contains("bridge.robot = \"kortex\""),
+            "{e}"
+        );
+        std::fs::write(&p, "[graph]\ntransport = \"uds\"\n").unwrap();
+        GraphConfig::load(Some(&p)).unwrap().validate().unwrap();
+        // Age limits are checked against the period: 20 ms is a whole period at 50 Hz.
+        std::fs::write(&p, "[bridge]\nrate_hz = 50.0\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safety.max_state_age_ms"), "{e}");
+        std::fs::write(&p, "[safety]\nmax_joystick_age_ms = 1e9\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safety.max_joystick_age_ms"), "{e}");
         std::fs::write(&p, "[bridge.kortex]\npassword = \"admin\"\n").unwrap();
         let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
         assert!(e.contains("unknown field `password`"), "{e}");

@@ -25,6 +25,11 @@ use safety::{SafetyConfig, SafetyFilter};
 use ipc_types::signals;
 use scl_node::config::{GraphSection, RtRole};
 
+/// Without a command for this long (ns) the graph has stopped sending them: the arm will
+/// wait for neutral input when they resume (safety's own gap check says so too, at the next
+/// command; this only shows it meanwhile in the heartbeat).
+const NO_COMMANDS_NS: u64 = 100_000_000;
+
 /// The names of the rules set in `flags`, comma-separated.
 fn rule_names(flags: u32) -> String {
     ipc_types::safe_flags::NAMES
@@ -43,6 +48,9 @@ fn safety_state_bits(f: &SafetyFilter) -> u32 {
     }
     if f.held() {
         bits |= ipc_types::safety_state::HOLD;
+    }
+    if f.awaiting_neutral() {
+        bits |= ipc_types::safety_state::AWAITING_NEUTRAL;
     }
     bits
 }
@@ -125,6 +133,8 @@ pub fn run(
     apply_estop(&mut filter)?;
     scl_node::rt::elevate(graph_cfg, RtRole::Safety);
     st.mapper_id = filter.active_for_tick(0);
+    // At start-up too the arm waits for neutral input (restart prevention).
+    st.safety_state = safety_state_bits(&filter);
     status.send(st)?;
     tracing::info!(
         active_mapper = st.mapper_id,
@@ -135,6 +145,7 @@ pub fn run(
     let mut state = None;
     let mut last_tick = NO_TICK;
     let mut last_stop_flags = 0;
+    let mut last_step_ns = now_ns();
     while !signals::stop_requested() {
         let woke = commands.wait(Duration::from_millis(100))?;
         let rx_ns = now_ns();
@@ -142,7 +153,12 @@ pub fn run(
         apply_estop(&mut filter)?;
         if !woke {
             // No commands (no mapper, no ticks): still say what state safety is in, so
-            // `scl estop` can confirm and `scl status` shows it alive.
+            // `scl estop` can confirm and `scl status` shows it alive, and, after 100 ms
+            // without a command, that the arm will wait for neutral input when they resume
+            // (a wait can also end without one: a signal, another mapper joining).
+            if rx_ns.saturating_sub(last_step_ns) > NO_COMMANDS_NS {
+                filter.interrupt();
+            }
             st.t_ns = now_ns();
             st.safety_state = safety_state_bits(&filter);
             status.send(st)?;
@@ -169,6 +185,7 @@ pub fn run(
         }
         last_tick = cmd.tick;
         let t0 = now_ns();
+        last_step_ns = t0;
         let mut safe = filter.step(&cmd, &state, t0);
         safe.mapper_rx_ns = rx_ns;
         safe.compute_ns = now_ns() - t0;
@@ -179,9 +196,25 @@ pub fn run(
         st.handled += 1;
         st.mapper_id = active;
         st.rule_counts = filter.rule_counts();
+        let was_awaiting = st.safety_state & ipc_types::safety_state::AWAITING_NEUTRAL != 0;
         st.safety_state = safety_state_bits(&filter);
         if safe.flags & ipc_types::safe_flags::STOP != 0 {
             st.faults += 1;
+        }
+        if filter.awaiting_neutral() != was_awaiting {
+            if was_awaiting {
+                tracing::info!(tick = safe.tick, "neutral input seen: motion allowed again");
+            } else {
+                tracing::warn!(
+                    tick = safe.tick,
+                    "waiting for neutral input: the arm moves again once the stick is at rest{}",
+                    if cfg.deadman {
+                        " and the deadman released and pressed again"
+                    } else {
+                        ""
+                    }
+                );
+            }
         }
         // Say when the set of stop reasons changes, not every tick of a stop.
         let stop_flags = if safe.flags & ipc_types::safe_flags::STOP != 0 {

@@ -127,6 +127,24 @@ pub struct GraphStatus {
     pub bridge_latency_us: Option<f64>,
     /// The bridge's joint travel (rad).
     pub joint_travel_rad: Option<f64>,
+    /// What holds the arm on safety's side ([`safety_state_names`]): `e-stop latched`,
+    /// `held by the supervisor`, `waiting for neutral input`; empty when nothing does.
+    pub safety_state: Vec<String>,
+}
+
+/// The names of a safety heartbeat's [`ipc_types::safety_state`] bits, as `scl status`
+/// shows them.
+pub fn safety_state_names(bits: u32) -> Vec<String> {
+    use ipc_types::safety_state;
+    [
+        (safety_state::ESTOP, "e-stop latched"),
+        (safety_state::HOLD, "held by the supervisor"),
+        (safety_state::AWAITING_NEUTRAL, "waiting for neutral input"),
+    ]
+    .into_iter()
+    .filter(|(bit, _)| bits & bit != 0)
+    .map(|(_, name)| name.to_owned())
+    .collect()
 }
 
 /// Reads the heartbeats of graph `prefix` for `listen`.
@@ -181,6 +199,7 @@ pub fn status_from_heartbeats(
         active_mapper: None,
         bridge_latency_us: None,
         joint_travel_rad: None,
+        safety_state: Vec::new(),
     };
     for s in &latest {
         let role = NodeRole::from_u32(s.role);
@@ -213,7 +232,10 @@ pub fn status_from_heartbeats(
         };
         if row.alive {
             match role {
-                Some(NodeRole::Safety) => out.active_mapper = Some(s.mapper_id),
+                Some(NodeRole::Safety) => {
+                    out.active_mapper = Some(s.mapper_id);
+                    out.safety_state = safety_state_names(s.safety_state);
+                }
                 Some(NodeRole::Bridge) => {
                     out.bridge_latency_us = Some(s.latency_ns as f64 / 1e3);
                     out.joint_travel_rad = Some(s.joint_travel_rad);
@@ -292,6 +314,9 @@ pub fn render(st: &GraphStatus) -> String {
             s,
             "{name:<9} {pid:>8}   (no heartbeat: supervisor or observer)"
         );
+    }
+    if !st.safety_state.is_empty() {
+        let _ = writeln!(s, "safety: {}", st.safety_state.join(", "));
     }
     if let (Some(l), Some(t)) = (st.bridge_latency_us, st.joint_travel_rad) {
         let _ = writeln!(
@@ -386,6 +411,32 @@ mod tests {
             text.contains("last end-to-end latency 85.5 µs, joint travel 1.250 rad"),
             "{text}"
         );
+        // Nothing holds the arm: no safety line.
+        assert!(
+            st.safety_state.is_empty() && !text.contains("safety:"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn status_says_when_safety_waits_for_neutral_input() {
+        use ipc_types::safety_state;
+        let mut safety = hb(NodeRole::Safety, 3001, 1, 100);
+        safety.safety_state = safety_state::AWAITING_NEUTRAL;
+        let alive = vec![("s".to_owned(), 3001)];
+        let st = status_from_heartbeats("g", vec![safety], alive.clone(), "me", 100_000_000);
+        assert_eq!(st.safety_state, ["waiting for neutral input"]);
+        assert!(
+            render(&st).contains("\nsafety: waiting for neutral input\n"),
+            "{}",
+            render(&st)
+        );
+        safety.safety_state = safety_state::ESTOP | safety_state::AWAITING_NEUTRAL;
+        let st = status_from_heartbeats("g", vec![safety], alive, "me", 100_000_000);
+        assert!(render(&st).contains("safety: e-stop latched, waiting for neutral input"));
+        // The JSON form carries the same names.
+        let json = serde_json::to_value(&st).unwrap();
+        assert_eq!(json["safety_state"][1], "waiting for neutral input");
     }
 
     #[test]
