@@ -578,10 +578,16 @@ mod tests {
         assert_eq!(state_flags::NAMES.len(), highest(state_flags::SAFETY_STOP));
         assert_eq!(
             mapper_flags::NAMES.len(),
-            highest(mapper_flags::INPUT_STALE)
+            highest(mapper_flags::IGNORES_INPUT)
         );
-        assert_eq!(safe_flags::NAMES.len(), highest(safe_flags::ESTOP));
-        assert_eq!(safety_state::NAMES.len(), highest(safety_state::HOLD));
+        assert_eq!(
+            safe_flags::NAMES.len(),
+            highest(safe_flags::AWAITING_NEUTRAL)
+        );
+        assert_eq!(
+            safety_state::NAMES.len(),
+            highest(safety_state::AWAITING_NEUTRAL)
+        );
     }
 
     #[test]

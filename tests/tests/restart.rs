@@ -357,6 +357,8 @@ fn an_estop_pressed_on_the_joystick_latches_while_the_mapper_is_dead() {
             .count()
             > 40
     }));
+    // Every command published before the reset was asked for must still be latched.
+    let t_reset_asked = now_ns();
     let mut c = scl(&run.prefix);
     c.arg("reset");
     let out = run_polling(c, &mut run.rec);
@@ -393,7 +395,7 @@ fn an_estop_pressed_on_the_joystick_latches_while_the_mapper_is_dead() {
             .collect()
     };
     // Latched: every command from the restart to the reset zero and flagged.
-    let latched_cmds = cmds(t_restarted, t_reset - 50_000_000);
+    let latched_cmds = cmds(t_restarted, t_reset_asked);
     assert!(latched_cmds.len() > 40);
     for c in &latched_cmds {
         assert!(
