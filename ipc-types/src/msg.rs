@@ -228,8 +228,15 @@ pub mod safe_flags {
     pub const DEADMAN: u32 = 1 << 11;
     /// The e-stop is latched (joystick button or `scl estop`) until `scl reset`: zero at once.
     pub const ESTOP: u32 = 1 << 12;
+    /// A pair of the arm's collision model (self or scene) was approaching within the
+    /// slowdown distance, or could not have stopped before the stop distance: the command
+    /// was scaled down; motion that opens every gap stays free.
+    pub const CLEARANCE_LIMITED: u32 = 1 << 13;
+    /// The tool or a link's capsule end would have moved faster than the Cartesian speed
+    /// cap (or the tool turned faster than its angular cap): the command was scaled down.
+    pub const SPEED_CAPPED: u32 = 1 << 14;
     /// Number of flag bits, for per-rule counters.
-    pub const COUNT: usize = 13;
+    pub const COUNT: usize = 15;
     /// Short names of the bits, in bit order, for status displays.
     pub const NAMES: [&str; COUNT] = [
         "non-finite",
@@ -245,6 +252,8 @@ pub mod safe_flags {
         "workspace",
         "deadman",
         "e-stop",
+        "clearance",
+        "tcp-speed",
     ];
 }
 
@@ -287,6 +296,19 @@ pub struct SafeCommand {
     pub qdot_rad_s: [f64; MAX_JOINTS],
     /// Gripper rate (1/s on the `c` scale).
     pub gripper_rate: f64,
+    /// The smallest distance between any checked pair of the collision model (self and
+    /// scene) at this tick's robot state (m, negative when overlapping); `+inf` when nothing
+    /// was checked (no collision model, unusable state).
+    pub clearance_m: f64,
+    /// The tool's linear speed under this command at this tick's state (m/s); 0 when
+    /// nothing was checked.
+    pub tcp_speed_m_s: f64,
+    /// The two sides of the pair at `clearance_m`, as `kinematics::collision::PairId::code`
+    /// (`safety::clearance::pair_name` names them, `forearm-table`); `[0xFFFF; 2]` when
+    /// nothing was checked.
+    pub closest_pair: [u16; 2],
+    /// Padding, always 0.
+    pub reserved_tail: u32,
 }
 
 /// The bridge's account of one tick: every timestamp the tick's messages carried, for
@@ -478,7 +500,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<JoystickInput>(), 40);
         assert_eq!(std::mem::size_of::<RobotState>(), 176);
         assert_eq!(std::mem::size_of::<MapperCommand>(), 160);
-        assert_eq!(std::mem::size_of::<SafeCommand>(), 168);
+        assert_eq!(std::mem::size_of::<SafeCommand>(), 192);
         assert_eq!(std::mem::size_of::<TickReport>(), 120);
         assert_eq!(std::mem::size_of::<NodeStatus>(), 152);
     }

@@ -1365,6 +1365,10 @@ mod tests {
             reserved: 0,
             qdot_rad_s: [0.5; 8],
             gripper_rate: 0.0,
+            clearance_m: 0.125,
+            tcp_speed_m_s: 0.05,
+            closest_pair: [0x0300, 0xFF00],
+            reserved_tail: 0,
         };
         safe.qdot_rad_s[6] = 99.0; // beyond n_joints: not recorded
         let mapper = MapperCommand {

@@ -1034,7 +1034,7 @@ mod tests {
             lateness_p99_us: Some(140.0),
             missed_total: 3,
             missed_recent: 1,
-            rule_counts: [0, 0, 0, 0, 120, 7, 0, 40, 0, 2, 0, 0, 0],
+            rule_counts: [0, 0, 0, 0, 120, 7, 0, 40, 0, 2, 0, 0, 0, 0, 0],
             latest_flags: Some(safe_flags::VELOCITY_SCALED | safe_flags::ACCEL_LIMITED),
             joystick: Some(JoystickView {
                 axes: [0.8, 0.0],
