@@ -507,7 +507,11 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
-        Cmd::Top(args) => Ok(scl_dashboard::cli(&prefix, &args)?),
+        Cmd::Top(args) => Ok(scl_dashboard::cli(
+            &prefix,
+            &args,
+            cfg.safety.scene.box_names(),
+        )?),
         Cmd::Swap { model, timeout } => {
             let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -599,6 +603,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 &prefix,
                 cfg.graph.transport,
                 Duration::from_millis(300),
+                &cfg.safety.scene.box_names(),
             )?;
             if st.nodes.is_empty() {
                 eprintln!(
