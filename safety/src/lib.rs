@@ -462,11 +462,14 @@ impl SafetyFilter {
                 // Every output this tick lies between the target, the arm's velocity and
                 // zero, so no point moves faster than the faster of the two: the pairs that
                 // can need braking are those within the distance the fastest pair (both
-                // sides moving) covers in a tick and a stop at the slowest braking rate.
+                // sides moving) covers in a tick and a stop at the slowest braking rate the
+                // rule plans with.
                 let fastest = arm
                     .max_point_speed(&target[..n])
                     .max(arm.max_point_speed(&base[..n]));
-                let reach = 2.0 * fastest * (2.0 * self.dt + 0.5 / self.alpha_min);
+                let reach = 2.0
+                    * fastest
+                    * (2.0 * self.dt + 0.5 / (clearance::BRAKE_SHARE * self.alpha_min));
                 let stop = self.cfg.stop_distance_m + clearance::CLEARANCE_SLACK_M;
                 arm.collect(self.cfg.slowdown_distance_m.max(stop + reach));
             }
