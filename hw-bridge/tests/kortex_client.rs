@@ -752,6 +752,10 @@ fn safe_command(tick: u64, v: &[f64]) -> SafeCommand {
         reserved: 0,
         qdot_rad_s: q,
         gripper_rate: 0.0,
+        clearance_m: f64::INFINITY,
+        tcp_speed_m_s: 0.0,
+        closest_pair: [0xFFFF; 2],
+        reserved_tail: 0,
     }
 }
 

@@ -290,8 +290,15 @@ pub mod safe_flags {
     /// `safety::restart::NEUTRAL_MAX_ACTION`, and with the deadman required, the deadman
     /// released and pressed again). Set on the ticks this is the only reason for the stop.
     pub const AWAITING_NEUTRAL: u32 = 1 << 13;
+    /// A pair of the arm's collision model (self or scene) was approaching within the
+    /// slowdown distance, or could not have stopped before the stop distance: the command
+    /// was scaled down; motion that opens every gap stays free.
+    pub const CLEARANCE_LIMITED: u32 = 1 << 14;
+    /// The tool or a link's capsule end would have moved faster than the Cartesian speed
+    /// cap (or the tool turned faster than its angular cap): the command was scaled down.
+    pub const SPEED_CAPPED: u32 = 1 << 15;
     /// Number of flag bits, for per-rule counters.
-    pub const COUNT: usize = 14;
+    pub const COUNT: usize = 16;
     /// Short names of the bits, in bit order, for status displays.
     pub const NAMES: [&str; COUNT] = [
         "non-finite",
@@ -308,6 +315,8 @@ pub mod safe_flags {
         "deadman",
         "e-stop",
         "awaiting-neutral",
+        "clearance",
+        "tcp-speed",
     ];
 }
 
@@ -356,6 +365,19 @@ pub struct SafeCommand {
     pub qdot_rad_s: [f64; MAX_JOINTS],
     /// Gripper rate (1/s on the `c` scale).
     pub gripper_rate: f64,
+    /// The smallest distance between any checked pair of the collision model (self and
+    /// scene) at this tick's robot state (m, negative when overlapping); `+inf` when nothing
+    /// was checked (no collision model, unusable state).
+    pub clearance_m: f64,
+    /// The tool's linear speed under this command at this tick's state (m/s); 0 when
+    /// nothing was checked.
+    pub tcp_speed_m_s: f64,
+    /// The two sides of the pair at `clearance_m`, as `kinematics::collision::PairId::code`
+    /// (`safety::clearance::pair_name` names them, `forearm-table`); `[0xFFFF; 2]` when
+    /// nothing was checked.
+    pub closest_pair: [u16; 2],
+    /// Padding, always 0.
+    pub reserved_tail: u32,
 }
 
 /// The bridge's account of one tick: every timestamp the tick's messages carried, for
@@ -566,7 +588,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<JoystickInput>(), 40);
         assert_eq!(std::mem::size_of::<RobotState>(), 176);
         assert_eq!(std::mem::size_of::<MapperCommand>(), 160);
-        assert_eq!(std::mem::size_of::<SafeCommand>(), 168);
+        assert_eq!(std::mem::size_of::<SafeCommand>(), 192);
         assert_eq!(std::mem::size_of::<TickReport>(), 120);
         assert_eq!(std::mem::size_of::<NodeStatus>(), 152);
     }
@@ -580,10 +602,7 @@ mod tests {
             mapper_flags::NAMES.len(),
             highest(mapper_flags::IGNORES_INPUT)
         );
-        assert_eq!(
-            safe_flags::NAMES.len(),
-            highest(safe_flags::AWAITING_NEUTRAL)
-        );
+        assert_eq!(safe_flags::NAMES.len(), highest(safe_flags::SPEED_CAPPED));
         assert_eq!(
             safety_state::NAMES.len(),
             highest(safety_state::AWAITING_NEUTRAL)

@@ -393,3 +393,37 @@ fn bad_joint_vectors_are_errors() {
     assert!(out.closest().is_none());
     assert!(out.contact(0).is_none());
 }
+
+/// The point and angular Jacobians of every link against finite differences of the link
+/// poses: a capsule end's velocity and the link's angular velocity, at a pose away from the
+/// singular zero pose.
+#[test]
+fn point_and_angular_jacobians_match_finite_differences() {
+    let m = CollisionModel::get();
+    let scene = Scene::default();
+    let q = [0.3, -0.5, 1.1, 0.4, -0.9, 0.7];
+    let mut out = Clearance::default();
+    let mut moved = Clearance::default();
+    m.clearance(&q, &scene, &mut out).unwrap();
+    let h = 1e-7;
+    for (c, r) in out.capsules().iter().zip(m.capsule_refs()) {
+        let local = out.link_pose(r.link).inverse() * c.b;
+        let jp = out.point_jacobian(r.link, &c.b);
+        let jw = out.angular_jacobian(r.link);
+        for j in 0..6 {
+            let mut qh = q;
+            qh[j] += h;
+            m.clearance(&qh, &scene, &mut moved).unwrap();
+            let pose = moved.link_pose(r.link);
+            let fd = (pose * local - c.b) / h;
+            assert!(
+                (fd - jp[j]).norm() < 1e-6,
+                "{r} joint {j}: {fd} vs {}",
+                jp[j]
+            );
+            let dr = pose.rotation * out.link_pose(r.link).rotation.inverse();
+            let w = dr.scaled_axis() / h;
+            assert!((w - jw[j]).norm() < 1e-6, "{r} joint {j}: {w} vs {}", jw[j]);
+        }
+    }
+}

@@ -68,6 +68,9 @@ fn the_hot_path_does_not_allocate() {
         acc += clearance.closest_rate_row().map_or(0.0, |g| g[1]);
         if let Some(c) = clearance.contact(k % clearance.distances_m().len()) {
             acc += clearance.rate_row(&c).map_or(0.0, |g| g[0]);
+            let link = c.pair.a.link;
+            acc += clearance.point_jacobian(link, &c.point_a)[0].x;
+            acc += clearance.angular_jacobian(link)[0].z;
         }
     }
     // Including the singular zero pose.

@@ -939,6 +939,10 @@ mod tests {
             reserved: 0,
             qdot_rad_s: std::array::from_fn(|j| 0.5 - 0.1 * j as f64),
             gripper_rate: -0.75,
+            clearance_m: 0.125,
+            tcp_speed_m_s: 0.05,
+            closest_pair: [0x0300, 0xFF00],
+            reserved_tail: 0,
         };
         let mapper = MapperCommand {
             tick: 3,

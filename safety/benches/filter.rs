@@ -1,7 +1,10 @@
 //! Per-tick cost of the safety filter, `SafetyFilter::step`, on the Gen3 lite limits: a
 //! command in the middle of the range, one braking toward a joint limit, and one with the
 //! workspace rule on (a linear tool model, to time the rule itself; the real forward
-//! kinematics adds its own cost).
+//! kinematics adds its own cost); then the safety process's filter, with the whole-arm rules
+//! (the collision model's clearance every tick, the speed caps) and the real tool model: at
+//! home (nothing near), with the gripper 5 cm above the table and driving down (braking, the
+//! exact check of the next tick), and with two boxes in the scene.
 //!
 //! Run: `cargo bench -p safety --bench filter`.
 #![allow(missing_docs, clippy::unwrap_used)]
@@ -27,8 +30,12 @@ impl TcpModel for LinearTcp {
 }
 
 fn cmd(tick: u64, q0: f64) -> MapperCommand {
+    cmd_of(tick, [q0, -0.2, 0.1, 0.3, -0.1, 0.2])
+}
+
+fn cmd_of(tick: u64, v: [f64; 6]) -> MapperCommand {
     let mut qdot = [0.0; MAX_JOINTS];
-    qdot[..6].copy_from_slice(&[q0, -0.2, 0.1, 0.3, -0.1, 0.2]);
+    qdot[..6].copy_from_slice(&v);
     MapperCommand {
         tick,
         t_ns: NOW - 500_000,
@@ -89,5 +96,75 @@ fn bench(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench);
+fn whole_arm(cfg: SafetyConfig) -> SafetyFilter {
+    SafetyFilter::new(cfg, &kinematics::gen3_lite::limits(), 0.025)
+        .unwrap()
+        .with_tcp_model(Box::new(safety::ChainTcp::of(
+            kinematics::RobotProfile::default_robot(),
+        )))
+        .with_whole_arm()
+        .unwrap()
+}
+
+fn bench_whole_arm(c: &mut Criterion) {
+    let mut state = RobotState::at_rest(0, NOW - 1_000_000, 6);
+    state.q_rad[..6].copy_from_slice(&kinematics::gen3_lite::HOME);
+    let mut tick = 0u64;
+    let mut run = |c: &mut Criterion, name: &str, f: &mut SafetyFilter, s: &mut RobotState, v| {
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                tick += 1;
+                s.tick = tick;
+                s.applied_tick = tick - 1;
+                black_box(f.step(black_box(&cmd_of(tick, v)), s, NOW))
+            })
+        });
+    };
+    let mid = [0.3, -0.2, 0.1, 0.3, -0.1, 0.2];
+    let mut f = whole_arm(SafetyConfig::default());
+    run(
+        c,
+        "safety step (whole arm, table, at home)",
+        &mut f,
+        &mut state,
+        mid,
+    );
+
+    // The gripper about 5 cm above the table, the shoulder driving it down.
+    let mut near = state;
+    near.q_rad[1] = -0.98;
+    let mut f = whole_arm(SafetyConfig::default());
+    let down = [0.0, -0.2, 0.0, 0.0, 0.0, 0.0];
+    let out = f.step(&cmd_of(1, down), &near, NOW);
+    assert!(out.clearance_m < 0.07, "{}", out.clearance_m);
+    run(
+        c,
+        "safety step (whole arm, table, braking near it)",
+        &mut f,
+        &mut near,
+        down,
+    );
+
+    let mut cfg = SafetyConfig::default();
+    for (name, min, max) in [
+        ("fixture", [0.5, -0.3, 0.0], [0.8, 0.3, 0.4]),
+        ("wall", [-0.8, 0.6, 0.0], [0.8, 0.7, 1.0]),
+    ] {
+        cfg.scene.boxes.push(safety::BoxConfig {
+            name: name.into(),
+            min,
+            max,
+        });
+    }
+    let mut f = whole_arm(cfg);
+    run(
+        c,
+        "safety step (whole arm, table + 2 boxes, at home)",
+        &mut f,
+        &mut state,
+        mid,
+    );
+}
+
+criterion_group!(benches, bench, bench_whole_arm);
 criterion_main!(benches);

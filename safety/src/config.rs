@@ -3,6 +3,8 @@
 use kinematics::{ArmLimits, RobotProfile};
 use serde::{Deserialize, Serialize};
 
+use crate::scene::SceneConfig;
+
 /// Configuration of the filter.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -34,6 +36,18 @@ pub struct SafetyConfig {
     pub active_mapper: u32,
     /// `[safety.workspace]`: where the tool may go.
     pub workspace: WorkspaceConfig,
+    /// Below this distance between any checked pair of the collision model (every link
+    /// against the others and the scene) an approaching command is slowed down (m).
+    pub slowdown_distance_m: f64,
+    /// No command brings a checked pair closer than this within the next tick, braking in
+    /// time for it; a pair already closer may only move apart (m).
+    pub stop_distance_m: f64,
+    /// Largest linear speed of the tool and of every link capsule's ends (m/s).
+    pub max_tcp_speed_m_s: f64,
+    /// Largest angular speed of the tool (rad/s).
+    pub max_tcp_angular_speed_rad_s: f64,
+    /// `[safety.scene]`: the table and boxes the whole arm keeps clear of.
+    pub scene: SceneConfig,
 }
 
 impl Default for SafetyConfig {
@@ -63,6 +77,17 @@ impl SafetyConfig {
             deadman: false,
             active_mapper: 1,
             workspace: WorkspaceConfig::default(),
+            // MoveIt Servo starts slowing at 0.01 m (self) / 0.02 m (scene); we slow from
+            // 10 cm and stop at 2 cm for every pair.
+            slowdown_distance_m: 0.10,
+            stop_distance_m: 0.02,
+            // The collaborative-robot reduced speed, and Kinova's listed maximum translation
+            // speed of the Gen3 lite (shared/reference/gen3-lite.md: 25 cm/s).
+            max_tcp_speed_m_s: 0.25,
+            // Kinova's twist-controller angular limit for the Gen3 lite (ros2_kortex
+            // `twist_limits.yaml`: 0.85 rad/s).
+            max_tcp_angular_speed_rad_s: 0.85,
+            scene: SceneConfig::default(),
         }
     }
 }
@@ -109,14 +134,14 @@ pub struct ConfigError {
     pub reason: String,
 }
 
-fn err(key: &str, reason: String) -> ConfigError {
+pub(crate) fn err(key: &str, reason: String) -> ConfigError {
     ConfigError {
         key: key.to_owned(),
         reason,
     }
 }
 
-fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
+pub(crate) fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
@@ -243,7 +268,7 @@ impl SafetyConfig {
                 ),
             ));
         }
-        Ok(())
+        crate::scene::validate(self)
     }
 
     /// Checks the age limits against the tick period `period_s`: a limit that would disable

@@ -14,13 +14,20 @@
 //! 2. A latched e-stop (joystick button or `scl estop`, released only by `scl reset`)
 //!    commands zero at once, the one rule that does not wait for the acceleration limit.
 //! 3. The speed override, then the joint velocity limits by one uniform factor (the command
-//!    keeps its direction, and so stays in the span of the map).
+//!    keeps its direction, and so stays in the span of the map), then (with
+//!    [`SafetyFilter::with_whole_arm`]) the Cartesian speed caps: the tool and every link
+//!    capsule's ends at most `max_tcp_speed_m_s`, the tool's turning at most
+//!    `max_tcp_angular_speed_rad_s`, by one factor ([`clearance::speed_scale`]).
 //! 4. Joint position limits less a margin and workspace bounds on the tool (table plane,
 //!    box): a joint or the tool may approach a bound no faster than it can stop before it;
 //!    motion away from a bound is free. Both scale the whole command. Stopping keeps the
 //!    direction (the acceleration rule scales a change as a whole), so a joint brakes only as
 //!    fast as the command's slowest joint lets it: the braking distances use that
-//!    deceleration ([`rules::brake_rate`]), not each joint's own limit.
+//!    deceleration ([`rules::brake_rate`]), not each joint's own limit. With the whole-arm
+//!    rules, every checked pair of the collision model (each link against the others and
+//!    against `[safety.scene]`) is such a bound `d - stop_distance_m` away, approached at
+//!    `-d_dot`, and within `slowdown_distance_m` an approaching pair also slows the command
+//!    down, to zero at the stop distance ([`clearance`]).
 //! 5. The acceleration limits: the change from the arm's current velocity is scaled as a
 //!    whole until every joint's change fits. If that leaves an output that could not stop
 //!    in time (the arm's velocity and the target point in different directions), it is
@@ -31,7 +38,9 @@
 //!    limit: only when even the hardest braking of the arm's velocity within the limits
 //!    would cross a bound this tick, i.e. the arm was already too fast (a fault elsewhere,
 //!    a robot not doing what it was told; with a curved tool path, the second-order rest
-//!    of the one-tick prediction).
+//!    of the one-tick prediction). Then the speed caps again, and no checked pair closer
+//!    than the stop distance at the next tick: to first order, then by the exact distances
+//!    at the next tick's pose ([`clearance::WholeArm::verify`]).
 //!
 //! Every rule that acted sets its bit in [`SafeCommand::flags`]; the filter counts them.
 //! The braking of steps 4 and 5 and the hard guarantees of step 6 share the position and
@@ -39,13 +48,16 @@
 //! may exceed the acceleration limit).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod clearance;
 pub mod config;
 pub mod restart;
 pub mod rules;
+pub mod scene;
 
 pub use config::{ConfigError, SafetyConfig, WorkspaceConfig};
 pub use restart::{NEUTRAL_MAX_ACTION, RestartGuard, RestartState};
 pub use rules::{Bounds, ChainTcp, TcpModel, limit_change, uniform_scale};
+pub use scene::{BoxConfig, SceneConfig};
 
 use ipc_types::{
     MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, buttons, mapper_flags, safe_flags,
@@ -85,6 +97,10 @@ pub struct SafetyFilter {
     restart: RestartGuard,
     tcp: Option<Box<dyn TcpModel>>,
     bounds: Bounds,
+    arm: Option<Box<clearance::WholeArm>>,
+    /// The slowest braking rate any command can have, `min_j amax_j / vmax_j` (1/s): how far
+    /// ahead the clearance rule looks.
+    alpha_min: f64,
     counts: [u32; 16],
     report: StepReport,
 }
@@ -102,6 +118,13 @@ pub struct StepReport {
     /// The hard workspace guarantee scaled the output: the tool would otherwise have left the
     /// workspace within the next tick.
     pub hard_workspace: bool,
+    /// The hard clearance guarantee scaled the output: a checked pair would otherwise have
+    /// come closer than the stop distance within the next tick (to first order, or in the
+    /// exact check of the next tick's pose), or a pair below it closer still.
+    pub hard_clearance: bool,
+    /// The speed caps scaled the acceleration-limited output (the arm was moving faster
+    /// than the caps allow at this pose).
+    pub hard_speed: bool,
     /// The velocity the output was limited from (the arm's current velocity as the filter
     /// estimates it: the previous output if executed, else the measured one).
     pub base_rad_s: [f64; MAX_JOINTS],
@@ -110,7 +133,7 @@ pub struct StepReport {
 impl StepReport {
     /// Whether a hard guarantee overrode the acceleration limit's output this tick.
     pub fn hard_override(&self) -> bool {
-        self.hard_position || self.hard_workspace
+        self.hard_position || self.hard_workspace || self.hard_clearance || self.hard_speed
     }
 }
 
@@ -123,6 +146,7 @@ impl std::fmt::Debug for SafetyFilter {
             .field("hold", &self.hold)
             .field("restart", &self.restart.state())
             .field("workspace_model", &self.tcp.is_some())
+            .field("whole_arm", &self.arm.is_some())
             .finish()
     }
 }
@@ -184,6 +208,8 @@ impl SafetyFilter {
             restart: RestartGuard::new(cfg.deadman),
             tcp: None,
             bounds: Bounds::new(0.0, [0.0; 3], [0.0; 3]),
+            arm: None,
+            alpha_min: f64::INFINITY,
             counts: [0; 16],
             report: StepReport::default(),
             cfg,
@@ -200,8 +226,28 @@ impl SafetyFilter {
             f.upper[j] = limits.upper_rad[j] - f.cfg.joint_margin_rad;
             f.vmax[j] = f.cfg.max_velocity_rad_s[j];
             f.amax[j] = f.cfg.max_acceleration_rad_s2[j];
+            f.alpha_min = f.alpha_min.min(f.amax[j] / f.vmax[j]);
         }
         Ok(f)
+    }
+
+    /// Enables the whole-arm rules (the Gen3 lite's collision model in `[safety.scene]`:
+    /// slow-down and stop by distance for every checked pair, the Cartesian speed caps);
+    /// refuses an arm that is not the Gen3 lite's six joints.
+    pub fn with_whole_arm(mut self) -> Result<Self, ConfigError> {
+        if self.n != kinematics::gen3_lite::N_JOINTS {
+            return Err(ConfigError {
+                key: "scene".into(),
+                reason: format!(
+                    "the collision model is the Gen3 lite's {} joints; this arm has {}",
+                    kinematics::gen3_lite::N_JOINTS,
+                    self.n
+                ),
+            });
+        }
+        let scene = self.cfg.scene.scene()?;
+        self.arm = Some(Box::new(clearance::WholeArm::new(scene)));
+        Ok(self)
     }
 
     /// Enables the workspace rule with the robot's forward kinematics.
@@ -332,6 +378,33 @@ impl SafetyFilter {
         )
     }
 
+    /// The factor `<= 1` for `v` so that every checked pair it brings closer can still stop
+    /// at the stop distance (plus [`clearance::CLEARANCE_SLACK_M`]), braking along `v`'s
+    /// direction within the acceleration limits; 1 without the whole-arm rules.
+    fn clearance_brake(&self, v: &[f64]) -> f64 {
+        let Some(arm) = self.arm.as_ref() else {
+            return 1.0;
+        };
+        clearance::clearance_scale(
+            arm.near(),
+            v,
+            self.cfg.stop_distance_m + clearance::CLEARANCE_SLACK_M,
+            rules::brake_rate(v, &self.amax[..v.len()]),
+            self.dt,
+            false,
+        )
+    }
+
+    /// The factor `<= 1` for `v` within the speed caps: every capsule end and the tool at
+    /// most `max_tcp_speed_m_s`, the tool's turning at most `max_tcp_angular_speed_rad_s`.
+    fn speed_cap(arm: &clearance::WholeArm, cfg: &SafetyConfig, v: &[f64]) -> f64 {
+        clearance::speed_scale(arm.points(), v, cfg.max_tcp_speed_m_s).min(clearance::speed_scale(
+            std::slice::from_ref(arm.angular()),
+            v,
+            cfg.max_tcp_angular_speed_rad_s,
+        ))
+    }
+
     /// Filters `cmd` against the newest robot state `state` at time `now_ns`.
     ///
     /// Returns the command to execute at `cmd.tick` with [`SafeCommand::flags`] naming every
@@ -421,6 +494,12 @@ impl SafetyFilter {
             base_rad_s: base,
             ..StepReport::default()
         };
+        // The whole arm's clearance at this state, also reported while stopped.
+        let arm_ok = q_ok
+            && self
+                .arm
+                .as_mut()
+                .is_some_and(|a| a.update(&state.q_rad[..n], state.gripper));
         let mut out = [0.0; MAX_JOINTS];
         if flags & safe_flags::ESTOP == 0 {
             let mut target = [0.0; MAX_JOINTS];
@@ -439,6 +518,26 @@ impl SafetyFilter {
             } else {
                 None
             };
+            if let Some(arm) = self.arm.as_mut().filter(|_| arm_ok) {
+                let k = Self::speed_cap(arm, &self.cfg, &target[..n]);
+                if k < 1.0 {
+                    flags |= safe_flags::SPEED_CAPPED;
+                    target[..n].iter_mut().for_each(|v| *v *= k);
+                }
+                // Every output this tick lies between the target, the arm's velocity and
+                // zero, so no point moves faster than the faster of the two: the pairs that
+                // can need braking are those within the distance the fastest pair (both
+                // sides moving) covers in a tick and a stop at the slowest braking rate the
+                // rule plans with.
+                let fastest = arm
+                    .max_point_speed(&target[..n])
+                    .max(arm.max_point_speed(&base[..n]));
+                let reach = 2.0
+                    * fastest
+                    * (2.0 * self.dt + 0.5 / (clearance::BRAKE_SHARE * self.alpha_min));
+                let stop = self.cfg.stop_distance_m + clearance::CLEARANCE_SLACK_M;
+                arm.collect(self.cfg.slowdown_distance_m.max(stop + reach));
+            }
             if q_ok {
                 let q = &state.q_rad[..n];
                 let k = self.position_brake(q, &target[..n]);
@@ -450,6 +549,20 @@ impl SafetyFilter {
                 if k < 1.0 {
                     flags |= safe_flags::WORKSPACE_LIMITED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
+                }
+                if let Some(arm) = self.arm.as_ref().filter(|_| arm_ok) {
+                    let k = clearance::slowdown_scale(
+                        arm.near(),
+                        &target[..n],
+                        self.cfg.stop_distance_m + clearance::CLEARANCE_SLACK_M,
+                        self.cfg.slowdown_distance_m,
+                        self.cfg.max_tcp_speed_m_s,
+                    )
+                    .min(self.clearance_brake(&target[..n]));
+                    if k < 1.0 {
+                        flags |= safe_flags::CLEARANCE_LIMITED;
+                        target[..n].iter_mut().for_each(|v| *v *= k);
+                    }
                 }
             }
             out = target;
@@ -467,15 +580,19 @@ impl SafetyFilter {
                     (
                         f.position_brake(q, v) >= 1.0 - BRAKE_TOLERANCE,
                         f.workspace_brake(tcp.as_ref(), v) >= 1.0 - BRAKE_TOLERANCE,
+                        !arm_ok || f.clearance_brake(v) >= 1.0 - BRAKE_TOLERANCE,
                     )
                 };
-                let (pos_ok, ws_ok) = fits(self, &out[..n]);
-                if !(pos_ok && ws_ok) {
+                let (pos_ok, ws_ok, clear_ok) = fits(self, &out[..n]);
+                if !(pos_ok && ws_ok && clear_ok) {
                     if !pos_ok {
                         flags |= safe_flags::POSITION_LIMITED;
                     }
                     if !ws_ok {
                         flags |= safe_flags::WORKSPACE_LIMITED;
+                    }
+                    if !clear_ok {
+                        flags |= safe_flags::CLEARANCE_LIMITED;
                     }
                     let c =
                         (1.0 - rules::brake_rate(&base[..n], &self.amax[..n]) * self.dt).max(0.0);
@@ -493,8 +610,8 @@ impl SafetyFilter {
                     let (mut lo, mut hi) = (0.0, 1.0);
                     for _ in 0..BRAKE_BISECTIONS {
                         let mid = 0.5 * (lo + hi);
-                        let (p, w) = fits(self, &at(mid)[..n]);
-                        if p && w {
+                        let (p, w, c) = fits(self, &at(mid)[..n]);
+                        if p && w && c {
                             lo = mid;
                         } else {
                             hi = mid;
@@ -530,6 +647,31 @@ impl SafetyFilter {
                     out[..n].iter_mut().for_each(|v| *v *= k);
                 }
             }
+            if let Some(arm) = self.arm.as_mut().filter(|_| arm_ok) {
+                let k = Self::speed_cap(arm, &self.cfg, &out[..n]);
+                if k < 1.0 {
+                    flags |= safe_flags::SPEED_CAPPED;
+                    report.hard_speed = true;
+                    out[..n].iter_mut().for_each(|v| *v *= k);
+                }
+                let stop = self.cfg.stop_distance_m;
+                let k = clearance::clearance_scale(
+                    arm.near(),
+                    &out[..n],
+                    stop + clearance::CLEARANCE_SLACK_M,
+                    f64::INFINITY,
+                    self.dt,
+                    true,
+                );
+                if k < 1.0 {
+                    out[..n].iter_mut().for_each(|v| *v *= k);
+                }
+                // The exact distances at the next tick's pose (scales `out` itself).
+                if k < 1.0 || arm.verify(&mut out[..n], stop, self.dt) < 1.0 {
+                    flags |= safe_flags::CLEARANCE_LIMITED;
+                    report.hard_clearance = true;
+                }
+            }
             // Every step above only scales or interpolates within the limits; this keeps the
             // rounding of those products within them too.
             for (v, l) in out.iter_mut().zip(&self.vmax).take(n) {
@@ -553,6 +695,19 @@ impl SafetyFilter {
         self.prev_tick = cmd.tick;
         self.prev_out = out;
         self.report = report;
+        let (clearance_m, closest_pair, tcp_speed_m_s) = match self.arm.as_ref().filter(|_| arm_ok)
+        {
+            Some(arm) => {
+                let (d, pair) = arm
+                    .closest()
+                    .unwrap_or((f64::INFINITY, clearance::WholeArm::NO_PAIR));
+                let speed = arm
+                    .tool()
+                    .map_or(0.0, |j| clearance::point_speed(j, &out[..n]));
+                (d, pair, speed)
+            }
+            None => (f64::INFINITY, clearance::WholeArm::NO_PAIR, 0.0),
+        };
 
         SafeCommand {
             tick: cmd.tick,
@@ -571,6 +726,10 @@ impl SafetyFilter {
             reserved: 0,
             qdot_rad_s: out,
             gripper_rate: gripper,
+            clearance_m,
+            tcp_speed_m_s,
+            closest_pair,
+            reserved_tail: 0,
         }
     }
 }

@@ -511,7 +511,12 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
-        Cmd::Top(args) => Ok(scl_dashboard::cli(&prefix, &args, cfg.profile()?)?),
+        Cmd::Top(args) => Ok(scl_dashboard::cli(
+            &prefix,
+            &args,
+            cfg.profile()?,
+            cfg.safety.scene.box_names(),
+        )?),
         Cmd::Swap { model, timeout } => {
             let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
@@ -603,6 +608,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 &prefix,
                 cfg.graph.transport,
                 Duration::from_millis(300),
+                &cfg.safety.scene.box_names(),
             )?;
             if st.nodes.is_empty() {
                 eprintln!(

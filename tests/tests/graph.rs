@@ -67,6 +67,19 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
         assert!(summary["latency_us"][key].as_f64().unwrap() > 0.0);
     }
     assert!(summary["joint_travel_rad"].as_f64().unwrap() > 0.5);
+    // The whole-arm figures: the arm kept clear of the table and itself by the stop distance
+    // and the tool within its speed cap (the defaults: 0.02 m, 0.25 m/s), as every recorded
+    // command says.
+    let min_clearance = summary["min_clearance_m"].as_f64().unwrap();
+    let max_tcp_speed = summary["max_tcp_speed_m_s"].as_f64().unwrap();
+    assert!(min_clearance >= 0.02, "{summary}");
+    assert!(
+        max_tcp_speed > 0.0 && max_tcp_speed <= 0.25 + 1e-9,
+        "{summary}"
+    );
+    for c in &rec.safe_commands {
+        assert!(c.clearance_m >= min_clearance && c.tcp_speed_m_s <= max_tcp_speed);
+    }
 
     // Every executed command is the one of the state's tick: state k+1 reports that the
     // command of tick k was applied, for every tick but the final shutdown state.

@@ -458,11 +458,15 @@ fn robot_states_that_stop_arriving_end_in_a_controlled_stop() {
 #[test]
 fn driving_into_the_table_stops_at_the_plane() {
     let _serial = serial();
+    // The subject is the tool's workspace plane (2 cm above the table): the scene's table is
+    // put far below, so the whole-arm clearance rule (whose fingers-table stop at 2 cm would
+    // hold the tool about 6 cm up) does not act first. At the 0.25 m/s tool speed cap the
+    // tool needs about 10 s to get there: 20 s of input.
     let run = run_graph_with_input(
         "table",
-        &format!("[mapper]\nmodel = \"@PCA@\"\n{REPLAY}"),
-        &held_with_rests([0.0, -1.0], 10),
-        10,
+        &format!("[mapper]\nmodel = \"@PCA@\"\n[safety.scene]\ntable_z_m = -0.5\n{REPLAY}"),
+        &held_with_rests([0.0, -1.0], 20),
+        20,
         0,
         |_, _| {},
     );

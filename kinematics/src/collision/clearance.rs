@@ -1,13 +1,13 @@
 //! The output of [`CollisionModel::clearance`](super::CollisionModel::clearance) and the rate
 //! rows computed from it.
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::{
     Capsule, CapsuleRef, CollisionLink, Contact, MAX_CAPSULES, MAX_PAIRS, PairId, Scene, Target,
     geometry,
 };
-use crate::chain::{JointAxis, MAX_DOF};
+use crate::chain::{JointAxis, JointKind, MAX_DOF};
 use crate::gen3_lite::N_JOINTS;
 
 /// The clearance of one joint state (see
@@ -136,9 +136,8 @@ impl Clearance {
         let normal = contact.normal?;
         let mut row = [0.0; N_JOINTS];
         let mut add = |link: CollisionLink, p: &Point3<f64>, sign: f64| {
-            let moved = usize::from(self.link_moved_by[link.index()]).min(N_JOINTS);
-            for (r, axis) in row.iter_mut().zip(&self.axes).take(moved) {
-                *r += sign * g.dot(&axis.point_velocity(&p.coords));
+            for (r, col) in row.iter_mut().zip(self.point_jacobian(link, p)) {
+                *r += sign * g.dot(&col);
             }
         };
         // The velocities are those of the closest points of the capsules' axes (the surface
@@ -155,6 +154,33 @@ impl Clearance {
             add(b.link, &(contact.point_b - normal * cb.radius_m), -1.0);
         }
         Some(row)
+    }
+
+    /// The translational Jacobian of the point `p` (base frame) moving with `link` at this
+    /// state: column `j` is the point's velocity (m/s) per rad/s of arm joint `j`, zero for
+    /// the joints that do not move the link (the gripper held still). `J qdot` is the point's
+    /// velocity. Allocation-free.
+    pub fn point_jacobian(&self, link: CollisionLink, p: &Point3<f64>) -> [Vector3<f64>; N_JOINTS] {
+        let mut cols = [Vector3::zeros(); N_JOINTS];
+        let moved = usize::from(self.link_moved_by[link.index()]).min(N_JOINTS);
+        for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
+            *c = axis.point_velocity(&p.coords);
+        }
+        cols
+    }
+
+    /// The angular Jacobian of `link` at this state: column `j` is the link's angular
+    /// velocity (rad/s, base frame) per rad/s of arm joint `j` (the axis of a revolute joint
+    /// that moves the link, else zero).
+    pub fn angular_jacobian(&self, link: CollisionLink) -> [Vector3<f64>; N_JOINTS] {
+        let mut cols = [Vector3::zeros(); N_JOINTS];
+        let moved = usize::from(self.link_moved_by[link.index()]).min(N_JOINTS);
+        for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
+            if axis.kind == JointKind::Revolute {
+                *c = axis.direction;
+            }
+        }
+        cols
     }
 
     /// [`Clearance::rate_row`] of the closest pair.

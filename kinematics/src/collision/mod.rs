@@ -150,6 +150,12 @@ impl CollisionLink {
         self as usize
     }
 
+    /// The name without `_link`, for status lines: `forearm`, `gripper_base`.
+    pub fn short_name(self) -> &'static str {
+        let n = self.name();
+        n.strip_suffix("_link").unwrap_or(n)
+    }
+
     pub(super) fn known() -> String {
         Self::ALL.map(CollisionLink::name).join(", ")
     }
@@ -168,6 +174,55 @@ pub struct CapsuleRef {
     pub link: CollisionLink,
     /// Index among the link's capsules (file order).
     pub index: u8,
+}
+
+/// Compact codes of a pair's sides, for fixed-size messages (a `[u16; 2]` per pair, see
+/// [`PairId::code`]): a capsule is `link index << 8 | capsule index`.
+pub mod side_code {
+    /// The scene's table.
+    pub const TABLE: u16 = 0xFF00;
+    /// The scene's box `k` is `BOX | k`.
+    pub const BOX: u16 = 0xFE00;
+    /// No pair (nothing was checked).
+    pub const NONE: u16 = 0xFFFF;
+}
+
+impl CapsuleRef {
+    /// The side's code: `link index << 8 | capsule index`.
+    pub fn code(self) -> u16 {
+        ((self.link.index() as u16) << 8) | u16::from(self.index)
+    }
+
+    /// The capsule of a [`CapsuleRef::code`].
+    pub fn from_code(code: u16) -> Option<Self> {
+        let link = *CollisionLink::ALL.get(usize::from(code >> 8))?;
+        Some(Self {
+            link,
+            index: (code & 0xFF) as u8,
+        })
+    }
+}
+
+impl Target {
+    /// The side's code: a capsule's [`CapsuleRef::code`], [`side_code::TABLE`], or
+    /// [`side_code::BOX`] plus the box's index.
+    pub fn code(self) -> u16 {
+        match self {
+            Target::Capsule(c) => c.code(),
+            Target::Table => side_code::TABLE,
+            Target::Box(k) => side_code::BOX | u16::from(k),
+        }
+    }
+
+    /// The target of a [`Target::code`]; `None` for [`side_code::NONE`] or an unknown code.
+    pub fn from_code(code: u16) -> Option<Self> {
+        match code {
+            side_code::NONE => None,
+            side_code::TABLE => Some(Target::Table),
+            c if c & 0xFF00 == side_code::BOX => Some(Target::Box((c & 0xFF) as u8)),
+            c => CapsuleRef::from_code(c).map(Target::Capsule),
+        }
+    }
 }
 
 impl fmt::Display for CapsuleRef {
@@ -206,6 +261,22 @@ impl PairId {
             }
             _ => false,
         }
+    }
+}
+
+impl PairId {
+    /// Both sides' codes ([`CapsuleRef::code`], [`Target::code`]), for messages.
+    pub fn code(&self) -> [u16; 2] {
+        [self.a.code(), self.b.code()]
+    }
+
+    /// The pair of a [`PairId::code`]; `None` for `[NONE, NONE]` or an unknown code.
+    pub fn from_code(code: [u16; 2]) -> Option<Self> {
+        let a = CapsuleRef::from_code(code[0])?;
+        Some(Self {
+            a,
+            b: Target::from_code(code[1])?,
+        })
     }
 }
 
@@ -271,5 +342,18 @@ mod tests {
         for link in CollisionLink::ALL {
             assert_eq!(CollisionLink::from_name(link.name()), Some(link));
         }
+        assert_eq!(CollisionLink::UpperWrist.short_name(), "upper_wrist");
+        // Every pair's code names it back.
+        let mut out = Clearance::default();
+        let mut scene = Scene::default();
+        scene
+            .add_box(Point3::new(0.3, 0.3, 0.0), Point3::new(0.5, 0.5, 0.2))
+            .unwrap();
+        m.clearance(&crate::gen3_lite::HOME, &scene, &mut out)
+            .unwrap();
+        for p in out.pairs() {
+            assert_eq!(PairId::from_code(p.code()), Some(*p), "{p}");
+        }
+        assert_eq!(PairId::from_code([side_code::NONE; 2]), None);
     }
 }

@@ -152,6 +152,9 @@ pub struct View {
     pub rule_counts: [u32; safe_flags::COUNT],
     /// The newest executed command's rule bits.
     pub latest_flags: Option<u32>,
+    /// The closest pair of the arm's collision model in the newest command (`None`: no
+    /// command yet, or safety checked nothing).
+    pub closest: Option<scl_supervisor::control::Closest>,
     /// The newest joystick sample.
     pub joystick: Option<JoystickView>,
     /// The arm's joints.
@@ -180,6 +183,7 @@ pub struct Model {
     joystick: Option<JoystickInput>,
     safe: Option<SafeCommand>,
     alive_pids: Option<Vec<u32>>,
+    box_names: Vec<String>,
     /// The message line.
     pub message: String,
 }
@@ -197,8 +201,15 @@ impl Model {
             joystick: None,
             safe: None,
             alive_pids: None,
+            box_names: Vec::new(),
             message: String::new(),
         }
+    }
+
+    /// Names the scene's boxes (`[safety.scene]`, in order) in the closest pair's line.
+    pub fn with_box_names(mut self, names: Vec<String>) -> Self {
+        self.box_names = names;
+        self
     }
 
     /// Takes in a heartbeat.
@@ -376,6 +387,9 @@ impl Model {
             buttons: j.buttons,
         });
         v.latest_flags = self.safe.map(|c| c.flags);
+        v.closest = self
+            .safe
+            .and_then(|c| scl_supervisor::control::Closest::of(&c, &self.box_names));
         v
     }
 }
@@ -590,6 +604,25 @@ fn timing_line(v: &View) -> Line<'static> {
     ])
 }
 
+/// `closest: forearm-table 0.043 m  tool 0.120 m/s`, in yellow while the clearance rule acts.
+fn closest_line(v: &View) -> Line<'static> {
+    let Some(c) = &v.closest else {
+        return Line::styled("closest: -", Style::new().fg(Color::DarkGray));
+    };
+    let acting = v
+        .latest_flags
+        .is_some_and(|f| f & safe_flags::CLEARANCE_LIMITED != 0);
+    let style = if acting {
+        Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD)
+    } else {
+        Style::new()
+    };
+    Line::from(vec![
+        Span::styled(c.text(), style),
+        Span::raw(format!("  tool {:.3} m/s", c.tcp_speed_m_s)),
+    ])
+}
+
 /// The rules that acted, in rows of `width` cells: `name count`, in reverse video where the
 /// newest executed command had the rule act. Rules that never acted are left out, so a long
 /// run's large counts still fit.
@@ -708,9 +741,20 @@ fn joystick_text(j: Option<JoystickView>) -> Vec<Line<'static>> {
 /// Draws `v` into `frame`: a pure function of the view.
 pub fn render(frame: &mut Frame<'_>, v: &View) {
     let area = frame.area();
-    let [title, top, timing, safety, joints, _, message, keys] = Layout::vertical([
+    let [
+        title,
+        top,
+        timing,
+        closest,
+        safety,
+        joints,
+        _,
+        message,
+        keys,
+    ] = Layout::vertical([
         Constraint::Length(1),
         Constraint::Length(7),
+        Constraint::Length(1),
         Constraint::Length(1),
         Constraint::Length(4),
         Constraint::Length(8),
@@ -737,6 +781,7 @@ pub fn render(frame: &mut Frame<'_>, v: &View) {
     frame.render_widget(Paragraph::new(joystick_text(v.joystick)), text);
 
     frame.render_widget(Paragraph::new(timing_line(v)), timing);
+    frame.render_widget(Paragraph::new(closest_line(v)), closest);
 
     let rules_block = Block::new()
         .borders(Borders::TOP)
@@ -891,11 +936,15 @@ pub fn key_action(k: &ratatui::crossterm::event::KeyEvent) -> Option<Action> {
     }
 }
 
-fn run_terminal(prefix: &Prefix, robot: &RobotProfile) -> Result<(), TopError> {
+fn run_terminal(
+    prefix: &Prefix,
+    robot: &RobotProfile,
+    box_names: Vec<String>,
+) -> Result<(), TopError> {
     use ratatui::crossterm::event::{self, Event};
 
     let feed = Feed::open(prefix)?;
-    let mut model = Model::new(prefix.as_str(), robot.limits().clone());
+    let mut model = Model::new(prefix.as_str(), robot.limits().clone()).with_box_names(box_names);
     let mut terminal = ratatui::try_init().map_err(TopError::Terminal)?;
     let mut pending: Vec<std::sync::mpsc::Receiver<String>> = Vec::new();
     let mut last_alive = Instant::now() - Duration::from_secs(10);
@@ -944,15 +993,18 @@ fn run_terminal(prefix: &Prefix, robot: &RobotProfile) -> Result<(), TopError> {
 }
 
 /// `scl top` on a graph driving `robot` (the graph config's robot profile): the joints are
-/// shown against its limits.
+/// shown against its limits; `box_names` name the scene's boxes (`[safety.scene]`) in
+/// the closest pair's line.
 pub fn cli(
     prefix: &Prefix,
     args: &TopArgs,
     robot: &RobotProfile,
+    box_names: Vec<String>,
 ) -> Result<std::process::ExitCode, TopError> {
     if args.once {
         let feed = Feed::open(prefix)?;
-        let mut model = Model::new(prefix.as_str(), robot.limits().clone());
+        let mut model =
+            Model::new(prefix.as_str(), robot.limits().clone()).with_box_names(box_names);
         let t0 = Instant::now();
         while t0.elapsed() < ONCE_LISTEN {
             feed.poll(&mut model)?;
@@ -965,7 +1017,7 @@ pub fn cli(
         }
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    run_terminal(prefix, robot)?;
+    run_terminal(prefix, robot, box_names)?;
     Ok(std::process::ExitCode::SUCCESS)
 }
 
@@ -1039,8 +1091,14 @@ mod tests {
             lateness_p99_us: Some(140.0),
             missed_total: 3,
             missed_recent: 1,
-            rule_counts: [0, 0, 0, 0, 120, 7, 0, 40, 0, 2, 0, 0, 0, 0],
+            rule_counts: [0, 0, 0, 0, 120, 7, 0, 40, 0, 2, 0, 0, 0, 0, 0, 0],
             latest_flags: Some(safe_flags::VELOCITY_SCALED | safe_flags::ACCEL_LIMITED),
+            closest: Some(scl_supervisor::control::Closest {
+                tick: 12345,
+                pair: "forearm-table".into(),
+                distance_m: 0.0431,
+                tcp_speed_m_s: 0.12,
+            }),
             joystick: Some(JoystickView {
                 axes: [0.8, 0.0],
                 buttons: buttons::DEADMAN,
@@ -1108,6 +1166,19 @@ mod tests {
         ] {
             assert!(timing.contains(want), "timing lacks `{want}`: {timing}");
         }
+        // The closest pair of the collision model, on its own row below the timing.
+        let closest = row_with(&lines, "closest:");
+        assert!(
+            closest.starts_with("closest: forearm-table 0.043 m  tool 0.120 m/s"),
+            "{closest}"
+        );
+        assert_eq!(
+            lines.iter().position(|l| l.contains("closest:")),
+            lines
+                .iter()
+                .position(|l| l.contains("e2e p50"))
+                .map(|i| i + 1)
+        );
         // Every rule that acted is named with its count; the others are left out.
         for (name, count) in safe_flags::NAMES.iter().zip(fixed_view().rule_counts) {
             let shown = text.contains(&format!("{name} {count}"));
@@ -1440,5 +1511,51 @@ mod tests {
         let v = m.view(1_500_000_000);
         assert_eq!(v.active_mapper, Some(2));
         assert_eq!(v.mode, None);
+    }
+
+    #[test]
+    fn the_closest_pair_comes_from_the_newest_command_with_the_boxes_named() {
+        let mut m = Model::new("g", kinematics::gen3_lite::limits())
+            .with_box_names(vec!["mount".into(), "fixture".into()]);
+        assert_eq!(m.view(0).closest, None);
+        let lines = render_text(&m.view(0), 80, 24).unwrap();
+        assert!(row_with(&lines, "closest: -").starts_with("closest: -"));
+        let mut c = SafeCommand {
+            tick: 7,
+            t_ns: 0,
+            state_t_ns: 0,
+            state_rx_ns: 0,
+            joystick_t_ns: 0,
+            joystick_rx_ns: 0,
+            mapper_t_ns: 0,
+            mapper_rx_ns: 0,
+            mapper_compute_ns: 0,
+            compute_ns: 0,
+            mapper_id: 1,
+            n_joints: 6,
+            flags: safe_flags::CLEARANCE_LIMITED,
+            reserved: 0,
+            qdot_rad_s: [0.0; 8],
+            gripper_rate: 0.0,
+            clearance_m: 0.0216,
+            tcp_speed_m_s: 0.01,
+            // upper_wrist_link[0] against box 1.
+            closest_pair: [0x0500, 0xFE01],
+            reserved_tail: 0,
+        };
+        m.take_safe(&c);
+        let v = m.view(0);
+        let lines = render_text(&v, 80, 24).unwrap();
+        assert!(
+            row_with(&lines, "closest:")
+                .starts_with("closest: upper_wrist-fixture 0.022 m  tool 0.010 m/s"),
+            "{}",
+            lines.join("\n")
+        );
+        // Safety checked nothing (no collision model): no pair.
+        c.clearance_m = f64::INFINITY;
+        c.closest_pair = [0xFFFF; 2];
+        m.take_safe(&c);
+        assert_eq!(m.view(0).closest, None);
     }
 }

@@ -68,6 +68,10 @@ pub fn run(
     if cfg.workspace.enabled {
         filter = filter.with_tcp_model(Box::new(safety::ChainTcp::of(robot)));
     }
+    // Every link against the others and the scene, and the Cartesian speed caps.
+    let mut filter = filter
+        .with_whole_arm()
+        .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;
     let states = graph.robot_state_subscriber(false)?;

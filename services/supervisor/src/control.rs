@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ipc_types::control::{ControlRequest, ControlResponse, Text, request_kind};
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
 use serde::Serialize;
 
 use crate::SupervisorError;
@@ -127,6 +127,8 @@ pub struct GraphStatus {
     pub bridge_latency_us: Option<f64>,
     /// The bridge's joint travel (rad).
     pub joint_travel_rad: Option<f64>,
+    /// The closest pair of the arm's collision model in safety's newest command.
+    pub closest: Option<Closest>,
     /// What holds the arm on safety's side ([`safety_state_names`]): `e-stop latched`,
     /// `held by the supervisor`, `waiting for neutral input`; empty when nothing does.
     pub safety_state: Vec<String>,
@@ -147,15 +149,53 @@ pub fn safety_state_names(bits: u32) -> Vec<String> {
     .collect()
 }
 
-/// Reads the heartbeats of graph `prefix` for `listen`.
+/// The closest pair safety checked at one tick (`SafeCommand::closest_pair`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Closest {
+    /// The tick of the command.
+    pub tick: u64,
+    /// The pair's name: `forearm-table`, `base-upper_wrist`, `gripper_base-fixture`.
+    pub pair: String,
+    /// Its distance (m).
+    pub distance_m: f64,
+    /// The tool's commanded speed (m/s).
+    pub tcp_speed_m_s: f64,
+}
+
+impl Closest {
+    /// The closest pair of a command, its boxes named by `box_names` (`[safety.scene]`, in
+    /// order); `None` if safety checked nothing.
+    pub fn of(c: &SafeCommand, box_names: &[String]) -> Option<Self> {
+        if !c.clearance_m.is_finite() {
+            return None;
+        }
+        Some(Self {
+            tick: c.tick,
+            pair: safety::scene::pair_name(c.closest_pair, box_names)?,
+            distance_m: c.clearance_m,
+            tcp_speed_m_s: c.tcp_speed_m_s,
+        })
+    }
+
+    /// `closest: forearm-table 0.043 m`, as `scl status` and `scl top` print it.
+    pub fn text(&self) -> String {
+        format!("closest: {} {:.3} m", self.pair, self.distance_m)
+    }
+}
+
+/// Reads the heartbeats of graph `prefix` for `listen`, and safety's newest command for the
+/// closest pair (its scene's boxes named by `box_names`).
 pub fn status(
     prefix: &Prefix,
     transport: ipc_types::Transport,
     listen: Duration,
+    box_names: &[String],
 ) -> Result<GraphStatus, SupervisorError> {
     let me = format!("status-{}", std::process::id());
     let graph = Graph::join_with(prefix, &me, transport)?;
     let sub = graph.status_subscriber()?;
+    let commands = graph.safe_command_subscriber(false)?;
+    let mut newest: Option<SafeCommand> = None;
     let mut latest: Vec<NodeStatus> = Vec::new();
     let t0 = Instant::now();
     while t0.elapsed() < listen {
@@ -168,16 +208,17 @@ pub fn status(
                 None => latest.push(*s),
             }
         })?;
+        commands.drain(|c| {
+            if newest.is_none_or(|n| c.tick >= n.tick) {
+                newest = Some(*c);
+            }
+        })?;
         std::thread::sleep(Duration::from_millis(10));
     }
     let alive = graph.alive_nodes();
-    Ok(status_from_heartbeats(
-        prefix.as_str(),
-        latest,
-        alive,
-        &me,
-        now_ns(),
-    ))
+    let mut st = status_from_heartbeats(prefix.as_str(), latest, alive, &me, now_ns());
+    st.closest = newest.and_then(|c| Closest::of(&c, box_names));
+    Ok(st)
 }
 
 /// The graph as `scl status` shows it, from the newest heartbeat of each node (`latest`),
@@ -200,6 +241,7 @@ pub fn status_from_heartbeats(
         bridge_latency_us: None,
         joint_travel_rad: None,
         safety_state: Vec::new(),
+        closest: None,
     };
     for s in &latest {
         let role = NodeRole::from_u32(s.role);
@@ -324,6 +366,15 @@ pub fn render(st: &GraphStatus) -> String {
             "bridge: last end-to-end latency {l:.1} µs, joint travel {t:.3} rad"
         );
     }
+    if let Some(c) = &st.closest {
+        let _ = writeln!(
+            s,
+            "safety: {} (tick {}), tool {:.3} m/s",
+            c.text(),
+            c.tick,
+            c.tcp_speed_m_s
+        );
+    }
     s
 }
 
@@ -437,6 +488,53 @@ mod tests {
         // The JSON form carries the same names.
         let json = serde_json::to_value(&st).unwrap();
         assert_eq!(json["safety_state"][1], "waiting for neutral input");
+    }
+
+    #[test]
+    fn status_names_the_closest_pair() {
+        let mut st = graph();
+        assert!(!render(&st).contains("closest"));
+        let mut c = SafeCommand {
+            tick: 400,
+            t_ns: 0,
+            state_t_ns: 0,
+            state_rx_ns: 0,
+            joystick_t_ns: 0,
+            joystick_rx_ns: 0,
+            mapper_t_ns: 0,
+            mapper_rx_ns: 0,
+            mapper_compute_ns: 0,
+            compute_ns: 0,
+            mapper_id: 1,
+            n_joints: 6,
+            flags: 0,
+            reserved: 0,
+            qdot_rad_s: [0.0; 8],
+            gripper_rate: 0.0,
+            clearance_m: 0.0431,
+            tcp_speed_m_s: 0.12,
+            // forearm_link[1] / table
+            closest_pair: [0x0301, 0xFF00],
+            reserved_tail: 0,
+        };
+        st.closest = Closest::of(&c, &[]);
+        assert!(
+            render(&st)
+                .contains("safety: closest: forearm-table 0.043 m (tick 400), tool 0.120 m/s\n"),
+            "{}",
+            render(&st)
+        );
+        // A box by its name from the scene.
+        c.closest_pair = [0x0600, 0xFE01];
+        let names = ["mount".to_owned(), "fixture".to_owned()];
+        assert_eq!(
+            Closest::of(&c, &names).unwrap().text(),
+            "closest: gripper_base-fixture 0.043 m"
+        );
+        // Nothing checked: no line.
+        c.clearance_m = f64::INFINITY;
+        c.closest_pair = [0xFFFF; 2];
+        assert_eq!(Closest::of(&c, &names), None);
     }
 
     #[test]

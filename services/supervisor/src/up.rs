@@ -31,8 +31,8 @@ use ipc_types::control::{
     request_kind,
 };
 use ipc_types::{
-    Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, mapper_flags, phase,
-    time::now_ns,
+    Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags,
+    phase, time::now_ns,
 };
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
@@ -88,6 +88,12 @@ pub struct Summary {
     pub swaps: u32,
     /// Set when a child died and was not restarted: which, and how.
     pub failure: Option<String>,
+    /// The smallest distance between any pair of the collision model safety checked over the
+    /// run (m; `SafeCommand::clearance_m`, at each tick's state); `null` if none was checked.
+    pub min_clearance_m: Option<f64>,
+    /// The fastest tool speed safety commanded over the run (m/s; `SafeCommand::tcp_speed_m_s`
+    /// at each tick's state); `null` if none was checked.
+    pub max_tcp_speed_m_s: Option<f64>,
 }
 
 /// A supervised child process.
@@ -256,6 +262,8 @@ struct Telemetry {
     latency_ns: Vec<u64>,
     lateness_ns: Vec<u64>,
     last_bridge_tick: Option<u64>,
+    min_clearance_m: Option<f64>,
+    max_tcp_speed_m_s: Option<f64>,
 }
 
 impl Telemetry {
@@ -286,6 +294,18 @@ impl Telemetry {
                 self.active_mapper = s.mapper_id;
             }
             self.lateness_ns.push(s.lateness_ns);
+        }
+    }
+
+    /// Takes in a command safety published: its whole-arm figures, where it checked them
+    /// (a finite clearance).
+    fn take_safe(&mut self, c: &SafeCommand) {
+        let (d, v) = (c.clearance_m, c.tcp_speed_m_s);
+        if d.is_finite() {
+            self.min_clearance_m = Some(self.min_clearance_m.map_or(d, |m| m.min(d)));
+            if v.is_finite() {
+                self.max_tcp_speed_m_s = Some(self.max_tcp_speed_m_s.map_or(v, |m| m.max(v)));
+            }
         }
     }
 
@@ -884,7 +904,10 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
             sv.on_mapper_command(c)?;
         }
         let mut executed = Vec::new();
-        safe_commands.drain(|c| executed.push((c.tick, c.mapper_id)))?;
+        safe_commands.drain(|c| {
+            executed.push((c.tick, c.mapper_id));
+            sv.tel.take_safe(c);
+        })?;
         for (tick, id) in executed {
             sv.on_safe_command(tick, id);
         }
@@ -938,6 +961,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         }
     }
     status.drain(|s| sv.tel.take(s))?;
+    safe_commands.drain(|c| sv.tel.take_safe(c))?;
     let summary = Summary {
         ticks: sv.tel.ticks(),
         missed: sv.tel.missed(),
@@ -951,6 +975,8 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         restarts: sv.restarts,
         swaps: sv.swaps,
         failure,
+        min_clearance_m: sv.tel.min_clearance_m,
+        max_tcp_speed_m_s: sv.tel.max_tcp_speed_m_s,
     };
     drop((
         status,
@@ -1247,5 +1273,41 @@ mod tests {
         assert!(c.due(false, t0 + MS(2004)));
         // A clock that seems to go back does not panic or scan.
         assert!(!c.due(false, t0));
+    }
+
+    /// The summary's whole-arm figures: the smallest clearance and the fastest tool speed of
+    /// the commands safety published, ignoring those where it checked nothing.
+    #[test]
+    fn the_summary_takes_the_smallest_clearance_and_the_fastest_tool() {
+        let mut t = Telemetry::default();
+        let c = |clearance_m: f64, tcp_speed_m_s: f64| SafeCommand {
+            tick: 1,
+            t_ns: 0,
+            state_t_ns: 0,
+            state_rx_ns: 0,
+            joystick_t_ns: 0,
+            joystick_rx_ns: 0,
+            mapper_t_ns: 0,
+            mapper_rx_ns: 0,
+            mapper_compute_ns: 0,
+            compute_ns: 0,
+            mapper_id: 1,
+            n_joints: 6,
+            flags: 0,
+            reserved: 0,
+            qdot_rad_s: [0.0; 8],
+            gripper_rate: 0.0,
+            clearance_m,
+            tcp_speed_m_s,
+            closest_pair: [0; 2],
+            reserved_tail: 0,
+        };
+        t.take_safe(&c(f64::INFINITY, 0.0));
+        assert_eq!((t.min_clearance_m, t.max_tcp_speed_m_s), (None, None));
+        for (d, v) in [(0.12, 0.1), (0.043, 0.2), (0.08, 0.05)] {
+            t.take_safe(&c(d, v));
+        }
+        assert_eq!(t.min_clearance_m, Some(0.043));
+        assert_eq!(t.max_tcp_speed_m_s, Some(0.2));
     }
 }
