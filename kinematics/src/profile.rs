@@ -25,6 +25,7 @@ use std::sync::OnceLock;
 
 use crate::ArmLimits;
 use crate::chain::Chain;
+use crate::collision::CollisionModel;
 use crate::robot::{RobotModel, UrdfError};
 
 /// The facts that define a profile, checked by [`RobotProfile::new`].
@@ -55,6 +56,9 @@ pub struct ProfileSpec<'a> {
     pub control_rate_hz: f64,
     /// The mock gripper's first-order lag (s).
     pub gripper_time_constant_s: f64,
+    /// The arm's collision model (capsules per link), if it has one: the safety filter's
+    /// whole-arm rules need it.
+    pub collision: Option<fn() -> &'static CollisionModel>,
 }
 
 /// Why a profile could not be had.
@@ -83,7 +87,7 @@ pub enum ProfileError {
 
 /// One robot, as the graph sees it. Built once per process by [`RobotProfile::by_name`];
 /// [`RobotProfile::new`] builds one from a [`ProfileSpec`] (tests, experiments).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct RobotProfile {
     name: String,
     description: String,
@@ -94,6 +98,7 @@ pub struct RobotProfile {
     poses: Vec<(String, Vec<f64>)>,
     control_rate_hz: f64,
     gripper_time_constant_s: f64,
+    collision: Option<fn() -> &'static CollisionModel>,
 }
 
 /// The built-in profiles, the default first. A new arm is a new function here.
@@ -123,6 +128,7 @@ fn gen3_lite() -> ProfileSpec<'static> {
         poses: POSES,
         control_rate_hz: g::CONTROL_RATE_HZ,
         gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
+        collision: Some(CollisionModel::get),
     }
 }
 
@@ -146,6 +152,7 @@ impl ProfileSpec<'static> {
             poses: POSES,
             control_rate_hz: 40.0,
             gripper_time_constant_s: 0.1,
+            collision: None,
         }
     }
 }
@@ -269,6 +276,7 @@ impl RobotProfile {
                 .collect(),
             control_rate_hz: spec.control_rate_hz,
             gripper_time_constant_s: spec.gripper_time_constant_s,
+            collision: spec.collision,
         })
     }
 
@@ -339,6 +347,12 @@ impl RobotProfile {
     /// The mock gripper's first-order lag (s).
     pub fn gripper_time_constant_s(&self) -> f64 {
         self.gripper_time_constant_s
+    }
+
+    /// The arm's collision model, if the profile has one (the Gen3 lite's is
+    /// `robots/gen3_lite_collision.toml`).
+    pub fn collision_model(&self) -> Option<&'static CollisionModel> {
+        self.collision.map(|get| get())
     }
 }
 

@@ -102,7 +102,7 @@ fn whole_arm(cfg: SafetyConfig) -> SafetyFilter {
         .with_tcp_model(Box::new(safety::ChainTcp::of(
             kinematics::RobotProfile::default_robot(),
         )))
-        .with_whole_arm()
+        .with_whole_arm(kinematics::RobotProfile::default_robot())
         .unwrap()
 }
 

@@ -19,8 +19,10 @@
 //! All of them scale the whole command by one factor, so it keeps its direction; motion that
 //! opens a gap (`d_dot >= 0`) is never limited by it.
 
-use kinematics::collision::{Clearance, CollisionLink, CollisionModel, Scene, Target, side_code};
-use kinematics::gen3_lite::{self, Gen3Lite, N_JOINTS};
+use kinematics::RobotProfile;
+use kinematics::collision::{
+    ARM_JOINTS as N_JOINTS, Clearance, CollisionLink, CollisionModel, Scene, Target, side_code,
+};
 use nalgebra::{Point3, Vector3};
 
 /// Slack kept above the stop distance (m): the rules predict a distance over one tick to
@@ -154,15 +156,20 @@ fn is_static(pair: &kinematics::collision::PairId) -> bool {
 }
 
 impl WholeArm {
-    /// The Gen3 lite's collision model in `scene`.
-    pub fn new(scene: Scene) -> Self {
-        let model = CollisionModel::get();
-        let g = Gen3Lite::get();
+    /// `robot`'s collision model in `scene`; `None` if the profile has no collision model
+    /// or its arm is not the model's [`N_JOINTS`] joints.
+    pub fn new(robot: &RobotProfile, scene: Scene) -> Option<Self> {
+        let model = robot.collision_model()?;
+        if robot.n_joints() != N_JOINTS {
+            return None;
+        }
+        let home = robot.named_pose("home")?;
         let mut now = Box::new(Clearance::default());
-        // The tool is fixed to the gripper base: its offset from any pose.
+        // The tool (the arm chain's tip) is fixed to the gripper base: its offset from any
+        // pose.
         let tool_offset = match (
-            model.clearance(&gen3_lite::HOME, &scene, &mut now),
-            g.tcp(&gen3_lite::HOME),
+            model.clearance(home, &scene, &mut now),
+            robot.arm().fk(home),
         ) {
             (Ok(()), Ok(tcp)) => {
                 now.link_pose(CollisionLink::GripperBase).inverse()
@@ -171,10 +178,10 @@ impl WholeArm {
             _ => Point3::origin(),
         };
         let n_points = 2 * model.capsule_refs().len() + 1;
-        Self {
+        Some(Self {
             model,
             scene,
-            gripper_range: g.gripper_range(),
+            gripper_range: model.gripper_range(),
             tool_offset,
             now,
             next: Box::new(Clearance::default()),
@@ -184,7 +191,7 @@ impl WholeArm {
             points: Vec::with_capacity(n_points),
             angular: [[0.0; N_JOINTS]; 3],
             closest: None,
-        }
+        })
     }
 
     /// The scene.

@@ -231,22 +231,23 @@ impl SafetyFilter {
         Ok(f)
     }
 
-    /// Enables the whole-arm rules (the Gen3 lite's collision model in `[safety.scene]`:
-    /// slow-down and stop by distance for every checked pair, the Cartesian speed caps);
-    /// refuses an arm that is not the Gen3 lite's six joints.
-    pub fn with_whole_arm(mut self) -> Result<Self, ConfigError> {
-        if self.n != kinematics::gen3_lite::N_JOINTS {
-            return Err(ConfigError {
+    /// Enables the whole-arm rules (`robot`'s collision model in `[safety.scene]`: slow-down
+    /// and stop by distance for every checked pair, the Cartesian speed caps); refuses a
+    /// robot profile without a collision model for this arm.
+    pub fn with_whole_arm(mut self, robot: &kinematics::RobotProfile) -> Result<Self, ConfigError> {
+        let scene = self.cfg.scene.scene()?;
+        let arm = (self.n == robot.n_joints())
+            .then(|| clearance::WholeArm::new(robot, scene))
+            .flatten()
+            .ok_or_else(|| ConfigError {
                 key: "scene".into(),
                 reason: format!(
-                    "the collision model is the Gen3 lite's {} joints; this arm has {}",
-                    kinematics::gen3_lite::N_JOINTS,
+                    "the {} profile has no collision model for this {}-joint arm",
+                    robot.description(),
                     self.n
                 ),
-            });
-        }
-        let scene = self.cfg.scene.scene()?;
-        self.arm = Some(Box::new(clearance::WholeArm::new(scene)));
+            })?;
+        self.arm = Some(Box::new(arm));
         Ok(self)
     }
 

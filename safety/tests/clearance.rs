@@ -51,7 +51,7 @@ fn state(tick: u64, q: &[f64], qdot: &[f64], executed: bool) -> RobotState {
 fn whole_arm(cfg: SafetyConfig) -> SafetyFilter {
     SafetyFilter::new(cfg, &gen3_lite::limits(), DT)
         .unwrap()
-        .with_whole_arm()
+        .with_whole_arm(kinematics::RobotProfile::default_robot())
         .unwrap()
 }
 

@@ -64,6 +64,10 @@ pub const FILE_VERSION: u32 = 1;
 /// Most capsules a model may have.
 pub const MAX_CAPSULES: usize = 32;
 
+/// Joints of the arm the model covers: its rate rows and point Jacobians have this many
+/// columns (the gripper joint, when given, is the next entry of `q`).
+pub const ARM_JOINTS: usize = crate::gen3_lite::N_JOINTS;
+
 /// Most capsule pairs a model may check against each other.
 pub const MAX_SELF_PAIRS: usize = 256;
 

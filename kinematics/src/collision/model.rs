@@ -78,6 +78,12 @@ impl CollisionModel {
         self.gripper_default_rad
     }
 
+    /// The gripper joint's range (rad): `c = 0` (open) maps to its lower end, `c = 1`
+    /// (closed) to its upper end.
+    pub fn gripper_range(&self) -> (f64, f64) {
+        crate::gen3_lite::Gen3Lite::get().gripper_range()
+    }
+
     /// The capsules of a link in its own frame, margin included.
     pub fn link_capsules(&self, link: CollisionLink) -> &[Capsule] {
         let l = &self.links[link.index()];

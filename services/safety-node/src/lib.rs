@@ -70,7 +70,7 @@ pub fn run(
     }
     // Every link against the others and the scene, and the Cartesian speed caps.
     let mut filter = filter
-        .with_whole_arm()
+        .with_whole_arm(robot)
         .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;
