@@ -126,7 +126,10 @@ fn scl_up_tells_systemd_it_is_ready_and_pets_the_watchdog_only_while_the_bridge_
     // What the journal gets: every process's log without terminal colours.
     let text = std::fs::read_to_string(dir.join("up.log")).unwrap();
     assert!(text.lines().count() > 5, "{text}");
-    assert!(!text.contains('\u{1b}'), "colour codes in a log that is not a terminal");
+    assert!(
+        !text.contains('\u{1b}'),
+        "colour codes in a log that is not a terminal"
+    );
     drop(rec);
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(
