@@ -278,7 +278,7 @@ impl Recording {
         pid: u32,
         robot: &'static kinematics::RobotProfile,
         notes: &mut Vec<String>,
-    ) -> Result<Option<(LoadedModel, String)>, ReplayError> {
+    ) -> Result<Option<(LoadedModel, String, bool)>, ReplayError> {
         let merr = |source| ReplayError::Model {
             path: self.path.clone(),
             mapper_id,
@@ -301,19 +301,20 @@ impl Recording {
                 return Ok(None);
             };
             let sha = recording::sha256::hex(bytes);
-            if p.entries.get("model_sha256").is_some_and(|w| *w != sha) {
+            let altered = p.entries.get("model_sha256").is_some_and(|w| *w != sha);
+            if altered {
                 notes.push(format!(
                     "mapper {mapper_id}: the embedded model {name} does not match its recorded \
                      SHA-256 (the file was altered after recording)"
                 ));
             }
             let m = LoadedModel::from_bytes_for(bytes, Path::new(name), robot).map_err(merr)?;
-            return Ok(Some((m, format!("{name} (sha256 {sha})"))));
+            return Ok(Some((m, format!("{name} (sha256 {sha})"), altered)));
         }
         match p.entries.get("model_spec") {
             Some(spec) if mapper::model::is_builtin(spec) => {
                 let m = LoadedModel::load_for(spec, robot).map_err(merr)?;
-                Ok(Some((m, spec.clone())))
+                Ok(Some((m, spec.clone(), false)))
             }
             _ => {
                 notes.push(format!(
@@ -567,7 +568,7 @@ pub fn replay(
     let period_s = cfg.period_s();
 
     // Mappers: one step per process, commands in recorded order.
-    let mut steps: HashMap<u32, Option<(MapperStep, String)>> = HashMap::new();
+    let mut steps: HashMap<u32, Option<(MapperStep, String, bool)>> = HashMap::new();
     let mut replayed: Replayed = HashMap::new();
     let mut mapper_divs: BTreeMap<(u64, u32), Divergence> = BTreeMap::new();
     let (mut mapper_commands, mut mapper_identical, mut skipped) = (0u64, 0u64, 0u64);
@@ -576,7 +577,7 @@ pub fn replay(
         let pid = rec.incarnation(NodeRole::Mapper, cmd.mapper_id, cmd.t_ns);
         if let std::collections::hash_map::Entry::Vacant(slot) = steps.entry(pid) {
             let s = match rec.model(cmd.mapper_id, pid, robot, &mut notes)? {
-                Some((model, name)) => Some((
+                Some((model, name, altered)) => Some((
                     MapperStep::new(cmd.mapper_id, model, robot.n_joints()).map_err(|source| {
                         ReplayError::Model {
                             path: rec.path.clone(),
@@ -586,12 +587,13 @@ pub fn replay(
                         }
                     })?,
                     name,
+                    altered,
                 )),
                 None => None,
             };
             slot.insert(s);
         }
-        let Some(Some((step, model_name))) = steps.get_mut(&pid) else {
+        let Some(Some((step, model_name, altered))) = steps.get_mut(&pid) else {
             skipped += 1;
             continue;
         };
@@ -614,6 +616,12 @@ pub fn replay(
             mapper_identical += 1;
         } else {
             let input = match joy {
+                _ if *altered => format!(
+                    "the model: {model_name} is not the file recorded (its SHA-256 differs from \
+                     the one recorded with it); the robot state (tick {}) and joystick sample \
+                     (seq {}) were fed as recorded",
+                    state.tick, cmd.joystick_seq
+                ),
                 Some((_, true)) => format!(
                     "the joystick sample (seq {}) is not in the recording and was rebuilt from \
                      the command",
@@ -738,7 +746,7 @@ pub fn replay(
                 joystick: joystick_for(rec, rec_cmd),
                 model: steps
                     .get(&rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns))
-                    .and_then(|s| s.as_ref().map(|(_, n)| n.clone())),
+                    .and_then(|s| s.as_ref().map(|(_, n, _)| n.clone())),
                 mapper_recorded: **rec_cmd,
                 mapper_replayed: rep_cmd.copied(),
                 now_ns,
@@ -864,10 +872,11 @@ pub fn cli(args: &ReplayArgs) -> Result<std::process::ExitCode, ReplayError> {
     let rec = Recording::read(&args.file)?;
     let read_s = started.elapsed().as_secs_f64();
     let (r, trace) = replay(&rec, args.tick.filter(|_| args.explain))?;
-    tracing::info!(
+    let total_s = started.elapsed().as_secs_f64();
+    tracing::debug!(
         ticks = r.ticks,
         read_s,
-        total_s = started.elapsed().as_secs_f64(),
+        total_s,
         "replayed {}",
         args.file.display()
     );
@@ -882,6 +891,10 @@ pub fn cli(args: &ReplayArgs) -> Result<std::process::ExitCode, ReplayError> {
         println!("{text}");
     } else if trace.is_none() {
         print!("{}", render(&args.file, &r));
+        println!(
+            "read in {read_s:.2} s, replayed in {:.2} s",
+            total_s - read_s
+        );
     } else {
         for n in &r.notes {
             eprintln!("note: {n}");
