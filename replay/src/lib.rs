@@ -29,6 +29,7 @@
 
 pub mod edit;
 pub mod explain;
+pub mod whatif;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -864,6 +865,19 @@ pub struct ReplayArgs {
     /// For tick K: its inputs, the map's output, what each safety rule did, the command.
     #[arg(long, requires = "tick")]
     pub explain: bool,
+    /// Counterfactual: the recorded states and joystick samples through this model instead
+    /// (a file, `bundled`, `modeswitch[:...]`, `constant:qdot=...`), open loop; needs --out.
+    #[arg(long, value_name = "MODEL", requires = "out")]
+    pub model: Option<String>,
+    /// Counterfactual: the `[safety]` of this graph TOML instead of the recorded one; needs
+    /// --out.
+    #[arg(long, value_name = "FILE", requires = "out")]
+    pub safety: Option<PathBuf>,
+    /// Counterfactual: write the recording with the what-if commands beside the recorded
+    /// ones (`/whatif/mapper_command`, `/whatif/safe_command`) to this MCAP file (never
+    /// overwritten).
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
 }
 
 /// `scl replay`: replays the recording and reports; exit code 1 if any command diverged.
@@ -871,6 +885,23 @@ pub fn cli(args: &ReplayArgs) -> Result<std::process::ExitCode, ReplayError> {
     let started = std::time::Instant::now();
     let rec = Recording::read(&args.file)?;
     let read_s = started.elapsed().as_secs_f64();
+    if let Some(out) = &args.out {
+        let what = whatif::WhatIf {
+            model: args.model.clone(),
+            safety: args.safety.clone(),
+        };
+        let s = whatif::run(&rec, &what, out)?;
+        if args.json {
+            let text = serde_json::to_string(&s).map_err(|e| ReplayError::Empty {
+                path: args.file.clone(),
+                reason: format!("cannot encode the summary: {e}"),
+            })?;
+            println!("{text}");
+        } else {
+            print!("{}", whatif::render(&s));
+        }
+        return Ok(std::process::ExitCode::SUCCESS);
+    }
     let (r, trace) = replay(&rec, args.tick.filter(|_| args.explain))?;
     let total_s = started.elapsed().as_secs_f64();
     tracing::debug!(

@@ -218,3 +218,44 @@ fn a_truncated_or_foreign_file_is_a_clear_error() {
         .to_string();
     assert!(e.contains("missing.mcap"), "{e}");
 }
+
+#[test]
+fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
+    let path = temp("whatif-src.mcap");
+    make(&path, 120, mapper::model::BUNDLED);
+    let rec = Recording::read(&path).unwrap();
+    let out = temp("whatif-same.mcap");
+    let what = whatif::WhatIf {
+        model: Some(mapper::model::BUNDLED_NAME.into()),
+        safety: None,
+    };
+    let s = whatif::run(&rec, &what, &out).unwrap();
+    assert_eq!(s.ticks, 120);
+    assert_eq!(s.ticks_differing, 0, "{}", whatif::render(&s));
+    assert_eq!((s.first_difference, s.first_map_difference), (None, None));
+    assert_eq!((s.joint_rad_s_max, s.tool_m_s_max), (0.0, 0.0));
+    // Never over an existing file.
+    assert!(whatif::run(&rec, &what, &out).is_err());
+    // The drill map moves from the first tick the filter lets it (it ignores the stick, so
+    // its output differs from the start).
+    let out = temp("whatif-drill.mcap");
+    let what = whatif::WhatIf {
+        model: Some("constant:qdot=0,0.2,0,0,0,0".into()),
+        safety: None,
+    };
+    let s = whatif::run(&rec, &what, &out).unwrap();
+    assert_eq!(s.first_map_difference, Some(0), "{}", whatif::render(&s));
+    assert!(s.joint_rad_s_max > 0.0);
+    // The output holds the recorded commands and the what-if ones.
+    let mut counts = BTreeMap::new();
+    recording::read_file(&out, |ev| {
+        if let Event::Message { channel, .. } = ev {
+            *counts.entry(channel.topic.clone()).or_insert(0) += 1;
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(counts["/safe_command"], 120);
+    assert_eq!(counts["/whatif/safe_command"], 120);
+    assert_eq!(counts["/whatif/mapper_command"], 120);
+}

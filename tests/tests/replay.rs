@@ -2,7 +2,8 @@
 //! `scl up --record`, with a live swap to a model file, an e-stop and its reset, replays bit
 //! for bit with `scl replay`; the same recording with one weight of its embedded model
 //! changed diverges, and the report names the first tick the map moved and the mapper. Both
-//! tests share the one recorded run (made once, under its own prefix, cleaned up).
+//! tests share the one recorded run (made once, under its own prefix, cleaned up). The
+//! counterfactual runs on a second, plain run (the bundled SCL model throughout).
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use std::path::{Path, PathBuf};
@@ -259,4 +260,94 @@ fn a_recording_with_an_altered_model_diverges_at_the_first_tick_the_map_moves() 
         )),
         "{text}"
     );
+}
+
+/// An 8 s run with the bundled model throughout, recorded; its directory and file.
+fn plain_run() -> &'static Run {
+    static RUN: OnceLock<Run> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let _serial = serial();
+        let prefix = unique_prefix("whatif");
+        let _domain = DomainGuard(prefix.clone());
+        let dir = temp_dir("whatif");
+        write_replay(&dir.join("input.csv"), &pulses([0.5, 0.4], 1.2, 0.4, 8.0));
+        let cfg = dir.join("graph.toml");
+        std::fs::write(
+            &cfg,
+            "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
+        )
+        .unwrap();
+        let file = dir.join("run.mcap");
+        let mut up = scl(&prefix);
+        up.arg("--config")
+            .arg(&cfg)
+            .args(["up", "--for", "8s", "--record"])
+            .arg(&file)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(dir.join("up.log")).unwrap());
+        let status = up.status().unwrap();
+        let log = std::fs::read_to_string(dir.join("up.log")).unwrap_or_default();
+        assert!(status.success(), "scl up: {log}");
+        let left = wait_clean(&prefix, Duration::from_secs(10));
+        assert!(left.is_empty(), "left in /dev/shm: {left:?}");
+        Run { dir, file }
+    })
+}
+
+fn whatif_json(run: &Run, model: &str, out: &str) -> serde_json::Value {
+    let out = run.dir.join(out);
+    let _ = std::fs::remove_file(&out);
+    let o = std::process::Command::new(scl_tests::scl_binary())
+        .env("SCL_LOG", "warn")
+        .args(["replay", "--json", "--model", model, "--out"])
+        .arg(&out)
+        .arg(&run.file)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "{text} {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+#[test]
+fn the_counterfactual_is_zero_with_the_same_model_and_differs_from_the_first_move_with_pca() {
+    let run = plain_run();
+    let v = whatif_json(run, "bundled", "same.mcap");
+    assert!(v["ticks"].as_u64().unwrap() >= 250, "{v}");
+    assert_eq!(v["ticks_differing"], 0, "{v}");
+    assert!(v["first_difference"].is_null(), "{v}");
+    assert!(v["first_map_difference"].is_null(), "{v}");
+    assert_eq!(v["joint_rad_s_max"].as_f64(), Some(0.0), "{v}");
+    assert_eq!(v["tool_m_s_max"].as_f64(), Some(0.0), "{v}");
+
+    // By hand: PCA and SCL both command zero for a zero action and differ for any other, so
+    // the first map difference is the first forwarded command with a usable non-zero action.
+    let (safe, mapper, _) = contents(&run.file);
+    let unusable = mapper_flags::NO_INPUT
+        | mapper_flags::INPUT_NON_FINITE
+        | mapper_flags::INPUT_STALE
+        | mapper_flags::STATE_INVALID;
+    let expected = safe
+        .iter()
+        .find(|s| {
+            mapper.iter().any(|m| {
+                m.tick == s.tick
+                    && m.t_ns == s.mapper_t_ns
+                    && m.flags & unusable == 0
+                    && m.action.iter().any(|a| *a != 0.0)
+            })
+        })
+        .expect("the stick moved")
+        .tick;
+    let pca = joint_reach_pca(&run.dir, None);
+    let v = whatif_json(run, pca.to_str().unwrap(), "pca.mcap");
+    assert_eq!(v["first_map_difference"].as_u64(), Some(expected), "{v}");
+    assert!(v["first_difference"].as_u64().unwrap() >= expected, "{v}");
+    assert!(v["joint_rad_s_max"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(v["tool_m_s_max"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(!v["largest"].as_array().unwrap().is_empty(), "{v}");
 }
