@@ -127,6 +127,8 @@ pub struct Recording {
     pub attachments: HashMap<String, Vec<u8>>,
     /// Whether the file ended properly; if not, why reading stopped.
     pub stopped: Option<String>,
+    /// Messages left out because they did not decode.
+    pub undecodable: u64,
 }
 
 impl Recording {
@@ -138,6 +140,7 @@ impl Recording {
             ..Recording::default()
         };
         let mut seen_pids = std::collections::HashSet::new();
+        let mut undecodable = 0u64;
         let summary = recording::read_file(path, |ev| {
             match ev {
                 Event::Message {
@@ -145,33 +148,12 @@ impl Recording {
                     sequence,
                     data,
                     ..
-                } => match Topic::from_channel(&channel.topic) {
-                    Some(Topic::RobotState) => {
-                        let s = recording::decode_robot_state(path, channel, sequence, data)?;
-                        r.states.insert(s.t_ns, s);
-                    }
-                    Some(Topic::Joystick) => {
-                        let j: JoystickInput = recording::decode(path, channel, sequence, data)?;
-                        r.joystick.insert((j.t_ns, j.seq), j);
-                    }
-                    Some(Topic::MapperCommand) => {
-                        r.mapper
-                            .push(recording::decode(path, channel, sequence, data)?);
-                    }
-                    Some(Topic::SafeCommand) => {
-                        r.safe
-                            .push(recording::decode(path, channel, sequence, data)?);
-                    }
-                    Some(Topic::Status) => {
-                        let st: NodeStatus = recording::decode(path, channel, sequence, data)?;
-                        if let Some(role) = NodeRole::from_u32(st.role)
-                            && matches!(role, NodeRole::Mapper | NodeRole::Safety)
-                            && seen_pids.insert(st.pid)
-                        {
-                            r.incarnations.push((role, st.mapper_id, st.pid, st.t_ns));
-                        }
-                    }
-                    _ => {}
+                } => match r.take(path, channel, sequence, data, &mut seen_pids) {
+                    Ok(()) => {}
+                    // A message that does not decode (a non-finite value a fault drill
+                    // injected is written as `null`) is left out and counted.
+                    Err(RecordError::Decode { .. }) => undecodable += 1,
+                    Err(e) => return Err(e),
                 },
                 Event::Metadata { name, entries } if name == recording::PROCESS_METADATA => {
                     let pid = entries
@@ -194,6 +176,7 @@ impl Recording {
             Ok(())
         })?;
         r.stopped = summary.stopped;
+        r.undecodable = undecodable;
         if r.safe.is_empty() {
             return Err(ReplayError::Empty {
                 path: path.to_owned(),
@@ -203,6 +186,47 @@ impl Recording {
             });
         }
         Ok(r)
+    }
+
+    /// Files one message of the recording.
+    fn take(
+        &mut self,
+        path: &Path,
+        channel: &recording::ChannelInfo,
+        sequence: u32,
+        data: &[u8],
+        seen_pids: &mut std::collections::HashSet<u32>,
+    ) -> Result<(), RecordError> {
+        let r = self;
+        match Topic::from_channel(&channel.topic) {
+            Some(Topic::RobotState) => {
+                let s = recording::decode_robot_state(path, channel, sequence, data)?;
+                r.states.insert(s.t_ns, s);
+            }
+            Some(Topic::Joystick) => {
+                let j: JoystickInput = recording::decode(path, channel, sequence, data)?;
+                r.joystick.insert((j.t_ns, j.seq), j);
+            }
+            Some(Topic::MapperCommand) => {
+                r.mapper
+                    .push(recording::decode(path, channel, sequence, data)?);
+            }
+            Some(Topic::SafeCommand) => {
+                r.safe
+                    .push(recording::decode(path, channel, sequence, data)?);
+            }
+            Some(Topic::Status) => {
+                let st: NodeStatus = recording::decode(path, channel, sequence, data)?;
+                if let Some(role) = NodeRole::from_u32(st.role)
+                    && matches!(role, NodeRole::Mapper | NodeRole::Safety)
+                    && seen_pids.insert(st.pid)
+                {
+                    r.incarnations.push((role, st.mapper_id, st.pid, st.t_ns));
+                }
+            }
+            _ => {}
+        }
+        Ok(())
     }
 
     /// The pid of the `role` process (of mapper `mapper_id`) that produced a message at
@@ -557,6 +581,12 @@ pub fn replay(
     if let Some(why) = &rec.stopped {
         notes.push(format!(
             "the recording is incomplete ({why}): replayed up to its end"
+        ));
+    }
+    if rec.undecodable > 0 {
+        notes.push(format!(
+            "{} messages did not decode (a non-finite value is written as null) and were left out",
+            rec.undecodable
         ));
     }
     let cfg = rec.graph_config(&mut notes)?;
