@@ -903,6 +903,11 @@ pub struct ReplayArgs {
     /// --out.
     #[arg(long, value_name = "FILE", requires = "out")]
     pub safety: Option<PathBuf>,
+    /// Counterfactual: drive a mock arm of the recorded robot from the recorded first state
+    /// with the what-if commands, instead of the recorded states ("where would the tool have
+    /// gone"); needs --out.
+    #[arg(long, requires = "out")]
+    pub closed_loop: bool,
     /// Counterfactual: write the recording with the what-if commands beside the recorded
     /// ones (`/whatif/mapper_command`, `/whatif/safe_command`) to this MCAP file (never
     /// overwritten).
@@ -919,6 +924,7 @@ pub fn cli(args: &ReplayArgs) -> Result<std::process::ExitCode, ReplayError> {
         let what = whatif::WhatIf {
             model: args.model.clone(),
             safety: args.safety.clone(),
+            closed_loop: args.closed_loop,
         };
         let s = whatif::run(&rec, &what, out)?;
         if args.json {

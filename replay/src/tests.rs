@@ -228,6 +228,7 @@ fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
     let what = whatif::WhatIf {
         model: Some(mapper::model::BUNDLED_NAME.into()),
         safety: None,
+        closed_loop: false,
     };
     let s = whatif::run(&rec, &what, &out).unwrap();
     assert_eq!(s.ticks, 120);
@@ -242,6 +243,7 @@ fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
     let what = whatif::WhatIf {
         model: Some("constant:qdot=0,0.2,0,0,0,0".into()),
         safety: None,
+        closed_loop: false,
     };
     let s = whatif::run(&rec, &what, &out).unwrap();
     assert_eq!(s.first_map_difference, Some(0), "{}", whatif::render(&s));
@@ -258,4 +260,44 @@ fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
     assert_eq!(counts["/safe_command"], 120);
     assert_eq!(counts["/whatif/safe_command"], 120);
     assert_eq!(counts["/whatif/mapper_command"], 120);
+}
+
+#[test]
+fn the_closed_loop_counterfactual_drives_a_mock_arm() {
+    let path = temp("closed-src.mcap");
+    make(&path, 120, mapper::model::BUNDLED);
+    let rec = Recording::read(&path).unwrap();
+    // The same model on a mock arm retraces the recorded run (up to the rounding of the
+    // mock's integration).
+    let s = whatif::run(
+        &rec,
+        &whatif::WhatIf {
+            model: Some(mapper::model::BUNDLED_NAME.into()),
+            safety: None,
+            closed_loop: true,
+        },
+        &temp("closed-same.mcap"),
+    )
+    .unwrap();
+    assert!(
+        s.tool_position_m_max.unwrap() < 1e-9,
+        "{}",
+        whatif::render(&s)
+    );
+    // The drill map goes elsewhere.
+    let s = whatif::run(
+        &rec,
+        &whatif::WhatIf {
+            model: Some("constant:qdot=0,0.2,0,0,0,0".into()),
+            safety: None,
+            closed_loop: true,
+        },
+        &temp("closed-drill.mcap"),
+    )
+    .unwrap();
+    assert!(
+        s.tool_position_m_final.unwrap() > 0.01,
+        "{}",
+        whatif::render(&s)
+    );
 }

@@ -4,7 +4,10 @@
 //! the recording with `/whatif/mapper_command` and `/whatif/safe_command` channels beside the
 //! recorded commands (Foxglove plots both), and a summary: per-tick differences of the joint
 //! velocity and of the tool's velocity, how often each safety rule acted in either, and the
-//! ticks where the two differ most.
+//! ticks where the two differ most. `--closed-loop` instead drives a mock arm of the robot
+//! profile, from the recorded first state, with the what-if commands (`/whatif/robot_state`
+//! too): the states then differ from the recording, and the summary says how far the tool
+//! would have been from where it was.
 //!
 //! Each tick the recording has a safety command for, the what-if mapper (one
 //! [`MapperStep`] over the whole run, serving B) maps the joystick sample the forwarded
@@ -14,7 +17,9 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, SafeCommand, safe_control, safe_flags};
+use ipc_types::{
+    MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, safe_control, safe_flags,
+};
 use mapper::LoadedModel;
 use mapper::step::MapperStep;
 use recording::{Event, LogWriter, Payload, SchemaInfo, Topic};
@@ -31,6 +36,8 @@ pub struct WhatIf {
     pub model: Option<String>,
     /// A graph TOML whose `[safety]` replaces the recorded one; `None`: the recorded one.
     pub safety: Option<PathBuf>,
+    /// Drive a mock arm with the what-if commands instead of taking the recorded states.
+    pub closed_loop: bool,
 }
 
 /// One tick where the what-if command differs.
@@ -64,6 +71,11 @@ pub struct Summary {
     pub tool_m_s_max: f64,
     /// Mean over the ticks compared.
     pub tool_m_s_mean: f64,
+    /// Closed loop: the largest distance between the tool's what-if and recorded positions
+    /// (m); `null` open loop.
+    pub tool_position_m_max: Option<f64>,
+    /// Closed loop: that distance at the last tick (m); `null` open loop.
+    pub tool_position_m_final: Option<f64>,
     /// How many ticks each safety rule acted: recorded and what-if, by rule name.
     pub rules: BTreeMap<String, [u64; 2]>,
     /// The ticks where the two differ most (joint velocity), largest first (up to 10).
@@ -131,7 +143,10 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
         .map(|c| ((c.mapper_id, c.tick, c.t_ns), c))
         .collect();
 
-    let mut whatif: Vec<(MapperCommand, SafeCommand)> = Vec::new();
+    let mut whatif: Vec<(MapperCommand, SafeCommand, RobotState)> = Vec::new();
+    let mut arm: Option<hw_bridge::mock::MockArm> = None;
+    let mut sim: Option<RobotState> = None;
+    let (mut pos_max, mut pos_final) = (0.0f64, 0.0f64);
     let mut diffs = Vec::new();
     let mut rules: BTreeMap<String, [u64; 2]> = BTreeMap::new();
     let mut first_difference = None;
@@ -139,7 +154,7 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
     let mut last_tick = NO_TICK;
     for safe in &rec.safe {
         let key = (safe.mapper_id, safe.tick, safe.mapper_t_ns);
-        let (Some(rec_cmd), Some(state)) =
+        let (Some(rec_cmd), Some(recorded_state)) =
             (recorded_mapper.get(&key), rec.states.get(&safe.state_t_ns))
         else {
             continue;
@@ -148,6 +163,28 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
             continue;
         }
         last_tick = safe.tick;
+        if what.closed_loop && arm.is_none() {
+            let mut a = hw_bridge::mock::MockArm::for_robot(
+                robot,
+                hw_bridge::mock::MockConfig::for_robot(robot),
+            )
+            .map_err(|e| cerr("the mock arm".into(), e.to_string()))?;
+            a.resume(recorded_state.q(), recorded_state.gripper);
+            arm = Some(a);
+            sim = Some(*recorded_state);
+        }
+        // Closed loop: the simulated arm's state, stamped as the recorded one (tick, time).
+        let state_owned = match sim.as_mut() {
+            Some(s) => {
+                s.tick = recorded_state.tick;
+                s.t_ns = recorded_state.t_ns;
+                s.missed = recorded_state.missed;
+                s.flags = recorded_state.flags;
+                *s
+            }
+            None => *recorded_state,
+        };
+        let state = &state_owned;
         let mut cmd = match step.as_mut() {
             Some(s) => {
                 let joy = joystick_for(rec, rec_cmd);
@@ -194,7 +231,22 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
         let mut p = [0.0; 3];
         let mut jv = [[0.0; MAX_JOINTS]; 3];
         tcp.tcp(state.q(), &mut p, &mut jv);
-        let tool = norm(&safety::rules::tcp_velocity(&jv, &dq[..n]));
+        let tool = if what.closed_loop {
+            // Each command at its own state: the tool's velocities and positions compared.
+            let mut pr = [0.0; 3];
+            let mut jr = [[0.0; MAX_JOINTS]; 3];
+            tcp.tcp(recorded_state.q(), &mut pr, &mut jr);
+            let vw = safety::rules::tcp_velocity(&jv, &res.qdot_rad_s[..n]);
+            let vr = safety::rules::tcp_velocity(&jr, &safe.qdot_rad_s[..n]);
+            let d = norm(&[pr[0] - p[0], pr[1] - p[1], pr[2] - p[2]]);
+            if d.is_finite() {
+                pos_max = pos_max.max(d);
+                pos_final = d;
+            }
+            norm(&[vw[0] - vr[0], vw[1] - vr[1], vw[2] - vr[2]])
+        } else {
+            norm(&safety::rules::tcp_velocity(&jv, &dq[..n]))
+        };
         let joint = norm(&dq[..n]);
         if first_difference.is_none() && commands_differ(&safe.qdot_rad_s, &res.qdot_rad_s) {
             first_difference = Some(safe.tick);
@@ -204,7 +256,15 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
             joint_rad_s: joint,
             tool_m_s: if tool.is_finite() { tool } else { 0.0 },
         });
-        whatif.push((cmd, res));
+        whatif.push((cmd, res, *state));
+        if let (Some(a), Some(s)) = (arm.as_mut(), sim.as_mut()) {
+            a.set_command(&res.qdot_rad_s[..n], res.gripper_rate);
+            let r = a.step(cfg.period_s());
+            s.q_rad = r.q_rad;
+            s.qdot_rad_s = r.qdot_rad_s;
+            s.gripper = r.gripper;
+            s.applied_tick = safe.tick;
+        }
     }
     if whatif.is_empty() {
         return Err(ReplayError::Empty {
@@ -224,6 +284,8 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
         joint_rad_s_mean: mean(&|d| d.joint_rad_s),
         tool_m_s_max: diffs.iter().map(|d| d.tool_m_s).fold(0.0, f64::max),
         tool_m_s_mean: mean(&|d| d.tool_m_s),
+        tool_position_m_max: what.closed_loop.then_some(pos_max),
+        tool_position_m_final: what.closed_loop.then_some(pos_final),
         rules: rules.into_iter().filter(|(_, c)| c[0] + c[1] > 0).collect(),
         largest: {
             let mut v: Vec<TickDifference> = diffs
@@ -246,7 +308,7 @@ fn write(
     rec: &Recording,
     what: &WhatIf,
     out: &Path,
-    whatif: &[(MapperCommand, SafeCommand)],
+    whatif: &[(MapperCommand, SafeCommand, RobotState)],
 ) -> Result<(), ReplayError> {
     let file = recording::create_new(out)?;
     let mut w = LogWriter::new(std::io::BufWriter::new(file), out, None)?;
@@ -303,13 +365,25 @@ fn write(
     };
     let mc = channel(&mut w, Topic::MapperCommand)?;
     let sc = channel(&mut w, Topic::SafeCommand)?;
+    let rc = if what.closed_loop {
+        Some(channel(&mut w, Topic::RobotState)?)
+    } else {
+        None
+    };
     let mut json = Vec::new();
     let werr = |e: serde_json::Error| RecordError::Write {
         path: out.to_owned(),
         reason: e.to_string(),
     };
     use recording::RecordError;
-    for (i, (m, s)) in whatif.iter().enumerate() {
+    for (i, (m, s, st)) in whatif.iter().enumerate() {
+        if let Some(rc) = rc {
+            json.clear();
+            Payload::RobotState(*st)
+                .write_json(&mut json)
+                .map_err(werr)?;
+            w.write_raw(rc, i as u32 + 1, st.t_ns, st.t_ns, &json)?;
+        }
         json.clear();
         Payload::MapperCommand(*m)
             .write_json(&mut json)
@@ -338,7 +412,10 @@ fn write(
             .as_ref()
             .map_or_else(|| "as recorded".into(), |p| p.display().to_string()),
     );
-    m.insert("loop".to_owned(), "open".to_owned());
+    m.insert(
+        "loop".to_owned(),
+        if what.closed_loop { "closed" } else { "open" }.to_owned(),
+    );
     w.finish(Some(recording::metadata("scl.whatif", m)))?;
     Ok(())
 }
@@ -353,8 +430,13 @@ pub fn render(s: &Summary) -> String {
     let first = |v: Option<u64>| v.map_or("none".to_owned(), |k| format!("tick {k}"));
     let _ = writeln!(
         t,
-        "what-if over {} ticks (open loop) -> {}: {} ticks differ; first difference {} (map output: {})",
+        "what-if over {} ticks ({} loop) -> {}: {} ticks differ; first difference {} (map output: {})",
         s.ticks,
+        if s.tool_position_m_max.is_some() {
+            "closed"
+        } else {
+            "open"
+        },
         s.out,
         s.ticks_differing,
         first(s.first_difference),
@@ -370,6 +452,12 @@ pub fn render(s: &Summary) -> String {
         "  tool velocity difference   max {:.4} m/s    mean {:.4} m/s",
         s.tool_m_s_max, s.tool_m_s_mean
     );
+    if let (Some(max), Some(last)) = (s.tool_position_m_max, s.tool_position_m_final) {
+        let _ = writeln!(
+            t,
+            "  tool position difference   max {max:.4} m      at the end {last:.4} m"
+        );
+    }
     let _ = writeln!(t, "  safety rules (ticks acted: recorded / what-if)");
     for (name, c) in &s.rules {
         let _ = writeln!(t, "    {name:<17} {:>6} / {:<6}", c[0], c[1]);
