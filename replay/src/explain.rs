@@ -107,6 +107,12 @@ pub fn render(t: &TickTrace) -> String {
         m.action[1],
         bit_names(m.flags, &mapper_flags::NAMES).join(", ")
     );
+    if let Some(h) = &t.h {
+        let _ = writeln!(s, "  s·H (rad/s per unit action, the map at this state)");
+        for (i, col) in h.iter().enumerate() {
+            let _ = writeln!(s, "    a{i} -> {}", joints(col, n));
+        }
+    }
     let _ = writeln!(s, "  qdot (rad/s)  {}", joints(&m.qdot_rad_s, n));
     let _ = writeln!(s, "  gripper rate  {:+.4}", m.gripper_rate);
     match &t.mapper_replayed {
@@ -143,11 +149,30 @@ pub fn render(t: &TickTrace) -> String {
     if r.flags == 0 {
         let _ = writeln!(s, "  no rule acted: the command passes as mapped");
     }
+    let sc = &t.report.scales;
+    let factor = |b: u32| match b {
+        safe_flags::VELOCITY_SCALED => Some(sc.velocity),
+        safe_flags::SPEED_CAPPED => Some(sc.speed_cap),
+        safe_flags::POSITION_LIMITED => Some(sc.position),
+        safe_flags::WORKSPACE_LIMITED => Some(sc.workspace),
+        safe_flags::CLEARANCE_LIMITED => Some(sc.clearance),
+        _ => None,
+    };
     for bit in 0..safe_flags::COUNT {
         let b = 1u32 << bit;
         if r.flags & b != 0 {
-            let _ = writeln!(s, "  {:<17} {}", safe_flags::NAMES[bit], rule_line(b));
+            let k = factor(b)
+                .filter(|k| *k < 1.0)
+                .map_or(String::new(), |k| format!(" (target x {k:.4})"));
+            let _ = writeln!(s, "  {:<17} {}{k}", safe_flags::NAMES[bit], rule_line(b));
         }
+    }
+    if let Some(l) = t.report.toward_braking {
+        let _ = writeln!(
+            s,
+            "  braking           the acceleration-limited output could not brake in time: moved \
+             to {l:.4} of the way from braking the arm's velocity"
+        );
     }
     for (on, what) in [
         (

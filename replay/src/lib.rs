@@ -549,6 +549,9 @@ pub struct TickTrace {
     pub joystick: Option<(JoystickInput, bool)>,
     /// The model that mapper served.
     pub model: Option<String>,
+    /// For a map linear in the action (SCL, PCA): `s·H(q, c)` at this state, one column
+    /// per action axis (rad/s per unit action).
+    pub h: Option<[[f64; ipc_types::MAX_JOINTS]; ipc_types::ACTION_DIM]>,
     /// The recorded mapper command.
     pub mapper_recorded: MapperCommand,
     /// The replayed mapper command (`None`: not re-executed).
@@ -565,6 +568,40 @@ pub struct TickTrace {
     pub report: safety::StepReport,
     /// The filter's configuration.
     pub config: safety::SafetyConfig,
+}
+
+/// `s·H(q, c)` of mapper process `pid`'s model at `state`, if the map is linear in the action
+/// (SCL, PCA): probed column by column on a fresh copy of the model.
+fn linear_map_at(
+    rec: &Recording,
+    pid: u32,
+    robot: &'static kinematics::RobotProfile,
+    state: &RobotState,
+) -> Option<[[f64; ipc_types::MAX_JOINTS]; ipc_types::ACTION_DIM]> {
+    let (mut model, _, _) = rec.model(0, pid, robot, &mut Vec::new()).ok()??;
+    if !matches!(
+        model.header.kind,
+        mapper::model::ModelKind::Scl | mapper::model::ModelKind::Pca
+    ) {
+        return None;
+    }
+    let n = robot.n_joints().min(ipc_types::MAX_JOINTS);
+    if state.n_joints as usize != n
+        || model.header.n_joints != n
+        || !state.q().iter().all(|v| v.is_finite())
+        || !state.gripper.is_finite()
+    {
+        return None;
+    }
+    let s = model.header.speed_scale_rad_s;
+    let mut h = [[0.0; ipc_types::MAX_JOINTS]; ipc_types::ACTION_DIM];
+    for (j, col) in h.iter_mut().enumerate() {
+        let mut a = [0.0; ipc_types::ACTION_DIM];
+        a[j] = 1.0;
+        model.map.eval(state.q(), state.gripper, &a, &mut col[..n]);
+        col[..n].iter_mut().for_each(|v| *v *= s);
+    }
+    Some(h)
 }
 
 /// Mapper commands keyed by (mapper id, tick, t_ns): their replayed version.
@@ -778,6 +815,12 @@ pub fn replay(
                 model: steps
                     .get(&rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns))
                     .and_then(|s| s.as_ref().map(|(_, n, _)| n.clone())),
+                h: linear_map_at(
+                    rec,
+                    rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns),
+                    robot,
+                    state,
+                ),
                 mapper_recorded: **rec_cmd,
                 mapper_replayed: rep_cmd.copied(),
                 now_ns,

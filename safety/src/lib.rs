@@ -130,6 +130,39 @@ pub struct StepReport {
     /// The velocity the output was limited from (the arm's current velocity as the filter
     /// estimates it: the previous output if executed, else the measured one).
     pub base_rad_s: [f64; MAX_JOINTS],
+    /// The factor each rule of steps 3 and 4 scaled the target by (1 where it did not act).
+    pub scales: TargetScales,
+    /// Where between braking the arm's velocity (0) and the acceleration-limited output (1)
+    /// step 5 put the output, when that output could not have braked in time.
+    pub toward_braking: Option<f64>,
+}
+
+/// The factors the scaling rules applied to the target this tick (1: the rule did not act),
+/// for explaining a tick ([`StepReport::scales`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetScales {
+    /// Uniform scaling into the joint speed limits.
+    pub velocity: f64,
+    /// The Cartesian speed caps.
+    pub speed_cap: f64,
+    /// Braking before the joint limit margins.
+    pub position: f64,
+    /// Braking before the workspace bounds.
+    pub workspace: f64,
+    /// Slow-down and braking by clearance.
+    pub clearance: f64,
+}
+
+impl Default for TargetScales {
+    fn default() -> Self {
+        Self {
+            velocity: 1.0,
+            speed_cap: 1.0,
+            position: 1.0,
+            workspace: 1.0,
+            clearance: 1.0,
+        }
+    }
 }
 
 impl StepReport {
@@ -557,6 +590,7 @@ impl SafetyFilter {
                 }
                 let k = uniform_scale(&target[..n], &self.vmax[..n]);
                 if k < 1.0 {
+                    report.scales.velocity = k;
                     flags |= safe_flags::VELOCITY_SCALED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -569,6 +603,7 @@ impl SafetyFilter {
             if let Some(arm) = self.arm.as_mut().filter(|_| arm_ok) {
                 let k = Self::speed_cap(arm, &self.cfg, &target[..n]);
                 if k < 1.0 {
+                    report.scales.speed_cap = k;
                     flags |= safe_flags::SPEED_CAPPED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -590,11 +625,13 @@ impl SafetyFilter {
                 let q = &state.q_rad[..n];
                 let k = self.position_brake(q, &target[..n]);
                 if k < 1.0 {
+                    report.scales.position = k;
                     flags |= safe_flags::POSITION_LIMITED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
                 let k = self.workspace_brake(tcp.as_ref(), &target[..n]);
                 if k < 1.0 {
+                    report.scales.workspace = k;
                     flags |= safe_flags::WORKSPACE_LIMITED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -608,6 +645,7 @@ impl SafetyFilter {
                     )
                     .min(self.clearance_brake(&target[..n]));
                     if k < 1.0 {
+                        report.scales.clearance = k;
                         flags |= safe_flags::CLEARANCE_LIMITED;
                         target[..n].iter_mut().for_each(|v| *v *= k);
                     }
@@ -666,6 +704,7 @@ impl SafetyFilter {
                         }
                     }
                     out = at(lo);
+                    report.toward_braking = Some(lo);
                 }
             }
             // Hard guarantees over the acceleration limit.
