@@ -3,7 +3,8 @@
 //! for bit with `scl replay`; the same recording with one weight of its embedded model
 //! changed diverges, and the report names the first tick the map moved and the mapper. Both
 //! tests share the one recorded run (made once, under its own prefix, cleaned up). The
-//! counterfactual runs on a second, plain run (the bundled SCL model throughout).
+//! counterfactual runs on a second, plain run (the bundled SCL model throughout); a third run
+//! has its mapper and safety processes killed and restarted by their policies.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use std::path::{Path, PathBuf};
@@ -11,11 +12,11 @@ use std::process::Stdio;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use ipc_types::{MapperCommand, SafeCommand, mapper_flags, safe_flags};
+use ipc_types::{MapperCommand, NodeRole, SafeCommand, mapper_flags, safe_flags};
 use recording::Event;
 use scl_tests::{
-    ChildGuard, DomainGuard, Recorder, joint_reach_pca, pulses, run_polling, scl, serial, temp_dir,
-    unique_prefix, wait_clean, write_replay,
+    ChildGuard, DomainGuard, Recorder, Signal, joint_reach_pca, pulses, run_polling, scl,
+    send_signal, serial, temp_dir, unique_prefix, wait_clean, write_replay,
 };
 
 /// The recorded run: its directory and file.
@@ -350,4 +351,64 @@ fn the_counterfactual_is_zero_with_the_same_model_and_differs_from_the_first_mov
     assert!(v["joint_rad_s_max"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["tool_m_s_max"].as_f64().unwrap() > 0.0, "{v}");
     assert!(!v["largest"].as_array().unwrap().is_empty(), "{v}");
+}
+
+#[test]
+fn a_run_whose_mapper_and_safety_were_killed_and_restarted_replays_bit_for_bit() {
+    let _serial = serial();
+    let prefix = unique_prefix("replayrestart");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = temp_dir("replayrestart");
+    write_replay(&dir.join("input.csv"), &pulses([0.5, 0.4], 1.0, 0.4, 12.0));
+    let cfg = dir.join("graph.toml");
+    std::fs::write(
+        &cfg,
+        "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n\n\
+         [supervisor.restart]\nmapper = \"on-failure\"\nsafety = \"on-failure\"\n",
+    )
+    .unwrap();
+    let file = dir.join("run.mcap");
+    let mut rec = Recorder::join(&prefix);
+    let mut up = scl(&prefix);
+    up.arg("--config")
+        .arg(&cfg)
+        .args(["up", "--for", "12s", "--record"])
+        .arg(&file)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("up.log")).unwrap());
+    let mut guard = ChildGuard(Some(up.spawn().unwrap()));
+    assert!(rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 120));
+    // Each killed process is restarted by its policy: a fresh mapper (its map's memory
+    // starts over) and a fresh filter (restart prevention, the ticks it missed).
+    for role in [NodeRole::Mapper, NodeRole::Safety] {
+        let old = rec.pid_of(role).unwrap();
+        send_signal(old, Signal::SIGKILL);
+        assert!(
+            rec.poll_until(Duration::from_secs(10), |r| r
+                .pid_of(role)
+                .is_some_and(|p| p != old)),
+            "{} not restarted",
+            role.name()
+        );
+        rec.poll_for(Duration::from_secs(2));
+    }
+    let status = loop {
+        rec.poll_for(Duration::from_millis(50));
+        if let Some(s) = guard.child().try_wait().unwrap() {
+            break s;
+        }
+    };
+    let log = std::fs::read_to_string(dir.join("up.log")).unwrap_or_default();
+    assert!(status.success(), "scl up: {log}");
+    drop(rec);
+    let left = wait_clean(&prefix, Duration::from_secs(10));
+    assert!(left.is_empty(), "left in /dev/shm: {left:?}");
+
+    let (code, v, err) = replay_json(&file);
+    assert_eq!(code, Some(0), "{v} {err}");
+    let ticks = v["ticks"].as_u64().unwrap();
+    assert!(ticks >= 300, "{v}");
+    assert_eq!(v["identical"].as_u64(), Some(ticks), "{v}");
+    assert_eq!(v["skipped"].as_u64(), Some(0), "{v}");
+    assert_eq!(v["notes"].as_array().map(Vec::len), Some(0), "{v}");
 }
