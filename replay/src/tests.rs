@@ -12,12 +12,38 @@ use super::*;
 
 const DT_NS: u64 = 25_000_000;
 
-fn temp(name: &str) -> PathBuf {
+/// A file in this process's temporary directory, removed (with the directory once empty)
+/// when dropped.
+struct Temp(PathBuf);
+
+impl std::ops::Deref for Temp {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for Temp {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Temp {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+        if let Some(d) = self.0.parent() {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
+fn temp(name: &str) -> Temp {
     let dir = std::env::temp_dir().join(format!("scl-replay-unit-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join(name);
     let _ = std::fs::remove_file(&p);
-    p
+    Temp(p)
 }
 
 /// Runs the steps as the processes do for `ticks` ticks and records everything, with the

@@ -10,6 +10,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::OnceLock;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use ipc_types::{MapperCommand, NodeRole, SafeCommand, mapper_flags, safe_flags};
@@ -19,10 +20,22 @@ use scl_tests::{
     send_signal, serial, temp_dir, unique_prefix, wait_clean, write_replay,
 };
 
-/// The recorded run: its directory and file.
+/// A recorded run: its directory and file, and how many of the tests sharing it are done
+/// (the last removes the directory).
 struct Run {
     dir: PathBuf,
     file: PathBuf,
+    done: AtomicUsize,
+    users: usize,
+}
+
+impl Run {
+    /// One test of the run's users is done with it; the last removes its directory.
+    fn release(&self) {
+        if self.done.fetch_add(1, Ordering::SeqCst) + 1 == self.users {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
 }
 
 fn recorded_run() -> &'static Run {
@@ -92,7 +105,12 @@ fn recorded_run() -> &'static Run {
         drop(rec);
         let left = wait_clean(&prefix, Duration::from_secs(10));
         assert!(left.is_empty(), "left in /dev/shm: {left:?}");
-        Run { dir, file }
+        Run {
+            dir,
+            file,
+            done: AtomicUsize::new(0),
+            users: 2,
+        }
     })
 }
 
@@ -202,6 +220,7 @@ fn a_recorded_run_with_a_swap_an_estop_and_its_reset_replays_bit_for_bit() {
     ] {
         assert!(text.contains(want), "`{want}` not in:\n{text}");
     }
+    run.release();
 }
 
 #[test]
@@ -261,6 +280,7 @@ fn a_recording_with_an_altered_model_diverges_at_the_first_tick_the_map_moves() 
         )),
         "{text}"
     );
+    run.release();
 }
 
 /// An 8 s run with the bundled model throughout, recorded; its directory and file.
@@ -291,7 +311,12 @@ fn plain_run() -> &'static Run {
         assert!(status.success(), "scl up: {log}");
         let left = wait_clean(&prefix, Duration::from_secs(10));
         assert!(left.is_empty(), "left in /dev/shm: {left:?}");
-        Run { dir, file }
+        Run {
+            dir,
+            file,
+            done: AtomicUsize::new(0),
+            users: 1,
+        }
     })
 }
 
@@ -351,6 +376,7 @@ fn the_counterfactual_is_zero_with_the_same_model_and_differs_from_the_first_mov
     assert!(v["joint_rad_s_max"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["tool_m_s_max"].as_f64().unwrap() > 0.0, "{v}");
     assert!(!v["largest"].as_array().unwrap().is_empty(), "{v}");
+    run.release();
 }
 
 #[test]
@@ -411,4 +437,5 @@ fn a_run_whose_mapper_and_safety_were_killed_and_restarted_replays_bit_for_bit()
     assert_eq!(v["identical"].as_u64(), Some(ticks), "{v}");
     assert_eq!(v["skipped"].as_u64(), Some(0), "{v}");
     assert_eq!(v["notes"].as_array().map(Vec::len), Some(0), "{v}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
