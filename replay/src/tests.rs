@@ -49,6 +49,12 @@ fn temp(name: &str) -> Temp {
 /// Runs the steps as the processes do for `ticks` ticks and records everything, with the
 /// model attachment's bytes `model`.
 fn make(path: &Path, ticks: u64, model: &[u8]) {
+    make_as(path, ticks, model, false);
+}
+
+/// [`make`], or with `old` as a recording made before models, configurations and control
+/// bits were recorded.
+fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
     let robot = kinematics::RobotProfile::default_robot();
     let cfg = scl_node::config::GraphConfig::default();
     let file = recording::create_new(path).unwrap();
@@ -57,50 +63,52 @@ fn make(path: &Path, ticks: u64, model: &[u8]) {
         w.add_topic(t, &BTreeMap::new()).unwrap();
     }
     let toml = toml_text(&cfg);
-    w.attach(
-        "config/safety/200/graph.toml",
-        1,
-        "application/toml",
-        toml.as_bytes(),
-    )
-    .unwrap();
-    w.attach(
-        "model/mapper-1/100/bundled",
-        1,
-        "application/octet-stream",
-        model,
-    )
-    .unwrap();
-    let meta = |pairs: &[(&str, String)]| {
-        recording::metadata(
-            recording::PROCESS_METADATA,
-            pairs
-                .iter()
-                .map(|(k, v)| ((*k).to_owned(), v.clone()))
-                .collect(),
+    if !old {
+        w.attach(
+            "config/safety/200/graph.toml",
+            1,
+            "application/toml",
+            toml.as_bytes(),
         )
-    };
-    w.write_metadata(&meta(&[
-        ("role", "safety".into()),
-        ("pid", "200".into()),
-        ("t_ns", "1".into()),
-        ("config_attachment", "config/safety/200/graph.toml".into()),
-        ("config_sha256", recording::sha256::hex(toml.as_bytes())),
-    ]))
-    .unwrap();
-    w.write_metadata(&meta(&[
-        ("role", "mapper".into()),
-        ("pid", "100".into()),
-        ("mapper_id", "1".into()),
-        ("t_ns", "1".into()),
-        ("model_spec", "bundled".into()),
-        ("model_attachment", "model/mapper-1/100/bundled".into()),
-        (
-            "model_sha256",
-            recording::sha256::hex(mapper::model::BUNDLED),
-        ),
-    ]))
-    .unwrap();
+        .unwrap();
+        w.attach(
+            "model/mapper-1/100/bundled",
+            1,
+            "application/octet-stream",
+            model,
+        )
+        .unwrap();
+        let meta = |pairs: &[(&str, String)]| {
+            recording::metadata(
+                recording::PROCESS_METADATA,
+                pairs
+                    .iter()
+                    .map(|(k, v)| ((*k).to_owned(), v.clone()))
+                    .collect(),
+            )
+        };
+        w.write_metadata(&meta(&[
+            ("role", "safety".into()),
+            ("pid", "200".into()),
+            ("t_ns", "1".into()),
+            ("config_attachment", "config/safety/200/graph.toml".into()),
+            ("config_sha256", recording::sha256::hex(toml.as_bytes())),
+        ]))
+        .unwrap();
+        w.write_metadata(&meta(&[
+            ("role", "mapper".into()),
+            ("pid", "100".into()),
+            ("mapper_id", "1".into()),
+            ("t_ns", "1".into()),
+            ("model_spec", "bundled".into()),
+            ("model_attachment", "model/mapper-1/100/bundled".into()),
+            (
+                "model_sha256",
+                recording::sha256::hex(mapper::model::BUNDLED),
+            ),
+        ]))
+        .unwrap();
+    }
     for (role, pid) in [(NodeRole::Mapper, 100), (NodeRole::Safety, 200)] {
         let mut st = NodeStatus::new(role, phase::READY, 1);
         st.pid = pid;
@@ -154,6 +162,9 @@ fn make(path: &Path, ticks: u64, model: &[u8]) {
         safe.mapper_rx_ns = cmd.t_ns + 3_000;
         safe.compute_ns = 9_000;
         safe.t_ns = now + safe.compute_ns;
+        if old {
+            safe.control = 0;
+        }
         w.write(&Payload::SafeCommand(safe)).unwrap();
         // The arm does what it was told.
         for j in 0..6 {
@@ -326,4 +337,24 @@ fn the_closed_loop_counterfactual_drives_a_mock_arm() {
         "{}",
         whatif::render(&s)
     );
+}
+
+#[test]
+fn an_older_recording_replays_what_it_can_and_says_so() {
+    let path = temp("old.mcap");
+    make_as(&path, 150, mapper::model::BUNDLED, true);
+    let rec = Recording::read(&path).unwrap();
+    let (r, _) = replay(&rec, None).unwrap();
+    let notes = r.notes.join("\n");
+    for want in [
+        "no safety process record",
+        "no process record",
+        "no control bits",
+    ] {
+        assert!(notes.contains(want), "`{want}` not in {notes}");
+    }
+    // No model: the mapper is not re-executed; safety replays on the recorded commands, with
+    // the defaults (what the run used) and the e-stop and hold from the flags.
+    assert_eq!((r.mapper_commands, r.skipped), (0, 150));
+    assert_eq!((r.ticks, r.identical), (150, 150), "{}", render(&path, &r));
 }
