@@ -385,6 +385,56 @@ pub struct Divergence {
     pub input: String,
 }
 
+/// A control event of the run, at the tick it took effect (from the recorded safety
+/// commands: the mapper they came from and their control bits).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ControlEvent {
+    /// The first tick it applied to.
+    pub tick: u64,
+    /// `swap`, `estop`, `reset`, `hold`, `release` or `interrupted`.
+    pub event: String,
+    /// For a swap, the mapper safety forwarded from this tick on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mapper_id: Option<u32>,
+}
+
+/// The control events of a run, in tick order: swaps (the forwarded mapper changed), the
+/// e-stop latched and reset, holds and their release, interruptions.
+pub fn control_events(safe: &[SafeCommand]) -> Vec<ControlEvent> {
+    let mut out = Vec::new();
+    let mut prev: Option<&SafeCommand> = None;
+    let ev = |tick, e: &str, mapper_id| ControlEvent {
+        tick,
+        event: e.to_owned(),
+        mapper_id,
+    };
+    for c in safe {
+        let estop = c.flags & safe_flags::ESTOP != 0;
+        let hold = c.flags & safe_flags::HOLD != 0;
+        let (pestop, phold, pid) = prev.map_or((false, false, c.mapper_id), |p| {
+            (
+                p.flags & safe_flags::ESTOP != 0,
+                p.flags & safe_flags::HOLD != 0,
+                p.mapper_id,
+            )
+        });
+        if pid != c.mapper_id {
+            out.push(ev(c.tick, "swap", Some(c.mapper_id)));
+        }
+        if estop != pestop {
+            out.push(ev(c.tick, if estop { "estop" } else { "reset" }, None));
+        }
+        if hold != phold {
+            out.push(ev(c.tick, if hold { "hold" } else { "release" }, None));
+        }
+        if c.control & safe_control::INTERRUPTED != 0 {
+            out.push(ev(c.tick, "interrupted", None));
+        }
+        prev = Some(c);
+    }
+    out
+}
+
 /// The outcome of replaying a recording.
 #[derive(Debug, Clone, Serialize)]
 pub struct Replay {
@@ -402,6 +452,8 @@ pub struct Replay {
     pub mapper_identical: u64,
     /// Commands not re-executed (no model, no state in the recording).
     pub skipped: u64,
+    /// The run's control events (swaps, e-stop and reset, holds, interruptions).
+    pub events: Vec<ControlEvent>,
     /// What the recording lacked and how the replay stood in for it.
     pub notes: Vec<String>,
 }
@@ -737,6 +789,7 @@ pub fn replay(
         mapper_commands,
         mapper_identical,
         skipped,
+        events: control_events(&rec.safe),
         notes: Vec::new(),
     };
     let mut first: Option<Divergence> = None;
@@ -894,6 +947,17 @@ pub fn render(path: &Path, r: &Replay) -> String {
             String::new()
         }
     );
+    if !r.events.is_empty() {
+        let ev: Vec<String> = r
+            .events
+            .iter()
+            .map(|e| match e.mapper_id {
+                Some(m) => format!("{} {} to mapper {m}", e.tick, e.event),
+                None => format!("{} {}", e.tick, e.event),
+            })
+            .collect();
+        let _ = writeln!(s, "control events (tick event): {}", ev.join(", "));
+    }
     if let Some(d) = &r.first_divergence {
         let _ = writeln!(
             s,

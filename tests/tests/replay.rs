@@ -195,6 +195,22 @@ fn a_recorded_run_with_a_swap_an_estop_and_its_reset_replays_bit_for_bit() {
     assert_eq!(v["mapper_identical"], v["mapper_commands"], "{v}");
     assert_eq!(v["skipped"].as_u64(), Some(0), "{v}");
     assert_eq!(v["notes"].as_array().map(Vec::len), Some(0), "{v}");
+    // The control events, at their ticks: the swap, then the e-stop, then its reset.
+    let events: Vec<(u64, String)> = v["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["tick"].as_u64().unwrap(),
+                e["event"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    let at = |name: &str| events.iter().find(|e| e.1 == name).map(|e| e.0);
+    assert_eq!(at("estop"), Some(safe[estop_at].tick), "{events:?}");
+    assert!(at("swap").unwrap() < at("estop").unwrap(), "{events:?}");
+    assert!(at("reset").unwrap() > at("estop").unwrap(), "{events:?}");
 
     // One tick spelled out: the e-stopped one.
     let out = std::process::Command::new(scl_tests::scl_binary())
