@@ -320,6 +320,24 @@ pub mod safe_flags {
     ];
 }
 
+/// [`SafeCommand::control`] bits: what the safety process had told the filter before it
+/// filtered this tick's command (the control plane's effect, at its tick boundary).
+pub mod safe_control {
+    /// The e-stop was latched when the step began (from `scl estop`, the supervisor's relay or
+    /// an earlier e-stop button); a button pressed in this tick's sample latches it too.
+    pub const ESTOP: u32 = 1 << 0;
+    /// The supervisor held the arm.
+    pub const HOLD: u32 = 1 << 1;
+    /// The command stream had been interrupted (no command for 100 ms) since the last step:
+    /// restart prevention was re-armed before this step.
+    pub const INTERRUPTED: u32 = 1 << 2;
+    /// Set on every command of a safety process that fills these bits (a recording made
+    /// before has none set): the replay then knows the bits above are complete.
+    pub const RECORDED: u32 = 1 << 31;
+    /// Short names of the low bits, in bit order.
+    pub const NAMES: [&str; 3] = ["e-stop", "hold", "interrupted"];
+}
+
 /// The command the arm executes at tick `tick`: the safety process's output, the only one the
 /// bridge accepts. The service admits exactly one publisher.
 #[cfg_attr(
@@ -358,9 +376,12 @@ pub struct SafeCommand {
     /// [`safe_flags`] bits: which rules acted.
     #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = safe_flags::NAMES)))]
     pub flags: u32,
-    /// Padding, always 0 (not in JSON).
-    #[cfg_attr(feature = "json", serde(skip))]
-    pub reserved: u32,
+    /// [`safe_control`] bits: the filter's control inputs at this tick (e-stop latched, hold,
+    /// an interruption), so a recording replays the filter exactly. Formerly padding, always 0
+    /// (recordings made before read as 0; the layout is unchanged).
+    #[cfg_attr(feature = "json", serde(default))]
+    #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = safe_control::NAMES)))]
+    pub control: u32,
     /// Joint velocities to execute (rad/s).
     pub qdot_rad_s: [f64; MAX_JOINTS],
     /// Gripper rate (1/s on the `c` scale).

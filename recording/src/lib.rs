@@ -32,6 +32,7 @@ use mcap::write::NoSeek;
 use serde_json::Value;
 
 pub mod check;
+pub mod sha256;
 
 /// Metadata record written when a recording starts.
 pub const START_METADATA: &str = "scl.recording";
@@ -39,6 +40,10 @@ pub const START_METADATA: &str = "scl.recording";
 pub const END_METADATA: &str = "scl.recording.end";
 /// Metadata record [`recover`] adds to the file it writes.
 pub const RECOVERED_METADATA: &str = "scl.recovered";
+/// Metadata record name of one process of the graph as the recorder found it (its role, pid,
+/// mapper id, command line; for a mapper the model it serves, for safety the configuration it
+/// runs), written when the process is first seen: at start and at every swap or restart.
+pub const PROCESS_METADATA: &str = "scl.process";
 /// Channel metadata key of the JSON format of a graph topic's channel ([`FORMAT`]); a channel
 /// without it is format 1 (recordings made before the JSON was derived from the types).
 pub const FORMAT_KEY: &str = "scl.format";
@@ -477,6 +482,29 @@ impl<W: Write> LogWriter<W> {
         Ok(n)
     }
 
+    /// Writes an attachment (a file the run used: a model, the configuration) at `log_time`.
+    pub fn attach(
+        &mut self,
+        name: &str,
+        log_time: u64,
+        media_type: &str,
+        data: &[u8],
+    ) -> Result<(), RecordError> {
+        let a = mcap::Attachment {
+            log_time,
+            create_time: log_time,
+            name: name.to_owned(),
+            media_type: media_type.to_owned(),
+            data: std::borrow::Cow::Borrowed(data),
+        };
+        self.mcap.attach(&a).map_err(|e| self.werr(e))
+    }
+
+    /// Writes a metadata record.
+    pub fn write_metadata(&mut self, m: &Metadata) -> Result<(), RecordError> {
+        self.mcap.write_metadata(m).map_err(|e| self.werr(e))
+    }
+
     /// Closes the current chunk (if any) and pushes everything to the sink: what was written
     /// so far survives a crash of the process.
     pub fn flush(&mut self) -> Result<(), RecordError> {
@@ -522,6 +550,17 @@ pub enum Event<'a> {
         name: &'a str,
         /// Its entries.
         entries: &'a BTreeMap<String, String>,
+    },
+    /// An attachment (a file the run used).
+    Attachment {
+        /// Its name.
+        name: &'a str,
+        /// Log time (ns).
+        log_time: u64,
+        /// Its media type.
+        media_type: &'a str,
+        /// Its bytes (CRC-checked by the reader when the file has a CRC).
+        data: &'a [u8],
     },
 }
 
@@ -659,6 +698,12 @@ pub fn read<R: Read>(
                     Record::Metadata(m) => on(Event::Metadata {
                         name: &m.name,
                         entries: &m.metadata,
+                    })?,
+                    Record::Attachment { header, data, .. } => on(Event::Attachment {
+                        name: &header.name,
+                        log_time: header.log_time,
+                        media_type: &header.media_type,
+                        data: &data,
                     })?,
                     Record::DataEnd(_) => {
                         summary.complete = true;
@@ -865,6 +910,12 @@ pub fn recover_into<R: Read, W: Write>(
                         reason: e.to_string(),
                     })?;
             }
+            Event::Attachment {
+                name,
+                log_time,
+                media_type,
+                data,
+            } => w.attach(name, log_time, media_type, data)?,
         }
         Ok(())
     })?;
@@ -936,7 +987,7 @@ mod tests {
             mapper_id: 1,
             n_joints: 6,
             flags: safe_flags::VELOCITY_SCALED | safe_flags::ACCEL_LIMITED,
-            reserved: 0,
+            control: 0,
             qdot_rad_s: std::array::from_fn(|j| 0.5 - 0.1 * j as f64),
             gripper_rate: -0.75,
             clearance_m: 0.125,
@@ -1419,5 +1470,55 @@ mod tests {
         for c in summary.channels.values() {
             assert_eq!(c.metadata[FORMAT_KEY], FORMAT.to_string(), "{}", c.topic);
         }
+    }
+
+    #[test]
+    fn attachments_read_back_and_survive_recovery() {
+        let path = Path::new("att.mcap");
+        let mut w = LogWriter::new(Vec::new(), path, None).unwrap();
+        w.add_topic(Topic::RobotState, &BTreeMap::new()).unwrap();
+        w.write(&Payload::RobotState(RobotState::at_rest(1, 10, 6)))
+            .unwrap();
+        w.attach(
+            "model/mapper-1/m.safetensors",
+            20,
+            "application/octet-stream",
+            b"weights",
+        )
+        .unwrap();
+        w.write_metadata(&metadata(PROCESS_METADATA, BTreeMap::new()))
+            .unwrap();
+        let bytes = w.finish(None).unwrap();
+        let collect = |bytes: &[u8]| {
+            let mut got = Vec::new();
+            read(bytes, path, |ev| {
+                if let Event::Attachment {
+                    name,
+                    log_time,
+                    media_type,
+                    data,
+                } = ev
+                {
+                    got.push((
+                        name.to_owned(),
+                        log_time,
+                        media_type.to_owned(),
+                        data.to_vec(),
+                    ));
+                }
+                Ok(())
+            })
+            .unwrap();
+            got
+        };
+        let want = vec![(
+            "model/mapper-1/m.safetensors".to_owned(),
+            20,
+            "application/octet-stream".to_owned(),
+            b"weights".to_vec(),
+        )];
+        assert_eq!(collect(&bytes), want);
+        let (_, recovered) = recover_into(&bytes[..], path, Vec::new(), path).unwrap();
+        assert_eq!(collect(&recovered), want);
     }
 }

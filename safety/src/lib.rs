@@ -94,6 +94,8 @@ pub struct SafetyFilter {
     pending: Option<(u32, u64)>,
     hold: bool,
     estop: bool,
+    /// [`SafetyFilter::interrupt`] was called since the last step (for [`SafeCommand::control`]).
+    interrupted: bool,
     restart: RestartGuard,
     tcp: Option<Box<dyn TcpModel>>,
     bounds: Bounds,
@@ -128,6 +130,39 @@ pub struct StepReport {
     /// The velocity the output was limited from (the arm's current velocity as the filter
     /// estimates it: the previous output if executed, else the measured one).
     pub base_rad_s: [f64; MAX_JOINTS],
+    /// The factor each rule of steps 3 and 4 scaled the target by (1 where it did not act).
+    pub scales: TargetScales,
+    /// Where between braking the arm's velocity (0) and the acceleration-limited output (1)
+    /// step 5 put the output, when that output could not have braked in time.
+    pub toward_braking: Option<f64>,
+}
+
+/// The factors the scaling rules applied to the target this tick (1: the rule did not act),
+/// for explaining a tick ([`StepReport::scales`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetScales {
+    /// Uniform scaling into the joint speed limits.
+    pub velocity: f64,
+    /// The Cartesian speed caps.
+    pub speed_cap: f64,
+    /// Braking before the joint limit margins.
+    pub position: f64,
+    /// Braking before the workspace bounds.
+    pub workspace: f64,
+    /// Slow-down and braking by clearance.
+    pub clearance: f64,
+}
+
+impl Default for TargetScales {
+    fn default() -> Self {
+        Self {
+            velocity: 1.0,
+            speed_cap: 1.0,
+            position: 1.0,
+            workspace: 1.0,
+            clearance: 1.0,
+        }
+    }
 }
 
 impl StepReport {
@@ -205,6 +240,7 @@ impl SafetyFilter {
             pending: None,
             hold: false,
             estop: false,
+            interrupted: false,
             restart: RestartGuard::new(cfg.deadman),
             tcp: None,
             bounds: Bounds::new(0.0, [0.0; 3], [0.0; 3]),
@@ -229,6 +265,23 @@ impl SafetyFilter {
             f.alpha_min = f.alpha_min.min(f.amax[j] / f.vmax[j]);
         }
         Ok(f)
+    }
+
+    /// The filter the safety process runs for a graph: [`SafetyFilter::for_robot`], the
+    /// workspace rule on `robot`'s tool when `cfg.workspace.enabled`, and the whole-arm rules
+    /// ([`SafetyFilter::with_whole_arm`]). The one construction the process and the replay
+    /// of a recording share.
+    pub fn for_graph(
+        cfg: SafetyConfig,
+        robot: &kinematics::RobotProfile,
+        period_s: f64,
+    ) -> Result<Self, ConfigError> {
+        let workspace = cfg.workspace.enabled;
+        let mut f = Self::for_robot(cfg, robot, period_s)?;
+        if workspace {
+            f = f.with_tcp_model(Box::new(ChainTcp::of(robot)));
+        }
+        f.with_whole_arm(robot)
     }
 
     /// Enables the whole-arm rules (`robot`'s collision model in `[safety.scene]`: slow-down
@@ -313,7 +366,22 @@ impl SafetyFilter {
     /// The graph has stopped sending commands (no mapper, no ticks): whenever they resume,
     /// the arm waits for neutral input first (as it would on seeing the gap in the ticks).
     pub fn interrupt(&mut self) {
+        self.interrupted = true;
         self.restart.interrupt();
+    }
+
+    /// Puts the control inputs a recorded step began with back ([`SafeCommand::control`]
+    /// bits, [`ipc_types::safe_control`]): the e-stop latched or not, the hold, an
+    /// interruption. What the safety process did through [`SafetyFilter::estop`],
+    /// [`SafetyFilter::reset`], [`SafetyFilter::set_hold`] and [`SafetyFilter::interrupt`]
+    /// before that step, for deterministic replay.
+    pub fn apply_control(&mut self, control: u32) {
+        use ipc_types::safe_control;
+        self.estop = control & safe_control::ESTOP != 0;
+        self.hold = control & safe_control::HOLD != 0;
+        if control & safe_control::INTERRUPTED != 0 {
+            self.interrupt();
+        }
     }
 
     /// Whether the arm waits for the operator's input to pass through neutral before it
@@ -409,10 +477,22 @@ impl SafetyFilter {
     /// Filters `cmd` against the newest robot state `state` at time `now_ns`.
     ///
     /// Returns the command to execute at `cmd.tick` with [`SafeCommand::flags`] naming every
-    /// rule that acted. Times `t_ns` / `compute_ns` are left at 0 for the caller to stamp.
+    /// rule that acted, and [`SafeCommand::control`] the control inputs it began with. Times
+    /// `t_ns` / `compute_ns` are left at 0 for the caller to stamp; the safety process stamps
+    /// `t_ns = now_ns + compute_ns`, so a recorded command gives its `now_ns` back exactly.
     pub fn step(&mut self, cmd: &MapperCommand, state: &RobotState, now_ns: u64) -> SafeCommand {
         let n = self.n;
         let mut flags = 0;
+        let mut control = ipc_types::safe_control::RECORDED;
+        if self.estop {
+            control |= ipc_types::safe_control::ESTOP;
+        }
+        if self.hold {
+            control |= ipc_types::safe_control::HOLD;
+        }
+        if std::mem::take(&mut self.interrupted) {
+            control |= ipc_types::safe_control::INTERRUPTED;
+        }
 
         if cmd.n_joints as usize != n || state.n_joints as usize != n {
             flags |= safe_flags::BAD_SHAPE;
@@ -510,6 +590,7 @@ impl SafetyFilter {
                 }
                 let k = uniform_scale(&target[..n], &self.vmax[..n]);
                 if k < 1.0 {
+                    report.scales.velocity = k;
                     flags |= safe_flags::VELOCITY_SCALED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -522,6 +603,7 @@ impl SafetyFilter {
             if let Some(arm) = self.arm.as_mut().filter(|_| arm_ok) {
                 let k = Self::speed_cap(arm, &self.cfg, &target[..n]);
                 if k < 1.0 {
+                    report.scales.speed_cap = k;
                     flags |= safe_flags::SPEED_CAPPED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -543,11 +625,13 @@ impl SafetyFilter {
                 let q = &state.q_rad[..n];
                 let k = self.position_brake(q, &target[..n]);
                 if k < 1.0 {
+                    report.scales.position = k;
                     flags |= safe_flags::POSITION_LIMITED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
                 let k = self.workspace_brake(tcp.as_ref(), &target[..n]);
                 if k < 1.0 {
+                    report.scales.workspace = k;
                     flags |= safe_flags::WORKSPACE_LIMITED;
                     target[..n].iter_mut().for_each(|v| *v *= k);
                 }
@@ -561,6 +645,7 @@ impl SafetyFilter {
                     )
                     .min(self.clearance_brake(&target[..n]));
                     if k < 1.0 {
+                        report.scales.clearance = k;
                         flags |= safe_flags::CLEARANCE_LIMITED;
                         target[..n].iter_mut().for_each(|v| *v *= k);
                     }
@@ -619,6 +704,7 @@ impl SafetyFilter {
                         }
                     }
                     out = at(lo);
+                    report.toward_braking = Some(lo);
                 }
             }
             // Hard guarantees over the acceleration limit.
@@ -724,7 +810,7 @@ impl SafetyFilter {
             mapper_id: cmd.mapper_id,
             n_joints: n as u32,
             flags,
-            reserved: 0,
+            control,
             qdot_rad_s: out,
             gripper_rate: gripper,
             clearance_m,

@@ -38,6 +38,9 @@ pub enum SclError {
     /// A recording could not be written, read or recovered.
     #[error(transparent)]
     Record(#[from] recording::RecordError),
+    /// A recording could not be replayed.
+    #[error(transparent)]
+    Replay(#[from] replay::ReplayError),
     /// The dashboard.
     #[error(transparent)]
     Top(#[from] scl_dashboard::TopError),

@@ -59,6 +59,10 @@ enum Cmd {
     Record(scl_recorder::RecordArgs),
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
     Dataset(learning::to_dataset::DatasetArgs),
+    /// Re-execute a recording tick by tick (the mapper's and safety's steps on the recorded
+    /// states, joystick samples and control events) and compare every command bit for bit;
+    /// exits 1 on a divergence, naming its tick. `--tick K --explain` spells one tick out.
+    Replay(replay::ReplayArgs),
     /// A terminal dashboard of a running graph (works over SSH in 80x24).
     Top(scl_dashboard::TopArgs),
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
@@ -522,6 +526,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
+        Cmd::Replay(args) => Ok(replay::cli(&args)?),
         Cmd::Top(args) => Ok(scl_dashboard::cli(
             &prefix,
             &args,
@@ -865,6 +870,7 @@ fn main() -> ExitCode {
         Cmd::Plot { .. } => "plot",
         Cmd::Record(_) => "record",
         Cmd::Dataset(_) => "dataset",
+        Cmd::Replay(_) => "replay",
         Cmd::Top(_) => "top",
         Cmd::Doctor(_) => "doctor",
         Cmd::Train(_) => "train",

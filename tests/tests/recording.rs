@@ -69,6 +69,7 @@ fn contents(path: &Path) -> Contents {
             Event::Metadata { name, entries } => {
                 c.metadata.insert(name.to_owned(), entries.clone());
             }
+            Event::Attachment { .. } => {}
         }
         Ok(())
     })

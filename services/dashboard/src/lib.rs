@@ -1534,7 +1534,7 @@ mod tests {
             mapper_id: 1,
             n_joints: 6,
             flags: safe_flags::CLEARANCE_LIMITED,
-            reserved: 0,
+            control: 0,
             qdot_rad_s: [0.0; 8],
             gripper_rate: 0.0,
             clearance_m: 0.0216,

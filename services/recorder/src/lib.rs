@@ -35,7 +35,9 @@ pub enum RecorderError {
     Graph(String),
 }
 
-use std::collections::BTreeMap;
+pub mod process;
+
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -215,6 +217,10 @@ pub struct Producer {
     tx: Sender<Payload>,
     tally: Arc<Tally>,
     last_tick: Option<u64>,
+    /// Processes seen for the first time, to the writer thread (rare: unbounded).
+    procs: Sender<process::ProcessSeen>,
+    /// Pids of the mapper and safety processes seen so far.
+    seen: BTreeSet<u32>,
 }
 
 impl Producer {
@@ -246,6 +252,18 @@ impl Producer {
     pub fn last_tick(&self) -> Option<u64> {
         self.last_tick
     }
+
+    /// Notes the process a heartbeat comes from: a mapper or safety process seen for the
+    /// first time has its command line read now and what it runs embedded by the writer
+    /// ([`process::capture`]).
+    pub fn note_process(&mut self, st: &NodeStatus) {
+        let Some(role) = NodeRole::from_u32(st.role) else {
+            return;
+        };
+        if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
+            let _ = self.procs.send(process::ProcessSeen::of(st, role));
+        }
+    }
 }
 
 /// How the writer thread ended.
@@ -265,19 +283,22 @@ pub fn start_pipeline<W: Write + Send + 'static>(
     flush_every: Duration,
 ) -> std::io::Result<(Producer, Arc<Tally>, JoinHandle<WriterOutcome>)> {
     let (tx, rx) = crossbeam_channel::bounded(queue.max(1));
+    let (procs, procs_rx) = crossbeam_channel::unbounded();
     let tally = Arc::new(Tally::default());
     let t2 = tally.clone();
     let handle = std::thread::Builder::new()
         .name("mcap-writer".into())
         .spawn(move || {
             lower_priority();
-            write_loop(writer, rx, &t2, &topics, flush_every)
+            write_loop(writer, rx, procs_rx, &t2, &topics, flush_every)
         })?;
     Ok((
         Producer {
             tx,
             tally: tally.clone(),
             last_tick: None,
+            procs,
+            seen: BTreeSet::new(),
         },
         tally,
         handle,
@@ -297,6 +318,7 @@ fn lower_priority() {
 fn write_loop<W: Write>(
     mut w: LogWriter<W>,
     rx: Receiver<Payload>,
+    procs: Receiver<process::ProcessSeen>,
     tally: &Tally,
     topics: &[Topic],
     flush_every: Duration,
@@ -341,6 +363,13 @@ fn write_loop<W: Write>(
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => break,
+        }
+        while let Ok(p) = procs.try_recv() {
+            if error.is_none()
+                && let Err(e) = process::capture(&mut w, &p)
+            {
+                fail(&mut error, &mut pending, e);
+            }
         }
         if error.is_none() && (last_flush.elapsed() >= flush_every || pending_bytes >= FLUSH_BYTES)
         {
@@ -438,6 +467,7 @@ impl Subscriptions {
         }
         if let Some(s) = &self.status {
             s.drain(|m| {
+                p.note_process(m);
                 p.offer(Payload::Status(*m));
             })?;
         }

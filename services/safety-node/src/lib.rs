@@ -63,14 +63,9 @@ pub fn run(
     period_s: f64,
 ) -> Result<(), SafetyNodeError> {
     let robot = graph_cfg.profile()?;
-    let mut filter = SafetyFilter::for_robot(cfg.clone(), robot, period_s)
-        .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
-    if cfg.workspace.enabled {
-        filter = filter.with_tcp_model(Box::new(safety::ChainTcp::of(robot)));
-    }
-    // Every link against the others and the scene, and the Cartesian speed caps.
-    let mut filter = filter
-        .with_whole_arm(robot)
+    // The workspace rule if enabled, every link against the others and the scene, and the
+    // Cartesian speed caps.
+    let mut filter = SafetyFilter::for_graph(cfg.clone(), robot, period_s)
         .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let commands = graph.mapper_command_subscriber(true)?;
@@ -191,9 +186,12 @@ pub fn run(
         let t0 = now_ns();
         last_step_ns = t0;
         let mut safe = filter.step(&cmd, &state, t0);
+        // One reading for both, so `t_ns - compute_ns` is the filter's time argument exactly
+        // (a recording replays the step with it).
+        let t1 = now_ns();
         safe.mapper_rx_ns = rx_ns;
-        safe.compute_ns = now_ns() - t0;
-        safe.t_ns = now_ns();
+        safe.compute_ns = t1 - t0;
+        safe.t_ns = t1;
         out.send(safe)?;
         st.t_ns = safe.t_ns;
         st.tick = safe.tick;

@@ -1316,7 +1316,7 @@ mod tests {
             mapper_id: 1,
             n_joints: 6,
             flags: 0,
-            reserved: 0,
+            control: 0,
             qdot_rad_s: [0.0; 8],
             gripper_rate: 0.0,
             clearance_m,

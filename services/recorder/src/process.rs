@@ -1,0 +1,257 @@
+//! What each process of the graph runs, as the recorder finds it: the first heartbeat of a
+//! mapper or safety process (at start, at every swap and restart) names its pid; its command
+//! line and working directory come from `/proc` at once (on the subscriber thread: procfs, no
+//! disk), and the writer thread then reads the files they name (the model, the graph TOML),
+//! embeds them as attachments with their SHA-256 and writes a [`recording::PROCESS_METADATA`]
+//! record. A replay of the recording ([`recording`] readers, `scl replay`) takes the model and
+//! the safety configuration from there.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use ipc_types::{NodeRole, NodeStatus};
+use recording::{LogWriter, RecordError};
+use scl_node::config::GraphConfig;
+
+/// A process seen for the first time, with what `/proc` said about it.
+#[derive(Debug, Clone)]
+pub struct ProcessSeen {
+    /// Its role.
+    pub role: NodeRole,
+    /// Its pid.
+    pub pid: u32,
+    /// Mapper id (mappers).
+    pub mapper_id: u32,
+    /// Its heartbeat's time (ns): the attachment's log time.
+    pub t_ns: u64,
+    /// Its command line, or why it could not be read.
+    pub argv: Result<Vec<String>, String>,
+    /// Its working directory (relative paths of its command line are against it).
+    pub cwd: Option<PathBuf>,
+}
+
+impl ProcessSeen {
+    /// Reads the command line and working directory of the process `st` comes from.
+    pub fn of(st: &NodeStatus, role: NodeRole) -> Self {
+        let argv = std::fs::read(format!("/proc/{}/cmdline", st.pid))
+            .map(|b| {
+                b.split(|c| *c == 0)
+                    .filter(|a| !a.is_empty())
+                    .map(|a| String::from_utf8_lossy(a).into_owned())
+                    .collect()
+            })
+            .map_err(|e| format!("cannot read /proc/{}/cmdline: {e}", st.pid));
+        Self {
+            role,
+            pid: st.pid,
+            mapper_id: st.mapper_id,
+            t_ns: st.t_ns,
+            argv,
+            cwd: std::fs::read_link(format!("/proc/{}/cwd", st.pid)).ok(),
+        }
+    }
+}
+
+/// The value of option `--name` in `argv` (`--name VALUE` or `--name=VALUE`).
+pub fn option(argv: &[String], name: &str) -> Option<String> {
+    let flag = format!("--{name}");
+    let eq = format!("--{name}=");
+    argv.iter().enumerate().find_map(|(i, a)| {
+        if *a == flag {
+            argv.get(i + 1).cloned()
+        } else {
+            a.strip_prefix(&eq).map(str::to_owned)
+        }
+    })
+}
+
+fn resolve(cwd: Option<&Path>, p: &str) -> PathBuf {
+    let p = Path::new(p);
+    match cwd {
+        Some(d) if p.is_relative() => d.join(p),
+        _ => p.to_owned(),
+    }
+}
+
+/// Writes what `p` runs into the recording: attachments and one metadata record. A file
+/// that cannot be read is named in the record's `error` entry (the recording goes on).
+pub fn capture<W: std::io::Write>(
+    w: &mut LogWriter<W>,
+    p: &ProcessSeen,
+) -> Result<(), RecordError> {
+    let mut m = BTreeMap::new();
+    m.insert("role".to_owned(), p.role.name().to_owned());
+    m.insert("pid".to_owned(), p.pid.to_string());
+    m.insert("t_ns".to_owned(), p.t_ns.to_string());
+    if p.role == NodeRole::Mapper {
+        m.insert("mapper_id".to_owned(), p.mapper_id.to_string());
+    }
+    if let Some(d) = &p.cwd {
+        m.insert("cwd".to_owned(), d.display().to_string());
+    }
+    let argv = match &p.argv {
+        Ok(a) => a.clone(),
+        Err(e) => {
+            m.insert("error".to_owned(), e.clone());
+            w.write_metadata(&recording::metadata(recording::PROCESS_METADATA, m))?;
+            return Ok(());
+        }
+    };
+    m.insert(
+        "argv".to_owned(),
+        serde_json::to_string(&argv).unwrap_or_default(),
+    );
+    let cwd = p.cwd.as_deref();
+    let config_path = option(&argv, "config").map(|c| resolve(cwd, &c));
+    let mut errors = Vec::new();
+    let cfg = match GraphConfig::load(config_path.as_deref()) {
+        Ok(c) => Some(c),
+        Err(e) => {
+            errors.push(e.to_string());
+            None
+        }
+    };
+    if let Some(c) = &config_path {
+        m.insert("config_path".to_owned(), c.display().to_string());
+    }
+    if let Some(cfg) = &cfg {
+        m.insert("robot".to_owned(), cfg.graph.robot.clone());
+        m.insert("period_s".to_owned(), cfg.period_s().to_string());
+    }
+    match p.role {
+        NodeRole::Safety => {
+            if let Some(cfg) = &cfg {
+                match toml::to_string(cfg) {
+                    Ok(text) => {
+                        let name = format!("config/safety/{}/graph.toml", p.pid);
+                        w.attach(&name, p.t_ns, "application/toml", text.as_bytes())?;
+                        m.insert("config_attachment".to_owned(), name);
+                        m.insert(
+                            "config_sha256".to_owned(),
+                            recording::sha256::hex(text.as_bytes()),
+                        );
+                    }
+                    Err(e) => errors.push(format!("cannot write the configuration: {e}")),
+                }
+            }
+        }
+        NodeRole::Mapper => {
+            let spec =
+                option(&argv, "model").or_else(|| cfg.as_ref().map(|c| c.mapper.model.clone()));
+            if let Some(spec) = spec {
+                let builtin = mapper::model::is_builtin(&spec);
+                m.insert("model_spec".to_owned(), spec.clone());
+                let bytes = if spec == mapper::model::BUNDLED_NAME {
+                    Some(Ok(mapper::model::BUNDLED.to_vec()))
+                } else if builtin {
+                    None
+                } else {
+                    let path = resolve(cwd, &spec);
+                    m.insert("model_path".to_owned(), path.display().to_string());
+                    Some(
+                        std::fs::read(&path)
+                            .map_err(|e| format!("cannot read the model {}: {e}", path.display())),
+                    )
+                };
+                match bytes {
+                    Some(Ok(b)) => {
+                        let file = Path::new(&spec)
+                            .file_name()
+                            .map_or_else(|| spec.clone(), |f| f.to_string_lossy().into_owned());
+                        let name = format!("model/mapper-{}/{}/{file}", p.mapper_id, p.pid);
+                        w.attach(&name, p.t_ns, "application/octet-stream", &b)?;
+                        m.insert("model_attachment".to_owned(), name);
+                        m.insert("model_sha256".to_owned(), recording::sha256::hex(&b));
+                        m.insert("model_bytes".to_owned(), b.len().to_string());
+                    }
+                    Some(Err(e)) => errors.push(e),
+                    None => {}
+                }
+            }
+        }
+        _ => {}
+    }
+    if !errors.is_empty() {
+        tracing::warn!(pid = p.pid, role = p.role.name(), "{}", errors.join("; "));
+        m.insert("error".to_owned(), errors.join("; "));
+    }
+    w.write_metadata(&recording::metadata(recording::PROCESS_METADATA, m))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn options_in_both_spellings() {
+        let argv: Vec<String> = [
+            "scl",
+            "mapper",
+            "--model",
+            "a b.safetensors",
+            "--config=g.toml",
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect();
+        assert_eq!(option(&argv, "model").as_deref(), Some("a b.safetensors"));
+        assert_eq!(option(&argv, "config").as_deref(), Some("g.toml"));
+        assert_eq!(option(&argv, "id"), None);
+        assert_eq!(
+            resolve(Some(Path::new("/w")), "m.safetensors"),
+            Path::new("/w/m.safetensors")
+        );
+        assert_eq!(resolve(Some(Path::new("/w")), "/m"), Path::new("/m"));
+    }
+
+    #[test]
+    fn a_mapper_of_the_bundled_model_embeds_it_with_its_digest() {
+        let p = ProcessSeen {
+            role: NodeRole::Mapper,
+            pid: 42,
+            mapper_id: 3,
+            t_ns: 7,
+            argv: Ok(vec![
+                "scl".into(),
+                "mapper".into(),
+                "--model".into(),
+                "bundled".into(),
+            ]),
+            cwd: None,
+        };
+        let path = Path::new("p.mcap");
+        let mut w = LogWriter::new(Vec::new(), path, None).unwrap();
+        capture(&mut w, &p).unwrap();
+        let bytes = w.finish(None).unwrap();
+        let (mut att, mut meta) = (Vec::new(), Vec::new());
+        recording::read(&bytes[..], path, |ev| {
+            match ev {
+                recording::Event::Attachment { name, data, .. } => {
+                    att.push((name.to_owned(), data.len()));
+                }
+                recording::Event::Metadata { name, entries } => {
+                    meta.push((name.to_owned(), entries.clone()));
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(
+            att,
+            vec![(
+                "model/mapper-3/42/bundled".to_owned(),
+                mapper::model::BUNDLED.len()
+            )]
+        );
+        let m = &meta[0].1;
+        assert_eq!(meta[0].0, recording::PROCESS_METADATA);
+        assert_eq!(
+            m["model_sha256"],
+            recording::sha256::hex(mapper::model::BUNDLED)
+        );
+        assert_eq!(m["model_spec"], "bundled");
+        assert_eq!(m["robot"], "gen3_lite");
+        assert!(!m.contains_key("error"), "{m:?}");
+    }
+}
