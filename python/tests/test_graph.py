@@ -34,15 +34,16 @@ PUSH = (0.6, 0.3)
 
 
 def drive(g: Graph, axes, ticks: int, btn: int = 0) -> List[RobotState]:
-    """Answers ``ticks`` robot ticks with ``axes``, as a joystick does; returns the states."""
+    """Answers ``ticks`` robot ticks with ``axes``, as a joystick does; returns the states
+    answered. ``drive.last_sent`` is the last sample sent."""
     states = g.robot_states()
     op = g.operator()
     seen = []
     while len(seen) < ticks:
         s = states.next_latest(2.0)
         assert s is not None, "the bridge stopped publishing"
+        drive.last_sent = op.publish(axes, buttons=btn)  # type: ignore[attr-defined]
         seen.append(s)
-        op.publish(axes, buttons=btn)
     states.close()
     return seen
 
@@ -118,7 +119,7 @@ def test_input_that_stops_stops_the_arm_within_two_ticks(graph: RunningGraph) ->
     safe = g.safe_commands()
     drive(g, (0.0, 0.0), 8)
     drive(g, PUSH, 30)
-    last = g.operator().tick  # the tick the last sample answered
+    last = drive.last_sent.tick  # type: ignore[attr-defined]  # the tick it answered
     moving = [c for c in safe.drain() if c.tick <= last]
     assert any(max(abs(v) for v in c.qdot_rad_s) > 0.01 for c in moving[-5:]), "not moving"
     states = g.robot_states()
