@@ -24,7 +24,7 @@ from scl_teleop.stats import percentiles_us
 
 def measure(prefix: str, duration_s: float) -> Dict[str, Dict[str, float]]:
     """Python's and the Rust mapper's receive latencies (µs) over ``duration_s``."""
-    with Graph(prefix) as g:
+    with Graph(prefix, wait_s=10.0) as g:
         states = g.robot_states(wake=True)
         commands = g.mapper_commands()
         beats = g.heartbeats()

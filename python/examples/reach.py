@@ -11,7 +11,8 @@ The agent knows nothing of the map: every tick it reads the robot state, estimat
 local effect ``qdot = H a`` from the mapper's recent commands (least squares over the last
 ticks' actions and joint velocities), turns it into the tool's motion with the arm's forward
 kinematics (read from the URDF), and sends the best of the sampled actions: the one whose
-predicted next tool position is nearest the goal. A map with modes (``--model modeswitch``)
+predicted next tool position is nearest the goal. When safety waits for the stick to pass
+through neutral (after a fault stop: restart prevention), it lets go for a tick. A map with modes (``--model modeswitch``)
 gets a press of the mode button when the current mode serves the goal poorly (its best
 action's progress is under 30 % of its longest move, for 20 ticks).
 """
@@ -29,7 +30,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from scl_teleop import Graph, buttons, mapper_flags
+from scl_teleop import Graph, buttons, mapper_flags, safe_flags
 
 REPO = Path(__file__).resolve().parents[2]
 DT = 0.025  # the graph's period (40 Hz)
@@ -157,10 +158,11 @@ def run(args: argparse.Namespace) -> dict:
     chain = Chain(Path(args.urdf))
     goal = np.array([float(v) for v in args.goal.split(",")]) if args.goal else default_goal(chain)
     rng = np.random.default_rng(args.seed)
-    with Graph(args.prefix) as g:
+    with Graph(args.prefix, wait_s=10.0) as g:
         states = g.robot_states()
         commands = g.mapper_commands()
         beats = g.heartbeats()
+        executed = g.safe_commands()
         op = g.operator()
         est = MapEstimate(chain.n)
         has_modes = False
@@ -177,6 +179,8 @@ def run(args: argparse.Namespace) -> dict:
         error = best_error = float("inf")
         best_tick = 0
         settled_from = 0
+        idle = 0
+        neutral_passes = 0
         start_error = None
         while True:
             s = states.next_latest(2.0)
@@ -206,6 +210,13 @@ def run(args: argparse.Namespace) -> dict:
             if args.verbose and ticks % 40 == 0:
                 print(f"reach: {ticks / 40:4.0f} s  error {error * 1000:6.1f} mm  "
                       f"tool {np.round(p, 3)}", file=sys.stderr)
+            waiting = [c for c in executed.drain() if c.flags & safe_flags.AWAITING_NEUTRAL]
+            if waiting:
+                # Safety stopped the arm for a fault (a missed tick, stale input) and waits
+                # for the stick to pass through neutral, as a person would let go of it.
+                op.publish((0.0, 0.0))
+                neutral_passes += 1
+                continue
             h = est.h()
             if h is None:
                 op.publish(probe[ticks % 2])
@@ -231,6 +242,17 @@ def run(args: argparse.Namespace) -> dict:
                 switches += 1
                 stalled = 0
                 continue
+            if np.linalg.norm(best) < 0.05:
+                # Standing still cannot teach the estimate anything: if the map seems to
+                # offer nothing, look again (probe both axes, learn anew).
+                idle += 1
+                if idle > 3:
+                    est.reset()
+                    idle = 0
+                    op.publish(probe[ticks % 2])
+                    continue
+            else:
+                idle = 0
             # Keep both action directions in the estimate: a small alternating dither.
             dither = 0.15 * (1 if ticks % 2 else -1)
             a = best + dither * np.array([-best[1], best[0]])
@@ -250,6 +272,7 @@ def run(args: argparse.Namespace) -> dict:
             "converged_s": round(best_tick * DT, 2),
             "ticks": ticks,
             "mode_switches": switches,
+            "neutral_passes": neutral_passes,
         }
 
 

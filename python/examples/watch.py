@@ -24,7 +24,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--prefix", default="scl", help="the graph's prefix (scl up --prefix)")
     ap.add_argument("--for", dest="duration", type=float, help="stop after this many seconds")
     args = ap.parse_args(argv)
-    with Graph(args.prefix) as g:
+    with Graph(args.prefix, wait_s=10.0) as g:
         states = g.robot_states()
         commands = g.safe_commands()
         beats = g.heartbeats()

@@ -403,13 +403,16 @@ class SwapResult:
 class Graph:
     """Membership in the running graph ``prefix``.
 
-    Raises :class:`GraphNotRunning` when no process of the graph is alive,
+    Raises :class:`GraphNotRunning` when no process of the graph is alive (after waiting up
+    to ``wait_s`` seconds for one to start),
     :class:`VersionMismatch` when the installed ``iceoryx2`` or the graph's message layouts
     differ from this package's. Use it as a context manager, or call :meth:`close`: a
     process that leaves without closing leaves its node for the next ``scl up`` to clean.
     """
 
-    def __init__(self, prefix: str = "scl", *, name: Optional[str] = None) -> None:
+    def __init__(
+        self, prefix: str = "scl", *, name: Optional[str] = None, wait_s: float = 0.0
+    ) -> None:
         self.prefix = check_prefix(prefix)
         version = _iceoryx2_version()
         if not version.startswith(ICEORYX2_VERSION + "."):
@@ -424,6 +427,9 @@ class Graph:
         self._services: Dict[object, object] = {}
         self._operator: Optional[Operator] = None
         self._status_sub: Optional[Subscription[NodeStatus]] = None
+        deadline = time.monotonic() + wait_s
+        while not self._alive_nodes() and time.monotonic() < deadline:
+            time.sleep(0.05)  # a graph still starting (``wait_s``)
         if not self._alive_nodes():
             raise GraphNotRunning(
                 f"no graph is running under the prefix `{prefix}` (no live process in "
