@@ -471,6 +471,22 @@ pub fn cleanup_dead_nodes(prefix: &Prefix) -> Result<usize, IpcError> {
     Ok(cleaned)
 }
 
+/// How many processes of graph `prefix` are alive and how many are dead (left resources
+/// behind), without joining it or changing anything.
+pub fn census(prefix: &Prefix) -> Result<(usize, usize), IpcError> {
+    let config = config_for(prefix)?;
+    let (mut alive, mut dead) = (0, 0);
+    let _ = Node::<Ipc>::list(&config, |state| {
+        match state {
+            NodeState::Alive(_) => alive += 1,
+            NodeState::Dead(_) => dead += 1,
+            _ => {}
+        }
+        CallbackProgression::Continue
+    });
+    Ok((alive, dead))
+}
+
 /// Releases graph `prefix`'s domain once no process of it is alive: removes what dead
 /// processes left behind and the domain's global management segment (a node counter that
 /// iceoryx2 keeps for the life of a domain). Returns whether the domain was released; it is

@@ -4,7 +4,8 @@
 //! kinematics adds its own cost); then the safety process's filter, with the whole-arm rules
 //! (the collision model's clearance every tick, the speed caps) and the real tool model: at
 //! home (nothing near), with the gripper 5 cm above the table and driving down (braking, the
-//! exact check of the next tick), and with two boxes in the scene.
+//! exact check of the next tick), and with two boxes in the scene; last, two of these after a
+//! sweep of the caches, as the safety process meets them at each 40 Hz tick.
 //!
 //! Run: `cargo bench -p safety --bench filter`.
 #![allow(missing_docs, clippy::unwrap_used)]
@@ -166,5 +167,50 @@ fn bench_whole_arm(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, bench, bench_whole_arm);
+/// The safety process runs once every 25 ms, in between the machine runs everything else: its
+/// caches are cold at each tick. These cases sweep a buffer larger than the last-level cache
+/// before each step (outside the timed part), to put the hot-loop figures above next to the
+/// ones `scl bench latency` reports from inside the process.
+fn bench_cold(c: &mut Criterion) {
+    const SWEEP: usize = 64 << 20;
+    let mut buf = vec![1u8; SWEEP];
+    let mut sweep = move || {
+        for i in (0..SWEEP).step_by(64) {
+            buf[i] = buf[i].wrapping_add(1);
+        }
+        black_box(buf[SWEEP / 2]);
+    };
+    let mut state = RobotState::at_rest(0, NOW - 1_000_000, 6);
+    state.q_rad[..6].copy_from_slice(&kinematics::gen3_lite::HOME);
+    let state = state;
+    let mid = [0.3, -0.2, 0.1, 0.3, -0.1, 0.2];
+    let mut tick = 0u64;
+    let limits = kinematics::gen3_lite::limits();
+    let mut plain = SafetyFilter::new(SafetyConfig::default(), &limits, 0.025).unwrap();
+    let mut arm = whole_arm(SafetyConfig::default());
+    for (name, f) in [
+        ("safety step (mid-range, caches swept)", &mut plain),
+        (
+            "safety step (whole arm, table, at home, caches swept)",
+            &mut arm,
+        ),
+    ] {
+        c.bench_function(name, |b| {
+            b.iter_batched(
+                || {
+                    sweep();
+                    tick += 1;
+                    let mut s = state;
+                    s.tick = tick;
+                    s.applied_tick = tick - 1;
+                    (cmd_of(tick, mid), s)
+                },
+                |(cmd, s)| black_box(f.step(black_box(&cmd), &s, NOW).clearance_m),
+                criterion::BatchSize::PerIteration,
+            )
+        });
+    }
+}
+
+criterion_group!(benches, bench, bench_whole_arm, bench_cold);
 criterion_main!(benches);

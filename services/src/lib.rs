@@ -41,6 +41,9 @@ pub enum SclError {
     /// The dashboard.
     #[error(transparent)]
     Top(#[from] scl_dashboard::TopError),
+    /// `scl doctor` could not write its report.
+    #[error(transparent)]
+    Doctor(#[from] scl_doctor::DoctorError),
     /// The benchmark.
     #[error(transparent)]
     Bench(#[from] scl_bench::BenchError),

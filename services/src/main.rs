@@ -90,6 +90,11 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
+    /// Is this machine ready to drive the arm? Checks real-time rights, the kernel, CPU power
+    /// settings, shared memory and leftovers, joysticks, the configuration (`--config`), its
+    /// model and, with `[bridge] robot = "kortex"`, the arm itself through a read-only session.
+    /// Prints ok / warn / fail with what to do; exit code 1 on any fail.
+    Doctor(scl_doctor::DoctorArgs),
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
     Status {
         /// Print JSON instead of a table.
@@ -464,6 +469,11 @@ fn init_logging() {
 }
 
 fn run(cli: Cli) -> Result<ExitCode, SclError> {
+    // The doctor reports a bad configuration as one of its findings.
+    if let Cmd::Doctor(args) = &cli.cmd {
+        let code = scl_doctor::run(cli.config.as_deref(), args)?;
+        return Ok(ExitCode::from(code as u8));
+    }
     let mut cfg = GraphConfig::load(cli.config.as_deref())?;
     if let Some(p) = &cli.prefix {
         cfg.graph.prefix = p.clone();
@@ -522,6 +532,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
         Cmd::Top(args) => Ok(scl_dashboard::cli(
@@ -875,6 +886,7 @@ fn main() -> ExitCode {
         Cmd::Record(_) => "record",
         Cmd::Dataset(_) => "dataset",
         Cmd::Top(_) => "top",
+        Cmd::Doctor(_) => "doctor",
         Cmd::Train(_) => "train",
         Cmd::Import { .. } => "import",
         Cmd::Eval { .. } => "eval",

@@ -263,9 +263,17 @@ fn killing_the_bridge_lets_the_robot_stop_the_arm_on_its_connection_timeout() {
     );
     let pid = rec.pid_of(NodeRole::Bridge).unwrap();
     scl_tests::send_signal(pid, Signal::SIGKILL);
-    // Nobody stops the arm but the robot's own watchdog.
+    // Nobody stops the arm but the robot's own watchdog. Waited for until it fired after the
+    // bridge's last frame: a machine that held the bridge up for the timeout before the kill
+    // fires it once early, and the bridge's next frame re-arms it, as on the robot.
     let t0 = Instant::now();
-    while fake.snapshot().stats.connection_timeouts == 0 {
+    let fired_after_last_frame = |s: &hw_bridge::kortex::FakeSnapshot| {
+        s.stats.connection_timeouts > 0
+            && !s.commanded_to_move()
+            && s.since_last_frame
+                .is_some_and(|d| d > Duration::from_millis(200))
+    };
+    while !fired_after_last_frame(&fake.snapshot()) {
         assert!(
             t0.elapsed() < Duration::from_secs(20),
             "the connection timeout never stopped the arm: {:?}",

@@ -47,6 +47,33 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 /// A gripper target that moved less than this since the last position sent is not sent.
 const GRIPPER_EPS: f64 = 1e-4;
 
+/// What a read-only session ([`KortexArm::probe`]) told about the arm.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArmInfo {
+    /// The address it answered on.
+    pub addr: SocketAddr,
+    /// `DeviceConfig.GetFirmwareVersion`'s value (see [`ArmInfo::firmware`]).
+    pub firmware_version: u32,
+    /// Actuators reported by `Base.GetActuatorCount`.
+    pub actuators: u32,
+    /// The joint speed hard limits (rad/s).
+    pub speed_limits_rad_s: Vec<f64>,
+}
+
+impl ArmInfo {
+    /// The firmware version as `major.minor.patch`, read as one byte each from bits 23..16,
+    /// 15..8 and 7..0 of the reported value (the raw value follows in brackets).
+    pub fn firmware(&self) -> String {
+        let v = self.firmware_version;
+        format!(
+            "{}.{}.{} (0x{v:06x})",
+            (v >> 16) & 0xff,
+            (v >> 8) & 0xff,
+            v & 0xff
+        )
+    }
+}
+
 /// Counters of the client.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct KortexStats {
@@ -179,8 +206,80 @@ impl KortexArm {
         cfg: &KortexConfig,
         credentials: &Credentials,
     ) -> Result<Self, KortexError> {
+        let mut arm = Self::open(robot, cfg, CONNECT_TIMEOUT)?;
+        match arm.start(cfg, credentials) {
+            Ok(()) => Ok(arm),
+            Err(e) => Err(arm.fault(e)),
+        }
+    }
+
+    /// A read-only look at the arm of `cfg` for `scl doctor`: connects within `timeout`,
+    /// opens a session with `credentials`, reads the firmware version, the actuator count and
+    /// the joint speed hard limits, and closes the session. Nothing is commanded: no servoing
+    /// mode, no fault clearing, no Stop (each reply is awaited at most `timeout` too).
+    pub fn probe(
+        cfg: &KortexConfig,
+        credentials: &Credentials,
+        timeout: Duration,
+    ) -> Result<ArmInfo, KortexError> {
+        let mut cfg = cfg.clone();
+        cfg.reply_timeout_ms = u32::try_from(timeout.as_millis())
+            .unwrap_or(u32::MAX)
+            .max(1);
+        let mut arm = Self::open(RobotProfile::default_robot(), &cfg, timeout)?;
+        let result = arm.read_info(&cfg, credentials);
+        if arm.session_open && arm.connected {
+            let closed = arm.call(Function::CloseSession, Vec::new());
+            arm.session_open = false;
+            if result.is_ok() {
+                closed?;
+            }
+        }
+        arm.session_open = false;
+        arm.disconnect();
+        result
+    }
+
+    fn read_info(
+        &mut self,
+        cfg: &KortexConfig,
+        credentials: &Credentials,
+    ) -> Result<ArmInfo, KortexError> {
+        let info = msg::CreateSessionInfo {
+            username: credentials.username().to_owned(),
+            session_inactivity_timeout: cfg.session_timeout_ms,
+            password: credentials.password().to_owned(),
+            connection_inactivity_timeout: cfg.connection_timeout_ms,
+        };
+        let reply = self.call(Function::CreateSession, info.encode_to_vec())?;
+        self.session_id = reply.frame.header().session_id();
+        self.session_open = true;
+        let reply = self.call(Function::GetFirmwareVersion, Vec::new())?;
+        let fw: msg::FirmwareVersion = decode(Function::GetFirmwareVersion, &reply)?;
+        let reply = self.call(Function::GetActuatorCount, Vec::new())?;
+        let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
+        let reply = self.call(Function::GetKinematicHardLimits, Vec::new())?;
+        let limits: msg::KinematicLimits = decode(Function::GetKinematicHardLimits, &reply)?;
+        Ok(ArmInfo {
+            addr: self.addr,
+            firmware_version: fw.firmware_version,
+            actuators: count.count,
+            speed_limits_rad_s: limits
+                .joint_speed_limits
+                .iter()
+                .map(|v| f64::from(*v).to_radians())
+                .collect(),
+        })
+    }
+
+    /// Connects (within `connect_timeout`) and starts the reader thread; no request yet.
+    fn open(
+        robot: &'static RobotProfile,
+        cfg: &KortexConfig,
+        connect_timeout: Duration,
+    ) -> Result<Self, KortexError> {
         let addr = cfg.socket_addr()?;
-        let stream = TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT)
+        let stream = TcpStream::connect_timeout(&addr, connect_timeout)
             .map_err(|source| KortexError::Connect { addr, source })?;
         let io = |during, source| KortexError::Io {
             addr,
@@ -203,7 +302,7 @@ impl KortexArm {
             .spawn(move || reader_loop(rx_stream, tx))
             .map_err(|e| io("starting the reader thread", e))?;
         let limits = robot.limits().clone();
-        let mut arm = Self {
+        let arm = Self {
             robot,
             addr,
             stream,
@@ -233,10 +332,7 @@ impl KortexArm {
             out: Vec::with_capacity(256),
             limits,
         };
-        match arm.start(cfg, credentials) {
-            Ok(()) => Ok(arm),
-            Err(e) => Err(arm.fault(e)),
-        }
+        Ok(arm)
     }
 
     fn start(&mut self, cfg: &KortexConfig, credentials: &Credentials) -> Result<(), KortexError> {

@@ -63,6 +63,8 @@ pub struct FakeConfig {
     pub joint_speed_limits_deg_s: Vec<f32>,
     /// What GetKinematicHardLimits answers for the joint accelerations (deg/s²).
     pub joint_acceleration_limits_deg_s2: Vec<f32>,
+    /// What DeviceConfig.GetFirmwareVersion answers.
+    pub firmware_version: u32,
     /// The simulated arm.
     pub mock: MockConfig,
 }
@@ -80,6 +82,7 @@ impl Default for FakeConfig {
                 .iter()
                 .map(|v| v.to_degrees() as f32)
                 .collect(),
+            firmware_version: 0x02_03_00,
             mock: MockConfig::default(),
         }
     }
@@ -836,6 +839,10 @@ fn execute(
         }
         Function::GetActuatorCount => Ok(msg::ActuatorInformation {
             count: cfg.actuator_count,
+        }
+        .encode_to_vec()),
+        Function::GetFirmwareVersion => Ok(msg::FirmwareVersion {
+            firmware_version: cfg.firmware_version,
         }
         .encode_to_vec()),
         Function::GetArmState => Ok(msg::ArmStateInformation {

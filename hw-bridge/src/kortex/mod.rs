@@ -44,7 +44,7 @@ use std::net::{IpAddr, SocketAddr};
 
 use serde::{Deserialize, Serialize};
 
-pub use arm::{KortexArm, KortexStats};
+pub use arm::{ArmInfo, KortexArm, KortexStats};
 pub use fake::{FakeConfig, FakeKortex, FakeRequest, FakeSnapshot, FakeStats, Fault};
 
 /// The functions of the Kortex API the bridge (and the fake robot) use.
@@ -79,11 +79,13 @@ pub enum Function {
     RefreshFeedback,
     /// `ControlConfig.GetKinematicHardLimits`.
     GetKinematicHardLimits,
+    /// `DeviceConfig.GetFirmwareVersion` (read by `scl doctor` only).
+    GetFirmwareVersion,
 }
 
 impl Function {
     /// Every function, for look-ups.
-    pub const ALL: [Function; 14] = [
+    pub const ALL: [Function; 15] = [
         Self::CreateSession,
         Self::CloseSession,
         Self::KeepAlive,
@@ -98,6 +100,7 @@ impl Function {
         Self::GetArmState,
         Self::RefreshFeedback,
         Self::GetKinematicHardLimits,
+        Self::GetFirmwareVersion,
     ];
 
     /// Function UID: `(service id << 16) | function id`.
@@ -117,6 +120,7 @@ impl Function {
             Self::GetArmState => 0x2_00AF,
             Self::RefreshFeedback => 0x3_0003,
             Self::GetKinematicHardLimits => 0x10_0012,
+            Self::GetFirmwareVersion => 0x9_0004,
         }
     }
 
@@ -137,6 +141,7 @@ impl Function {
             Self::GetArmState => "Base.GetArmState",
             Self::RefreshFeedback => "BaseCyclic.RefreshFeedback",
             Self::GetKinematicHardLimits => "ControlConfig.GetKinematicHardLimits",
+            Self::GetFirmwareVersion => "DeviceConfig.GetFirmwareVersion",
         }
     }
 

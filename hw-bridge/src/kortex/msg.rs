@@ -150,6 +150,14 @@ pub struct Finger {
     pub value: f32,
 }
 
+/// `DeviceConfig.GetFirmwareVersion` reply (function UID 0x90004, Empty -> FirmwareVersion).
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct FirmwareVersion {
+    /// The version, one byte each for major, minor and patch (bits 23..16, 15..8, 7..0).
+    #[prost(uint32, tag = "1")]
+    pub firmware_version: u32,
+}
+
 /// `Base.GetActuatorCount` reply.
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct ActuatorInformation {

@@ -1,9 +1,11 @@
 //! The supervisor and its clients: [`up`] (`scl up`: starts the graph's processes in order,
-//! reaps and restarts them, cleans up after dead ones, serves live swaps and holds) and
-//! [`control`] (`scl swap`, `scl status`, `scl estop` / `scl reset`: the client side).
+//! reaps and restarts them, cleans up after dead ones, serves live swaps and holds),
+//! [`control`] (`scl swap`, `scl status`, `scl estop` / `scl reset`: the client side), and
+//! [`notify`] (systemd readiness and watchdog for `scl up` as a `Type=notify` service).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
+pub mod notify;
 pub mod up;
 
 /// Why the supervisor or a control request stopped or could not start, each with the message a user sees.

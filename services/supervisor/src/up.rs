@@ -264,6 +264,8 @@ struct Telemetry {
     last_bridge_tick: Option<u64>,
     min_clearance_m: Option<f64>,
     max_tcp_speed_m_s: Option<f64>,
+    /// When the bridge last published a heartbeat of a new tick (for systemd's watchdog).
+    last_bridge_beat: Option<Instant>,
 }
 
 impl Telemetry {
@@ -289,6 +291,7 @@ impl Telemetry {
         self.cur_travel = s.joint_travel_rad;
         if s.phase == phase::RUNNING && self.last_bridge_tick != Some(s.tick) {
             self.last_bridge_tick = Some(s.tick);
+            self.last_bridge_beat = Some(Instant::now());
             if s.latency_ns > 0 {
                 self.latency_ns.push(s.latency_ns);
                 self.active_mapper = s.mapper_id;
@@ -884,6 +887,16 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
 
     let started = Instant::now();
     let mut next_report = Duration::from_secs(1);
+    // Under systemd (Type=notify): ready after the first executed tick, the watchdog petted
+    // while the bridge beats (ten periods of silence make it stale).
+    let notifier = crate::notify::Notifier::from_env().unwrap_or_else(|e| {
+        tracing::warn!("{e}; systemd will not be notified");
+        None
+    });
+    let mut watchdog = crate::notify::Watchdog::new(
+        crate::notify::watchdog_from_env(),
+        Duration::from_secs_f64(10.0 * cfg.period_s()),
+    );
     while failure.is_none() && !signals::stop_requested() {
         std::thread::sleep(Duration::from_millis(2));
         if let Some(f) = sv.reap() {
@@ -926,6 +939,12 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
             sv.begin_swap(request);
         }
         sv.check_swap_timeout();
+        if let Some(n) = &notifier
+            && let Some(notice) =
+                watchdog.poll(Instant::now(), sv.tel.ticks() > 0, sv.tel.last_bridge_beat)
+        {
+            n.send(notice.message());
+        }
 
         let elapsed = started.elapsed();
         if elapsed >= next_report {
@@ -951,6 +970,9 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         }
     }
     let duration_s = started.elapsed().as_secs_f64();
+    if let Some(n) = &notifier {
+        n.send("STOPPING=1");
+    }
     if sv.swap.is_some() {
         sv.finish_swap(Err("the graph is shutting down".into()));
     }
