@@ -18,6 +18,7 @@ pub const TEXT_CAP: usize = 512;
 
 /// A short UTF-8 text in a fixed array.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("scl::Text")]
 #[repr(C)]
 pub struct Text {
     /// Used bytes.

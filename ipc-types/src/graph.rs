@@ -87,12 +87,14 @@ pub struct TopicSettings {
     pub max_subscribers: usize,
 }
 
-/// Joystick samples: newest wins; a late mapper gets the last sample at once.
+/// Joystick samples: newest wins; a late mapper gets the last sample at once. One publisher
+/// at a time: the joystick process, or with `[joystick] source = "external"` whoever
+/// publishes first (a second is refused with [`IpcError::Port`]).
 pub const JOYSTICK: TopicSettings = TopicSettings {
     name: "joystick",
     history: 1,
     buffer: 64,
-    max_publishers: 2,
+    max_publishers: 1,
     max_subscribers: 16,
 };
 /// Robot state, one per tick, from the bridge.
@@ -368,7 +370,8 @@ impl Graph {
         })
     }
 
-    /// Publisher of joystick samples.
+    /// Publisher of joystick samples. Fails with [`IpcError::Port`] if another process
+    /// already publishes them: the topic admits one operator.
     pub fn joystick_publisher(&self) -> Result<TopicPublisher<JoystickInput>, IpcError> {
         self.publisher(&JOYSTICK)
     }
@@ -758,6 +761,26 @@ mod tests {
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .filter(|n| n.starts_with(&p.file_prefix()))
             .collect()
+    }
+
+    #[test]
+    fn joystick_admits_one_publisher() {
+        let p = unique_prefix("c");
+        let g = Graph::join(&p, "unit").unwrap();
+        let first = g.joystick_publisher().unwrap();
+        assert!(matches!(
+            g.joystick_publisher(),
+            Err(IpcError::Port {
+                port: "publisher",
+                ..
+            })
+        ));
+        // Once the first is gone, another operator may publish.
+        drop(first);
+        let again = g.joystick_publisher().unwrap();
+        drop((again, g));
+        assert!(release_domain(&p).unwrap());
+        assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
     }
 
     #[test]

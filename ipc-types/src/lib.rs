@@ -13,6 +13,8 @@
 //! * [`time`]: the monotonic clock every process stamps its messages with.
 //! * `json` (feature `json`): the messages' JSON form and JSON schema, derived from the types
 //!   (serde, schemars); the recording crate enables it.
+//! * [`layout`]: the messages' memory layout as data (size, alignment, every field's offset
+//!   and type, iceoryx2 type names, topic settings), for bindings in other languages.
 //! * [`stats`]: the one quantile definition (latency percentiles, experiment quartiles).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
@@ -20,6 +22,7 @@ pub mod control;
 pub mod graph;
 #[cfg(feature = "json")]
 pub mod json;
+pub mod layout;
 pub mod msg;
 pub mod prefix;
 pub mod signals;

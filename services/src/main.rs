@@ -49,6 +49,11 @@ enum Cmd {
         /// Joystick script instead of the config's: `circle` or `step`.
         #[arg(long)]
         script: Option<String>,
+        /// Joystick source instead of the config's: `script`, `evdev`, `keyboard`, `replay`,
+        /// or `external` (no joystick process: the input comes from whoever publishes it on
+        /// the graph's joystick topic, e.g. a Python agent).
+        #[arg(long, value_name = "SOURCE")]
+        joystick: Option<String>,
         /// Record every message of the graph to this MCAP file (a supervised `scl record`,
         /// started before the bridge and stopped last).
         #[arg(long, value_name = "FILE")]
@@ -100,6 +105,10 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Print the messages' memory layout as JSON (size, alignment, every field's offset and
+    /// type, iceoryx2 type names, topic settings, bit names): what a binding in another
+    /// language must match; the Python package's drift test compares itself with it.
+    Layout,
     /// The joystick process: a script, a joystick or gamepad (evdev), the keyboard, or a
     /// recorded input file; `--list` shows the input devices attached.
     Joystick(scl_joystick::JoystickArgs),
@@ -485,6 +494,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             json,
             model,
             script,
+            joystick,
             record,
         } => {
             if let Some(m) = model {
@@ -492,6 +502,9 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
             if let Some(s) = script {
                 cfg.joystick.script = s;
+            }
+            if let Some(s) = joystick {
+                cfg.joystick.source = s;
             }
             let opts = scl_supervisor::up::UpOptions {
                 prefix,
@@ -639,6 +652,12 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             } else {
                 print!("{}", scl_supervisor::control::render(&st));
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Layout => {
+            let text = serde_json::to_string_pretty(&ipc_types::layout::describe())
+                .map_err(|e| SclError::Other(format!("cannot encode the layout: {e}")))?;
+            println!("{text}");
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Joystick(args) => {
@@ -861,6 +880,7 @@ fn main() -> ExitCode {
         Cmd::Estop => "estop",
         Cmd::Bench { .. } => "bench",
         Cmd::Reset => "reset",
+        Cmd::Layout => "layout",
         Cmd::Joystick(_) => "joystick",
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety => "safety",

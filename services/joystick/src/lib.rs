@@ -8,7 +8,10 @@
 //!   and button is which; an unplugged device makes the input neutral and flagged
 //!   ([`buttons::NO_DEVICE`]) until it returns;
 //! * `keyboard` ([`keyboard`]): arrow keys or WASD with a ramp, for a person at a terminal;
-//! * `replay` ([`replay`]): a recorded input file with its original timing.
+//! * `replay` ([`replay`]): a recorded input file with its original timing;
+//! * `external` ([`EXTERNAL`]): no joystick process at all; `scl up` starts none and the
+//!   samples come from whoever publishes them (a Python agent through the `python/`
+//!   package), under the same rules downstream.
 //!
 //! Whatever the source, the process publishes one sample at start, one on every change of the
 //! input, and one on every robot tick, answering it (`JoystickInput::tick` is the newest robot
@@ -51,7 +54,15 @@ use scl_node::config::{
 pub use script::Script;
 
 /// The sources `[joystick] source` accepts.
-pub const SOURCES: [&str; 4] = ["script", "evdev", "keyboard", "replay"];
+pub const SOURCES: [&str; 5] = ["script", "evdev", "keyboard", "replay", EXTERNAL];
+
+/// The source of a graph whose operator is outside it: `scl up` starts no joystick process
+/// and the mapper takes [`JoystickInput`] from whoever publishes it on the joystick topic
+/// (one publisher at a time: the topic admits one). The rules downstream are those of any
+/// source: a sample must answer the newest robot tick (`JoystickInput::tick`), so input that
+/// stops stops the arm within two ticks; no input at all is stale; the deadman and e-stop
+/// bits act in safety.
+pub const EXTERNAL: &str = "external";
 
 /// The operator's input at one moment: what a [`JoystickInput`] carries besides its stamps.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -112,6 +123,11 @@ pub enum JoystickError {
         /// What is wrong.
         reason: String,
     },
+    /// A joystick process was asked for with the `external` source, which has none.
+    #[error(
+        "the `external` joystick source has no joystick process: the samples come from whoever publishes them on the graph's joystick topic (the Python package's `Graph.publish_joystick`); start the graph with `scl up --joystick external`"
+    )]
+    External,
     /// The keyboard source was asked for without a terminal.
     #[error(
         "the keyboard source needs a terminal on standard input; run `scl joystick --source keyboard` (or `scl up` with it) in a terminal"
@@ -487,6 +503,7 @@ enum Source {
 impl Source {
     fn open(cfg: &JoystickConfig, period_s: f64) -> Result<Self, JoystickError> {
         Ok(match cfg.source.as_str() {
+            EXTERNAL => return Err(JoystickError::External),
             "evdev" => Self::Device(Box::new(DeviceSource::open(cfg)?)),
             "keyboard" => Self::Keyboard(Box::new(KeyboardSource::open(cfg)?)),
             "replay" => Self::Replay(ReplaySource {
@@ -727,6 +744,12 @@ pub fn validate(j: &JoystickConfig) -> Result<(), ConfigError> {
         replay::Recording::load(Path::new(&j.replay_file))
             .map_err(|e| err("replay_file", e.to_string()))?;
     }
+    if j.source == EXTERNAL && !j.record_input.is_empty() {
+        return Err(err(
+            "record_input",
+            "the external source has no joystick process to record its input; record the graph with `scl record` or `scl up --record` instead".into(),
+        ));
+    }
     // (An existing `record_input` is refused when the joystick creates it, not here: every
     // process of the graph validates the config, some after the joystick has started.)
     Ok(())
@@ -738,7 +761,8 @@ pub struct JoystickArgs {
     /// List the input devices attached (evdev) and exit.
     #[arg(long)]
     pub list: bool,
-    /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` or `replay`.
+    /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` or `replay`
+    /// (`external` has no joystick process and is refused here).
     #[arg(long)]
     pub source: Option<String>,
     /// Script: `circle`, `step` or `constant`.
@@ -1056,6 +1080,16 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
                 .to_string()
                 .contains("joystick.replay_file")
         );
+        let mut j = ok.clone();
+        j.source = EXTERNAL.into();
+        validate(&j).unwrap();
+        j.record_input = "in.csv".into();
+        assert!(
+            validate(&j)
+                .unwrap_err()
+                .to_string()
+                .contains("joystick.record_input")
+        );
         let mut j = ok;
         j.keyboard_repeat_hold_ms = 1;
         assert!(
@@ -1077,6 +1111,17 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
         let mut j = JoystickConfig::default();
         scl_node::config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
         assert_eq!(j.mapping, "xbox");
+    }
+
+    #[test]
+    fn the_external_source_starts_no_process() {
+        let cfg = JoystickConfig {
+            source: EXTERNAL.into(),
+            ..JoystickConfig::default()
+        };
+        let e = Source::open(&cfg, 0.025).err().unwrap();
+        assert!(matches!(e, JoystickError::External), "{e}");
+        assert!(e.to_string().contains("scl up --joystick external"), "{e}");
     }
 
     #[test]

@@ -219,7 +219,8 @@ impl Default for GraphSection {
 #[serde(deny_unknown_fields, default)]
 pub struct JoystickConfig {
     /// Input source: `script`, `evdev` (a joystick or gamepad), `keyboard` (a person at the
-    /// terminal) or `replay` (a recorded input file).
+    /// terminal), `replay` (a recorded input file) or `external` (no joystick process: the
+    /// samples come from whoever publishes them, e.g. a Python agent).
     pub source: String,
     /// Script: `circle` (a slow circle), `step` (+x, +y, -x, -y holds with rests) or
     /// `constant` (`constant_axes` held).

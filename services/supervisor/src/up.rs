@@ -833,13 +833,21 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         args.extend(["--out".to_owned(), path.display().to_string()]);
         plan.push((NodeRole::Recorder, 0, args));
     }
-    plan.extend([
-        (NodeRole::Joystick, 0, {
+    if cfg.joystick.source == scl_joystick::EXTERNAL {
+        // No joystick process: the operator publishes from outside (nothing to hold for).
+        tracing::info!(
+            "joystick source `external`: the input comes from whoever publishes on `{}`",
+            opts.prefix.service(ipc_types::graph::JOYSTICK.name)
+        );
+    } else {
+        plan.push((NodeRole::Joystick, 0, {
             // `scl up --script` overrides the config file the child reads.
             let mut a = sv.child_args("joystick");
             a.extend(["--script".to_owned(), cfg.joystick.script.clone()]);
             a
-        }),
+        }));
+    }
+    plan.extend([
         (
             NodeRole::Mapper,
             cfg.mapper.id,

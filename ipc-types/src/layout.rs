@@ -1,0 +1,386 @@
+//! The messages' memory layout as data, for bindings in other languages.
+//!
+//! [`describe`] lists every message and control type of the graph with its size, alignment,
+//! iceoryx2 type name and every field's name, offset, size and type, together with the
+//! constants, bit names and topic settings a binding must agree on. `scl layout` prints it as
+//! JSON; the Python package's drift test (`python/tests/test_layout.py`) compares its
+//! `ctypes.Structure` classes against it, so a Rust message changed without the Python side
+//! fails CI.
+//!
+//! Nothing here is written by hand twice: each field's offset is `offset_of!`, its size and
+//! type name come from the field's own Rust type ([`FieldType`]), and the macro that lists a
+//! struct's fields also destructures the struct without `..`, so a field added to or removed
+//! from a message without updating its list here does not compile.
+
+use serde::Serialize;
+
+use crate::control::{
+    ControlRequest, ControlResponse, ESTOP_TOPIC, EstopCommand, SAFETY_CONTROL_TOPIC, SUPERVISOR,
+    SafetyControl, TEXT_CAP, Text,
+};
+use crate::graph::{
+    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
+};
+use crate::msg::{
+    ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState,
+    SafeCommand, TickReport, buttons, mapper_flags, safe_flags, safety_state, state_flags,
+};
+
+/// The type of a message field as bindings spell it: `u64`, `f32`, `[f64; 8]`, or the name
+/// of a nested struct (`Text`).
+pub trait FieldType {
+    /// The type's name.
+    fn describe() -> String;
+}
+
+macro_rules! primitive {
+    ($($t:ty),*) => {$(
+        impl FieldType for $t {
+            fn describe() -> String {
+                stringify!($t).to_owned()
+            }
+        }
+    )*};
+}
+primitive!(u8, u16, u32, u64, i32, i64, f32, f64);
+
+impl<T: FieldType, const N: usize> FieldType for [T; N] {
+    fn describe() -> String {
+        format!("[{}; {N}]", T::describe())
+    }
+}
+
+impl FieldType for Text {
+    fn describe() -> String {
+        "Text".to_owned()
+    }
+}
+
+/// One field of a message.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct FieldLayout {
+    /// The field's name.
+    pub name: &'static str,
+    /// Its offset from the start of the struct (bytes).
+    pub offset: usize,
+    /// Its size (bytes).
+    pub size: usize,
+    /// Its type ([`FieldType::describe`]).
+    #[serde(rename = "type")]
+    pub ty: String,
+}
+
+/// One `#[repr(C)]` type of the graph.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TypeLayout {
+    /// The Rust type's name (`RobotState`).
+    pub name: &'static str,
+    /// The iceoryx2 type name services are opened with (`scl::RobotState`).
+    pub type_name: &'static str,
+    /// `size_of` (bytes).
+    pub size: usize,
+    /// `align_of` (bytes).
+    pub align: usize,
+    /// The fields in declaration order.
+    pub fields: Vec<FieldLayout>,
+}
+
+/// A topic's quality-of-service settings ([`TopicSettings`]), which every process opening
+/// the topic must repeat.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TopicLayout {
+    /// Topic name below the prefix (`robot_state`; the service is `PREFIX/robot_state`, its
+    /// wake-up event `PREFIX/robot_state/event`).
+    pub name: &'static str,
+    /// The message type's Rust name.
+    pub message: &'static str,
+    /// History size.
+    pub history: usize,
+    /// Subscriber buffer size.
+    pub buffer: usize,
+    /// Publishers admitted.
+    pub max_publishers: usize,
+    /// Subscribers admitted.
+    pub max_subscribers: usize,
+}
+
+/// The constants a binding needs.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Constants {
+    /// [`MAX_JOINTS`].
+    pub max_joints: usize,
+    /// [`ACTION_DIM`].
+    pub action_dim: usize,
+    /// [`NO_TICK`].
+    pub no_tick: u64,
+    /// [`TEXT_CAP`].
+    pub text_cap: usize,
+    /// The supervisor's request-response service name below the prefix.
+    pub supervisor_service: &'static str,
+}
+
+/// Everything a binding must agree on with this build.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Layout {
+    /// The crate version of the build that describes itself.
+    pub version: &'static str,
+    /// Every message and control type.
+    pub types: Vec<TypeLayout>,
+    /// Every topic's settings.
+    pub topics: Vec<TopicLayout>,
+    /// Constants.
+    pub constants: Constants,
+    /// The names of each bit set, in bit order (`buttons`, `state_flags`, `mapper_flags`,
+    /// `safe_flags`, `safety_state`).
+    pub bits: Vec<(&'static str, Vec<&'static str>)>,
+}
+
+fn field<S, T: FieldType>(name: &'static str, offset: usize, _get: fn(&S) -> &T) -> FieldLayout {
+    FieldLayout {
+        name,
+        offset,
+        size: size_of::<T>(),
+        ty: T::describe(),
+    }
+}
+
+/// The layout of struct `$t`, whose fields are listed in declaration order. The list is
+/// checked by the compiler: a destructuring pattern without `..` names every field.
+macro_rules! layout {
+    ($t:ident { $($f:ident),* $(,)? }) => {{
+        #[allow(dead_code)]
+        fn every_field_is_listed(v: &$t) {
+            let $t { $($f: _),* } = v;
+        }
+        TypeLayout {
+            name: stringify!($t),
+            // SAFETY: `type_name` only returns the string given to the derive.
+            type_name: unsafe { <$t as iceoryx2::prelude::ZeroCopySend>::type_name() },
+            size: size_of::<$t>(),
+            align: align_of::<$t>(),
+            fields: vec![$(field(stringify!($f), core::mem::offset_of!($t, $f), |v: &$t| &v.$f)),*],
+        }
+    }};
+}
+
+fn topic(s: &TopicSettings, message: &'static str) -> TopicLayout {
+    TopicLayout {
+        name: s.name,
+        message,
+        history: s.history,
+        buffer: s.buffer,
+        max_publishers: s.max_publishers,
+        max_subscribers: s.max_subscribers,
+    }
+}
+
+/// The layout of every message and control type of this build, with the topics' settings,
+/// the constants and the bit names.
+pub fn describe() -> Layout {
+    let types = vec![
+        layout!(JoystickInput {
+            tick,
+            t_ns,
+            seq,
+            axes,
+            gripper,
+            buttons
+        }),
+        layout!(RobotState {
+            tick,
+            t_ns,
+            applied_tick,
+            missed,
+            n_joints,
+            flags,
+            q_rad,
+            qdot_rad_s,
+            gripper
+        }),
+        layout!(MapperCommand {
+            tick,
+            t_ns,
+            state_t_ns,
+            state_rx_ns,
+            joystick_t_ns,
+            joystick_rx_ns,
+            joystick_seq,
+            compute_ns,
+            mapper_id,
+            n_joints,
+            flags,
+            buttons,
+            action,
+            qdot_rad_s,
+            gripper_rate
+        }),
+        layout!(SafeCommand {
+            tick,
+            t_ns,
+            state_t_ns,
+            state_rx_ns,
+            joystick_t_ns,
+            joystick_rx_ns,
+            mapper_t_ns,
+            mapper_rx_ns,
+            mapper_compute_ns,
+            compute_ns,
+            mapper_id,
+            n_joints,
+            flags,
+            control,
+            qdot_rad_s,
+            gripper_rate,
+            clearance_m,
+            tcp_speed_m_s,
+            closest_pair,
+            reserved_tail
+        }),
+        layout!(TickReport {
+            tick,
+            ideal_ns,
+            lateness_ns,
+            state_t_ns,
+            state_rx_ns,
+            joystick_t_ns,
+            joystick_rx_ns,
+            mapper_t_ns,
+            mapper_rx_ns,
+            safe_t_ns,
+            safe_rx_ns,
+            mapper_compute_ns,
+            safety_compute_ns,
+            missed,
+            executed,
+            reserved
+        }),
+        layout!(NodeStatus {
+            t_ns,
+            tick,
+            handled,
+            faults,
+            latency_ns,
+            lateness_ns,
+            joint_travel_rad,
+            pid,
+            role,
+            phase,
+            mapper_id,
+            safety_state,
+            rule_counts,
+            mode,
+            mode_switches,
+            reserved
+        }),
+        layout!(SafetyControl {
+            seq,
+            t_ns,
+            from_tick,
+            active_mapper,
+            hold,
+            estop_seq,
+            estop
+        }),
+        layout!(EstopCommand {
+            t_ns,
+            action,
+            source_pid
+        }),
+        layout!(Text { len, bytes }),
+        layout!(ControlRequest {
+            kind,
+            reserved,
+            path
+        }),
+        layout!(ControlResponse {
+            ok,
+            new_mapper,
+            old_mapper,
+            reserved,
+            switch_tick,
+            elapsed_ns,
+            missed_during,
+            message
+        }),
+    ];
+    let topics = vec![
+        topic(&JOYSTICK, "JoystickInput"),
+        topic(&ROBOT_STATE, "RobotState"),
+        topic(&MAPPER_COMMAND, "MapperCommand"),
+        topic(&SAFE_COMMAND, "SafeCommand"),
+        topic(&STATUS, "NodeStatus"),
+        topic(&TICK_REPORT, "TickReport"),
+        topic(&SAFETY_CONTROL_TOPIC, "SafetyControl"),
+        topic(&ESTOP_TOPIC, "EstopCommand"),
+    ];
+    Layout {
+        version: env!("CARGO_PKG_VERSION"),
+        types,
+        topics,
+        constants: Constants {
+            max_joints: MAX_JOINTS,
+            action_dim: ACTION_DIM,
+            no_tick: NO_TICK,
+            text_cap: TEXT_CAP,
+            supervisor_service: SUPERVISOR,
+        },
+        bits: vec![
+            ("buttons", buttons::NAMES.to_vec()),
+            ("state_flags", state_flags::NAMES.to_vec()),
+            ("mapper_flags", mapper_flags::NAMES.to_vec()),
+            ("safe_flags", safe_flags::NAMES.to_vec()),
+            ("safety_state", safety_state::NAMES.to_vec()),
+        ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fields_tile_each_struct_in_order() {
+        // Fields follow each other without gaps (the messages have no padding; a gap is an
+        // explicit `reserved` field) and end within the struct's tail alignment.
+        for t in describe().types {
+            let mut end = 0;
+            for f in &t.fields {
+                assert_eq!(
+                    f.offset, end,
+                    "{}.{} does not follow its predecessor",
+                    t.name, f.name
+                );
+                end = f.offset + f.size;
+            }
+            assert!(
+                end <= t.size && t.size - end < t.align,
+                "{}: tail {}",
+                t.name,
+                t.size - end
+            );
+        }
+    }
+
+    #[test]
+    fn describes_the_messages_as_declared() {
+        let l = describe();
+        let rs = l.types.iter().find(|t| t.name == "RobotState").unwrap();
+        assert_eq!(rs.type_name, "scl::RobotState");
+        assert_eq!((rs.size, rs.align), (176, 8));
+        let q = rs.fields.iter().find(|f| f.name == "q_rad").unwrap();
+        assert_eq!((q.offset, q.size, q.ty.as_str()), (40, 64, "[f64; 8]"));
+        let req = l.types.iter().find(|t| t.name == "ControlRequest").unwrap();
+        assert_eq!(req.fields[2].ty, "Text");
+        // Every topic's message is described.
+        for topic in &l.topics {
+            assert!(
+                l.types.iter().any(|t| t.name == topic.message),
+                "{}",
+                topic.name
+            );
+        }
+        let json = serde_json::to_value(&l).unwrap();
+        assert_eq!(json["constants"]["no_tick"], serde_json::json!(u64::MAX));
+        assert_eq!(json["types"][0]["fields"][0]["type"], "u64");
+    }
+}

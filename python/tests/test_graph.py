@@ -1,0 +1,238 @@
+"""The package against a real graph: ``scl up --joystick external`` on the mock arm, with the
+test's Python process as the operator.
+
+Timing is checked in ticks carried by the messages (the bridge's clock), never in wall time.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+from typing import Dict, List, Optional
+
+import pytest
+
+from scl_teleop import (
+    Graph,
+    GraphNotRunning,
+    MapperCommand,
+    PortRefused,
+    RequestFailed,
+    RobotState,
+    SafeCommand,
+    VersionMismatch,
+    buttons,
+    mapper_flags,
+    safe_flags,
+)
+from scl_teleop.graph import TOPICS, TopicSettings, check_prefix
+
+from .conftest import RunningGraph, finish, start_graph
+
+#: A stick deflection the tests drive with.
+PUSH = (0.6, 0.3)
+
+
+def drive(g: Graph, axes, ticks: int, btn: int = 0) -> List[RobotState]:
+    """Answers ``ticks`` robot ticks with ``axes``, as a joystick does; returns the states
+    answered. ``drive.last_sent`` is the last sample sent."""
+    states = g.robot_states()
+    op = g.operator()
+    seen = []
+    while len(seen) < ticks:
+        s = states.next_latest(2.0)
+        assert s is not None, "the bridge stopped publishing"
+        drive.last_sent = op.publish(axes, buttons=btn)  # type: ignore[attr-defined]
+        seen.append(s)
+    states.close()
+    return seen
+
+
+def commands_by_tick(items) -> Dict[int, object]:
+    return {c.tick: c for c in items}
+
+
+def test_reads_every_state_at_the_bridges_rate(graph: RunningGraph) -> None:
+    """Subscribe and read 40 states, a second of the bridge's 40 Hz clock, losing none."""
+    g = graph.join()
+    states = g.robot_states()
+    got = []
+    while len(got) < 40:
+        s = states.next(5.0)
+        assert s is not None, f"no robot state within 5 s after {len(got)}"
+        got.append(s)
+    ticks = [s.tick for s in got]
+    assert ticks == list(range(ticks[0], ticks[0] + 40)), ticks
+    # One period apart on the graph's clock (a held-up bridge skips ticks; none was skipped).
+    assert all(b.t_ns > a.t_ns for a, b in zip(got, got[1:]))
+    assert got[-1].n_joints == 6 and len(got[-1].q()) == 6
+    assert all(math.isfinite(v) for v in got[-1].q())
+
+
+def test_publishing_moves_the_arm_as_the_served_map_says(graph: RunningGraph) -> None:
+    """The operator's input reaches the map and the arm executes what the map and safety
+    made of it: the mapper's action is the published axes, safety's command is a
+    non-negative multiple of the mapper's (unless the acceleration limit bent it), and the
+    arm's next state moves with safety's command."""
+    g = graph.join()
+    mapper = g.mapper_commands()
+    safe = g.safe_commands()
+    drive(g, (0.0, 0.0), 8)  # restart prevention: the stick passes through neutral first
+    states = drive(g, PUSH, 40)
+    by_state = commands_by_tick(states)
+    m_cmds = commands_by_tick(c for c in mapper.drain() if c.flags & mapper_flags.NO_INPUT == 0)
+    s_cmds = commands_by_tick(safe.drain())
+    pushed = [c for c in m_cmds.values() if list(c.action) == pytest.approx(list(PUSH))]
+    assert len(pushed) >= 30, f"only {len(pushed)} mapper commands carried the published axes"
+    checked = 0
+    for mc in pushed:
+        sc: Optional[SafeCommand] = s_cmds.get(mc.tick)
+        nxt: Optional[RobotState] = by_state.get(mc.tick + 1)
+        if sc is None or nxt is None or sc.flags & (safe_flags.STOP | safe_flags.ACCEL_LIMITED):
+            continue
+        m = list(mc.qdot_rad_s)[:6]
+        s = list(sc.qdot_rad_s)[:6]
+        scale = sum(a * b for a, b in zip(m, s)) / sum(a * a for a in m)
+        assert 0.0 < scale <= 1.0 + 1e-9, (mc.tick, m, s)
+        assert s == pytest.approx([scale * v for v in m], abs=1e-9), (mc.tick, m, s)
+        # The arm executed tick k's command during the period that ended with state k+1.
+        assert nxt.applied_tick == mc.tick
+        assert list(nxt.qdot_rad_s)[:6] == pytest.approx(s, abs=1e-6)
+        checked += 1
+    assert checked >= 10, f"only {checked} ticks moved freely under the map"
+    travel = [abs(a - b) for a, b in zip(states[-1].q(), states[0].q())]
+    assert max(travel) > 0.01, travel
+    # The opposite push drives the other way (the maps are linear in the action).
+    first = pushed[-1]
+    drive(g, (0.0, 0.0), 4)
+    drive(g, (-PUSH[0], -PUSH[1]), 4)
+    back = [c for c in mapper.drain() if list(c.action) == pytest.approx([-PUSH[0], -PUSH[1]])]
+    assert back, "no mapper command carried the opposite push"
+    dot = sum(a * b for a, b in zip(first.qdot_rad_s, back[-1].qdot_rad_s))
+    assert dot < 0, (list(first.qdot_rad_s), list(back[-1].qdot_rad_s))
+
+
+def test_input_that_stops_stops_the_arm_within_two_ticks(graph: RunningGraph) -> None:
+    """When the operator stops publishing, safety commands a stop at the second tick after
+    the last sample's at the latest, and keeps the arm stopped."""
+    g = graph.join()
+    safe = g.safe_commands()
+    drive(g, (0.0, 0.0), 8)
+    drive(g, PUSH, 30)
+    last = drive.last_sent.tick  # type: ignore[attr-defined]  # the tick it answered
+    moving = [c for c in safe.drain() if c.tick <= last]
+    assert any(max(abs(v) for v in c.qdot_rad_s) > 0.01 for c in moving[-5:]), "not moving"
+    states = g.robot_states()
+    while True:
+        s = states.next(2.0)
+        assert s is not None
+        if s.tick >= last + 20:
+            break
+    after = sorted((c for c in safe.drain() if c.tick > last), key=lambda c: c.tick)
+    assert after and after[0].tick <= last + 2
+    stopped = [c for c in after if c.tick >= last + 2]
+    assert stopped, "no command after the second tick"
+    for c in stopped:
+        assert c.flags & safe_flags.STOP, (c.tick, safe_flags.names_of(c.flags))
+        assert c.flags & safe_flags.STALE_JOYSTICK, (c.tick, safe_flags.names_of(c.flags))
+    # The stop decelerates within the acceleration limits, then holds zero.
+    assert max(abs(v) for v in stopped[-1].qdot_rad_s) == 0.0
+
+
+def test_estop_from_python(graph: RunningGraph) -> None:
+    """``Graph.estop`` latches safety's e-stop (zero at once, whatever the stick) until
+    ``Graph.reset``; the joystick sample's e-stop button latches it too."""
+    g = graph.join()
+    safe = g.safe_commands()
+    drive(g, (0.0, 0.0), 8)
+    drive(g, PUSH, 12)
+    pid = g.estop()
+    assert pid > 0
+    safe.drain()
+    drive(g, PUSH, 6)
+    latched = safe.drain()
+    assert latched
+    for c in latched:
+        assert c.flags & safe_flags.ESTOP and c.flags & safe_flags.STOP
+        assert all(v == 0.0 for v in c.qdot_rad_s), list(c.qdot_rad_s)
+    assert "e-stop" in g.status().safety_state
+    g.reset()
+    assert "e-stop" not in g.status().safety_state
+    # Moving again after the reset (through neutral: restart prevention).
+    drive(g, (0.0, 0.0), 6)
+    safe.drain()
+    drive(g, PUSH, 10)
+    assert any(max(abs(v) for v in c.qdot_rad_s) > 0 for c in safe.drain())
+    # The e-stop button of the operator's own samples.
+    drive(g, PUSH, 2, btn=buttons.ESTOP)
+    drive(g, (0.0, 0.0), 4)
+    st = g.status()
+    assert "e-stop" in st.safety_state, st
+    safe.drain()
+    drive(g, PUSH, 4)
+    assert all(c.flags & safe_flags.ESTOP for c in safe.drain())
+    g.reset()
+
+
+def test_one_operator_at_a_time(graph: RunningGraph) -> None:
+    g = graph.join()
+    h = graph.join()
+    op = g.operator()
+    with pytest.raises(PortRefused, match="already has its publisher"):
+        h.operator()
+    op.close()
+    assert h.operator().publish((0.0, 0.0)).seq == 0
+
+
+def test_status_active_mapper_and_swap(graph: RunningGraph) -> None:
+    g = graph.join()
+    st = g.status()
+    roles = sorted(n.role for n in st.nodes if n.alive)
+    assert roles == ["bridge", "mapper", "safety"], st  # no joystick process: external source
+    assert g.active_mapper() == 1
+    r = g.swap("modeswitch")
+    assert (r.old_mapper, r.new_mapper) == (1, 2)
+    assert r.missed_during == 0
+    assert g.active_mapper() == 2
+    modes = [n.mode for n in g.status().nodes if n.role == "mapper" and n.alive]
+    assert modes == [1], modes  # mode switching serves x-y first
+    with pytest.raises(RequestFailed, match="nonexistent.safetensors"):
+        g.swap("/nonexistent.safetensors")
+    assert g.active_mapper() == 2
+
+
+def test_errors_name_the_graph_and_what_is_missing(graph: RunningGraph) -> None:
+    with pytest.raises(GraphNotRunning, match="no graph is running under the prefix `nothing-here`"):
+        Graph("nothing-here")
+    with pytest.raises(ValueError, match="character"):
+        check_prefix("a/b")
+    with pytest.raises(ValueError, match="longer than 32"):
+        Graph("x" * 33)
+
+    class OtherRobotState(ctypes.Structure):
+        """A robot state of another version: one more field."""
+
+        _fields_ = RobotState._fields_ + [("torque", ctypes.c_double * 8)]
+
+        @staticmethod
+        def type_name() -> str:
+            return "scl::RobotState"
+
+    g = graph.join()
+    other = TopicSettings("robot_state", OtherRobotState, 1, 64, 1, 16)  # type: ignore[arg-type]
+    with pytest.raises(VersionMismatch, match=f"graph `{graph.prefix}`.*scl::RobotState"):
+        g._pubsub(other)
+    assert TOPICS["robot_state"].message is RobotState
+
+
+def test_a_joystick_process_keeps_the_operator_out(tmp_path) -> None:
+    """With a joystick process (the scripted source) the topic's one publisher is taken."""
+    running = start_graph(tmp_path, "j", joystick=None)
+    try:
+        g = running.join()
+        with pytest.raises(PortRefused, match="scl up --joystick external"):
+            g.operator()
+        assert any(n.role == "joystick" and n.alive for n in g.status().nodes)
+        assert isinstance(g.mapper_commands().next(2.0), MapperCommand)
+    finally:
+        finish(running)
