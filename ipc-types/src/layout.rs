@@ -270,7 +270,7 @@ pub fn describe() -> Layout {
             rule_counts,
             mode,
             mode_switches,
-            reserved
+            held_up
         }),
         layout!(SafetyControl {
             seq,

@@ -556,10 +556,11 @@ pub struct NodeStatus {
     pub mode: u32,
     /// Mapper: mode switches since the mapper started (presses of the mode button).
     pub mode_switches: u32,
-    /// Padding, always 0 (the struct's tail was implicit padding before; the size is
-    /// unchanged). Not recorded.
-    #[cfg_attr(feature = "json", serde(skip))]
-    pub reserved: u32,
+    /// Bridge: how many of `faults` the machine took (the bridge process not run through
+    /// a period, or a command that came late while the chain's own work fit the deadline;
+    /// see `scl_bridge_node`); 0 for the other roles. Was padding: older recordings read 0.
+    #[cfg_attr(feature = "json", serde(default))]
+    pub held_up: u32,
 }
 
 impl NodeStatus {
@@ -581,7 +582,7 @@ impl NodeStatus {
             rule_counts: [0; 16],
             mode: 0,
             mode_switches: 0,
-            reserved: 0,
+            held_up: 0,
         }
     }
 }

@@ -317,7 +317,7 @@ class NodeStatus(Message):
         ("rule_counts", _u32 * 16),
         ("mode", _u32),
         ("mode_switches", _u32),
-        ("reserved", _u32),
+        ("held_up", _u32),
     ]
 
 

@@ -1100,6 +1100,7 @@ mod tests {
                 .collect();
             let added_later: &[&str] = match topic {
                 Topic::SafeCommand => &["control"],
+                Topic::Status => &["held_up"],
                 _ => &[],
             };
             assert_eq!(optional, added_later, "{topic:?}");

@@ -676,7 +676,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Safety => {
-            scl_safety_node::run(&prefix, &cfg.graph, &cfg.safety, period_s)?;
+            scl_safety_node::run(&prefix, &cfg.graph, &cfg.safety, &cfg.faults, period_s)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Bridge {

@@ -58,11 +58,7 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
     // than a period), which the graph cannot keep: every command came in time.
     let log_text = std::fs::read_to_string(&log).unwrap();
     let _ = std::fs::remove_dir_all(log.parent().unwrap());
-    scl_tests::assert_misses_only_held_up(
-        summary["missed"].as_u64().unwrap(),
-        &log_text,
-        "40 Hz graph",
-    );
+    scl_tests::assert_misses_only_held_up(&summary, &log_text, "40 Hz graph");
     for key in ["p50", "p99", "max"] {
         assert!(summary["latency_us"][key].as_f64().unwrap() > 0.0);
     }
@@ -269,6 +265,7 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
     let missed = summary["missed"].as_u64().unwrap();
     assert!((1..=3).contains(&missed), "{summary}\n{text}");
     assert_eq!(scl_tests::held_up_skips(&text), missed, "{text}");
+    assert_eq!(summary["held_up"], missed, "{summary}");
     assert_eq!(
         text.lines().filter(|l| l.contains("held up")).count(),
         1,
@@ -282,6 +279,43 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
     }
     assert!(scl_tests::clean_run_at_end(&states) >= 40);
     drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+#[test]
+fn a_command_late_for_want_of_cpu_is_counted_as_held_up() {
+    // Safety stalls for 80 % of a period before it filters tick 60's command, as a process
+    // the machine does not run: the command comes after the bridge's deadline, with the
+    // chain's own work well within it. The bridge counts that miss as held up, in its
+    // heartbeat (the summary's `held_up`) and its log; a graph's own miss would not be.
+    let _serial = serial();
+    let prefix = unique_prefix("stall");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = scl_tests::temp_dir("stall");
+    let cfg = dir.join("graph.toml");
+    std::fs::write(&cfg, "[faults]\nsafety_stall_at_tick = 60\n").unwrap();
+    let log = dir.join("up.log");
+    let out = up(&prefix, &["--for", "4s", "--json", "--config"])
+        .arg(&cfg)
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "scl up failed: {:?}", out.status);
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let text = std::fs::read_to_string(&log).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    let missed = summary["missed"].as_u64().unwrap();
+    assert!(missed >= 1, "{summary}\n{text}");
+    assert_eq!(summary["held_up"], missed, "{summary}\n{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.contains("held up") && l.contains("tick=60") && l.contains("ticks_lost=1")),
+        "{text}"
+    );
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(5)),
         Vec::<String>::new()

@@ -220,7 +220,7 @@ fn twenty_live_swaps_miss_no_tick() {
     let missed = summary["missed"].as_u64().unwrap();
     assert!(missed_in_swaps <= missed, "{summary}");
     scl_tests::assert_misses_only_held_up(
-        missed,
+        &summary,
         &std::fs::read_to_string(&log).unwrap(),
         "20 swaps",
     );

@@ -11,6 +11,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod fake_kortex;
+pub mod late;
 
 /// Why the bridge process stopped or could not start, each with the message a user sees.
 #[derive(Debug, thiserror::Error)]
@@ -39,7 +40,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use hw_bridge::clock::{Clock, Wake};
-use hw_bridge::core::{BridgeCore, Outcome};
+use hw_bridge::core::{BridgeCore, MissReason, Outcome};
 use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
 use hw_bridge::{Robot, RobotError};
@@ -228,6 +229,32 @@ pub fn run(
     }
 }
 
+/// Says what a command that came after its tick's deadline tells about the miss: the
+/// machine's (a `held up` warning, `ticks_lost=1`, counted in the heartbeat's `held_up`) or
+/// the chain's own work too slow for the deadline.
+fn say_late(v: &late::Verdict) {
+    let ms = |ns: u64| ns as f64 * 1e-6;
+    if v.held_up() {
+        tracing::warn!(
+            tick = v.tick,
+            ticks_lost = 1,
+            late_ms = ms(v.late_ns),
+            mapper_wake_ms = ms(v.mapper_wake_ns),
+            safety_wake_ms = ms(v.safety_wake_ns),
+            work_ms = ms(v.work_ns),
+            "missed tick: the mapper or safety was held up (its command came late, its work fitted the deadline)"
+        );
+    } else {
+        tracing::warn!(
+            tick = v.tick,
+            late_ms = ms(v.late_ns),
+            work_ms = ms(v.work_ns),
+            budget_ms = ms(v.budget_ns),
+            "missed tick: the mapper's and safety's work took longer than the command deadline"
+        );
+    }
+}
+
 struct Ctx<'a> {
     graph: &'a Graph,
     cfg: &'a BridgeConfig,
@@ -261,6 +288,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
     // Drop whatever commands are left over from an earlier bridge of this graph.
     commands.drain(|_| {})?;
     let mut failure: Option<RobotError> = None;
+    let mut late = late::LateCommands::default();
     while !signals::stop_requested() {
         let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
             Wake::Interrupted => continue,
@@ -286,6 +314,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 "missed tick: the bridge was held up past a command deadline"
             );
             core.add_skipped(skipped);
+            st.held_up = st.held_up.saturating_add(lost as u32);
         }
         let state = match core.begin_tick(now_ns()) {
             Ok(s) => s,
@@ -305,11 +334,13 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         let mut found: Option<SafeCommand> = None;
         let mut other: Option<SafeCommand> = None;
         let mut received_ns = 0;
+        let mut verdicts = Vec::new();
         loop {
             commands.drain(|c| {
                 if c.tick == state.tick {
                     found = Some(*c);
                 } else {
+                    verdicts.extend(late.arrived(c));
                     other = Some(*c);
                 }
             })?;
@@ -330,9 +361,21 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 break;
             }
         };
+        for v in verdicts {
+            say_late(&v);
+            if v.held_up() {
+                st.held_up = st.held_up.saturating_add(1);
+            }
+        }
         st.latency_ns = match outcome {
             Outcome::Executed => received_ns - state.t_ns,
             Outcome::Missed(reason) => {
+                // A tick begun past its deadline is the bridge's own hold-up, counted above.
+                if matches!(reason, MissReason::NoCommand | MissReason::WrongTick)
+                    && lateness_ns < wait_ns
+                {
+                    late.missed(state.tick, state.t_ns, deadline);
+                }
                 if core.missed() <= 10 || core.missed().is_power_of_two() {
                     tracing::warn!(
                         tick = state.tick,

@@ -23,7 +23,7 @@ use ipc_types::{Graph, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_n
 use safety::{SafetyConfig, SafetyFilter};
 
 use ipc_types::signals;
-use scl_node::config::{GraphSection, RtRole};
+use scl_node::config::{FaultConfig, GraphSection, RtRole};
 
 /// Without a command for this long (ns) the graph has stopped sending them: the arm will
 /// wait for neutral input when they resume (safety's own gap check says so too, at the next
@@ -60,6 +60,7 @@ pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
     cfg: &SafetyConfig,
+    faults: &FaultConfig,
     period_s: f64,
 ) -> Result<(), SafetyNodeError> {
     let robot = graph_cfg.profile()?;
@@ -183,6 +184,10 @@ pub fn run(
             continue;
         }
         last_tick = cmd.tick;
+        if faults.safety_stall_at_tick != 0 && cmd.tick == faults.safety_stall_at_tick {
+            tracing::warn!(tick = cmd.tick, "fault injection: safety stalls");
+            std::thread::sleep(Duration::from_secs_f64(0.8 * period_s));
+        }
         let t0 = now_ns();
         last_step_ns = t0;
         let mut safe = filter.step(&cmd, &state, t0);

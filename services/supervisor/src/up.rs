@@ -68,6 +68,10 @@ pub struct Summary {
     pub ticks: u64,
     /// Ticks without a valid command in time.
     pub missed: u64,
+    /// How many of `missed` the machine took: periods the bridge was not run through, and
+    /// commands that came late although the mapper's and safety's work fitted the deadline
+    /// (`NodeStatus::held_up`). The graph's own misses are `missed - held_up`.
+    pub held_up: u64,
     /// RobotState(k) published -> SafeCommand(k) received by the bridge, µs.
     pub latency_us: Percentiles,
     /// Lateness of the bridge's clock against the ideal grid, µs.
@@ -254,9 +258,11 @@ struct Telemetry {
     bridge_pid: u32,
     base_ticks: u64,
     base_missed: u64,
+    base_held_up: u64,
     base_travel: f64,
     cur_ticks: u64,
     cur_missed: u64,
+    cur_held_up: u64,
     cur_travel: f64,
     active_mapper: u32,
     latency_ns: Vec<u64>,
@@ -283,11 +289,13 @@ impl Telemetry {
             // A new bridge process: bank the counts of the one before.
             self.base_ticks += self.cur_ticks;
             self.base_missed += self.cur_missed;
+            self.base_held_up += self.cur_held_up;
             self.base_travel += self.cur_travel;
             self.bridge_pid = s.pid;
         }
         self.cur_ticks = s.handled;
         self.cur_missed = s.faults;
+        self.cur_held_up = u64::from(s.held_up);
         self.cur_travel = s.joint_travel_rad;
         if s.phase == phase::RUNNING && self.last_bridge_tick != Some(s.tick) {
             self.last_bridge_tick = Some(s.tick);
@@ -322,6 +330,10 @@ impl Telemetry {
 
     fn missed(&self) -> u64 {
         self.base_missed + self.cur_missed
+    }
+
+    fn held_up(&self) -> u64 {
+        self.base_held_up + self.cur_held_up
     }
 
     fn travel(&self) -> f64 {
@@ -995,6 +1007,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     let summary = Summary {
         ticks: sv.tel.ticks(),
         missed: sv.tel.missed(),
+        held_up: sv.tel.held_up(),
         latency_us: percentiles_us(&sv.tel.latency_ns),
         tick_lateness_us: percentiles_us(&sv.tel.lateness_ns),
         joint_travel_rad: sv.tel.travel(),
