@@ -22,6 +22,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod constant;
+pub mod goto;
 pub mod model;
 pub mod modeswitch;
 pub mod network;

@@ -41,7 +41,10 @@ pub const BUNDLED_NAME: &str = "bundled";
 /// spec, the drill map's spec) rather than a file, so configs and clients leave it as it is
 /// instead of resolving it as a path.
 pub fn is_builtin(spec: &str) -> bool {
-    spec == BUNDLED_NAME || crate::modeswitch::is_spec(spec) || crate::constant::is_spec(spec)
+    spec == BUNDLED_NAME
+        || crate::modeswitch::is_spec(spec)
+        || crate::constant::is_spec(spec)
+        || crate::goto::is_spec(spec)
 }
 
 /// The kind of map a file holds.
@@ -58,6 +61,8 @@ pub enum ModelKind {
     ModeSwitch,
     /// The drill map ([`crate::constant`]): one joint velocity, served from its spec only.
     Constant,
+    /// The go-to map ([`crate::goto`]): drives to a pose, served from its spec only.
+    Goto,
 }
 
 impl std::fmt::Display for ModelKind {
@@ -68,6 +73,7 @@ impl std::fmt::Display for ModelKind {
             Self::Cae => "cae",
             Self::ModeSwitch => "modeswitch",
             Self::Constant => "constant",
+            Self::Goto => "goto",
         })
     }
 }
@@ -342,7 +348,8 @@ impl LoadedModel {
     /// Loads `spec`: a path, [`BUNDLED_NAME`] for the model built into the binary,
     /// `modeswitch[:key=value,...]` for the mode-switching map ([`crate::modeswitch::SPEC`]),
     /// which drives `robot`'s arm with its kinematics and limits, or `constant:qdot=v1,...,v6`
-    /// for the drill map ([`crate::constant::SPEC`]).
+    /// for the drill map ([`crate::constant::SPEC`]), or `goto:pose=NAME` / `goto:q=...` for
+    /// the go-to map ([`crate::goto`]).
     pub fn load_for(
         spec: &str,
         robot: &'static kinematics::RobotProfile,
@@ -352,6 +359,14 @@ impl LoadedModel {
         }
         if crate::constant::is_spec(spec) {
             let (header, map) = crate::constant::ConstantMap::from_spec_for(robot, spec)?;
+            return Ok(Self {
+                source: spec.to_owned(),
+                header,
+                map: Box::new(map),
+            });
+        }
+        if crate::goto::is_spec(spec) {
+            let (header, map) = crate::goto::GotoMap::from_spec_for(robot, spec)?;
             return Ok(Self {
                 source: spec.to_owned(),
                 header,
@@ -399,12 +414,14 @@ impl LoadedModel {
             ModelKind::ModeSwitch => Box::new(crate::modeswitch::ModeSwitchMap::from_file_for(
                 robot, bytes, &header, path,
             )?),
-            ModelKind::Constant => {
+            ModelKind::Constant | ModelKind::Goto => {
                 return Err(ModelError::BadHeader {
                     path: path.to_owned(),
-                    reason: "the drill map is served from its spec `constant:qdot=...`, \
-                             not from a file"
-                        .into(),
+                    reason: format!(
+                        "the {} map is served from its spec (`constant:qdot=...`, \
+                         `goto:pose=...`), not from a file",
+                        header.kind
+                    ),
                 });
             }
         };
