@@ -1,0 +1,589 @@
+//! `scl study report`: the participants' files merged into the paper's tables, figures and
+//! tests.
+//!
+//! Only final attempts count (rows not marked `repeated`). Per task and condition: successes
+//! (of attempts), the completion percentages; per task, item and condition: the Likert
+//! answers and the NASA-TLX subscales. Each measure is tested across conditions with
+//! Kruskal-Wallis (ties corrected) and, where it is significant (p < [`ALPHA`]), with Dunn's
+//! pairwise test, Holm-adjusted ([`learning::experiments::stats`]).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use learning::experiments::stats::{self, RankTests};
+
+use crate::StudyError;
+use crate::data::{AnswerRow, Outcome, QUESTIONNAIRE, TRIALS, TrialRow, read_rows};
+
+/// The significance level of the tests.
+pub const ALPHA: f64 = 0.05;
+
+/// Every participant's rows, merged.
+#[derive(Debug, Clone, Default)]
+pub struct Data {
+    /// The attempts.
+    pub trials: Vec<TrialRow>,
+    /// The answers.
+    pub answers: Vec<AnswerRow>,
+}
+
+impl Data {
+    /// Reads `trials.csv` and `questionnaire.csv` of each directory; a participant found in
+    /// two directories is refused (their rows would count twice).
+    pub fn load(dirs: &[PathBuf]) -> Result<Self, StudyError> {
+        let mut data = Data::default();
+        let mut owner: BTreeMap<String, PathBuf> = BTreeMap::new();
+        for dir in dirs {
+            let trials: Vec<TrialRow> = read_rows(&dir.join(TRIALS))?;
+            let answers: Vec<AnswerRow> = read_rows(&dir.join(QUESTIONNAIRE))?;
+            if trials.is_empty() && answers.is_empty() {
+                return Err(StudyError::Data {
+                    path: dir.clone(),
+                    reason: format!("has neither {TRIALS} nor {QUESTIONNAIRE}"),
+                });
+            }
+            let here: BTreeSet<&String> = trials
+                .iter()
+                .map(|t| &t.participant)
+                .chain(answers.iter().map(|a| &a.participant))
+                .collect();
+            for p in here {
+                if let Some(first) = owner.insert(p.clone(), dir.clone()) {
+                    return Err(StudyError::Data {
+                        path: dir.clone(),
+                        reason: format!(
+                            "participant {p} is also in {}: each participant once",
+                            first.display()
+                        ),
+                    });
+                }
+            }
+            data.trials.extend(trials);
+            data.answers.extend(answers);
+        }
+        Ok(data)
+    }
+}
+
+/// One measure tested across the conditions.
+#[derive(Debug, Clone)]
+pub struct Tested {
+    /// The task.
+    pub task: String,
+    /// What was measured (`completion %`, a Likert item, a TLX subscale).
+    pub measure: String,
+    /// `completion`, `likert` or `tlx`.
+    pub kind: String,
+    /// Each condition's values, in [`Report::conditions`] order.
+    pub values: Vec<Vec<f64>>,
+    /// Kruskal-Wallis and Dunn; `None` when there is nothing to rank (too few groups, all
+    /// values equal).
+    pub tests: Option<RankTests>,
+}
+
+impl Tested {
+    /// Whether Kruskal-Wallis is significant.
+    pub fn significant(&self) -> bool {
+        self.tests.as_ref().is_some_and(|t| t.kruskal.p < ALPHA)
+    }
+
+    /// Conditions that differ from condition `reference` after Holm's adjustment (only when
+    /// Kruskal-Wallis is significant).
+    pub fn differ_from(&self, reference: usize) -> Vec<usize> {
+        let Some(t) = self.tests.as_ref().filter(|_| self.significant()) else {
+            return Vec::new();
+        };
+        t.dunn
+            .iter()
+            .filter(|d| d.p_holm < ALPHA && (d.a == reference || d.b == reference))
+            .map(|d| if d.a == reference { d.b } else { d.a })
+            .collect()
+    }
+}
+
+/// Successes of one task and condition.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Successes {
+    /// The task.
+    pub task: String,
+    /// The condition.
+    pub condition: String,
+    /// Successful final attempts.
+    pub successes: usize,
+    /// Final attempts.
+    pub attempts: usize,
+}
+
+/// The analysed study.
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// The study's name(s).
+    pub study: String,
+    /// The tasks, in the order of the data.
+    pub tasks: Vec<String>,
+    /// The conditions by name, ordered by their blind labels.
+    pub conditions: Vec<String>,
+    /// The participants.
+    pub participants: Vec<String>,
+    /// Per task and condition.
+    pub successes: Vec<Successes>,
+    /// Every tested measure: completion per task, then each Likert item, then each TLX
+    /// subscale, per task.
+    pub measures: Vec<Tested>,
+    /// The condition the radar's stars compare against.
+    pub reference: usize,
+}
+
+/// Analyses `data`; `reference` names the condition the Likert radar compares against
+/// (default: the first by label).
+pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyError> {
+    let finals: Vec<&TrialRow> = data.trials.iter().filter(|t| !t.repeated).collect();
+    let mut tasks: Vec<String> = Vec::new();
+    for t in finals.iter().map(|t| &t.task).chain(data.answers.iter().map(|a| &a.task)) {
+        if !tasks.contains(t) {
+            tasks.push(t.clone());
+        }
+    }
+    let by_label: BTreeMap<&str, &str> = finals
+        .iter()
+        .map(|t| (t.label.as_str(), t.condition.as_str()))
+        .chain(
+            data.answers
+                .iter()
+                .map(|a| (a.label.as_str(), a.condition.as_str())),
+        )
+        .collect();
+    let mut conditions: Vec<String> = Vec::new();
+    for c in by_label.values() {
+        if !conditions.iter().any(|x| x == c) {
+            conditions.push((*c).to_owned());
+        }
+    }
+    let reference = match reference {
+        None => 0,
+        Some(r) => conditions
+            .iter()
+            .position(|c| c == r)
+            .ok_or_else(|| StudyError::Report(format!(
+                "--reference {r}: no such condition; the data has {}",
+                conditions.join(", ")
+            )))?,
+    };
+    let participants: BTreeSet<String> = finals
+        .iter()
+        .map(|t| t.participant.clone())
+        .chain(data.answers.iter().map(|a| a.participant.clone()))
+        .collect();
+    let study: BTreeSet<&str> = finals
+        .iter()
+        .map(|t| t.study.as_str())
+        .chain(data.answers.iter().map(|a| a.study.as_str()))
+        .collect();
+    let mut successes = Vec::new();
+    let mut measures = Vec::new();
+    for task in &tasks {
+        let mut completion = Vec::new();
+        for c in &conditions {
+            let rows: Vec<&&TrialRow> = finals
+                .iter()
+                .filter(|t| &t.task == task && &t.condition == c)
+                .collect();
+            successes.push(Successes {
+                task: task.clone(),
+                condition: c.clone(),
+                successes: rows.iter().filter(|t| t.outcome == Outcome::Success).count(),
+                attempts: rows.len(),
+            });
+            completion.push(rows.iter().map(|t| t.completion_pct).collect::<Vec<f64>>());
+        }
+        if completion.iter().any(|v| !v.is_empty()) {
+            measures.push(tested(task, "completion %", "completion", completion));
+        }
+        for kind in ["likert", "tlx"] {
+            let mut items: Vec<&str> = Vec::new();
+            for a in data
+                .answers
+                .iter()
+                .filter(|a| &a.task == task && a.kind == kind)
+            {
+                if !items.contains(&a.item.as_str()) {
+                    items.push(&a.item);
+                }
+            }
+            for item in items {
+                let values = conditions
+                    .iter()
+                    .map(|c| {
+                        data.answers
+                            .iter()
+                            .filter(|a| {
+                                &a.task == task && a.kind == kind && a.item == item
+                                    && &a.condition == c
+                            })
+                            .map(|a| f64::from(a.value))
+                            .collect()
+                    })
+                    .collect();
+                measures.push(tested(task, item, kind, values));
+            }
+        }
+    }
+    Ok(Report {
+        study: study.into_iter().collect::<Vec<_>>().join(", "),
+        tasks,
+        conditions,
+        participants: participants.into_iter().collect(),
+        successes,
+        measures,
+        reference,
+    })
+}
+
+fn tested(task: &str, measure: &str, kind: &str, values: Vec<Vec<f64>>) -> Tested {
+    let refs: Vec<&[f64]> = values.iter().map(Vec::as_slice).collect();
+    Tested {
+        task: task.to_owned(),
+        measure: measure.to_owned(),
+        kind: kind.to_owned(),
+        tests: stats::rank_tests(&refs),
+        values,
+    }
+}
+
+/// The median of `v` (NaN when empty).
+pub fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        stats::median(v)
+    }
+}
+
+/// The mean of `v` (NaN when empty).
+pub fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// Writes the tables (CSV), the figures (PNG and SVG) and `summary.md` into `out`; returns
+/// the files written.
+pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
+    std::fs::create_dir_all(out).map_err(|source| StudyError::Write {
+        path: out.to_owned(),
+        source,
+    })?;
+    let mut files = Vec::new();
+    let werr = |path: &Path| {
+        let path = path.to_owned();
+        move |e: csv::Error| StudyError::Data {
+            path: path.clone(),
+            reason: e.to_string(),
+        }
+    };
+    let p = out.join("successes.csv");
+    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
+    w.write_record(["task", "condition", "successes", "attempts"])
+        .map_err(werr(&p))?;
+    for s in &r.successes {
+        w.write_record([
+            s.task.clone(),
+            s.condition.clone(),
+            s.successes.to_string(),
+            s.attempts.to_string(),
+        ])
+        .map_err(werr(&p))?;
+    }
+    w.flush().map_err(|source| StudyError::Write {
+        path: p.clone(),
+        source,
+    })?;
+    files.push(p);
+    let p = out.join("measures.csv");
+    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
+    w.write_record([
+        "task", "kind", "measure", "condition", "n", "median", "mean", "q1", "q3",
+    ])
+    .map_err(werr(&p))?;
+    for m in &r.measures {
+        for (c, v) in r.conditions.iter().zip(&m.values) {
+            let q = |x: f64| {
+                if v.is_empty() {
+                    f64::NAN
+                } else {
+                    stats::quantile(v, x)
+                }
+            };
+            w.write_record([
+                m.task.clone(),
+                m.kind.clone(),
+                m.measure.clone(),
+                c.clone(),
+                v.len().to_string(),
+                fmt(median(v)),
+                fmt(mean(v)),
+                fmt(q(0.25)),
+                fmt(q(0.75)),
+            ])
+            .map_err(werr(&p))?;
+        }
+    }
+    w.flush().map_err(|source| StudyError::Write {
+        path: p.clone(),
+        source,
+    })?;
+    files.push(p);
+    let p = out.join("tests.csv");
+    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
+    w.write_record([
+        "task", "kind", "measure", "test", "a", "b", "statistic", "df", "n", "p", "p_holm",
+    ])
+    .map_err(werr(&p))?;
+    for m in &r.measures {
+        let Some(t) = &m.tests else { continue };
+        let k = &t.kruskal;
+        w.write_record([
+            m.task.clone(),
+            m.kind.clone(),
+            m.measure.clone(),
+            "kruskal-wallis".into(),
+            String::new(),
+            String::new(),
+            fmt(k.h),
+            k.df.to_string(),
+            k.n.to_string(),
+            fmt(k.p),
+            String::new(),
+        ])
+        .map_err(werr(&p))?;
+        if m.significant() {
+            for d in &t.dunn {
+                w.write_record([
+                    m.task.clone(),
+                    m.kind.clone(),
+                    m.measure.clone(),
+                    "dunn".into(),
+                    r.conditions[d.a].clone(),
+                    r.conditions[d.b].clone(),
+                    fmt(d.z),
+                    String::new(),
+                    (m.values[d.a].len() + m.values[d.b].len()).to_string(),
+                    fmt(d.p),
+                    fmt(d.p_holm),
+                ])
+                .map_err(werr(&p))?;
+            }
+        }
+    }
+    w.flush().map_err(|source| StudyError::Write {
+        path: p.clone(),
+        source,
+    })?;
+    files.push(p);
+    files.extend(crate::figures::write_all(r, out)?);
+    let p = out.join("summary.md");
+    std::fs::write(&p, summary(r)).map_err(|source| StudyError::Write {
+        path: p.clone(),
+        source,
+    })?;
+    files.push(p);
+    Ok(files)
+}
+
+fn fmt(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x:.6}")
+    } else {
+        String::new()
+    }
+}
+
+/// The summary: counts, then each test with the counts it used.
+pub fn summary(r: &Report) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# {}\n", r.study);
+    let _ = writeln!(
+        s,
+        "{} participants ({}); conditions {}; final attempts only (repeated ones left out). \
+         Tests: Kruskal-Wallis across conditions (ties corrected); where p < {ALPHA}, Dunn's \
+         pairwise test with Holm's adjustment.\n",
+        r.participants.len(),
+        r.participants.join(", "),
+        r.conditions.join(", ")
+    );
+    let _ = writeln!(s, "## Successes\n");
+    let _ = writeln!(s, "| task | {} |", r.conditions.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(r.conditions.len()));
+    for task in &r.tasks {
+        let cells: Vec<String> = r
+            .successes
+            .iter()
+            .filter(|x| &x.task == task)
+            .map(|x| format!("{} / {}", x.successes, x.attempts))
+            .collect();
+        let _ = writeln!(s, "| {task} | {} |", cells.join(" | "));
+    }
+    for task in &r.tasks {
+        let _ = writeln!(s, "\n## {task}\n");
+        for m in r.measures.iter().filter(|m| &m.task == task) {
+            let counts: Vec<String> = r
+                .conditions
+                .iter()
+                .zip(&m.values)
+                .map(|(c, v)| format!("{c} n={} median {}", v.len(), short(median(v))))
+                .collect();
+            let what = match m.kind.as_str() {
+                "likert" => format!("Likert \"{}\"", m.measure),
+                "tlx" => format!("NASA-TLX {}", m.measure),
+                _ => m.measure.clone(),
+            };
+            let _ = write!(s, "- **{what}** ({}): ", counts.join("; "));
+            match &m.tests {
+                None => {
+                    let _ = writeln!(s, "not tested (fewer than two groups, or no spread).");
+                }
+                Some(t) => {
+                    let k = &t.kruskal;
+                    let _ = write!(
+                        s,
+                        "Kruskal-Wallis H({}) = {:.3}, p = {:.4}, N = {}",
+                        k.df, k.h, k.p, k.n
+                    );
+                    if m.significant() {
+                        let pairs: Vec<String> = t
+                            .dunn
+                            .iter()
+                            .map(|d| {
+                                format!(
+                                    "{} vs {} z = {:.3}, p_holm = {:.4}{}",
+                                    r.conditions[d.a],
+                                    r.conditions[d.b],
+                                    d.z,
+                                    d.p_holm,
+                                    if d.p_holm < ALPHA { " *" } else { "" }
+                                )
+                            })
+                            .collect();
+                        let _ = writeln!(s, "; Dunn (Holm): {}.", pairs.join("; "));
+                    } else {
+                        let _ = writeln!(s, "; not significant, no pairwise test.");
+                    }
+                }
+            }
+        }
+    }
+    s
+}
+
+fn short(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x:.1}")
+    } else {
+        "-".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::tests::row;
+
+    fn data() -> Data {
+        // Completion on task `t`: A 100, 90, 80; B 50, 60, 70; C 10, 20, 30 (no ties).
+        let mut trials = Vec::new();
+        for (label, name, values) in [
+            ("A", "SCL", [100.0, 90.0, 80.0]),
+            ("B", "PCA", [50.0, 60.0, 70.0]),
+            ("C", "CAE", [10.0, 20.0, 30.0]),
+        ] {
+            for (i, v) in values.into_iter().enumerate() {
+                let mut r = row("t", label, 1, false);
+                r.participant = format!("P0{}", i + 1);
+                r.condition = name.into();
+                r.completion_pct = v;
+                r.outcome = if v == 100.0 { Outcome::Success } else { Outcome::Failure };
+                trials.push(r);
+            }
+        }
+        // A repeated attempt does not count.
+        let mut rep = row("t", "C", 1, true);
+        rep.condition = "CAE".into();
+        rep.completion_pct = 100.0;
+        trials.push(rep);
+        let mut answers = Vec::new();
+        for (label, name, values) in [("A", "SCL", [7, 6, 6]), ("B", "PCA", [4, 5, 4]), ("C", "CAE", [2, 3, 3])] {
+            for (i, v) in values.into_iter().enumerate() {
+                answers.push(AnswerRow {
+                    study: "s".into(),
+                    participant: format!("P0{}", i + 1),
+                    task: "t".into(),
+                    label: label.into(),
+                    condition: name.into(),
+                    kind: "likert".into(),
+                    item: "in control".into(),
+                    value: v,
+                });
+            }
+        }
+        Data { trials, answers }
+    }
+
+    #[test]
+    fn hand_computed_counts_medians_and_statistics() {
+        let r = analyse(&data(), None).unwrap();
+        assert_eq!(r.conditions, ["SCL", "PCA", "CAE"]);
+        assert_eq!(r.participants, ["P01", "P02", "P03"]);
+        let s: Vec<(usize, usize)> = r.successes.iter().map(|s| (s.successes, s.attempts)).collect();
+        assert_eq!(s, [(1, 3), (0, 3), (0, 3)], "the repeated CAE success is left out");
+        let c = &r.measures[0];
+        assert_eq!(c.measure, "completion %");
+        assert_eq!(median(&c.values[0]), 90.0);
+        assert_eq!(median(&c.values[1]), 60.0);
+        // Ranks: CAE 1-3, PCA 4-6, SCL 7-9; H = 12/90 (24²+15²+6²)/3 - 30 = 7.2, p = e^-3.6.
+        let t = c.tests.as_ref().unwrap();
+        assert!((t.kruskal.h - 7.2).abs() < 1e-12, "{}", t.kruskal.h);
+        assert_eq!((t.kruskal.df, t.kruskal.n), (2, 9));
+        assert!((t.kruskal.p - (-3.6f64).exp()).abs() < 1e-12);
+        // Dunn: mean ranks 8, 5, 2; se = sqrt(7.5 * 2/3) = sqrt(5).
+        let z_ac = 6.0 / 5f64.sqrt();
+        let d = t.dunn.iter().find(|d| (d.a, d.b) == (0, 2)).unwrap();
+        assert!((d.z - z_ac).abs() < 1e-12);
+        // Holm: the smallest p times 3.
+        assert!((d.p_holm - 3.0 * d.p).abs() < 1e-12);
+        assert!(d.p_holm < ALPHA);
+        assert_eq!(c.differ_from(0), [2]);
+        // Likert medians 6, 4, 3 (ties corrected in the test).
+        let l = &r.measures[1];
+        assert_eq!(l.kind, "likert");
+        let m: Vec<f64> = l.values.iter().map(|v| median(v)).collect();
+        assert_eq!(m, [6.0, 4.0, 3.0]);
+        let md = summary(&r);
+        assert!(md.contains("H(2) = 7.200") && md.contains("SCL vs CAE"), "{md}");
+        assert!(md.contains("| t | 1 / 3 | 0 / 3 | 0 / 3 |"), "{md}");
+    }
+
+    #[test]
+    fn the_report_writes_tables_figures_and_summary() {
+        let dir = std::env::temp_dir().join(format!("scl-study-report-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let r = analyse(&data(), Some("PCA")).unwrap();
+        assert_eq!(r.reference, 1);
+        let files = write(&r, &dir).unwrap();
+        for f in [
+            "successes.csv",
+            "measures.csv",
+            "tests.csv",
+            "summary.md",
+            "successes.png",
+            "successes.svg",
+            "completion.png",
+            "completion.svg",
+            "likert-t.png",
+            "likert-t.svg",
+        ] {
+            assert!(files.contains(&dir.join(f)), "{f} in {files:?}");
+            assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 0, "{f}");
+        }
+        assert!(analyse(&data(), Some("XYZ")).unwrap_err().to_string().contains("SCL, PCA, CAE"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
