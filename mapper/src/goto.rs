@@ -272,7 +272,9 @@ mod tests {
             ("goto:pose=home;speed=50", "at most the slowest"),
             ("goto:pose=home;fast", "needs a pose"),
         ] {
-            let e = GotoMap::from_spec_for(robot(), spec).unwrap_err().to_string();
+            let e = GotoMap::from_spec_for(robot(), spec)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(says), "{spec}: {e}");
         }
     }

@@ -27,7 +27,9 @@ use ipc_types::control::{EstopCommand, SafetyControl};
 use ipc_types::{
     JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState, SafeCommand,
 };
-use mcap::records::{MessageHeader, Metadata};
+use mcap::records::MessageHeader;
+/// A metadata record (name and string pairs), as [`metadata`] builds it.
+pub use mcap::records::Metadata;
 use mcap::write::NoSeek;
 use serde_json::Value;
 

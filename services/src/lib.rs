@@ -47,6 +47,9 @@ pub enum SclError {
     /// `scl doctor` could not write its report.
     #[error(transparent)]
     Doctor(#[from] scl_doctor::DoctorError),
+    /// `scl study`.
+    #[error(transparent)]
+    Study(#[from] scl_study::StudyRunError),
     /// The benchmark.
     #[error(transparent)]
     Bench(#[from] scl_bench::BenchError),

@@ -62,6 +62,13 @@ enum Cmd {
     /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
     /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
     Record(scl_recorder::RecordArgs),
+    /// User studies as the paper ran them: `run` walks a participant through a study file on
+    /// the live graph, `report` draws the figures and runs the tests, `plan` prints the
+    /// counterbalanced orders.
+    Study {
+        #[command(subcommand)]
+        what: scl_study::StudyCmd,
+    },
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
     Dataset(learning::to_dataset::DatasetArgs),
     /// Re-execute a recording tick by tick (the mapper's and safety's steps on the recorded
@@ -77,8 +84,10 @@ enum Cmd {
     /// it at a tick boundary, then stops the old one. A model that does not load is refused
     /// and the old mapper keeps running.
     Swap {
-        /// Model file, `bundled`, `modeswitch[:key=value,...]` or the drill map
-        /// `constant:qdot=v1,...,v6` (rad/s, whatever the stick).
+        /// Model file, `bundled`, `modeswitch[:key=value,...]`, the drill map
+        /// `constant:qdot=v1,...,v6` (rad/s, whatever the stick), or the go-to map
+        /// `goto:pose=home` / `goto:q=v1,...,v6[;speed=S]` (drives to the pose while the
+        /// deadman is held: a "go home" button).
         model: String,
         /// How long to wait for the switch-over.
         #[arg(long, default_value = "30s", value_parser = parse_duration)]
@@ -538,6 +547,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
+        Cmd::Study { what } => Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
         Cmd::Replay(args) => Ok(replay::cli(&args)?),
         Cmd::Top(args) => Ok(scl_dashboard::cli(
@@ -889,6 +899,7 @@ fn main() -> ExitCode {
         Cmd::Demos { .. } => "demos",
         Cmd::Plot { .. } => "plot",
         Cmd::Record(_) => "record",
+        Cmd::Study { .. } => "study",
         Cmd::Dataset(_) => "dataset",
         Cmd::Replay(_) => "replay",
         Cmd::Top(_) => "top",

@@ -147,13 +147,20 @@ impl Appender {
 
     /// Appends `row` and syncs the file.
     pub fn push<T: Serialize>(&mut self, row: &T) -> Result<(), StudyError> {
+        self.push_all(std::slice::from_ref(row))
+    }
+
+    /// Appends `rows` in one write (a questionnaire is saved whole or not at all) and syncs.
+    pub fn push_all<T: Serialize>(&mut self, rows: &[T]) -> Result<(), StudyError> {
         let mut w = csv::WriterBuilder::new()
             .has_headers(self.header)
             .from_writer(Vec::new());
-        w.serialize(row).map_err(|e| StudyError::Data {
-            path: self.path.clone(),
-            reason: e.to_string(),
-        })?;
+        for row in rows {
+            w.serialize(row).map_err(|e| StudyError::Data {
+                path: self.path.clone(),
+                reason: e.to_string(),
+            })?;
+        }
         let bytes = w.into_inner().map_err(|e| StudyError::Data {
             path: self.path.clone(),
             reason: e.to_string(),

@@ -23,7 +23,11 @@ pub fn write_all(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
         Ok(())
     };
     put(&Bars { r }, "successes", (900, 500))?;
-    let completion: Vec<&Tested> = r.measures.iter().filter(|m| m.kind == "completion").collect();
+    let completion: Vec<&Tested> = r
+        .measures
+        .iter()
+        .filter(|m| m.kind == "completion")
+        .collect();
     if !completion.is_empty() {
         put(
             &Violins {
@@ -43,7 +47,11 @@ pub fn write_all(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
             .filter(|m| &m.task == task && m.kind == "likert")
             .collect();
         if !likert.is_empty() {
-            put(&Radar { r, items: likert }, &format!("likert-{task}"), (700, 700))?;
+            put(
+                &Radar { r, items: likert },
+                &format!("likert-{task}"),
+                (700, 700),
+            )?;
         }
         let tlx: Vec<&Tested> = r
             .measures
@@ -87,10 +95,20 @@ struct Bars<'a> {
 }
 
 impl Figure for Bars<'_> {
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>, text: bool) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        text: bool,
+    ) -> Result<(), String> {
         let r = self.r;
         let k = r.conditions.len().max(1);
-        let top = r.successes.iter().map(|s| s.attempts).max().unwrap_or(1).max(1) as f64;
+        let top = r
+            .successes
+            .iter()
+            .map(|s| s.attempts)
+            .max()
+            .unwrap_or(1)
+            .max(1) as f64;
         let mut b = ChartBuilder::on(root);
         b.margin(20);
         if text {
@@ -122,7 +140,11 @@ impl Figure for Bars<'_> {
         let w = 0.8 / k as f64;
         for (ti, task) in r.tasks.iter().enumerate() {
             for (ci, c) in r.conditions.iter().enumerate() {
-                let Some(s) = r.successes.iter().find(|s| &s.task == task && &s.condition == c) else {
+                let Some(s) = r
+                    .successes
+                    .iter()
+                    .find(|s| &s.task == task && &s.condition == c)
+                else {
                     continue;
                 };
                 let x0 = ti as f64 + 0.1 + ci as f64 * w;
@@ -133,7 +155,9 @@ impl Figure for Bars<'_> {
                     )))
                     .map_err(figure::err)?
                     .label(if ti == 0 { c.clone() } else { String::new() })
-                    .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour(ci).filled()));
+                    .legend(move |(x, y)| {
+                        Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour(ci).filled())
+                    });
             }
         }
         if text {
@@ -172,7 +196,11 @@ struct Violins<'a> {
 }
 
 impl Figure for Violins<'_> {
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>, text: bool) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        text: bool,
+    ) -> Result<(), String> {
         let areas = root.split_evenly((1, self.panels.len().max(1)));
         let k = self.r.conditions.len();
         let (lo, hi) = self.y;
@@ -180,7 +208,11 @@ impl Figure for Violins<'_> {
             let mut b = ChartBuilder::on(area);
             b.margin(12);
             if text {
-                let title = if m.kind == "completion" { m.task.clone() } else { m.measure.clone() };
+                let title = if m.kind == "completion" {
+                    m.task.clone()
+                } else {
+                    m.measure.clone()
+                };
                 b.caption(title, ("sans-serif", 18))
                     .x_label_area_size(30)
                     .y_label_area_size(40);
@@ -217,11 +249,22 @@ impl Figure for Violins<'_> {
                 let d: Vec<f64> = ys.iter().map(|y| density(v, *y, h)).collect();
                 let top = d.iter().copied().fold(0.0, f64::max).max(f64::MIN_POSITIVE);
                 let x = ci as f64;
-                let mut outline: Vec<(f64, f64)> =
-                    ys.iter().zip(&d).map(|(y, d)| (x + 0.4 * d / top, *y)).collect();
-                outline.extend(ys.iter().zip(&d).rev().map(|(y, d)| (x - 0.4 * d / top, *y)));
+                let mut outline: Vec<(f64, f64)> = ys
+                    .iter()
+                    .zip(&d)
+                    .map(|(y, d)| (x + 0.4 * d / top, *y))
+                    .collect();
+                outline.extend(
+                    ys.iter()
+                        .zip(&d)
+                        .rev()
+                        .map(|(y, d)| (x - 0.4 * d / top, *y)),
+                );
                 chart
-                    .draw_series(std::iter::once(Polygon::new(outline, colour(ci).mix(0.5).filled())))
+                    .draw_series(std::iter::once(Polygon::new(
+                        outline,
+                        colour(ci).mix(0.5).filled(),
+                    )))
                     .map_err(figure::err)?;
                 chart
                     .draw_series(v.iter().map(|y| Circle::new((x, *y), 2, BLACK.filled())))
@@ -247,7 +290,11 @@ struct Radar<'a> {
 }
 
 impl Figure for Radar<'_> {
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>, text: bool) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        text: bool,
+    ) -> Result<(), String> {
         let (w, h) = root.dim_in_pixel();
         let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
         let radius = w.min(h) as f64 * 0.32;
@@ -271,8 +318,11 @@ impl Figure for Radar<'_> {
                 .map_err(figure::err)?;
         }
         for i in 0..n {
-            root.draw(&PathElement::new(vec![at(i, 1.0), at(i, scale)], RGBColor(160, 160, 160)))
-                .map_err(figure::err)?;
+            root.draw(&PathElement::new(
+                vec![at(i, 1.0), at(i, scale)],
+                RGBColor(160, 160, 160),
+            ))
+            .map_err(figure::err)?;
             if text {
                 let (x, y) = at(i, scale + 0.6);
                 let label: String = self.items[i].measure.chars().take(28).collect();
@@ -290,8 +340,12 @@ impl Figure for Radar<'_> {
                 if m.differ_from(self.r.reference).contains(&ci) {
                     let (x, y) = at(i, median(&m.values[ci]));
                     if text {
-                        root.draw(&Text::new("*", (x + 4, y - 18), ("sans-serif", 28).into_font().color(&colour(ci))))
-                            .map_err(figure::err)?;
+                        root.draw(&Text::new(
+                            "*",
+                            (x + 4, y - 18),
+                            ("sans-serif", 28).into_font().color(&colour(ci)),
+                        ))
+                        .map_err(figure::err)?;
                     } else {
                         root.draw(&Circle::new((x, y), 7, colour(ci).filled()))
                             .map_err(figure::err)?;

@@ -82,8 +82,20 @@ pub struct Condition {
     pub label: String,
     /// What the data and the report call it (`SCL`); never shown during the study.
     pub name: String,
-    /// The model: a file (relative to the study file), `bundled`, or `modeswitch[:...]`.
-    pub model: String,
+    /// The model: a file (relative to the study file), `bundled`, or `modeswitch[:...]`;
+    /// or a table with one per task (`model = { pouring = "scl-pouring.safetensors" }`, as
+    /// the paper trained one model per task).
+    pub model: ModelRef,
+}
+
+/// A condition's model: one for every task, or one per task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ModelRef {
+    /// The same model for every task.
+    One(String),
+    /// A model per task name.
+    PerTask(std::collections::BTreeMap<String, String>),
 }
 
 /// The questionnaire after each condition.
@@ -185,8 +197,9 @@ pub struct Study {
     pub file: StudyFile,
     /// Where it was read from.
     pub path: PathBuf,
-    /// Each condition's model as the graph takes it (an absolute path or a built-in spec).
-    pub models: Vec<String>,
+    /// Each condition's model per task (indexed like `file.tasks`) as the graph takes it (an
+    /// absolute path or a built-in spec).
+    pub models: Vec<Vec<String>>,
     /// The file's text (copied next to each participant's data).
     pub text: String,
 }
@@ -266,18 +279,40 @@ impl Study {
                     ),
                 ));
             }
-            let spec = if mapper::model::is_builtin(&c.model) {
-                c.model.clone()
-            } else {
-                let p = base.join(&c.model);
-                let abs = std::fs::canonicalize(&p).map_err(|e| {
-                    bad(key("model"), format!("`{}`: {e}", p.display()))
-                })?;
-                abs.display().to_string()
-            };
-            mapper::LoadedModel::load_for(&spec, robot)
-                .map_err(|e| bad(key("model"), e.to_string()))?;
-            models.push(spec);
+            if let ModelRef::PerTask(m) = &c.model
+                && let Some(t) = m.keys().find(|t| !names.contains(*t))
+            {
+                return Err(bad(
+                    format!("{}.{t}", key("model")),
+                    "names no task of the study".into(),
+                ));
+            }
+            let mut per_task = Vec::new();
+            for t in &file.tasks {
+                let (model, k) = match &c.model {
+                    ModelRef::One(m) => (m, key("model")),
+                    ModelRef::PerTask(m) => {
+                        let k = format!("{}.{}", key("model"), t.name);
+                        (
+                            m.get(&t.name).ok_or_else(|| {
+                                bad(k.clone(), "missing: every task needs a model".into())
+                            })?,
+                            k,
+                        )
+                    }
+                };
+                let spec = if mapper::model::is_builtin(model) {
+                    model.clone()
+                } else {
+                    let p = base.join(model);
+                    let abs = std::fs::canonicalize(&p)
+                        .map_err(|e| bad(k.clone(), format!("`{}`: {e}", p.display())))?;
+                    abs.display().to_string()
+                };
+                mapper::LoadedModel::load_for(&spec, robot).map_err(|e| bad(k, e.to_string()))?;
+                per_task.push(spec);
+            }
+            models.push(per_task);
         }
         let q = &file.questionnaire;
         if !q.likert.is_empty() && q.scale < 2 {
@@ -486,7 +521,7 @@ nasa_tlx = true
     #[test]
     fn a_good_file_loads_and_participants_outside_the_plan_are_refused() {
         let s = Study::parse(GOOD, Path::new("s.toml"), robot()).unwrap();
-        assert_eq!(s.models, ["bundled", "modeswitch"]);
+        assert_eq!(s.models, [["bundled"], ["modeswitch"]]);
         assert_eq!(s.participant("P03").unwrap(), Participant(3));
         assert_eq!(s.participant("4").unwrap().to_string(), "P04");
         for id in ["P00", "P05", "x"] {
@@ -508,22 +543,58 @@ nasa_tlx = true
     #[test]
     fn bad_files_name_the_file_and_the_key() {
         for (edit, key, says) in [
-            (("attempts = 2", "attempts = 2\ncolour = 1"), "", "unknown field `colour`"),
+            (
+                ("attempts = 2", "attempts = 2\ncolour = 1"),
+                "",
+                "unknown field `colour`",
+            ),
             (
                 ("model = \"bundled\"", "model = \"missing.safetensors\""),
                 "conditions[0].model",
                 "missing.safetensors",
             ),
-            (("start = \"home\"", "start = \"moon\""), "tasks[0].start", "no pose `moon`"),
-            (("label = \"B\"", "label = \"A\""), "conditions[1].label", "unique"),
-            (("attempts = 2", "attempts = 0"), "tasks[0].attempts", "at least 1"),
-            (("participants = 4", "participants = 0"), "participants", "at least 1"),
+            (
+                ("start = \"home\"", "start = \"moon\""),
+                "tasks[0].start",
+                "no pose `moon`",
+            ),
+            (
+                ("label = \"B\"", "label = \"A\""),
+                "conditions[1].label",
+                "unique",
+            ),
+            (
+                ("attempts = 2", "attempts = 0"),
+                "tasks[0].attempts",
+                "at least 1",
+            ),
+            (
+                ("model = \"bundled\"", "model = { other = \"bundled\" }"),
+                "conditions[0].model.other",
+                "names no task",
+            ),
+            (
+                (
+                    "model = \"bundled\"",
+                    "model = { reach = \"nope.safetensors\" }",
+                ),
+                "conditions[0].model.reach",
+                "nope.safetensors",
+            ),
+            (
+                ("participants = 4", "participants = 0"),
+                "participants",
+                "at least 1",
+            ),
         ] {
             let text = GOOD.replacen(edit.0, edit.1, 1);
             let e = Study::parse(&text, Path::new("dir/s.toml"), robot())
                 .unwrap_err()
                 .to_string();
-            assert!(e.contains("dir/s.toml") && e.contains(key) && e.contains(says), "{e}");
+            assert!(
+                e.contains("dir/s.toml") && e.contains(key) && e.contains(says),
+                "{e}"
+            );
         }
     }
 }

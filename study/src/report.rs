@@ -140,7 +140,11 @@ pub struct Report {
 pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyError> {
     let finals: Vec<&TrialRow> = data.trials.iter().filter(|t| !t.repeated).collect();
     let mut tasks: Vec<String> = Vec::new();
-    for t in finals.iter().map(|t| &t.task).chain(data.answers.iter().map(|a| &a.task)) {
+    for t in finals
+        .iter()
+        .map(|t| &t.task)
+        .chain(data.answers.iter().map(|a| &a.task))
+    {
         if !tasks.contains(t) {
             tasks.push(t.clone());
         }
@@ -162,13 +166,12 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
     }
     let reference = match reference {
         None => 0,
-        Some(r) => conditions
-            .iter()
-            .position(|c| c == r)
-            .ok_or_else(|| StudyError::Report(format!(
+        Some(r) => conditions.iter().position(|c| c == r).ok_or_else(|| {
+            StudyError::Report(format!(
                 "--reference {r}: no such condition; the data has {}",
                 conditions.join(", ")
-            )))?,
+            ))
+        })?,
     };
     let participants: BTreeSet<String> = finals
         .iter()
@@ -192,7 +195,10 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
             successes.push(Successes {
                 task: task.clone(),
                 condition: c.clone(),
-                successes: rows.iter().filter(|t| t.outcome == Outcome::Success).count(),
+                successes: rows
+                    .iter()
+                    .filter(|t| t.outcome == Outcome::Success)
+                    .count(),
                 attempts: rows.len(),
             });
             completion.push(rows.iter().map(|t| t.completion_pct).collect::<Vec<f64>>());
@@ -218,7 +224,9 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
                         data.answers
                             .iter()
                             .filter(|a| {
-                                &a.task == task && a.kind == kind && a.item == item
+                                &a.task == task
+                                    && a.kind == kind
+                                    && a.item == item
                                     && &a.condition == c
                             })
                             .map(|a| f64::from(a.value))
@@ -301,7 +309,15 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
     let p = out.join("measures.csv");
     let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
     w.write_record([
-        "task", "kind", "measure", "condition", "n", "median", "mean", "q1", "q3",
+        "task",
+        "kind",
+        "measure",
+        "condition",
+        "n",
+        "median",
+        "mean",
+        "q1",
+        "q3",
     ])
     .map_err(werr(&p))?;
     for m in &r.measures {
@@ -335,7 +351,17 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
     let p = out.join("tests.csv");
     let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
     w.write_record([
-        "task", "kind", "measure", "test", "a", "b", "statistic", "df", "n", "p", "p_holm",
+        "task",
+        "kind",
+        "measure",
+        "test",
+        "a",
+        "b",
+        "statistic",
+        "df",
+        "n",
+        "p",
+        "p_holm",
     ])
     .map_err(werr(&p))?;
     for m in &r.measures {
@@ -500,7 +526,11 @@ mod tests {
                 r.participant = format!("P0{}", i + 1);
                 r.condition = name.into();
                 r.completion_pct = v;
-                r.outcome = if v == 100.0 { Outcome::Success } else { Outcome::Failure };
+                r.outcome = if v == 100.0 {
+                    Outcome::Success
+                } else {
+                    Outcome::Failure
+                };
                 trials.push(r);
             }
         }
@@ -510,7 +540,11 @@ mod tests {
         rep.completion_pct = 100.0;
         trials.push(rep);
         let mut answers = Vec::new();
-        for (label, name, values) in [("A", "SCL", [7, 6, 6]), ("B", "PCA", [4, 5, 4]), ("C", "CAE", [2, 3, 3])] {
+        for (label, name, values) in [
+            ("A", "SCL", [7, 6, 6]),
+            ("B", "PCA", [4, 5, 4]),
+            ("C", "CAE", [2, 3, 3]),
+        ] {
             for (i, v) in values.into_iter().enumerate() {
                 answers.push(AnswerRow {
                     study: "s".into(),
@@ -532,8 +566,16 @@ mod tests {
         let r = analyse(&data(), None).unwrap();
         assert_eq!(r.conditions, ["SCL", "PCA", "CAE"]);
         assert_eq!(r.participants, ["P01", "P02", "P03"]);
-        let s: Vec<(usize, usize)> = r.successes.iter().map(|s| (s.successes, s.attempts)).collect();
-        assert_eq!(s, [(1, 3), (0, 3), (0, 3)], "the repeated CAE success is left out");
+        let s: Vec<(usize, usize)> = r
+            .successes
+            .iter()
+            .map(|s| (s.successes, s.attempts))
+            .collect();
+        assert_eq!(
+            s,
+            [(1, 3), (0, 3), (0, 3)],
+            "the repeated CAE success is left out"
+        );
         let c = &r.measures[0];
         assert_eq!(c.measure, "completion %");
         assert_eq!(median(&c.values[0]), 90.0);
@@ -557,7 +599,10 @@ mod tests {
         let m: Vec<f64> = l.values.iter().map(|v| median(v)).collect();
         assert_eq!(m, [6.0, 4.0, 3.0]);
         let md = summary(&r);
-        assert!(md.contains("H(2) = 7.200") && md.contains("SCL vs CAE"), "{md}");
+        assert!(
+            md.contains("H(2) = 7.200") && md.contains("SCL vs CAE"),
+            "{md}"
+        );
         assert!(md.contains("| t | 1 / 3 | 0 / 3 | 0 / 3 |"), "{md}");
     }
 
@@ -583,7 +628,12 @@ mod tests {
             assert!(files.contains(&dir.join(f)), "{f} in {files:?}");
             assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 0, "{f}");
         }
-        assert!(analyse(&data(), Some("XYZ")).unwrap_err().to_string().contains("SCL, PCA, CAE"));
+        assert!(
+            analyse(&data(), Some("XYZ"))
+                .unwrap_err()
+                .to_string()
+                .contains("SCL, PCA, CAE")
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -82,6 +82,15 @@ pub struct RecordArgs {
     /// and counted, never waited for.
     #[arg(long, default_value_t = DEFAULT_QUEUE)]
     pub queue: usize,
+    /// A KEY=VALUE pair for the recording's `scl.trial` metadata record, written at the
+    /// start (repeatable; `scl study run` names the participant, task, condition, attempt).
+    #[arg(long = "meta", value_name = "KEY=VALUE")]
+    pub meta: Vec<String>,
+    /// A JSON object of strings read when the recording stops and written as its
+    /// `scl.trial.outcome` metadata record (`scl study run` puts the attempt's outcome there
+    /// before it stops the recorder); absent file: no record.
+    #[arg(long, value_name = "FILE")]
+    pub meta_at_stop: Option<PathBuf>,
     /// Print the report as one JSON object on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -98,7 +107,16 @@ pub struct RecordOptions {
     pub queue: usize,
     /// How often a chunk is closed.
     pub flush_every: Duration,
+    /// The `scl.trial` metadata record written at the start (none if empty).
+    pub trial: BTreeMap<String, String>,
+    /// A JSON object of strings read at the stop, written as `scl.trial.outcome`.
+    pub meta_at_stop: Option<PathBuf>,
 }
+
+/// The metadata record of a recording's trial (`scl record --meta`).
+pub const TRIAL_METADATA: &str = "scl.trial";
+/// The metadata record of a trial's outcome (`scl record --meta-at-stop`).
+pub const TRIAL_OUTCOME_METADATA: &str = "scl.trial.outcome";
 
 /// Counters shared by the two threads, per topic (indexed by [`Topic::index`]).
 #[derive(Debug, Default)]
@@ -221,6 +239,8 @@ pub struct Producer {
     procs: Sender<process::ProcessSeen>,
     /// Pids of the mapper and safety processes seen so far.
     seen: BTreeSet<u32>,
+    /// Metadata records to the writer thread (rare: unbounded).
+    metas: Sender<recording::Metadata>,
 }
 
 impl Producer {
@@ -246,6 +266,11 @@ impl Producer {
                 false
             }
         }
+    }
+
+    /// Hands a metadata record to the writer (written before the file is finished).
+    pub fn metadata(&mut self, m: recording::Metadata) {
+        let _ = self.metas.send(m);
     }
 
     /// The newest robot tick offered.
@@ -284,13 +309,18 @@ pub fn start_pipeline<W: Write + Send + 'static>(
 ) -> std::io::Result<(Producer, Arc<Tally>, JoinHandle<WriterOutcome>)> {
     let (tx, rx) = crossbeam_channel::bounded(queue.max(1));
     let (procs, procs_rx) = crossbeam_channel::unbounded();
+    let (metas, metas_rx) = crossbeam_channel::unbounded();
     let tally = Arc::new(Tally::default());
     let t2 = tally.clone();
     let handle = std::thread::Builder::new()
         .name("mcap-writer".into())
         .spawn(move || {
             lower_priority();
-            write_loop(writer, rx, procs_rx, &t2, &topics, flush_every)
+            let side = SideChannels {
+                procs: procs_rx,
+                metas: metas_rx,
+            };
+            write_loop(writer, rx, &side, &t2, &topics, flush_every)
         })?;
     Ok((
         Producer {
@@ -299,6 +329,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
             last_tick: None,
             procs,
             seen: BTreeSet::new(),
+            metas,
         },
         tally,
         handle,
@@ -315,10 +346,16 @@ fn lower_priority() {
     }
 }
 
+/// The writer thread's rare inputs beside the messages.
+struct SideChannels {
+    procs: Receiver<process::ProcessSeen>,
+    metas: Receiver<recording::Metadata>,
+}
+
 fn write_loop<W: Write>(
     mut w: LogWriter<W>,
     rx: Receiver<Payload>,
-    procs: Receiver<process::ProcessSeen>,
+    side: &SideChannels,
     tally: &Tally,
     topics: &[Topic],
     flush_every: Duration,
@@ -364,9 +401,16 @@ fn write_loop<W: Write>(
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => break,
         }
-        while let Ok(p) = procs.try_recv() {
+        while let Ok(p) = side.procs.try_recv() {
             if error.is_none()
                 && let Err(e) = process::capture(&mut w, &p)
+            {
+                fail(&mut error, &mut pending, e);
+            }
+        }
+        while let Ok(m) = side.metas.try_recv() {
+            if error.is_none()
+                && let Err(e) = w.write_metadata(&m)
             {
                 fail(&mut error, &mut pending, e);
             }
@@ -384,6 +428,13 @@ fn write_loop<W: Write>(
             }
             pending_bytes = 0;
             last_flush = Instant::now();
+        }
+    }
+    while let Ok(m) = side.metas.try_recv() {
+        if error.is_none()
+            && let Err(e) = w.write_metadata(&m)
+        {
+            fail(&mut error, &mut pending, e);
         }
     }
     if error.is_none() {
@@ -535,6 +586,9 @@ fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError
             start_metadata(prefix, &opts.topics),
         )),
     )?;
+    if !opts.trial.is_empty() {
+        w.write_metadata(&recording::metadata(TRIAL_METADATA, opts.trial.clone()))?;
+    }
     let mut channel_meta = BTreeMap::new();
     channel_meta.insert("prefix".to_owned(), prefix.to_string());
     for t in &opts.topics {
@@ -605,6 +659,13 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
     }
     // What arrived while stopping (the bridge's last state) goes in too.
     let _ = subs.drain(&mut producer);
+    if let Some(path) = &opts.meta_at_stop {
+        match read_meta_file(path) {
+            Ok(Some(m)) => producer.metadata(recording::metadata(TRIAL_OUTCOME_METADATA, m)),
+            Ok(None) => {}
+            Err(e) => tracing::warn!("--meta-at-stop {}: {e}; no outcome record", path.display()),
+        }
+    }
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     let _ = heartbeat.send(st);
@@ -689,11 +750,20 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
             "--queue 0: the hand-off needs room for at least one message".into(),
         ));
     }
+    let mut trial = BTreeMap::new();
+    for kv in &args.meta {
+        let (k, v) = kv
+            .split_once('=')
+            .ok_or_else(|| RecorderError::Graph(format!("--meta `{kv}`: write it as KEY=VALUE")))?;
+        trial.insert(k.trim().to_owned(), v.to_owned());
+    }
     let opts = RecordOptions {
         out: args.out.clone(),
         topics: Topic::parse_list(&args.topics)?,
         queue: args.queue,
         flush_every: FLUSH_EVERY,
+        trial,
+        meta_at_stop: args.meta_at_stop.clone(),
     };
     let r = run(prefix, &opts)?;
     eprint!("{}", render_report(&r));
@@ -707,6 +777,29 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
     } else {
         std::process::ExitCode::SUCCESS
     })
+}
+
+/// Reads a JSON object of strings (numbers and booleans are written as text); `None` if the
+/// file does not exist.
+fn read_meta_file(path: &Path) -> Result<Option<BTreeMap<String, String>>, String> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e.to_string()),
+    };
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    let obj = v.as_object().ok_or("not a JSON object")?;
+    Ok(Some(
+        obj.iter()
+            .map(|(k, v)| {
+                let s = match v {
+                    serde_json::Value::String(s) => s.clone(),
+                    other => other.to_string(),
+                };
+                (k.clone(), s)
+            })
+            .collect(),
+    ))
 }
 
 /// Absolute form of `p` (against the current directory), for a child with another one.
