@@ -9,6 +9,8 @@
 //! The experimenter's screen that runs a study on the live graph is `scl-study`
 //! (`scl study run`).
 
+#![cfg_attr(test, allow(clippy::unwrap_used))]
+
 pub mod data;
 pub mod figures;
 pub mod plan;

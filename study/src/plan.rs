@@ -145,7 +145,7 @@ pub struct Question {
 impl Question {
     /// Checks an answer.
     pub fn check(&self, v: u32) -> Result<(), String> {
-        if v < self.min || v > self.max || v % self.step != 0 {
+        if v < self.min || v > self.max || !v.is_multiple_of(self.step) {
             return Err(format!(
                 "`{}`: {v} is not an answer; it takes {}..={}{}",
                 self.item,
@@ -438,7 +438,7 @@ mod tests {
     /// (or the doubled square of an odd one) each ordered pair adjacent equally often.
     fn check_balanced(k: usize) {
         let rows = latin_square(k);
-        assert_eq!(rows.len(), if k % 2 == 0 { k } else { 2 * k });
+        assert_eq!(rows.len(), if k.is_multiple_of(2) { k } else { 2 * k });
         let per_cell = rows.len() / k;
         for pos in 0..k {
             for c in 0..k {
@@ -538,6 +538,20 @@ nasa_tlx = true
             s.file.tasks[0].goto_spec(),
             format!("goto:pose=home;speed={}", mapper::goto::DEFAULT_SPEED_RAD_S)
         );
+    }
+
+    #[test]
+    fn the_example_studies_use_only_known_keys_and_a_square_per_participant() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/study");
+        for name in ["study1.toml", "study2.toml"] {
+            let text = std::fs::read_to_string(dir.join(name)).unwrap();
+            let f: StudyFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(f.conditions.len(), 3, "{name}");
+            assert!(
+                f.questionnaire.nasa_tlx && f.questionnaire.likert.len() == 5,
+                "{name}"
+            );
+        }
     }
 
     #[test]

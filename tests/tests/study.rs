@@ -3,6 +3,7 @@
 //! the live swaps miss no tick, the files hold the expected rows, the screen never shows a
 //! condition's name, and a run interrupted (its keys end) resumes without repeating a
 //! finished attempt.
+#![allow(clippy::unwrap_used, missing_docs)]
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;

@@ -17,6 +17,8 @@
 //! (the script pauses S seconds). Abort, Ctrl-C or the end of a keys file leave everything
 //! written so far; the same command resumes at the first unfinished attempt.
 
+#![cfg_attr(test, allow(clippy::unwrap_used))]
+
 use std::collections::BTreeMap;
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -251,11 +253,7 @@ impl Live {
             Some(NodeRole::Mapper) => {
                 ms.insert(s.mapper_id, s.mode_switches);
             }
-            Some(NodeRole::Recorder) => {
-                if !recs.contains(&s.pid) {
-                    recs.push(s.pid);
-                }
-            }
+            Some(NodeRole::Recorder) if !recs.contains(&s.pid) => recs.push(s.pid),
             _ => {}
         })?;
         let n = &mut self.estops_seen;
@@ -375,7 +373,7 @@ pub fn run(
                 order.len()
             );
             if fresh && task.practice_s > 0.0 {
-                if let Flow::Abort = p.to_start(task)? {
+                if let Flow::Abort = p.go_to_start(task)? {
                     return Ok(RunEnd::Aborted);
                 }
                 p.live.swap(&study.models[ci][ti])?;
@@ -514,7 +512,7 @@ impl Protocol<'_> {
     }
 
     /// Drives the arm to `task`'s start pose with the go-to map and waits until it is there.
-    fn to_start(&mut self, task: &study::plan::Task) -> Result<Flow<()>, StudyRunError> {
+    fn go_to_start(&mut self, task: &study::plan::Task) -> Result<Flow<()>, StudyRunError> {
         let spec = task.goto_spec();
         let (_, goal) = mapper::goto::GotoMap::from_spec_for(self.live.robot, &spec)
             .map_err(|e| StudyRunError::Graph(e.to_string()))?;
@@ -613,7 +611,7 @@ impl Protocol<'_> {
         let study = self.study;
         let task = &study.file.tasks[ti];
         let cond = &study.file.conditions[ci];
-        if let Flow::Abort = self.to_start(task)? {
+        if let Flow::Abort = self.go_to_start(task)? {
             return Ok(Flow::Abort);
         }
         self.live.swap(&study.models[ci][ti])?;
