@@ -148,16 +148,17 @@ impl Figure for Bars<'_> {
                     continue;
                 };
                 let x0 = ti as f64 + 0.1 + ci as f64 * w;
-                chart
+                let bar = chart
                     .draw_series(std::iter::once(Rectangle::new(
                         [(x0, 0.0), (x0 + w * 0.9, s.successes as f64)],
                         colour(ci).filled(),
                     )))
-                    .map_err(figure::err)?
-                    .label(if ti == 0 { c.clone() } else { String::new() })
-                    .legend(move |(x, y)| {
+                    .map_err(figure::err)?;
+                if ti == 0 {
+                    bar.label(c.clone()).legend(move |(x, y)| {
                         Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour(ci).filled())
                     });
+                }
             }
         }
         if text {
@@ -325,7 +326,12 @@ impl Figure for Radar<'_> {
             .map_err(figure::err)?;
             if text {
                 let (x, y) = at(i, scale + 0.6);
-                let label: String = self.items[i].measure.chars().take(28).collect();
+                // "Control: I felt in control" -> "Control"; else the first words.
+                let item = &self.items[i].measure;
+                let label: String = match item.split_once(':') {
+                    Some((head, _)) => head.to_owned(),
+                    None => item.chars().take(28).collect(),
+                };
                 root.draw(&Text::new(label, (x - 60, y), ("sans-serif", 14)))
                     .map_err(figure::err)?;
             }

@@ -394,11 +394,11 @@ pub fn latin_square(k: usize) -> Vec<Vec<usize>> {
     if k == 0 {
         return Vec::new();
     }
-    // First row 0, 1, k-1, 2, k-2, ...; row r adds r to each entry.
+    // First row 0, 1, k-1, 2, k-2, ... (Williams); row r adds r to each entry.
     let mut first = Vec::with_capacity(k);
     let (mut lo, mut hi) = (0usize, k);
     for i in 0..k {
-        if i % 2 == 0 {
+        if i == 0 || i % 2 == 1 {
             first.push(lo);
             lo += 1;
         } else {

@@ -12,7 +12,7 @@
 //! `questionnaire.csv`. The graph never stops between trials.
 //!
 //! Input is a line at a time (Enter alone continues), from the terminal or, for a scripted
-//! operator, a keys file (`--keys`): `go` (Enter), `s` success, `f` failure, `r` repeat,
+//! operator, a keys file (`--keys`; blank lines and `#` comments are skipped): `go` (Enter), `s` success, `f` failure, `r` repeat,
 //! `p` pause/resume, `skip` (practice), `a` abort, a number (completion %, answers), `wait S`
 //! (the script pauses S seconds). Abort, Ctrl-C or the end of a keys file leave everything
 //! written so far; the same command resumes at the first unfinished attempt.
@@ -130,6 +130,10 @@ fn input(keys: Option<&Path>) -> Result<(Receiver<Key>, Option<Sender<()>>), Stu
             std::thread::spawn(move || {
                 for line in text.lines() {
                     let line = line.split('#').next().unwrap_or("").trim();
+                    if line.is_empty() {
+                        // Blank lines and comments; Enter is `go` in a keys file.
+                        continue;
+                    }
                     if let Some(s) = line.strip_prefix("wait ") {
                         let secs: f64 = s.trim().parse().unwrap_or(0.0);
                         std::thread::sleep(Duration::from_secs_f64(secs.clamp(0.0, 3600.0)));
@@ -936,6 +940,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_keys_file_goes_in_lockstep_and_skips_comments() {
+        let path = std::env::temp_dir().join(format!("scl-keys-{}", std::process::id()));
+        std::fs::write(&path, "# a comment\n\ngo  # Enter\nwait 0.01\n55\n").unwrap();
+        let (rx, acks) = input(Some(&path)).unwrap();
+        let acks = acks.unwrap();
+        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), Ok(Key::Go));
+        // The next key only once this one was taken.
+        assert!(rx.recv_timeout(Duration::from_millis(100)).is_err());
+        acks.send(()).unwrap();
+        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), Ok(Key::Number(55)));
+        acks.send(()).unwrap();
+        // The file ended: the channel closes.
+        assert!(matches!(
+            rx.recv_timeout(Duration::from_secs(5)),
+            Err(RecvTimeoutError::Disconnected)
+        ));
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
     fn keys_parse() {
         assert_eq!(parse_key(""), Key::Go);
         assert_eq!(parse_key(" go "), Key::Go);
@@ -962,7 +986,8 @@ pub enum StudyCmd {
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
         /// Read the experimenter's keys from FILE (a scripted operator) instead of the
-        /// terminal: one per line, `go`, `s`, `f`, `r`, `p`, `skip`, `a`, numbers, `wait S`.
+        /// terminal: one per line, `go`, `s`, `f`, `r`, `p`, `skip`, `a`, numbers, `wait S`;
+        /// blank lines and `#` comments are skipped.
         #[arg(long, value_name = "FILE")]
         keys: Option<PathBuf>,
         /// How long the arm may take to reach a start pose.
