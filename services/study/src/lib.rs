@@ -722,7 +722,8 @@ impl Protocol<'_> {
             }
         };
         let duration = active + since.map_or(Duration::ZERO, |s| s.elapsed());
-        let duration_s = duration.as_secs_f64().min(task.time_limit_s);
+        // Milliseconds are all a stopwatch of the protocol's keys can claim.
+        let duration_s = (duration.as_secs_f64().min(task.time_limit_s) * 1e3).round() / 1e3;
         let completion = if outcome == Outcome::Success {
             100
         } else {
