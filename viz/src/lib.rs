@@ -30,6 +30,7 @@ use std::collections::BTreeMap;
 use foxglove::Encode;
 use ipc_types::{MAX_JOINTS, NodeRole, RobotState, SafeCommand, buttons, safe_flags};
 use kinematics::collision::{CapsuleRef, CollisionModel};
+
 use kinematics::{Chain, Clearance, Jacobian, RobotProfile, Scene};
 use mapper::LoadedModel;
 use nalgebra::{DVector, Vector3};
@@ -212,6 +213,9 @@ pub struct Viz {
     active: Option<u32>,
     last_safe: Option<SafeCommand>,
     last_world_ns: Option<u64>,
+    /// Each capsule's clearance colour step as last sent ([`scene::clearance_step`]).
+    steps: Vec<Option<u8>>,
+    last_arm_ns: Option<u64>,
 }
 
 impl std::fmt::Debug for Viz {
@@ -223,8 +227,13 @@ impl std::fmt::Debug for Viz {
     }
 }
 
-/// How often the static scene (table, boxes, bounds) is sent (ns).
+/// How often the static scene (table, boxes, bounds) and every capsule of the arm are sent
+/// (ns); in between, a capsule is sent when its clearance colour step changes.
 pub const WORLD_EVERY_NS: u64 = 1_000_000_000;
+
+fn due(last: Option<u64>, t: u64) -> bool {
+    last.is_none_or(|w| t < w || t - w >= WORLD_EVERY_NS)
+}
 
 fn encode<T: Encode>(topic: VizTopic, m: &T) -> Result<Vec<u8>, VizError> {
     let mut buf = Vec::with_capacity(m.encoded_len().unwrap_or(256));
@@ -253,6 +262,8 @@ impl Viz {
             active: None,
             last_safe: None,
             last_world_ns: None,
+            steps: Vec::new(),
+            last_arm_ns: None,
         };
         v.configure(cfg)?;
         Ok(v)
@@ -282,8 +293,10 @@ impl Viz {
             .collect();
         let w = &cfg.safety.workspace;
         self.workspace = w.enabled.then_some((w.box_min_m, w.box_max_m));
-        // Send the world again with the next state.
+        // Send the world and the whole arm again with the next state.
         self.last_world_ns = None;
+        self.last_arm_ns = None;
+        self.steps = vec![None; self.refs.len()];
         Ok(())
     }
 
@@ -390,40 +403,85 @@ impl Viz {
         }
         let t = s.t_ns;
         let frame = scene::root_frame(chain).to_owned();
-        let tf = scene::frame_transforms(chain, s.q(), t)
+        let mut tf = scene::frame_transforms(chain, s.q(), t)
             .map_err(|e| VizError::Config(format!("forward kinematics: {e}")))?;
+        let mut clearance = None;
+        let mut arm = None;
+        if let Some(cm) = self.collision {
+            // The gripper joint from the state's gripper, as the safety filter takes it.
+            let (lo, hi) = cm.gripper_range();
+            let mut q7 = [0.0; 7];
+            q7[..6].copy_from_slice(&s.q()[..6.min(n)]);
+            q7[6] = if s.gripper.is_finite() {
+                hi - s.gripper.clamp(0.0, 1.0) * (hi - lo)
+            } else {
+                cm.gripper_default_rad()
+            };
+            if n == 6 && cm.clearance(&q7, &self.scene, &mut self.clearance).is_ok() {
+                // The collision model's links the chain does not have (the gripper's).
+                for link in kinematics::CollisionLink::ALL {
+                    if chain.link_id(link.name()).is_none() {
+                        tf.transforms.push(scene::transform(
+                            t,
+                            &frame,
+                            link.name(),
+                            self.clearance.link_pose(link),
+                        ));
+                    }
+                }
+                let full = due(self.last_arm_ns, t);
+                let steps: Vec<u8> = self
+                    .refs
+                    .iter()
+                    .map(|r| scene::clearance_step(scene::capsule_clearance(&self.clearance, *r)))
+                    .collect();
+                let send: Vec<bool> = steps
+                    .iter()
+                    .zip(&self.steps)
+                    .map(|(now, last)| full || *last != Some(*now))
+                    .collect();
+                if send.iter().any(|b| *b) {
+                    arm = Some(scene::arm_entities(
+                        cm,
+                        &self.clearance,
+                        |i| send.get(i).copied().unwrap_or(false),
+                        t,
+                    ));
+                    self.steps = steps.into_iter().map(Some).collect();
+                }
+                if full {
+                    self.last_arm_ns = Some(t);
+                }
+                clearance = self.clearance.closest().map(|c| {
+                    let pair = match c.pair.b {
+                        kinematics::collision::Target::Capsule(b) => {
+                            format!("{}-{}", c.pair.a.link.short_name(), b.link.short_name())
+                        }
+                        kinematics::collision::Target::Table => {
+                            format!("{}-table", c.pair.a.link.short_name())
+                        }
+                        kinematics::collision::Target::Box(k) => format!(
+                            "{}-{}",
+                            c.pair.a.link.short_name(),
+                            self.boxes
+                                .get(usize::from(k))
+                                .map_or_else(|| format!("box{k}"), |b| b.0.clone())
+                        ),
+                    };
+                    (c.distance_m, pair)
+                });
+            }
+        }
         out.push(VizMessage {
             topic: VizTopic::Tf,
             t_ns: t,
             data: encode(VizTopic::Tf, &tf)?,
         });
-        let mut clearance = None;
-        if let Some(cm) = self.collision
-            && cm
-                .clearance(s.q(), &self.scene, &mut self.clearance)
-                .is_ok()
-        {
-            let arm = scene::arm_entities(&self.clearance, &self.refs, &frame, t);
+        if let Some(arm) = arm {
             out.push(VizMessage {
                 topic: VizTopic::Arm,
                 t_ns: t,
                 data: encode(VizTopic::Arm, &arm)?,
-            });
-            clearance = self.clearance.closest().map(|c| {
-                let pair = match c.pair.b {
-                    kinematics::collision::Target::Capsule(b) => {
-                        format!("{}-{}", c.pair.a.link, b.link)
-                    }
-                    kinematics::collision::Target::Table => format!("{}-table", c.pair.a.link),
-                    kinematics::collision::Target::Box(k) => format!(
-                        "{}-{}",
-                        c.pair.a.link,
-                        self.boxes
-                            .get(usize::from(k))
-                            .map_or_else(|| format!("box{k}"), |b| b.0.clone())
-                    ),
-                };
-                (c.distance_m, pair)
             });
         }
         let tool = chain
@@ -458,10 +516,7 @@ impl Viz {
             t_ns: t,
             data: encode(VizTopic::Map, &scene::map_entities(&twists, &frame, t))?,
         });
-        if self
-            .last_world_ns
-            .is_none_or(|w| t < w || t - w >= WORLD_EVERY_NS)
-        {
+        if due(self.last_world_ns, t) {
             let world = scene::world_entities(
                 self.scene.table_z_m(),
                 &self.boxes,

@@ -5,7 +5,7 @@ use foxglove::messages::{
     LinePrimitive, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive,
     Timestamp, Vector3 as FgVector3,
 };
-use kinematics::collision::{CapsuleRef, Clearance, Target};
+use kinematics::collision::{CapsuleRef, Clearance, CollisionModel, Target};
 use kinematics::{Chain, KinError};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 
@@ -130,16 +130,34 @@ fn turn(from: &Vector3<f64>, to: &Vector3<f64>) -> UnitQuaternion<f64> {
     })
 }
 
-/// The arm drawn as its collision capsules at a clearance (`cl` of the tick's state), each a
-/// cylinder with a sphere at either end, coloured by its own clearance
-/// ([`capsule_clearance`], [`clearance_color`]); one entity per capsule, id `capsule/LINK[i]`,
-/// with its clearance in the entity's metadata.
-pub fn arm_entities(cl: &Clearance, refs: &[CapsuleRef], frame: &str, t_ns: u64) -> SceneUpdate {
-    let entities = cl
-        .capsules()
+/// The colour step of a clearance: 0 (touching) to 8 (at least [`CLEAR_M`]); an entity is
+/// sent again when its step changes.
+pub fn clearance_step(d_m: f64) -> u8 {
+    if d_m.is_finite() {
+        (d_m / CLEAR_M * 8.0).floor().clamp(0.0, 8.0) as u8
+    } else {
+        8
+    }
+}
+
+/// The arm drawn as its collision capsules, each a cylinder with a sphere at either end in its
+/// link's frame (frame-locked: it moves with `/tf`), coloured by its own clearance in `cl`
+/// ([`capsule_clearance`], [`clearance_color`]); one entity per capsule, id
+/// `capsule/LINK[i]`, with its clearance in the entity's metadata. Only the capsules `send`
+/// picks are in the update (the others keep their last colour).
+pub fn arm_entities(
+    model: &CollisionModel,
+    cl: &Clearance,
+    send: impl Fn(usize) -> bool,
+    t_ns: u64,
+) -> SceneUpdate {
+    let entities = model
+        .capsule_refs()
         .iter()
-        .zip(refs)
-        .map(|(c, r)| {
+        .enumerate()
+        .filter(|(i, _)| send(*i))
+        .filter_map(|(_, r)| {
+            let c = model.link_capsules(r.link).get(usize::from(r.index))?;
             let d = capsule_clearance(cl, *r);
             let color = clearance_color(d);
             let axis = c.b - c.a;
@@ -150,10 +168,11 @@ pub fn arm_entities(cl: &Clearance, refs: &[CapsuleRef], frame: &str, t_ns: u64)
                 size: Some(vec3(&Vector3::new(size, size, size))),
                 color: Some(color),
             };
-            SceneEntity {
+            Some(SceneEntity {
                 timestamp: Some(timestamp(t_ns)),
-                frame_id: frame.to_owned(),
+                frame_id: r.link.name().to_owned(),
                 id: format!("capsule/{r}"),
+                frame_locked: true,
                 metadata: vec![foxglove::messages::KeyValuePair {
                     key: "clearance_m".into(),
                     value: format!("{d:.4}"),
@@ -167,7 +186,7 @@ pub fn arm_entities(cl: &Clearance, refs: &[CapsuleRef], frame: &str, t_ns: u64)
                 }],
                 spheres: vec![sphere(&c.a), sphere(&c.b)],
                 ..Default::default()
-            }
+            })
         })
         .collect();
     SceneUpdate {

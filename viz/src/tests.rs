@@ -41,15 +41,34 @@ fn frames_of_every_link_and_the_tool_agree_with_the_kinematics() {
     let tf = FrameTransforms::decode(tf.data.as_slice()).unwrap();
     let chain = v.robot().arm();
     let names: Vec<&str> = chain.link_names().filter(|n| *n != chain.base()).collect();
-    assert_eq!(tf.transforms.len(), names.len() + 1);
+    // The gripper's links come from the collision model (at the state's gripper opening).
+    let cm = v.robot().collision_model().unwrap();
+    let (lo, hi) = cm.gripper_range();
+    let mut q7 = Q.to_vec();
+    q7.push(hi);
+    let mut cl = Clearance::default();
+    cm.clearance(&q7, &Scene::empty(), &mut cl).unwrap();
+    let extra: Vec<kinematics::CollisionLink> = kinematics::CollisionLink::ALL
+        .into_iter()
+        .filter(|l| chain.link_id(l.name()).is_none())
+        .collect();
+    assert!(!extra.is_empty());
+    let _ = lo;
+    assert_eq!(tf.transforms.len(), names.len() + 1 + extra.len());
+    for name in &names {
+        assert!(
+            tf.transforms.iter().any(|t| t.child_frame_id == *name),
+            "{name}"
+        );
+    }
     for t in &tf.transforms {
         assert_eq!(t.parent_frame_id, chain.base());
         let want = if t.child_frame_id == TOOL_FRAME {
             chain.fk(&Q).unwrap()
+        } else if let Some(id) = chain.link_id(&t.child_frame_id) {
+            chain.link_pose(&Q, id).unwrap()
         } else {
-            chain
-                .link_pose(&Q, chain.link_id(&t.child_frame_id).unwrap())
-                .unwrap()
+            *cl.link_pose(kinematics::CollisionLink::from_name(&t.child_frame_id).unwrap())
         };
         let tr = t.translation.unwrap();
         assert!((Vector3::new(tr.x, tr.y, tr.z) - want.translation.vector).norm() < 1e-9);
@@ -57,6 +76,38 @@ fn frames_of_every_link_and_the_tool_agree_with_the_kinematics() {
         let got = UnitQuaternion::from_quaternion(NQ::new(r.w, r.x, r.y, r.z));
         assert!(got.angle_to(&want.rotation) < 1e-9, "{}", t.child_frame_id);
     }
+}
+
+#[test]
+fn arm_capsules_are_sent_whole_once_a_second_and_on_a_colour_change() {
+    let mut v = viz_with_bundled();
+    let first = messages(&mut v, &state(0, Q));
+    let arm = SceneUpdate::decode(
+        first
+            .iter()
+            .find(|m| m.topic == VizTopic::Arm)
+            .unwrap()
+            .data
+            .as_slice(),
+    )
+    .unwrap();
+    assert_eq!(arm.entities.len(), v.refs.len());
+    assert!(arm.entities.iter().all(|e| e.frame_locked));
+    // The same pose: nothing changed, no arm message.
+    let same = messages(&mut v, &state(1, Q));
+    assert!(!same.iter().any(|m| m.topic == VizTopic::Arm));
+    // A second later: the whole arm again.
+    let later = messages(&mut v, &state(40, Q));
+    let arm = SceneUpdate::decode(
+        later
+            .iter()
+            .find(|m| m.topic == VizTopic::Arm)
+            .unwrap()
+            .data
+            .as_slice(),
+    )
+    .unwrap();
+    assert_eq!(arm.entities.len(), v.refs.len());
 }
 
 #[test]
@@ -118,21 +169,25 @@ fn mode_switching_arrows_follow_the_mappers_mode() {
         (
             row["mode"].as_str().unwrap().to_owned(),
             row["axis1_m_s"].clone(),
+            row,
         )
     };
-    let (mode, a1) = lin(&mut v);
+    let (mode, a1, _) = lin(&mut v);
     assert_eq!(mode, "x-y");
     // x-y: axis 1 drives x at the linear limit.
     assert!((a1[0].as_f64().unwrap() - 0.3).abs() < 1e-3, "{a1}");
-    // The mapper reports z-yaw (mode 2): axis 1 now drives z.
+    // The mapper reports z-yaw (mode 2): axis 1 turns the tool about z, axis 2 drives z.
     let mut st = NodeStatus::new(NodeRole::Mapper, ipc_types::phase::RUNNING, 0);
     st.mapper_id = 2;
     st.mode = 2;
     v.observe(&Payload::Status(st), &mut Vec::new()).unwrap();
-    let (mode, a1) = lin(&mut v);
+    let (mode, a1, row) = lin(&mut v);
     assert_eq!(mode, "z-yaw");
-    assert!((a1[2].as_f64().unwrap() - 0.3).abs() < 1e-3, "{a1}");
+    let w1 = &row["axis1_rad_s"];
+    let a2 = &row["axis2_m_s"];
+    assert!((w1[2].as_f64().unwrap() - 0.85).abs() < 1e-3, "{w1}");
     assert!(a1[0].as_f64().unwrap().abs() < 1e-3, "{a1}");
+    assert!((a2[2].as_f64().unwrap() - 0.3).abs() < 1e-3, "{a2}");
 }
 
 #[test]
