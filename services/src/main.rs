@@ -440,6 +440,10 @@ enum BenchCmd {
         /// Print the report as JSON on stdout.
         #[arg(long)]
         json: bool,
+        /// Run the graph with `scl up --live` (a free loopback port) and a Foxglove WebSocket
+        /// client subscribed to every channel for the whole run; compare with a run without.
+        #[arg(long)]
+        live: bool,
         /// Keep the report (report.json), the runs' configs and logs in DIR.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
@@ -608,6 +612,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 load,
                 transport,
                 json,
+                live,
                 out,
             } => {
                 let transports = match transport.as_str() {
@@ -628,6 +633,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                     transports,
                     config: cfg,
                     out: out.clone(),
+                    live,
                 };
                 let report = scl_bench::latency(&opts)?;
                 let text = serde_json::to_string_pretty(&report)

@@ -44,7 +44,7 @@ fn contents(path: &Path) -> Contents {
                     .map_or(String::new(), |s| s.encoding.clone());
                 c.channels
                     .insert(ch.topic.clone(), (ch.message_encoding.clone(), schema));
-                if let Some(s) = &ch.schema {
+                if let Some(s) = ch.schema.as_ref().filter(|s| s.encoding == "jsonschema") {
                     schemas.insert(ch.topic.clone(), serde_json::from_slice(&s.data).unwrap());
                 }
             }

@@ -206,10 +206,10 @@ fn view_loop(rx: Receiver<Item>, mut viz: Viz, channels: Channels, counters: Arc
                     counters.logged.fetch_add(1, Ordering::Relaxed);
                 }
                 out.clear();
-                if let Err(e) = viz.observe(&p, &mut out) {
-                    if counters.view_errors.fetch_add(1, Ordering::Relaxed) == 0 {
-                        tracing::warn!("the 3D view: {e}");
-                    }
+                if let Err(e) = viz.observe(&p, &mut out)
+                    && counters.view_errors.fetch_add(1, Ordering::Relaxed) == 0
+                {
+                    tracing::warn!("the 3D view: {e}");
                 }
                 for m in &out {
                     if let Some(c) = channels.view.get(&m.topic) {
@@ -419,9 +419,9 @@ mod tests {
 
     #[test]
     fn listen_addresses() {
-        assert_eq!(parse_listen("127.0.0.1:8765").unwrap().1, true);
-        assert_eq!(parse_listen("[::1]:9000").unwrap().1, true);
-        assert_eq!(parse_listen("0.0.0.0:8765").unwrap().1, false);
+        assert!(parse_listen("127.0.0.1:8765").unwrap().1);
+        assert!(parse_listen("[::1]:9000").unwrap().1);
+        assert!(!parse_listen("0.0.0.0:8765").unwrap().1);
         let e = parse_listen("localhost").unwrap_err().to_string();
         assert!(e.contains("--listen localhost: expected ADDR:PORT"), "{e}");
     }
