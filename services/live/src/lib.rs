@@ -229,6 +229,8 @@ struct Subscriptions {
     mapper: TopicSubscriber<ipc_types::MapperCommand>,
     safe: TopicSubscriber<ipc_types::SafeCommand>,
     status: TopicSubscriber<NodeStatus>,
+    control: TopicSubscriber<ipc_types::control::SafetyControl>,
+    estop: TopicSubscriber<ipc_types::control::EstopCommand>,
 }
 
 /// The subscriber side of the hand-off: never blocks.
@@ -270,6 +272,8 @@ impl Subscriptions {
             mapper: graph.mapper_command_subscriber(false)?,
             safe: graph.safe_command_subscriber(false)?,
             status: graph.status_subscriber()?,
+            control: graph.safety_control_observer()?,
+            estop: graph.estop_observer()?,
         })
     }
 
@@ -283,6 +287,9 @@ impl Subscriptions {
         self.joystick.drain(|m| p.offer(Payload::Joystick(*m)))?;
         self.mapper.drain(|m| p.offer(Payload::MapperCommand(*m)))?;
         self.safe.drain(|m| p.offer(Payload::SafeCommand(*m)))?;
+        self.control
+            .drain(|m| p.offer(Payload::SafetyControl(*m)))?;
+        self.estop.drain(|m| p.offer(Payload::Estop(*m)))?;
         Ok(())
     }
 }
