@@ -62,6 +62,25 @@ pub trait ActionMap: Send {
     fn uses_input(&self) -> bool {
         true
     }
+    /// The joint velocity (before the speed scale) that a full deflection of action axis
+    /// `axis` alone asks for at `(q, c)` now, written into `out[..n_joints]`: column `axis`
+    /// of `H(o)` for the maps linear in the action (SCL, PCA), `map(o, e_axis)` otherwise.
+    /// It leaves the map's memory (mode, last command) as it was, so an observer can draw
+    /// the map's directions beside the served map. The default evaluates `e_axis`, exact for
+    /// every map without memory; mode switching overrides it (its current mode's axis twist
+    /// at full speed through the Jacobian, without the ramp from the last command). An axis
+    /// outside the action gives zeros.
+    fn direction(&mut self, q: &[f64], c: f64, axis: usize, out: &mut [f64]) {
+        let mut a = [0.0; ipc_types::ACTION_DIM];
+        match a.get_mut(axis) {
+            Some(v) => *v = 1.0,
+            None => {
+                out.iter_mut().for_each(|v| *v = 0.0);
+                return;
+            }
+        }
+        self.eval(q, c, &a, out);
+    }
 }
 
 /// The operating mode of a map that has modes, as the mapper's status reports it.

@@ -659,6 +659,25 @@ impl ModeSwitchMap {
         })
     }
 
+    /// [`ActionMap::direction`]: the current mode's twist for a full deflection of `axis`
+    /// (with the slowdown near singularities) through damped least squares at `q`.
+    fn direction_inner(&mut self, q: &[f64], axis: usize, out: &mut [f64]) -> Option<()> {
+        let n = self.chain.n_joints();
+        let out = out.get_mut(..n)?;
+        let q = q.get(..n)?;
+        let row = *self.mode.rows().get(axis)?;
+        let condition = self.jacobian(q)?;
+        let limit = if row < 3 {
+            self.params.max_linear_m_s
+        } else {
+            self.params.max_angular_rad_s
+        };
+        let mut target = Vector6::zeros();
+        target[row] = limit * self.params.slowdown(condition);
+        self.dls.step(&self.jac, &target, out).ok()?;
+        Some(())
+    }
+
     fn eval_inner(&mut self, q: &[f64], a: &[f64], out: &mut [f64]) -> Option<()> {
         let n = self.chain.n_joints();
         let out = out.get_mut(..n)?;
@@ -828,6 +847,13 @@ impl ActionMap for ModeSwitchMap {
         out.iter_mut().for_each(|v| *v = 0.0);
         if self.eval_inner(q, a, out).is_none() {
             // A mis-shaped or non-finite input: no motion.
+            out.iter_mut().for_each(|v| *v = 0.0);
+        }
+    }
+
+    fn direction(&mut self, q: &[f64], _c: f64, axis: usize, out: &mut [f64]) {
+        out.iter_mut().for_each(|v| *v = 0.0);
+        if self.direction_inner(q, axis, out).is_none() {
             out.iter_mut().for_each(|v| *v = 0.0);
         }
     }
@@ -1315,5 +1341,40 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("planar5 has 5 joints"), "{e}");
+    }
+
+    #[test]
+    fn direction_is_the_modes_axis_twist_and_leaves_the_memory_alone() {
+        let arm = Gen3Lite::get().arm();
+        let mut map = ModeSwitchMap::new(cartesian_only(), SPEC).unwrap();
+        let q = gen3_lite::HOME;
+        let mut jac = kinematics::Jacobian::zeros(6);
+        arm.fk_jacobian(&q, &mut jac).unwrap();
+        for mode in Mode::ALL {
+            // A command first, so the map has a twist in memory.
+            let mut qd = [0.0; 6];
+            map.eval(&q, 0.0, &[0.3, 0.0], &mut qd);
+            let before = (map.twist, map.qdot);
+            for axis in 0..2 {
+                let mut d = [0.0; 6];
+                map.direction(&q, 0.0, axis, &mut d);
+                let twist = jac.matrix() * nalgebra::DVector::from_row_slice(&d);
+                let row = mode.rows()[axis];
+                let limit = if row < 3 { 0.3 } else { 0.85 };
+                for r in 0..6 {
+                    let want = if r == row { limit } else { 0.0 };
+                    assert!((twist[r] - want).abs() < 1e-3 * limit, "{mode:?} {twist:?}");
+                }
+            }
+            assert_eq!(
+                (map.twist, map.qdot),
+                before,
+                "direction changed the memory"
+            );
+            let mut d = [1.0; 6];
+            map.direction(&q, 0.0, 2, &mut d);
+            assert_eq!(d, [0.0; 6]);
+            map.press(buttons::MODE);
+        }
     }
 }

@@ -57,7 +57,10 @@ def load(path: Path, topics: Optional[List[str]] = None) -> Arrays:
                         [np.nan if v is None else v for v in values], dtype=np.float64
                     )
             else:
-                fields[name] = np.array(values, dtype=np.float64)
+                try:
+                    fields[name] = np.array(values, dtype=np.float64)
+                except (TypeError, ValueError):
+                    continue  # lists of names, arrays missing at some ticks: left as JSON
         out[topic] = fields
     return out
 

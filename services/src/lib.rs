@@ -1,8 +1,8 @@
 //! The `scl` command: parses the command line and dispatches to the crate of each process or
 //! tool. The processes live beside this crate, one crate each: `scl-joystick`,
 //! `scl-mapper-node`, `scl-safety-node`, `scl-bridge-node` (with the fake Kortex robot),
-//! `scl-supervisor` (`up`, `swap`, `status`, `estop`), the observers `scl-recorder` and
-//! `scl-dashboard`, and `scl-bench`; `scl-node` holds what they share (the graph TOML,
+//! `scl-supervisor` (`up`, `swap`, `status`, `estop`), the observers `scl-recorder`,
+//! `scl-live` and `scl-dashboard`, and `scl-bench`; `scl-node` holds what they share (the graph TOML,
 //! real-time set-up). The offline commands are the `learning` crate's.
 
 /// Why `scl` failed: the error of whichever process or tool ran, with the message a user sees.
@@ -35,6 +35,9 @@ pub enum SclError {
     /// The recorder.
     #[error(transparent)]
     Recorder(#[from] scl_recorder::RecorderError),
+    /// The live Foxglove server.
+    #[error(transparent)]
+    Live(#[from] scl_live::LiveError),
     /// A recording could not be written, read or recovered.
     #[error(transparent)]
     Record(#[from] recording::RecordError),

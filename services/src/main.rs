@@ -58,6 +58,11 @@ enum Cmd {
         /// started before the bridge and stopped last).
         #[arg(long, value_name = "FILE")]
         record: Option<PathBuf>,
+        /// Serve the graph to Foxglove while it runs (a `scl live` child, started before the
+        /// bridge): connect Foxglove to ws://ADDR:PORT (default 127.0.0.1:8765, loopback
+        /// only; any other address is reachable from that network and a warning says so).
+        #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1, default_missing_value = scl_live::DEFAULT_LISTEN)]
+        live: Option<String>,
     },
     /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
     /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
@@ -69,6 +74,11 @@ enum Cmd {
         #[command(subcommand)]
         what: scl_study::StudyCmd,
     },
+    /// Serve a running graph to Foxglove over its WebSocket protocol (read-only): the
+    /// recording's topics plus the 3D view (/tf, the arm's capsules coloured by clearance, the
+    /// map's two directions at the tool, /scl/tick), until Ctrl-C. Open Foxglove, "Open
+    /// connection", Foxglove WebSocket, ws://127.0.0.1:8765, and load docs/foxglove-layout.json.
+    Live(scl_live::LiveArgs),
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
     Dataset(learning::to_dataset::DatasetArgs),
     /// Re-execute a recording tick by tick (the mapper's and safety's steps on the recorded
@@ -439,6 +449,10 @@ enum BenchCmd {
         /// Print the report as JSON on stdout.
         #[arg(long)]
         json: bool,
+        /// Run the graph with `scl up --live` (a free loopback port) and a Foxglove WebSocket
+        /// client subscribed to every channel for the whole run; compare with a run without.
+        #[arg(long)]
+        live: bool,
         /// Keep the report (report.json), the runs' configs and logs in DIR.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
@@ -505,6 +519,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             script,
             joystick,
             record,
+            live,
         } => {
             if let Some(m) = model {
                 cfg.mapper.model = m;
@@ -522,6 +537,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 duration,
                 json,
                 record: record.map(|p| scl_recorder::absolute(&p)),
+                live,
             };
             let summary = scl_supervisor::up::run(&opts)?;
             if json {
@@ -548,6 +564,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
         Cmd::Study { what } => Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what)?),
+        Cmd::Live(args) => Ok(scl_live::cli(&prefix, cfg, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
         Cmd::Replay(args) => Ok(replay::cli(&args)?),
         Cmd::Top(args) => Ok(scl_dashboard::cli(
@@ -605,6 +622,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                 load,
                 transport,
                 json,
+                live,
                 out,
             } => {
                 let transports = match transport.as_str() {
@@ -625,6 +643,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                     transports,
                     config: cfg,
                     out: out.clone(),
+                    live,
                 };
                 let report = scl_bench::latency(&opts)?;
                 let text = serde_json::to_string_pretty(&report)
@@ -900,6 +919,7 @@ fn main() -> ExitCode {
         Cmd::Plot { .. } => "plot",
         Cmd::Record(_) => "record",
         Cmd::Study { .. } => "study",
+        Cmd::Live(_) => "live",
         Cmd::Dataset(_) => "dataset",
         Cmd::Replay(_) => "replay",
         Cmd::Top(_) => "top",

@@ -56,6 +56,10 @@ pub struct LatencyOptions {
     pub config: GraphConfig,
     /// Where to write the JSON (and the raw samples); none: stdout only.
     pub out: Option<PathBuf>,
+    /// Run the graph with `scl up --live` on a free loopback port and a Foxglove WebSocket
+    /// client subscribed to every channel for the whole run: the live observer's effect on
+    /// the control loop.
+    pub live: bool,
 }
 
 /// p50 / p90 / p99 / p99.9 / max of one figure, µs, and its sample count.
@@ -166,6 +170,8 @@ pub struct RunReport {
     pub compute_us: Compute,
     /// What the processes said about their real-time settings.
     pub realtime: Vec<String>,
+    /// With `--live`: messages the connected Foxglove client received over the run.
+    pub live_client_messages: Option<u64>,
 }
 
 /// Per-hop distributions.
@@ -194,6 +200,7 @@ impl RunReport {
     fn new(transport: Transport, s: &Samples, realtime: Vec<String>) -> Self {
         Self {
             transport,
+            live_client_messages: None,
             ticks: s.ticks,
             missed: s.missed,
             hops_us: Hops {
@@ -371,18 +378,28 @@ fn run_one(
     let log = std::fs::File::create(&log_path)
         .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
     let secs = opts.duration.as_secs_f64();
-    let mut up = spawn_scl(&[
+    let mut up_args = vec![
         "up".into(),
         "--config".into(),
         cfg_path.display().to_string(),
         "--for".into(),
         format!("{secs}s"),
-    ])?
-    .env("SCL_LOG", "info")
-    .stdout(Stdio::null())
-    .stderr(log)
-    .spawn()
-    .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
+    ];
+    let live = if opts.live {
+        let addr = free_loopback_port()
+            .map(|p| format!("127.0.0.1:{p}"))
+            .map_err(|e| BenchError::Graph(format!("no free port for --live: {e}")))?;
+        up_args.extend(["--live".into(), addr.clone()]);
+        Some(LiveClient::start(addr))
+    } else {
+        None
+    };
+    let mut up = spawn_scl(&up_args)?
+        .env("SCL_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
 
     eprintln!(
         "bench: {transport}, {secs:.0} s, load {}, rt {}",
@@ -416,6 +433,7 @@ fn run_one(
         std::thread::sleep(Duration::from_millis(20));
     }
     reports.drain(|r| samples.take(r))?;
+    let live_messages = live.map(LiveClient::finish);
     drop(burners);
     drop(reports);
     drop(graph);
@@ -427,7 +445,62 @@ fn run_one(
         .filter(|l| l.contains("real-time"))
         .map(|l| l.trim().to_owned())
         .collect();
-    Ok((RunReport::new(transport, &samples, realtime), samples))
+    let mut report = RunReport::new(transport, &samples, realtime);
+    report.live_client_messages = live_messages;
+    Ok((report, samples))
+}
+
+fn free_loopback_port() -> std::io::Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port())
+}
+
+/// A Foxglove client subscribed to every channel of `scl up --live` for the whole run.
+struct LiveClient {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<u64>,
+}
+
+impl LiveClient {
+    fn start(addr: String) -> Self {
+        use std::sync::atomic::Ordering;
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let s2 = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let mut n = 0;
+            while !s2.load(Ordering::SeqCst) {
+                let Ok(mut c) = scl_live::client::Client::connect(&addr, Duration::from_secs(1))
+                else {
+                    std::thread::sleep(Duration::from_millis(50));
+                    continue;
+                };
+                let ids: Vec<u64> = c.channels.keys().copied().collect();
+                if ids.is_empty() || c.subscribe(&ids).is_err() {
+                    continue;
+                }
+                eprintln!(
+                    "bench: a Foxglove client subscribed to {} channels",
+                    ids.len()
+                );
+                while !s2.load(Ordering::SeqCst) {
+                    match c.next_frame() {
+                        Ok(Some(_)) => n += 1,
+                        Ok(None) => {}
+                        Err(_) => break,
+                    }
+                }
+                c.close();
+            }
+            n
+        });
+        Self { stop, thread }
+    }
+
+    fn finish(self) -> u64 {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        self.thread.join().unwrap_or(0)
+    }
 }
 
 /// Log-spaced histogram of samples (ns): counts in bins from 1 µs to 100 ms, 8 per decade,
@@ -643,6 +716,12 @@ pub fn render(r: &LatencyReport) -> String {
             "\n{}: {} ticks, {} missed",
             run.transport, run.ticks, run.missed
         );
+        if let Some(n) = run.live_client_messages {
+            let _ = writeln!(
+                s,
+                "  with scl up --live and a Foxglove client: {n} messages received"
+            );
+        }
         let _ = writeln!(
             s,
             "  {:<20} {:>9} {:>9} {:>9} {:>9} {:>9}   (µs)",

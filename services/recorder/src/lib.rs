@@ -30,6 +30,9 @@ pub enum RecorderError {
     /// A recording could not be written, read or recovered.
     #[error(transparent)]
     Record(#[from] recording::RecordError),
+    /// The 3D view could not be built, or a recording not converted.
+    #[error(transparent)]
+    Viz(#[from] viz::VizError),
     /// The graph or the process failed (a child died, a thread did not start, ...).
     #[error("{0}")]
     Graph(String),
@@ -78,6 +81,11 @@ pub struct RecordArgs {
     /// recording in --out, instead of recording.
     #[arg(long, value_name = "BROKEN")]
     pub recover: Option<PathBuf>,
+    /// Copy OLD (a recording made before the 3D view was recorded) into --out with the 3D
+    /// channels added (/tf, /scl/arm, /scl/map, /scl/world, /scl/tick), computed from its robot
+    /// states with the model and configuration it embeds; OLD is never changed.
+    #[arg(long, value_name = "OLD", conflicts_with = "recover")]
+    pub convert: Option<PathBuf>,
     /// Messages the hand-off to the writer thread holds; beyond that, messages are dropped
     /// and counted, never waited for.
     #[arg(long, default_value_t = DEFAULT_QUEUE)]
@@ -298,6 +306,71 @@ pub struct WriterOutcome {
     pub error: Option<String>,
 }
 
+/// The 3D view written beside the graph's topics ([`viz`]): Foxglove's frame transforms and
+/// scene updates and the `/scl/tick` numbers, computed on the writer thread from each message
+/// as it is written, with the robot, scene and models the graph's processes run.
+pub struct View {
+    viz: viz::Viz,
+    ids: BTreeMap<viz::VizTopic, u16>,
+    seq: BTreeMap<viz::VizTopic, u32>,
+    out: Vec<viz::VizMessage>,
+    errors: u64,
+}
+
+impl View {
+    /// Adds the 3D channels to `w`; the view starts with the default robot and scene until
+    /// the safety process is seen.
+    pub fn add_to<W: Write>(
+        w: &mut LogWriter<W>,
+        metadata: &BTreeMap<String, String>,
+    ) -> Result<Self, RecorderError> {
+        let viz = viz::Viz::new(&scl_node::config::GraphConfig::default())?;
+        let mut ids = BTreeMap::new();
+        for t in viz::VizTopic::ALL {
+            let id = w.add_channel(t.topic(), Some(&t.schema()), t.message_encoding(), metadata)?;
+            ids.insert(t, id);
+        }
+        Ok(Self {
+            viz,
+            ids,
+            seq: BTreeMap::new(),
+            out: Vec::new(),
+            errors: 0,
+        })
+    }
+
+    /// Writes what `p` adds to the view; returns the bytes written.
+    fn write<W: Write>(&mut self, w: &mut LogWriter<W>, p: &Payload) -> Result<usize, RecordError> {
+        self.out.clear();
+        if let Err(e) = self.viz.observe(p, &mut self.out) {
+            self.errors += 1;
+            if self.errors == 1 {
+                tracing::warn!("the 3D view: {e}");
+            }
+        }
+        let mut n = 0;
+        for m in &self.out {
+            let s = self.seq.entry(m.topic).or_default();
+            *s = s.wrapping_add(1);
+            let id = self.ids.get(&m.topic).copied().unwrap_or_default();
+            w.write_raw(id, *s, m.t_ns, m.t_ns, &m.data)?;
+            n += m.data.len();
+        }
+        Ok(n)
+    }
+
+    /// Takes what a newly seen mapper or safety process runs.
+    fn process(&mut self, p: &process::ProcessSeen) {
+        let (cfg, model) = process::runs(p);
+        if let Err(e) = self
+            .viz
+            .take_process(p.role, p.mapper_id, cfg.as_ref(), model.as_deref())
+        {
+            tracing::warn!("{e}");
+        }
+    }
+}
+
 /// Starts the writer thread on `writer` with a hand-off of `queue` messages; returns the
 /// producer end and the thread. The thread ends (finishing the file) once the producer is
 /// dropped and the hand-off is drained.
@@ -306,6 +379,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
     topics: Vec<Topic>,
     queue: usize,
     flush_every: Duration,
+    view: Option<View>,
 ) -> std::io::Result<(Producer, Arc<Tally>, JoinHandle<WriterOutcome>)> {
     let (tx, rx) = crossbeam_channel::bounded(queue.max(1));
     let (procs, procs_rx) = crossbeam_channel::unbounded();
@@ -320,7 +394,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
                 procs: procs_rx,
                 metas: metas_rx,
             };
-            write_loop(writer, rx, &side, &t2, &topics, flush_every)
+            write_loop(writer, view, rx, &side, &t2, &topics, flush_every)
         })?;
     Ok((
         Producer {
@@ -354,6 +428,7 @@ struct SideChannels {
 
 fn write_loop<W: Write>(
     mut w: LogWriter<W>,
+    mut view: Option<View>,
     rx: Receiver<Payload>,
     side: &SideChannels,
     tally: &Tally,
@@ -385,7 +460,11 @@ fn write_loop<W: Write>(
                 if error.is_some() {
                     tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
                 } else {
-                    match w.write(&p) {
+                    let written = w.write(&p).and_then(|n| match view.as_mut() {
+                        Some(v) => v.write(&mut w, &p).map(|m| n + m),
+                        None => Ok(n),
+                    });
+                    match written {
                         Ok(n) => {
                             pending[i] += 1;
                             pending_bytes += n;
@@ -406,6 +485,9 @@ fn write_loop<W: Write>(
                 && let Err(e) = process::capture(&mut w, &p)
             {
                 fail(&mut error, &mut pending, e);
+            }
+            if let Some(v) = view.as_mut() {
+                v.process(&p);
             }
         }
         while let Ok(m) = side.metas.try_recv() {
@@ -594,15 +676,21 @@ fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError
     for t in &opts.topics {
         w.add_topic(*t, &channel_meta)?;
     }
+    // The 3D view needs the robot states it is drawn from.
+    let view = if opts.topics.contains(&Topic::RobotState) {
+        Some(View::add_to(&mut w, &channel_meta)?)
+    } else {
+        None
+    };
     // The channel definitions reach the disk at once: a crash keeps them.
     w.flush()?;
     let graph = Graph::join(prefix, "recorder")?;
     let subs = Subscriptions::open(&graph, &opts.topics)?;
     let heartbeat = graph.status_publisher()?;
     let (producer, tally, writer) =
-        start_pipeline(w, opts.topics.clone(), opts.queue, opts.flush_every).map_err(|e| {
-            RecorderError::Graph(format!("cannot start the recorder's writer thread: {e}"))
-        })?;
+        start_pipeline(w, opts.topics.clone(), opts.queue, opts.flush_every, view).map_err(
+            |e| RecorderError::Graph(format!("cannot start the recorder's writer thread: {e}")),
+        )?;
     Ok(Running {
         subs,
         heartbeat,
@@ -745,6 +833,21 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
         );
         return Ok(std::process::ExitCode::SUCCESS);
     }
+    if let Some(old) = &args.convert {
+        let r = viz::convert::convert(old, &args.out)?;
+        println!(
+            "converted {} into {}: {} messages copied, {} 3D-view messages added from {} robot states",
+            old.display(),
+            args.out.display(),
+            r.copied,
+            r.added,
+            r.states
+        );
+        for n in &r.notes {
+            println!("  note: {n}");
+        }
+        return Ok(std::process::ExitCode::SUCCESS);
+    }
     if args.queue == 0 {
         return Err(RecorderError::Graph(
             "--queue 0: the hand-off needs room for at least one message".into(),
@@ -871,8 +974,14 @@ mod tests {
         // Each flush of the sink takes 30 ms; the hand-off holds 16 messages; 2000 are
         // offered as fast as possible.
         let (w, bytes) = slow_writer(Duration::from_millis(30));
-        let (mut p, tally, h) =
-            start_pipeline(w, vec![Topic::RobotState], 16, Duration::from_millis(5)).unwrap();
+        let (mut p, tally, h) = start_pipeline(
+            w,
+            vec![Topic::RobotState],
+            16,
+            Duration::from_millis(5),
+            None,
+        )
+        .unwrap();
         let mut handed = 0;
         for k in 0..2000 {
             if p.offer(state(k)) {
@@ -898,8 +1007,14 @@ mod tests {
     #[test]
     fn gaps_in_robot_ticks_are_counted() {
         let (w, _bytes) = slow_writer(Duration::ZERO);
-        let (mut p, tally, h) =
-            start_pipeline(w, vec![Topic::RobotState], 64, Duration::from_millis(5)).unwrap();
+        let (mut p, tally, h) = start_pipeline(
+            w,
+            vec![Topic::RobotState],
+            64,
+            Duration::from_millis(5),
+            None,
+        )
+        .unwrap();
         for k in [0, 1, 2, 5, 6, 10] {
             p.offer(state(k));
         }
@@ -917,8 +1032,14 @@ mod tests {
         let mut w =
             LogWriter::new(std::io::BufWriter::new(full), Path::new("/dev/full"), None).unwrap();
         w.add_topic(Topic::RobotState, &BTreeMap::new()).unwrap();
-        let (mut p, tally, h) =
-            start_pipeline(w, vec![Topic::RobotState], 1000, Duration::from_millis(1)).unwrap();
+        let (mut p, tally, h) = start_pipeline(
+            w,
+            vec![Topic::RobotState],
+            1000,
+            Duration::from_millis(1),
+            None,
+        )
+        .unwrap();
         for k in 0..500 {
             p.offer(state(k));
             if k % 50 == 0 {

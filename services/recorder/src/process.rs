@@ -65,12 +65,38 @@ pub fn option(argv: &[String], name: &str) -> Option<String> {
     })
 }
 
-fn resolve(cwd: Option<&Path>, p: &str) -> PathBuf {
+/// `p` against the working directory `cwd` of the process whose command line names it.
+pub fn resolve(cwd: Option<&Path>, p: &str) -> PathBuf {
     let p = Path::new(p);
     match cwd {
         Some(d) if p.is_relative() => d.join(p),
         _ => p.to_owned(),
     }
+}
+
+/// What a mapper or safety process runs, from its command line: the graph configuration it
+/// reads (`--config`, else the defaults) and, for a mapper, its model spec (`--model`, else the
+/// configuration's; a file resolved against the process's working directory).
+pub fn runs(p: &ProcessSeen) -> (Option<GraphConfig>, Option<String>) {
+    let Ok(argv) = &p.argv else {
+        return (None, None);
+    };
+    let cwd = p.cwd.as_deref();
+    let config_path = option(argv, "config").map(|c| resolve(cwd, &c));
+    let cfg = GraphConfig::load(config_path.as_deref()).ok();
+    let model = if p.role == NodeRole::Mapper {
+        option(argv, "model").or_else(|| cfg.as_ref().map(|c| c.mapper.model.clone()))
+    } else {
+        None
+    };
+    let model = model.map(|spec| {
+        if mapper::model::is_builtin(&spec) {
+            spec
+        } else {
+            resolve(cwd, &spec).display().to_string()
+        }
+    });
+    (cfg, model)
 }
 
 /// Writes what `p` runs into the recording: attachments and one metadata record. A file

@@ -59,6 +59,9 @@ pub struct UpOptions {
     /// Record the graph to this MCAP file: `scl record` as a supervised child, started first
     /// and stopped last.
     pub record: Option<PathBuf>,
+    /// Serve the graph to Foxglove on this `ADDR:PORT`: `scl live` as a child, started before
+    /// the bridge and stopped last. It is an optional view: if it dies the graph goes on.
+    pub live: Option<String>,
 }
 
 /// The end-of-run summary (`--json`).
@@ -405,6 +408,65 @@ fn spawn(args: &[String]) -> std::io::Result<Child> {
 fn terminate(child: &Child) {
     // Our own child's pid; an error means it is gone already, which the caller's wait sees.
     let _ = kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM);
+}
+
+/// Starts `scl live --listen addr` and waits until it accepts connections (or exits).
+fn start_live(
+    sv: &Supervisor<'_>,
+    addr: &str,
+    timeout: Duration,
+) -> Result<Child, SupervisorError> {
+    let a: std::net::SocketAddr = addr.parse().map_err(|e| {
+        SupervisorError::Graph(format!(
+            "--live {addr}: expected ADDR:PORT, e.g. 127.0.0.1:8765 ({e})"
+        ))
+    })?;
+    let mut probe = a;
+    if probe.ip().is_unspecified() {
+        probe.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+    }
+    let mut args = sv.child_args("live");
+    args.extend(["--listen".to_owned(), addr.to_owned()]);
+    let mut child = spawn(&args)
+        .map_err(|e| SupervisorError::Graph(format!("cannot start the live process: {e}")))?;
+    let t0 = Instant::now();
+    loop {
+        if let Ok(Some(st)) = child.try_wait() {
+            return Err(SupervisorError::Graph(format!(
+                "scl live exited ({st}) before serving on {addr}"
+            )));
+        }
+        if std::net::TcpStream::connect_timeout(&probe, Duration::from_millis(100)).is_ok() {
+            tracing::info!("Foxglove: open a connection to ws://{addr}");
+            return Ok(child);
+        }
+        if t0.elapsed() > timeout {
+            stop_live(&mut child);
+            return Err(SupervisorError::Graph(format!(
+                "scl live did not serve on {addr} within {timeout:?}"
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Stops the live child (SIGTERM, then SIGKILL after 3 s); says if it had died already.
+fn stop_live(child: &mut Child) {
+    if let Ok(Some(st)) = child.try_wait() {
+        tracing::warn!("scl live had exited during the run ({st})");
+        return;
+    }
+    terminate(child);
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(3) {
+        if let Ok(Some(_)) = child.try_wait() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    tracing::warn!("scl live did not stop within 3 s; killing it");
+    let _ = child.kill();
+    let _ = child.wait();
 }
 
 fn signal_and_wait(p: &mut Managed, timeout: Duration) {
@@ -838,6 +900,10 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     // Reaping and holding the arm must not wait behind other load; below the control path.
     scl_node::rt::elevate(&cfg.graph, scl_node::config::RtRole::Supervisor);
     let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
+    let mut live = match &opts.live {
+        Some(addr) => Some(start_live(&sv, addr, start_timeout)?),
+        None => None,
+    };
     let mut plan = Vec::new();
     if let Some(path) = &opts.record {
         // The recorder first: it sees the graph from its first message on.
@@ -1001,6 +1067,9 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         for p in sv.procs.iter_mut().filter(|p| p.role == role) {
             signal_and_wait(p, Duration::from_secs(3));
         }
+    }
+    if let Some(child) = live.as_mut() {
+        stop_live(child);
     }
     status.drain(|s| sv.tel.take(s))?;
     safe_commands.drain(|c| sv.tel.take_safe(c))?;

@@ -1,0 +1,435 @@
+//! `scl live`: a read-only observer that serves a running graph to Foxglove over its
+//! WebSocket protocol (Foxglove's own server, the `foxglove` crate): the recording's JSON
+//! topics (`/robot_state`, `/safe_command`, ...) and the 3D view of [`viz`] (`/tf`,
+//! `/scl/arm`, `/scl/map`, `/scl/world`, `/scl/tick`), the same channels a recording holds.
+//!
+//! Like the recorder it never slows the control loop:
+//!
+//! * the subscriber thread (the main thread) wakes on each robot state, drains every topic
+//!   (shared-memory subscribers with safe overflow: a slow reader loses its oldest samples,
+//!   publishers never wait) and hands each message to the view thread with a non-blocking
+//!   `try_send` on a bounded channel; a full hand-off drops the message and counts it;
+//! * the view thread (lower CPU priority) computes the 3D view and logs every message to the
+//!   server, whose per-client queues are bounded too (a slow client loses messages);
+//! * the server's tokio runtime runs one worker thread, at the view thread's priority.
+//!
+//! It publishes nothing into the graph. It binds to the loopback address unless told
+//! otherwise, and warns when it is not loopback: a robot PC's view is not for the network
+//! by accident.
+#![cfg_attr(test, allow(clippy::unwrap_used))]
+
+pub mod client;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
+use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, TopicSubscriber, signals};
+use recording::{Payload, SchemaInfo, Topic};
+use scl_node::config::GraphConfig;
+use scl_recorder::process::{self, ProcessSeen};
+use viz::{Viz, VizMessage, VizTopic};
+
+/// The address `scl live` and `scl up --live` listen on by default.
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:8765";
+
+/// Default capacity of the hand-off to the view thread (messages): about 13 s of the mock
+/// graph's messages.
+pub const DEFAULT_QUEUE: usize = 4096;
+
+/// Why the live observer stopped or could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// The graph configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_node::ConfigError),
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// The 3D view could not be set up.
+    #[error(transparent)]
+    Viz(#[from] viz::VizError),
+    /// `--listen` is not an address.
+    #[error("--listen {0}: expected ADDR:PORT, e.g. 127.0.0.1:8765 ({1})")]
+    Listen(String, String),
+    /// The WebSocket server could not start (the port is taken, ...).
+    #[error("cannot serve Foxglove on {addr}: {reason}")]
+    Server {
+        /// The address.
+        addr: String,
+        /// Why.
+        reason: String,
+    },
+    /// A thread did not start.
+    #[error("{0}")]
+    Thread(String),
+}
+
+/// `scl live`'s arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LiveArgs {
+    /// Address and port of the Foxglove WebSocket server. Loopback by default; any other
+    /// address exposes the robot's state to that network (a warning says so).
+    #[arg(long, value_name = "ADDR:PORT", default_value = DEFAULT_LISTEN)]
+    pub listen: String,
+    /// Messages the hand-off to the view thread holds; beyond that, messages are dropped and
+    /// counted, never waited for.
+    #[arg(long, default_value_t = DEFAULT_QUEUE)]
+    pub queue: usize,
+    /// Print the end report as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses `ADDR:PORT`; says whether it is a loopback address.
+pub fn parse_listen(s: &str) -> Result<(SocketAddr, bool), LiveError> {
+    let a: SocketAddr = s
+        .parse()
+        .map_err(|e: std::net::AddrParseError| LiveError::Listen(s.to_owned(), e.to_string()))?;
+    Ok((a, a.ip().is_loopback()))
+}
+
+/// The end report of a live session.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct LiveReport {
+    /// The address served.
+    pub listen: String,
+    /// How long it ran (s).
+    pub duration_s: f64,
+    /// Messages received from the graph.
+    pub received: u64,
+    /// Messages dropped at the hand-off to the view thread (it was behind).
+    pub dropped: u64,
+    /// Messages logged to the server (graph topics and 3D view).
+    pub logged: u64,
+    /// 3D view messages that could not be built (logged as warnings).
+    pub view_errors: u64,
+}
+
+#[derive(Debug, Default)]
+struct Counters {
+    received: AtomicU64,
+    dropped: AtomicU64,
+    logged: AtomicU64,
+    view_errors: AtomicU64,
+}
+
+/// What goes to the view thread.
+enum Item {
+    Message(Payload),
+    Process(Box<ProcessSeen>),
+}
+
+/// The server's channels: one per graph topic and one per 3D-view topic.
+struct Channels {
+    topics: BTreeMap<Topic, Arc<RawChannel>>,
+    view: BTreeMap<VizTopic, Arc<RawChannel>>,
+}
+
+fn channel(
+    ctx: &Arc<Context>,
+    topic: &str,
+    s: SchemaInfo,
+    encoding: &str,
+) -> Result<Arc<RawChannel>, LiveError> {
+    ChannelBuilder::new(topic)
+        .context(ctx)
+        .schema(Schema::new(s.name, s.encoding, s.data))
+        .message_encoding(encoding)
+        .build_raw()
+        .map_err(|e| LiveError::Thread(format!("cannot create channel {topic}: {e}")))
+}
+
+impl Channels {
+    fn new(ctx: &Arc<Context>) -> Result<Self, LiveError> {
+        let mut topics = BTreeMap::new();
+        for t in Topic::ALL {
+            let schema = SchemaInfo {
+                name: t.schema_name().to_owned(),
+                encoding: "jsonschema".to_owned(),
+                data: t.schema().to_string().into_bytes(),
+            };
+            topics.insert(t, channel(ctx, &t.channel(), schema, "json")?);
+        }
+        let mut view = BTreeMap::new();
+        for t in VizTopic::ALL {
+            view.insert(
+                t,
+                channel(ctx, t.topic(), t.schema(), t.message_encoding())?,
+            );
+        }
+        Ok(Self { topics, view })
+    }
+}
+
+/// Lowers the calling thread's CPU priority (nice 10): the view and the server yield to the
+/// graph's processes.
+fn lower_priority() {
+    // SAFETY: setpriority on the calling thread only (its tid); failure is harmless.
+    unsafe {
+        let tid = libc::gettid();
+        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
+    }
+}
+
+/// The view thread: 3D view and logging to the server.
+fn view_loop(rx: Receiver<Item>, mut viz: Viz, channels: Channels, counters: Arc<Counters>) {
+    lower_priority();
+    let mut out: Vec<VizMessage> = Vec::new();
+    let mut json = Vec::with_capacity(1024);
+    loop {
+        let item = match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(i) => i,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        match item {
+            Item::Process(p) => {
+                let (cfg, model) = process::runs(&p);
+                if let Err(e) =
+                    viz.take_process(p.role, p.mapper_id, cfg.as_ref(), model.as_deref())
+                {
+                    tracing::warn!("{e}");
+                }
+            }
+            Item::Message(p) => {
+                let t_ns = p.t_ns();
+                json.clear();
+                if p.write_json(&mut json).is_ok()
+                    && let Some(c) = channels.topics.get(&p.topic())
+                {
+                    c.log_with_meta(&json, PartialMetadata::with_log_time(t_ns));
+                    counters.logged.fetch_add(1, Ordering::Relaxed);
+                }
+                out.clear();
+                if let Err(e) = viz.observe(&p, &mut out)
+                    && counters.view_errors.fetch_add(1, Ordering::Relaxed) == 0
+                {
+                    tracing::warn!("the 3D view: {e}");
+                }
+                for m in &out {
+                    if let Some(c) = channels.view.get(&m.topic) {
+                        c.log_with_meta(&m.data, PartialMetadata::with_log_time(m.t_ns));
+                        counters.logged.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The subscriptions of the live observer.
+struct Subscriptions {
+    states: TopicSubscriber<ipc_types::RobotState>,
+    joystick: TopicSubscriber<ipc_types::JoystickInput>,
+    mapper: TopicSubscriber<ipc_types::MapperCommand>,
+    safe: TopicSubscriber<ipc_types::SafeCommand>,
+    status: TopicSubscriber<NodeStatus>,
+    control: TopicSubscriber<ipc_types::control::SafetyControl>,
+    estop: TopicSubscriber<ipc_types::control::EstopCommand>,
+}
+
+/// The subscriber side of the hand-off: never blocks.
+struct Producer {
+    tx: Sender<Item>,
+    counters: Arc<Counters>,
+    seen: BTreeSet<u32>,
+}
+
+impl Producer {
+    fn offer(&self, p: Payload) {
+        self.counters.received.fetch_add(1, Ordering::Relaxed);
+        match self.tx.try_send(Item::Message(p)) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
+                self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn note_process(&mut self, st: &NodeStatus) {
+        let Some(role) = NodeRole::from_u32(st.role) else {
+            return;
+        };
+        if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
+            // Rare (a start, a swap, a restart); /proc only, no disk. Dropped if full.
+            let _ = self
+                .tx
+                .try_send(Item::Process(Box::new(ProcessSeen::of(st, role))));
+        }
+    }
+}
+
+impl Subscriptions {
+    fn open(graph: &Graph) -> Result<Self, LiveError> {
+        Ok(Self {
+            states: graph.robot_state_subscriber(true)?,
+            joystick: graph.joystick_subscriber(false)?,
+            mapper: graph.mapper_command_subscriber(false)?,
+            safe: graph.safe_command_subscriber(false)?,
+            status: graph.status_subscriber()?,
+            control: graph.safety_control_observer()?,
+            estop: graph.estop_observer()?,
+        })
+    }
+
+    fn drain(&self, p: &mut Producer) -> Result<(), LiveError> {
+        // Heartbeats first: a new mapper's model reaches the view before its commands.
+        self.status.drain(|m| {
+            p.note_process(m);
+            p.offer(Payload::Status(*m));
+        })?;
+        self.states.drain(|m| p.offer(Payload::RobotState(*m)))?;
+        self.joystick.drain(|m| p.offer(Payload::Joystick(*m)))?;
+        self.mapper.drain(|m| p.offer(Payload::MapperCommand(*m)))?;
+        self.safe.drain(|m| p.offer(Payload::SafeCommand(*m)))?;
+        self.control
+            .drain(|m| p.offer(Payload::SafetyControl(*m)))?;
+        self.estop.drain(|m| p.offer(Payload::Estop(*m)))?;
+        Ok(())
+    }
+}
+
+/// What `scl live` is asked to do.
+#[derive(Debug, Clone)]
+pub struct LiveOptions {
+    /// Where to listen.
+    pub listen: String,
+    /// The hand-off's capacity.
+    pub queue: usize,
+    /// The graph configuration (the robot and scene until the safety process is seen).
+    pub config: GraphConfig,
+}
+
+/// Serves graph `prefix` until a shutdown is requested (Ctrl-C, SIGTERM).
+pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError> {
+    let started = Instant::now();
+    let (addr, loopback) = parse_listen(&opts.listen)?;
+    if !loopback {
+        tracing::warn!(
+            "serving the graph on {addr}, not a loopback address: anyone who can reach it sees \
+             the robot's state (read-only)"
+        );
+    }
+    let viz = Viz::new(&opts.config)?;
+    // One worker thread at low priority; the observer's runtime only.
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("foxglove-ws")
+        .on_thread_start(lower_priority)
+        .enable_all()
+        .build()
+        .map_err(|e| LiveError::Thread(format!("cannot start the server's runtime: {e}")))?;
+    let ctx = Context::new();
+    let channels = Channels::new(&ctx)?;
+    let server = ctx
+        .websocket_server()
+        .name(format!("scl {prefix}"))
+        .bind(addr.ip().to_string(), addr.port())
+        .tokio_runtime(rt.handle())
+        .start_blocking()
+        .map_err(|e| LiveError::Server {
+            addr: addr.to_string(),
+            reason: e.to_string(),
+        })?;
+    tracing::info!(
+        "serving graph `{prefix}` to Foxglove on ws://{addr} (open connection: Foxglove WebSocket)"
+    );
+    let graph = Graph::join(prefix, "live")?;
+    let subs = Subscriptions::open(&graph)?;
+    let counters = Arc::new(Counters::default());
+    let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
+    let c2 = counters.clone();
+    let view = std::thread::Builder::new()
+        .name("live-view".into())
+        .spawn(move || view_loop(rx, viz, channels, c2))
+        .map_err(|e| LiveError::Thread(format!("cannot start the view thread: {e}")))?;
+    let mut producer = Producer {
+        tx,
+        counters: counters.clone(),
+        seen: BTreeSet::new(),
+    };
+    let mut result = Ok(());
+    while result.is_ok() && !signals::stop_requested() {
+        result = subs
+            .states
+            .wait(Duration::from_millis(50))
+            .map_err(LiveError::from)
+            .and_then(|_| subs.drain(&mut producer));
+    }
+    drop(producer);
+    let _ = view.join();
+    drop(subs);
+    drop(graph);
+    let _ = ipc_types::graph::release_domain(prefix);
+    let _ = server.stop();
+    rt.shutdown_timeout(Duration::from_secs(1));
+    result?;
+    Ok(LiveReport {
+        listen: addr.to_string(),
+        duration_s: started.elapsed().as_secs_f64(),
+        received: counters.received.load(Ordering::Relaxed),
+        dropped: counters.dropped.load(Ordering::Relaxed),
+        logged: counters.logged.load(Ordering::Relaxed),
+        view_errors: counters.view_errors.load(Ordering::Relaxed),
+    })
+}
+
+/// `scl live`: serves until Ctrl-C / SIGTERM, then reports.
+pub fn cli(
+    prefix: &Prefix,
+    config: GraphConfig,
+    args: &LiveArgs,
+) -> Result<std::process::ExitCode, LiveError> {
+    if args.queue == 0 {
+        return Err(LiveError::Thread(
+            "--queue 0: the hand-off needs room for at least one message".into(),
+        ));
+    }
+    let r = run(
+        prefix,
+        &LiveOptions {
+            listen: args.listen.clone(),
+            queue: args.queue,
+            config,
+        },
+    )?;
+    eprintln!(
+        "scl live: {}: {} messages in {:.1} s, {} logged, {} dropped at the hand-off",
+        r.listen, r.received, r.duration_s, r.logged, r.dropped
+    );
+    if args.json
+        && let Ok(text) = serde_json::to_string(&r)
+    {
+        println!("{text}");
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// Whether something accepts TCP connections at `addr` (an unspecified address is tried on
+/// loopback): how `scl up --live` knows the server listens.
+pub fn is_listening(addr: &SocketAddr) -> bool {
+    let mut a = *addr;
+    if a.ip().is_unspecified() {
+        a.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+    }
+    std::net::TcpStream::connect_timeout(&a, Duration::from_millis(100)).is_ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn listen_addresses() {
+        assert!(parse_listen("127.0.0.1:8765").unwrap().1);
+        assert!(parse_listen("[::1]:9000").unwrap().1);
+        assert!(!parse_listen("0.0.0.0:8765").unwrap().1);
+        let e = parse_listen("localhost").unwrap_err().to_string();
+        assert!(e.contains("--listen localhost: expected ADDR:PORT"), "{e}");
+    }
+}
