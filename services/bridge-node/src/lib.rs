@@ -263,10 +263,11 @@ pub fn command_wait_ns(period_ns: u64, command_deadline: f64) -> u64 {
 }
 
 /// The ticks a wake-up `lateness_ns` past its deadline, after `skipped` whole periods slept
-/// through, lost to the machine: the skipped periods, and this tick too if it starts past its
-/// command wait `wait_ns` (its state goes out, but no command can come back in time).
-pub fn ticks_lost(skipped: u64, lateness_ns: u64, wait_ns: u64) -> u64 {
-    skipped + u64::from(lateness_ns >= wait_ns)
+/// through, lost to the machine: the skipped periods, and this tick too if it started past its
+/// command wait `wait_ns` and was `missed` (its state went out, but its command could not come
+/// back in time; one already there is executed, and that tick is not lost).
+pub fn ticks_lost(skipped: u64, lateness_ns: u64, wait_ns: u64, missed: bool) -> u64 {
+    skipped + u64::from(missed && lateness_ns >= wait_ns)
 }
 
 struct Ctx<'a> {
@@ -319,19 +320,9 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         }
         // Woken this long after the deadline it slept for, the process was not run by the
         // operating system (or the host of a virtual machine): the periods it slept through
-        // are lost, and so is this tick if it starts past its command deadline (its state
-        // goes out, but no command can come back in time: the bridge brakes).
-        let lost = ticks_lost(skipped, lateness_ns, wait_ns);
-        if lost > 0 {
-            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
-            tracing::warn!(
-                ticks_lost = lost,
-                late_ms,
-                "missed tick: the bridge was held up past a command deadline"
-            );
-            core.add_skipped(skipped);
-            st.held_up = st.held_up.saturating_add(lost as u32);
-        }
+        // are lost, and so is this tick if it starts past its command deadline and misses
+        // (its state goes out, but no command can come back in time: the bridge brakes).
+        core.add_skipped(skipped);
         let state = match core.begin_tick(now_ns()) {
             Ok(s) => s,
             Err(e) => {
@@ -377,6 +368,17 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 break;
             }
         };
+        let missed_now = matches!(outcome, Outcome::Missed(_));
+        let lost = ticks_lost(skipped, lateness_ns, wait_ns, missed_now);
+        if lost > 0 {
+            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
+            tracing::warn!(
+                ticks_lost = lost,
+                late_ms,
+                "missed tick: the bridge was held up past a command deadline"
+            );
+            st.held_up = st.held_up.saturating_add(lost as u32);
+        }
         for v in verdicts {
             say_late(&v);
             if v.held_up() {
@@ -482,12 +484,18 @@ mod tests {
         assert_eq!(command_wait_ns(25_000_000, 0.6), 15_000_000);
         assert_eq!(command_wait_ns(1_000_000, 0.6), 600_000);
         let late_1ms = 1_000_000;
-        assert_eq!(ticks_lost(0, late_1ms, command_wait_ns(25_000_000, 0.6)), 0);
+        let (wait_40, wait_1k) = (
+            command_wait_ns(25_000_000, 0.6),
+            command_wait_ns(1_000_000, 0.6),
+        );
+        assert_eq!(ticks_lost(0, late_1ms, wait_40, true), 0);
         // At 1 kHz the clock reports 1 ms late as one whole period skipped.
-        assert_eq!(ticks_lost(1, 0, command_wait_ns(1_000_000, 0.6)), 1);
-        assert_eq!(ticks_lost(0, 700_000, command_wait_ns(1_000_000, 0.6)), 1);
-        assert_eq!(ticks_lost(3, 700_000, command_wait_ns(1_000_000, 0.6)), 4);
-        assert_eq!(ticks_lost(3, 100_000, command_wait_ns(1_000_000, 0.6)), 3);
+        assert_eq!(ticks_lost(1, 0, wait_1k, false), 1);
+        assert_eq!(ticks_lost(0, 700_000, wait_1k, true), 1);
+        assert_eq!(ticks_lost(3, 700_000, wait_1k, true), 4);
+        assert_eq!(ticks_lost(3, 100_000, wait_1k, true), 3);
+        // Begun past its deadline with its command already there: executed, not lost.
+        assert_eq!(ticks_lost(0, 700_000, wait_1k, false), 0);
     }
 
     #[test]
