@@ -84,46 +84,99 @@ impl Clock {
     }
 }
 
-/// Which real-time settings the process obtained.
+/// Which real-time settings the process obtained (`None`: not asked for).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RtReport {
     /// SCHED_FIFO at the given priority, or why not.
-    pub fifo: Result<i32, String>,
+    pub fifo: Option<Result<i32, String>>,
     /// mlockall(MCL_CURRENT | MCL_FUTURE), or why not.
-    pub mlock: Result<(), String>,
+    pub mlock: Option<Result<(), String>>,
 }
 
 impl RtReport {
-    /// One line for the log: what was obtained and what was not.
+    /// One line for the log: what was obtained, what was refused (one note each) and what
+    /// was not asked for.
     pub fn summary(&self) -> String {
         let fifo = match &self.fifo {
-            Ok(p) => format!("SCHED_FIFO priority {p}"),
-            Err(e) => format!("no SCHED_FIFO ({e}); tick lateness will suffer under CPU load"),
+            Some(Ok(p)) => format!("SCHED_FIFO priority {p}"),
+            Some(Err(e)) => {
+                format!("no SCHED_FIFO ({e}); tick lateness will suffer under CPU load")
+            }
+            None => "SCHED_FIFO not asked for".to_owned(),
         };
         let mlock = match &self.mlock {
-            Ok(()) => "memory locked".to_owned(),
-            Err(e) => format!("memory not locked ({e})"),
+            Some(Ok(())) => "memory locked".to_owned(),
+            Some(Err(e)) => format!("memory not locked ({e})"),
+            None => "memory lock not asked for".to_owned(),
         };
         format!("{fifo}; {mlock}")
+    }
+
+    /// Whether everything asked for was obtained.
+    pub fn ok(&self) -> bool {
+        !matches!(self.fifo, Some(Err(_))) && !matches!(self.mlock, Some(Err(_)))
     }
 }
 
 /// Asks for SCHED_FIFO at `priority` and locks the process's memory. Never fails: what could
 /// not be had is reported, and the caller warns in one line.
 pub fn request_realtime(priority: i32) -> RtReport {
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // libc: nix 0.29 has no sched_setscheduler.
-    // SAFETY: a plain system call on the calling process with a valid sched_param.
-    let fifo = if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
-        Ok(priority)
-    } else {
-        Err(std::io::Error::last_os_error().to_string())
-    };
-    let mlock = mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE)
-        .map_err(|e| std::io::Error::from(e).to_string());
+    request(Some(priority), true)
+}
+
+/// Asks for SCHED_FIFO at `fifo` (if given) and for `mlockall` (if `mlock`); each is asked and
+/// reported on its own, so a benchmark can measure one setting alone.
+pub fn request(fifo: Option<i32>, mlock: bool) -> RtReport {
+    let fifo = fifo.map(|priority| {
+        let param = libc::sched_param {
+            sched_priority: priority,
+        };
+        // libc: nix 0.29 has no sched_setscheduler.
+        // SAFETY: a plain system call on the calling process with a valid sched_param.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0 {
+            Ok(priority)
+        } else {
+            Err(std::io::Error::last_os_error().to_string())
+        }
+    });
+    let mlock = mlock.then(|| {
+        mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE)
+            .map_err(|e| std::io::Error::from(e).to_string())
+    });
     RtReport { fifo, mlock }
+}
+
+/// The PM QoS request of `/dev/cpu_dma_latency` (what cyclictest holds): while this value is
+/// alive, idle CPUs do not enter sleep states whose exit latency exceeds the request, so a
+/// wake-up between ticks does not pay a deep C-state's exit. Dropping it (closing the file)
+/// ends the request.
+#[derive(Debug)]
+pub struct DmaLatency {
+    _file: std::fs::File,
+    us: i32,
+}
+
+/// Where the kernel takes the CPU wake-up latency request.
+pub const CPU_DMA_LATENCY: &str = "/dev/cpu_dma_latency";
+
+impl DmaLatency {
+    /// Requests a CPU wake-up latency of at most `us` µs (0: no idle state with an exit
+    /// latency) for as long as the value lives; the error says why the machine refused.
+    pub fn hold(us: i32) -> std::io::Result<Self> {
+        use std::io::Write as _;
+        let mut file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(CPU_DMA_LATENCY)?;
+        // The kernel takes a binary s32 (or a hex string); the request lasts while the file
+        // is open.
+        file.write_all(&us.to_ne_bytes())?;
+        Ok(Self { _file: file, us })
+    }
+
+    /// The latency held (µs).
+    pub fn us(&self) -> i32 {
+        self.us
+    }
 }
 
 #[cfg(test)]
@@ -152,6 +205,32 @@ mod tests {
             }
         );
         assert_eq!(c.next_deadline_ns(), 1_400);
+    }
+
+    /// The clock's grid and its skipped-period count at 40 Hz and at 1 kHz: the same hold-up
+    /// of 60 ms costs two periods at 40 Hz and 60 at 1 kHz, never a burst of catch-up ticks.
+    #[test]
+    fn held_up_periods_follow_the_period_at_40_hz_and_1_khz() {
+        for (period_ns, skipped) in [(25_000_000u64, 2u64), (1_000_000, 60)] {
+            let mut c = Clock::new(period_ns, period_ns);
+            assert!(matches!(
+                c.on_wake(period_ns + 10_000),
+                Wake::Tick { skipped: 0, .. }
+            ));
+            assert_eq!(c.next_deadline_ns(), 2 * period_ns);
+            let Wake::Tick {
+                ideal_ns,
+                skipped: s,
+                lateness_ns,
+            } = c.on_wake(2 * period_ns + 60_000_000)
+            else {
+                panic!("a tick")
+            };
+            assert_eq!(s, skipped);
+            assert_eq!(ideal_ns % period_ns, 0);
+            assert!(lateness_ns < period_ns);
+            assert_eq!(c.next_deadline_ns(), ideal_ns + period_ns);
+        }
     }
 
     #[test]

@@ -294,6 +294,35 @@ mod tests {
         }
     }
 
+    /// The controlled stop at 40 Hz and at 1 kHz (the period as the only parameter): each
+    /// step decelerates every joint by at most `accel * period`, keeps the direction, and the
+    /// stop takes the same time at both rates (25 times the ticks at 1 kHz).
+    #[test]
+    fn the_controlled_stop_follows_the_period_at_40_hz_and_1_khz() {
+        let accel = gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
+        let v0 = [0.4, -0.2, 0.1, 0.0, 1.0, 0.0];
+        let mut times = Vec::new();
+        for dt in [0.025, 0.001] {
+            let mut v = v0;
+            let mut ticks = 0u32;
+            while v.iter().any(|x| *x != 0.0) {
+                let before = v;
+                controlled_stop_step(&mut v, &accel, dt);
+                for j in 0..6 {
+                    assert!((before[j] - v[j]).abs() <= accel[j] * dt + 1e-12);
+                    // The direction is kept: every joint by one common factor.
+                    assert!(v[j] * v0[j] >= 0.0 && v[j].abs() <= before[j].abs());
+                }
+                ticks += 1;
+                assert!(ticks < 10_000);
+            }
+            times.push(f64::from(ticks) * dt);
+        }
+        // Joint 1 (0.2 rad/s at 0.5 rad/s²) sets the stop: 0.4 s at either rate, to a tick.
+        assert!((times[0] - 0.4).abs() <= 0.025 + 1e-9, "{times:?}");
+        assert!((times[1] - 0.4).abs() <= 0.001 + 1e-9, "{times:?}");
+    }
+
     #[test]
     fn executes_only_the_command_of_its_tick() {
         let mut b = core();

@@ -295,8 +295,13 @@ impl<T> Drop for UdsSubscriber<T> {
 
 /// Waits until one of `fds` is readable or `timeout` passes; returns a bit per fd (bit `i`
 /// for `fds[i]`, at most 64). A signal ends the wait early with no bit set.
+///
+/// The timeout keeps its nanoseconds (`ppoll`): `poll` counts whole milliseconds, so a wait
+/// for the last 0.6 ms of a 1 kHz tick would become a busy loop that starves the processes
+/// the caller waits for on its CPU.
 pub fn poll_readable(fds: &[i32], timeout: Duration) -> u64 {
-    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    use nix::poll::{PollFd, PollFlags, ppoll};
+    use nix::sys::time::TimeSpec;
     use std::os::fd::BorrowedFd;
     let mut pfds: Vec<PollFd<'_>> = fds
         .iter()
@@ -307,8 +312,7 @@ pub fn poll_readable(fds: &[i32], timeout: Duration) -> u64 {
             PollFd::new(fd, PollFlags::POLLIN)
         })
         .collect();
-    let timeout = PollTimeout::try_from(timeout).unwrap_or(PollTimeout::MAX);
-    match poll(&mut pfds, timeout) {
+    match ppoll(&mut pfds, Some(TimeSpec::from_duration(timeout)), None) {
         Ok(n) if n > 0 => {}
         // Nothing ready, or a signal (EINTR) ended the wait.
         _ => return 0,
@@ -341,6 +345,10 @@ mod tests {
         assert_eq!(got, vec![[1, 2, 3], [4, 5, 6]]);
         assert_eq!(b.drain(|_| {}).unwrap(), 2);
         assert_eq!(poll_readable(&[a.raw_fd()], Duration::from_millis(1)), 0);
+        // A sub-millisecond wait sleeps for it (not a busy loop of zero-timeout polls).
+        let t0 = Instant::now();
+        assert_eq!(poll_readable(&[a.raw_fd()], Duration::from_micros(600)), 0);
+        assert!(t0.elapsed() >= Duration::from_micros(600));
         // A subscriber that leaves is forgotten.
         drop(b);
         std::thread::sleep(RESCAN + Duration::from_millis(10));

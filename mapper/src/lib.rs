@@ -81,6 +81,11 @@ pub trait ActionMap: Send {
         }
         self.eval(q, c, &a, out);
     }
+
+    /// Takes the graph's tick period (`[graph] rate_hz`), once at load, before the first
+    /// `eval`. Maps whose rules depend on the period (the acceleration per tick of mode
+    /// switching) follow it; the others ignore it.
+    fn set_period(&mut self, _period_s: f64) {}
 }
 
 /// The operating mode of a map that has modes, as the mapper's status reports it.

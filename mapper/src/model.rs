@@ -340,6 +340,13 @@ impl std::fmt::Debug for LoadedModel {
 }
 
 impl LoadedModel {
+    /// This model ticking every `period_s` seconds ([`ActionMap::set_period`]): what the
+    /// mapper process and replay serve at the graph's rate.
+    pub fn at_period(mut self, period_s: f64) -> Self {
+        self.map.set_period(period_s);
+        self
+    }
+
     /// Loads `spec` for the default robot profile ([`LoadedModel::load_for`]).
     pub fn load(spec: &str) -> Result<Self, ModelError> {
         Self::load_for(spec, kinematics::RobotProfile::default_robot())

@@ -835,6 +835,21 @@ impl ActionMap for ModeSwitchMap {
         ModelKind::ModeSwitch
     }
 
+    /// The period and the look-ahead follow the graph's rate unless the spec or the model
+    /// file set them to something else than the robot profile's defaults.
+    fn set_period(&mut self, period_s: f64) {
+        if !(period_s.is_finite() && period_s > 0.0) {
+            return;
+        }
+        let rate_hz = self.robot.control_rate_hz();
+        if self.params.period_s == 1.0 / rate_hz {
+            self.params.period_s = period_s;
+        }
+        if self.params.lookahead_s == 0.5 / rate_hz {
+            self.params.lookahead_s = 0.5 * period_s;
+        }
+    }
+
     fn n_joints(&self) -> usize {
         self.chain.n_joints()
     }
@@ -1041,6 +1056,54 @@ mod tests {
             max_joint_acceleration_rad_s2: vec![1e6; 6],
             ..ModeSwitchParams::default()
         }
+    }
+
+    /// The map at the graph's rate: at 40 Hz and at 1 kHz the period and the look-ahead
+    /// follow the graph (a value the spec sets stays), and the ramp's per-tick change is
+    /// `max_joint_acceleration * period` at each.
+    #[test]
+    fn the_period_follows_the_graph_at_40_hz_and_1_khz() {
+        for dt in [0.025, 0.001] {
+            let model = LoadedModel::load(SPEC).unwrap().at_period(dt);
+            let mut step = MapperStep::new(3, model, 6).unwrap();
+            let p = ModeSwitchParams {
+                period_s: dt,
+                lookahead_s: 0.5 * dt,
+                ..ModeSwitchParams::default()
+            };
+            let q = gen3_lite::HOME;
+            let mut prev = [0.0; 6];
+            let mut limited = 0;
+            for k in 0..40u64 {
+                let c = step.step(&state_at(&q, k), Some(&joy([1.0, 0.0], 0)));
+                for j in 0..6 {
+                    let dv = (c.qdot_rad_s[j] - prev[j]).abs();
+                    let room = p.max_joint_acceleration_rad_s2[j] * dt;
+                    assert!(
+                        dv <= room * 1.02 + 1e-9,
+                        "{dt} s tick {k} joint {j}: {dv} > {room}"
+                    );
+                    limited += usize::from(dv > 0.9 * room);
+                    prev[j] = c.qdot_rad_s[j];
+                }
+            }
+            assert!(limited > 0, "{dt} s: the ramp never acted");
+        }
+        // The map's own parameters: followed unless given.
+        let mut m = ModeSwitchMap::from_spec(SPEC).unwrap().1;
+        m.set_period(0.001);
+        assert_eq!(
+            (m.params().period_s, m.params().lookahead_s),
+            (0.001, 0.0005)
+        );
+        let mut m = ModeSwitchMap::from_spec("modeswitch:period_s=0.01")
+            .unwrap()
+            .1;
+        m.set_period(0.001);
+        assert_eq!(
+            (m.params().period_s, m.params().lookahead_s),
+            (0.01, 0.0005)
+        );
     }
 
     #[test]

@@ -698,14 +698,13 @@ pub fn replay(
         if let std::collections::hash_map::Entry::Vacant(slot) = steps.entry(pid) {
             let s = match rec.model(cmd.mapper_id, pid, robot, &mut notes)? {
                 Some((model, name, altered)) => Some((
-                    MapperStep::new(cmd.mapper_id, model, robot.n_joints()).map_err(|source| {
-                        ReplayError::Model {
+                    MapperStep::new(cmd.mapper_id, model.at_period(period_s), robot.n_joints())
+                        .map_err(|source| ReplayError::Model {
                             path: rec.path.clone(),
                             mapper_id: cmd.mapper_id,
                             pid,
                             source,
-                        }
-                    })?,
+                        })?,
                     name,
                     altered,
                 )),

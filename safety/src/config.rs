@@ -27,7 +27,8 @@ pub struct SafetyConfig {
     /// [`MAX_JOYSTICK_AGE_LIMIT_MS`].
     pub max_joystick_age_ms: f64,
     /// A command computed from a robot state older than this stops the arm (ms). Above 0 and
-    /// shorter than the period (25 ms at 40 Hz).
+    /// shorter than the period; the graph's default is [`SafetyConfig::state_age_ms_for`]
+    /// its period (20 ms at 40 Hz, 0.8 ms at 1 kHz).
     pub max_state_age_ms: f64,
     /// Require the joystick's deadman button to be held; released means stop.
     pub deadman: bool,
@@ -271,6 +272,12 @@ impl SafetyConfig {
         crate::scene::validate(self)
     }
 
+    /// The default `max_state_age_ms` at a tick period of `period_s`: 80 % of the period, so a
+    /// state from the previous tick is always stale and this tick's never is.
+    pub fn state_age_ms_for(period_s: f64) -> f64 {
+        800.0 * period_s
+    }
+
     /// Checks the age limits against the tick period `period_s`: a limit that would disable
     /// its check (0, negative, not a number, or so long it never acts) or make it act on every
     /// tick is an error naming the key, never saturated silently.
@@ -370,6 +377,29 @@ mod tests {
         .unwrap_err();
         assert_eq!(e.key, "max_state_age_ms");
         assert!(e.to_string().contains("below the period (25 ms)"), "{e}");
+    }
+
+    #[test]
+    fn the_default_state_age_follows_the_period_at_40_hz_and_1_khz() {
+        for rate_hz in [40.0, 1000.0] {
+            let period_s = 1.0 / rate_hz;
+            let ms = SafetyConfig::state_age_ms_for(period_s);
+            let cfg = SafetyConfig {
+                max_state_age_ms: ms,
+                ..SafetyConfig::default()
+            };
+            cfg.validate_ages(period_s).unwrap();
+            assert!(ms > 0.5 * period_s * 1e3 && ms < period_s * 1e3, "{ms}");
+        }
+        assert_eq!(SafetyConfig::state_age_ms_for(0.025), 20.0);
+        assert!((SafetyConfig::state_age_ms_for(0.001) - 0.8).abs() < 1e-12);
+        // The 40 Hz default is refused at 1 kHz: a configuration built for one rate does not
+        // pass silently at another.
+        let at_40 = SafetyConfig::default();
+        assert_eq!(
+            at_40.validate_ages(0.001).unwrap_err().key,
+            "max_state_age_ms"
+        );
     }
 
     proptest::proptest! {

@@ -1071,6 +1071,70 @@ mod tests {
         }
     }
 
+    /// The period-tied rules at 40 Hz and at 1 kHz, with the period as the only parameter:
+    /// the velocity changes by at most `max_acceleration * period` per tick (so a ramp takes
+    /// the same time, 25 times the ticks), and a state older than the default age limit at
+    /// that period (80 % of it) is stale while one of this tick is not.
+    #[test]
+    fn period_tied_rules_follow_the_period_at_40_hz_and_1_khz() {
+        let accel = gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
+        let want = [0.4, -0.4, 0.2, 0.0, 0.5, 0.0];
+        for (rate_hz, ramp_ticks) in [(40.0, 32u64), (1000.0, 800)] {
+            let dt = 1.0 / rate_hz;
+            let period_ns = (dt * 1e9) as u64;
+            let cfg = SafetyConfig {
+                max_state_age_ms: SafetyConfig::state_age_ms_for(dt),
+                ..SafetyConfig::default()
+            };
+            let mut f = SafetyFilter::new(cfg, &limits(), dt).unwrap();
+            // A state published a tenth of a period ago and a sample one period old.
+            let at = |tick: u64, state_age_ns: u64| {
+                let mut s = RobotState::at_rest(tick, NOW - state_age_ns, 6);
+                s.applied_tick = tick.wrapping_sub(1);
+                let mut c = cmd(tick, want);
+                c.state_t_ns = s.t_ns;
+                c.joystick_t_ns = NOW - period_ns;
+                (c, s)
+            };
+            let mut prev = [0.0; 6];
+            let mut reached = None;
+            for k in 1..2000u64 {
+                let (c, s) = at(k, period_ns / 10);
+                let out = f.step(&c, &s, NOW);
+                for j in 0..6 {
+                    let dv = (out.qdot_rad_s[j] - prev[j]).abs();
+                    assert!(
+                        dv <= accel[j] * dt + 1e-12,
+                        "{rate_hz} Hz tick {k} joint {j}: {dv}"
+                    );
+                    prev[j] = out.qdot_rad_s[j];
+                }
+                if out.flags == 0 {
+                    reached = Some(k);
+                    break;
+                }
+                assert_eq!(
+                    out.flags,
+                    safe_flags::ACCEL_LIMITED,
+                    "{rate_hz} Hz tick {k}"
+                );
+            }
+            // Joint 2 (0.4 rad/s at 0.5 rad/s²) sets the ramp: 0.8 s at either rate.
+            let reached = reached.unwrap();
+            assert!(
+                reached.abs_diff(ramp_ticks) <= 1,
+                "{rate_hz} Hz: reached at tick {reached}, expected {ramp_ticks}"
+            );
+            // A state 90 % of a period old is stale at this rate: a stop.
+            let (c, s) = at(reached + 1, period_ns * 9 / 10);
+            let out = f.step(&c, &s, NOW);
+            assert_ne!(out.flags & safe_flags::STALE_STATE, 0, "{rate_hz} Hz");
+            for j in 0..6 {
+                assert!((out.qdot_rad_s[j] - prev[j]).abs() <= accel[j] * dt + 1e-12);
+            }
+        }
+    }
+
     #[test]
     fn after_a_miss_the_ramp_starts_from_the_measured_velocity() {
         let mut f = filter();

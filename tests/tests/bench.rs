@@ -131,3 +131,97 @@ fn bench_latency_measures_both_transports() {
     assert!(png.len() > 10_000, "latency.png is {} bytes", png.len());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `scl bench headroom` end to end, shortened: two rates on both transports, each row with
+/// its misses, end to end, lateness and every process's CPU time per tick; the ratios per
+/// rate; the plot. `--rt-only` asks for one setting: the graph's config says so.
+#[test]
+fn bench_headroom_reports_every_rate_and_transport() {
+    let _serial = serial();
+    let dir = temp_dir("headroom");
+    let out_dir = dir.join("out");
+    let out = std::process::Command::new(scl_binary())
+        .args([
+            "bench",
+            "headroom",
+            "--secs",
+            "2",
+            "--rates",
+            "40,250",
+            "--transport",
+            "both",
+            "--rt-only",
+            "mlock",
+            "--json",
+            "--out",
+        ])
+        .arg(&out_dir)
+        .env("SCL_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "scl bench headroom failed: {stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["rt_settings"]["mlock"], true);
+    assert_eq!(report["rt_settings"]["fifo"], false);
+    let rows = report["rows"].as_array().unwrap();
+    let order: Vec<(f64, &str)> = rows
+        .iter()
+        .map(|r| {
+            (
+                r["rate_hz"].as_f64().unwrap(),
+                r["transport"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        order,
+        [
+            (40.0, "iceoryx2"),
+            (40.0, "uds"),
+            (250.0, "iceoryx2"),
+            (250.0, "uds")
+        ]
+    );
+    for r in rows {
+        let what = format!("{} Hz {}", r["rate_hz"], r["transport"]);
+        let ticks = r["ticks"].as_u64().unwrap();
+        // 2 s: 80 ticks at 40 Hz, 500 at 250 Hz, less start-up and shutdown.
+        let rate = r["rate_hz"].as_f64().unwrap();
+        assert!(ticks as f64 >= rate, "{what}: {ticks} ticks");
+        assert!(r["held_up"].as_u64().unwrap() <= r["missed"].as_u64().unwrap());
+        check_dist(&format!("{what} e2e"), &r["e2e_us"], ticks / 2);
+        let cpu: Vec<&str> = r["cpu_per_tick_us"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p[0].as_str().unwrap())
+            .collect();
+        assert_eq!(
+            cpu,
+            ["bridge", "safety", "mapper", "joystick", "supervisor"],
+            "{what}"
+        );
+        for p in r["cpu_per_tick_us"].as_array().unwrap() {
+            assert!(p[1].as_f64().unwrap() > 0.0, "{what}: {p}");
+        }
+    }
+    // The run's config asked for mlock alone.
+    let cfg = std::fs::read_to_string(out_dir.join("graph-iceoryx2-250hz.toml")).unwrap();
+    for line in [
+        "rate_hz = 250.0",
+        "realtime = true",
+        "rt_fifo = false",
+        "rt_mlock = true",
+        "rt_cpu = -1",
+        "rt_cpu_dma_latency_us = -1",
+    ] {
+        assert!(cfg.contains(line), "{line} not in:\n{cfg}");
+    }
+    assert_eq!(report["ratios"].as_array().unwrap().len(), 2);
+    let png = std::fs::read(out_dir.join("headroom.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"), "headroom.png is not a PNG");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -41,13 +41,100 @@ use ipc_types::stats::quantile;
 use scl_node::config::GraphConfig;
 use scl_node::stats::sorted_us;
 
+pub mod headroom;
+pub mod proc_cpu;
+
+/// The real-time settings a benchmark's graph asks for, each on its own so that one can be
+/// measured alone (`--rt` asks for all, `--rt-only NAME` for one).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Eq, Default)]
+pub struct RtSettings {
+    /// SCHED_FIFO priorities along the control path (`[graph] rt_fifo`).
+    pub fifo: bool,
+    /// `mlockall` in every control-path process (`[graph] rt_mlock`).
+    pub mlock: bool,
+    /// The control path pinned to the last CPU (`[graph] rt_cpu`).
+    pub pin: bool,
+    /// `/dev/cpu_dma_latency` held at 0 while the graph runs
+    /// (`[graph] rt_cpu_dma_latency_us`).
+    pub dma_latency: bool,
+}
+
+impl RtSettings {
+    /// Nothing asked for: the normal scheduler, unpinned.
+    pub const NONE: Self = Self {
+        fifo: false,
+        mlock: false,
+        pin: false,
+        dma_latency: false,
+    };
+    /// Everything (`--rt`).
+    pub const ALL: Self = Self {
+        fifo: true,
+        mlock: true,
+        pin: true,
+        dma_latency: true,
+    };
+    /// The names `--rt-only` takes.
+    pub const NAMES: [&'static str; 4] = ["fifo", "mlock", "pin", "dma-latency"];
+
+    /// One setting alone, by name (`fifo`, `mlock`, `pin`, `dma-latency`).
+    pub fn only(name: &str) -> Result<Self, String> {
+        let mut s = Self::NONE;
+        match name {
+            "fifo" => s.fifo = true,
+            "mlock" => s.mlock = true,
+            "pin" => s.pin = true,
+            "dma-latency" => s.dma_latency = true,
+            other => {
+                return Err(format!(
+                    "`{other}` is not a real-time setting; use one of {}",
+                    Self::NAMES.join(", ")
+                ));
+            }
+        }
+        Ok(s)
+    }
+
+    /// Whether anything is asked for.
+    pub fn any(&self) -> bool {
+        *self != Self::NONE
+    }
+
+    /// A short label: `none`, `all`, or the settings' names joined by `+`.
+    pub fn label(&self) -> String {
+        match *self {
+            Self::NONE => "none".to_owned(),
+            Self::ALL => "all".to_owned(),
+            s => {
+                let on = [s.fifo, s.mlock, s.pin, s.dma_latency];
+                Self::NAMES
+                    .iter()
+                    .zip(on)
+                    .filter(|(_, on)| *on)
+                    .map(|(n, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join("+")
+            }
+        }
+    }
+
+    /// Sets the `[graph]` keys of these settings; `cores` names the last CPU for pinning.
+    pub fn apply(&self, graph: &mut scl_node::config::GraphSection, cores: usize) {
+        graph.realtime = self.any();
+        graph.rt_fifo = self.fifo;
+        graph.rt_mlock = self.mlock;
+        graph.rt_cpu = if self.pin { cores as i32 - 1 } else { -1 };
+        graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
+    }
+}
+
 /// What `scl bench latency` was asked to do.
 #[derive(Debug, Clone)]
 pub struct LatencyOptions {
     /// How long each transport runs.
     pub duration: Duration,
-    /// Ask for SCHED_FIFO, mlockall and CPU affinity.
-    pub rt: bool,
+    /// The real-time settings asked for.
+    pub rt: RtSettings,
     /// Busy processes running beside the graph.
     pub load: usize,
     /// The transports, run one after the other.
@@ -172,6 +259,14 @@ pub struct RunReport {
     pub realtime: Vec<String>,
     /// With `--live`: messages the connected Foxglove client received over the run.
     pub live_client_messages: Option<u64>,
+    /// The graph's rate (Hz).
+    pub rate_hz: f64,
+    /// Misses the machine took (the bridge's `held_up`): part of `missed`.
+    pub held_up: u64,
+    /// Each process's CPU time per tick (µs, user + system, every thread), measured between
+    /// its first heartbeat and the end of the run: bridge, safety, mapper, joystick and the
+    /// supervisor (`scl up`).
+    pub cpu_per_tick_us: Vec<(String, f64)>,
 }
 
 /// Per-hop distributions.
@@ -197,8 +292,11 @@ pub struct Compute {
 }
 
 impl RunReport {
-    fn new(transport: Transport, s: &Samples, realtime: Vec<String>) -> Self {
+    fn new(transport: Transport, s: &Samples, realtime: Vec<String>, rate_hz: f64) -> Self {
         Self {
+            rate_hz,
+            held_up: 0,
+            cpu_per_tick_us: Vec::new(),
             transport,
             live_client_messages: None,
             ticks: s.ticks,
@@ -277,8 +375,10 @@ pub struct LatencyReport {
     pub machine: Machine,
     /// Seconds per transport.
     pub duration_s: f64,
-    /// `--rt` given.
+    /// Any real-time setting asked for (`--rt` or `--rt-only`).
     pub rt: bool,
+    /// Which real-time settings were asked for.
+    pub rt_settings: RtSettings,
     /// `--load` busy processes.
     pub load: usize,
     /// The graph that ran: the model the mapper served, the joystick script, the bridge's
@@ -305,6 +405,8 @@ pub struct BenchSettings {
     pub command_deadline: f64,
     /// The CPU the control path was pinned to with `--rt` (-1: none).
     pub rt_cpu: i32,
+    /// `/dev/cpu_dma_latency` requested while the graph ran (µs; -1: none).
+    pub rt_cpu_dma_latency_us: i32,
     /// The transports, in the order they ran.
     pub transports: Vec<Transport>,
 }
@@ -337,27 +439,25 @@ pub fn burn() -> ! {
     }
 }
 
-fn run_one(
+/// Runs the graph of `opts` on `transport` once; `tag` tells its files and prefix apart from
+/// the other runs of the benchmark.
+pub(crate) fn run_one(
     opts: &LatencyOptions,
     transport: Transport,
     dir: &Path,
+    tag: &str,
 ) -> Result<(RunReport, Samples), BenchError> {
-    let prefix = Prefix::new(&format!("bench{}{}", std::process::id(), transport))
+    let prefix = Prefix::new(&format!("bench{}{}{tag}", std::process::id(), transport))
         .map_err(|e| BenchError::Graph(e.to_string()))?;
     let mut cfg = opts.config.clone();
     cfg.graph.transport = transport;
-    cfg.graph.realtime = opts.rt;
-    cfg.graph.rt_cpu = if opts.rt {
-        Machine::detect().cores as i32 - 1
-    } else {
-        -1
-    };
+    opts.rt.apply(&mut cfg.graph, Machine::detect().cores);
     cfg.graph.prefix = prefix.to_string();
     // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
     // configuration says: it must never drive a real arm, nor wait for a person's input.
     cfg.bridge.robot = "mock".to_owned();
     cfg.joystick.source = "script".to_owned();
-    let cfg_path = dir.join(format!("graph-{transport}.toml"));
+    let cfg_path = dir.join(format!("graph-{transport}{tag}.toml"));
     let text = toml::to_string(&cfg)
         .map_err(|e| BenchError::Graph(format!("cannot write the run's config: {e}")))?;
     std::fs::write(&cfg_path, text)
@@ -374,7 +474,8 @@ fn run_one(
     }
     let graph = Graph::join_with(&prefix, &format!("bench-{}", std::process::id()), transport)?;
     let reports = graph.tick_report_subscriber()?;
-    let log_path = dir.join(format!("scl-up-{transport}.log"));
+    let heartbeats = graph.status_subscriber()?;
+    let log_path = dir.join(format!("scl-up-{transport}{tag}.log"));
     let log = std::fs::File::create(&log_path)
         .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
     let secs = opts.duration.as_secs_f64();
@@ -402,18 +503,29 @@ fn run_one(
         .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
 
     eprintln!(
-        "bench: {transport}, {secs:.0} s, load {}, rt {}",
-        opts.load, opts.rt
+        "bench: {transport}, {} Hz, {secs:.0} s, load {}, rt {}",
+        cfg.graph.rate_hz,
+        opts.load,
+        opts.rt.label()
     );
     let mut samples = Samples::default();
+    let mut cpu = proc_cpu::CpuWatch::new(up.id());
+    let mut held_up = 0u64;
     let t0 = Instant::now();
     let mut next = 10.0;
+    let mut next_cpu = 0.0;
     while up
         .try_wait()
         .map_err(|e| BenchError::Graph(e.to_string()))?
         .is_none()
     {
         reports.drain(|r| samples.take(r))?;
+        heartbeats.drain(|s| {
+            cpu.heartbeat(s);
+            if s.role == ipc_types::NodeRole::Bridge as u32 {
+                held_up = u64::from(s.held_up);
+            }
+        })?;
         if signals::stop_requested() {
             // Our own child; an error means it has exited, which try_wait sees next.
             let _ = nix::sys::signal::kill(
@@ -422,6 +534,11 @@ fn run_one(
             );
         }
         let el = t0.elapsed().as_secs_f64();
+        if el >= next_cpu {
+            // Read often enough that the last reading is close to the graph's end.
+            next_cpu = el + 0.25;
+            cpu.read(samples.ticks);
+        }
         if el >= next {
             next += 10.0;
             let e = Dist::of(&samples.e2e);
@@ -430,11 +547,18 @@ fn run_one(
                 samples.ticks, samples.missed, e.p50, e.p99
             );
         }
-        std::thread::sleep(Duration::from_millis(20));
+        // The tick reports' buffer holds 256: a quarter of a second at 1 kHz.
+        std::thread::sleep(Duration::from_millis(5));
     }
     reports.drain(|r| samples.take(r))?;
     let live_messages = live.map(LiveClient::finish);
+    heartbeats.drain(|s| {
+        if s.role == ipc_types::NodeRole::Bridge as u32 {
+            held_up = u64::from(s.held_up);
+        }
+    })?;
     drop(burners);
+    drop(heartbeats);
     drop(reports);
     drop(graph);
     let _ = ipc_types::graph::release_domain(&prefix);
@@ -445,7 +569,9 @@ fn run_one(
         .filter(|l| l.contains("real-time"))
         .map(|l| l.trim().to_owned())
         .collect();
-    let mut report = RunReport::new(transport, &samples, realtime);
+    let mut report = RunReport::new(transport, &samples, realtime, cfg.graph.rate_hz);
+    report.held_up = held_up;
+    report.cpu_per_tick_us = cpu.per_tick_us();
     report.live_client_messages = live_messages;
     Ok((report, samples))
 }
@@ -623,7 +749,7 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         if signals::stop_requested() {
             break;
         }
-        let (report, samples) = run_one(opts, *t, &dir)?;
+        let (report, samples) = run_one(opts, *t, &dir, "")?;
         runs.push(report);
         all_samples.push((*t, samples));
     }
@@ -631,10 +757,11 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         let font = learning::plot::load_font(None).map_err(|e| BenchError::Graph(e.to_string()))?;
         let refs: Vec<(Transport, &Samples)> = all_samples.iter().map(|(t, s)| (*t, s)).collect();
         let title = format!(
-            "scl bench latency: {:.0} s per transport, load {}, rt {}",
+            "scl bench latency: {} Hz, {:.0} s per transport, load {}, rt {}",
+            opts.config.graph.rate_hz,
             opts.duration.as_secs_f64(),
             opts.load,
-            opts.rt
+            opts.rt.label()
         );
         let rgb = render_histograms(&refs, &title, font.is_some())
             .map_err(|e| BenchError::Graph(e.to_string()))?;
@@ -666,19 +793,21 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         robot: opts.config.graph.robot.clone(),
         model: opts.config.mapper.model.clone(),
         script: opts.config.joystick.script.clone(),
-        rate_hz: opts.config.bridge.rate_hz,
+        rate_hz: opts.config.graph.rate_hz,
         command_deadline: opts.config.bridge.command_deadline,
-        rt_cpu: if opts.rt {
+        rt_cpu: if opts.rt.pin {
             machine.cores as i32 - 1
         } else {
             -1
         },
+        rt_cpu_dma_latency_us: if opts.rt.dma_latency { 0 } else { -1 },
         transports: opts.transports.clone(),
     };
     Ok(LatencyReport {
         machine,
         duration_s: opts.duration.as_secs_f64(),
-        rt: opts.rt,
+        rt: opts.rt.any(),
+        rt_settings: opts.rt,
         load: opts.load,
         settings,
         runs,
@@ -703,7 +832,7 @@ pub fn render(r: &LatencyReport) -> String {
         },
         r.duration_s,
         r.load,
-        r.rt
+        r.rt_settings.label()
     );
     let _ = writeln!(
         s,
@@ -713,8 +842,8 @@ pub fn render(r: &LatencyReport) -> String {
     for run in &r.runs {
         let _ = writeln!(
             s,
-            "\n{}: {} ticks, {} missed",
-            run.transport, run.ticks, run.missed
+            "\n{}: {} ticks, {} missed ({} held up by the machine)",
+            run.transport, run.ticks, run.missed, run.held_up
         );
         if let Some(n) = run.live_client_messages {
             let _ = writeln!(
@@ -733,6 +862,14 @@ pub fn render(r: &LatencyReport) -> String {
                 "  {name:<20} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
                 d.p50, d.p90, d.p99, d.p999, d.max
             );
+        }
+        if !run.cpu_per_tick_us.is_empty() {
+            let cpu: Vec<String> = run
+                .cpu_per_tick_us
+                .iter()
+                .map(|(n, us)| format!("{n} {us:.1}"))
+                .collect();
+            let _ = writeln!(s, "  CPU per tick (µs): {}", cpu.join(", "));
         }
         for line in &run.realtime {
             let _ = writeln!(s, "  {line}");

@@ -1,6 +1,6 @@
 //! The hardware bridge process: the graph's only clock.
 //!
-//! On every deadline of the absolute 40 Hz timer it publishes `RobotState(k)`, waits until
+//! On every deadline of the absolute timer (`[graph] rate_hz`, 40 Hz by default) it publishes `RobotState(k)`, waits until
 //! `command_deadline` into the period for `SafeCommand(k)`, and executes it; anything else is
 //! a counted miss answered by a controlled stop. On shutdown it stops the arm first and
 //! publishes a last state flagged `SHUTDOWN`.
@@ -213,6 +213,7 @@ pub fn run(
     let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
     let ctx = Ctx {
         graph: &graph,
+        period_ns: graph_cfg.period_ns(),
         cfg,
         faults,
         resume,
@@ -255,8 +256,24 @@ fn say_late(v: &late::Verdict) {
     }
 }
 
+/// How long into each period the bridge waits for the tick's command (ns): the period's
+/// `command_deadline` fraction.
+pub fn command_wait_ns(period_ns: u64, command_deadline: f64) -> u64 {
+    (period_ns as f64 * command_deadline) as u64
+}
+
+/// The ticks a wake-up `lateness_ns` past its deadline, after `skipped` whole periods slept
+/// through, lost to the machine: the skipped periods, and this tick too if it started past its
+/// command wait `wait_ns` and was `missed` (its state went out, but its command could not come
+/// back in time; one already there is executed, and that tick is not lost).
+pub fn ticks_lost(skipped: u64, lateness_ns: u64, wait_ns: u64, missed: bool) -> u64 {
+    skipped + u64::from(missed && lateness_ns >= wait_ns)
+}
+
 struct Ctx<'a> {
     graph: &'a Graph,
+    /// The tick period (`[graph] rate_hz`).
+    period_ns: u64,
     cfg: &'a BridgeConfig,
     faults: &'a FaultConfig,
     resume: &'a Resume,
@@ -264,9 +281,9 @@ struct Ctx<'a> {
 
 fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
     let (graph, cfg, faults) = (ctx.graph, ctx.cfg, ctx.faults);
-    let period_ns = (1e9 / cfg.rate_hz) as u64;
+    let period_ns = ctx.period_ns;
     let period_s = period_ns as f64 * 1e-9;
-    let wait_ns = (period_ns as f64 * cfg.command_deadline) as u64;
+    let wait_ns = command_wait_ns(period_ns, cfg.command_deadline);
     let states = graph.robot_state_publisher()?;
     let commands = graph.safe_command_subscriber(true)?;
     let status = graph.status_publisher()?;
@@ -282,7 +299,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
     let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
     status.send(st)?;
     st.phase = phase::RUNNING;
-    tracing::info!(rate_hz = cfg.rate_hz, robot = %cfg.robot, "ticking");
+    tracing::info!(rate_hz = 1e9 / period_ns as f64, robot = %cfg.robot, "ticking");
 
     let mut clock = Clock::new(now_ns() + period_ns, period_ns);
     // Drop whatever commands are left over from an earlier bridge of this graph.
@@ -303,19 +320,9 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         }
         // Woken this long after the deadline it slept for, the process was not run by the
         // operating system (or the host of a virtual machine): the periods it slept through
-        // are lost, and so is this tick if it starts past its command deadline (its state
-        // goes out, but no command can come back in time: the bridge brakes).
-        let lost = skipped + u64::from(lateness_ns >= wait_ns);
-        if lost > 0 {
-            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
-            tracing::warn!(
-                ticks_lost = lost,
-                late_ms,
-                "missed tick: the bridge was held up past a command deadline"
-            );
-            core.add_skipped(skipped);
-            st.held_up = st.held_up.saturating_add(lost as u32);
-        }
+        // are lost, and so is this tick if it starts past its command deadline and misses
+        // (its state goes out, but no command can come back in time: the bridge brakes).
+        core.add_skipped(skipped);
         let state = match core.begin_tick(now_ns()) {
             Ok(s) => s,
             Err(e) => {
@@ -361,6 +368,17 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 break;
             }
         };
+        let missed_now = matches!(outcome, Outcome::Missed(_));
+        let lost = ticks_lost(skipped, lateness_ns, wait_ns, missed_now);
+        if lost > 0 {
+            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
+            tracing::warn!(
+                ticks_lost = lost,
+                late_ms,
+                "missed tick: the bridge was held up past a command deadline"
+            );
+            st.held_up = st.held_up.saturating_add(lost as u32);
+        }
         for v in verdicts {
             say_late(&v);
             if v.held_up() {
@@ -456,6 +474,28 @@ mod tests {
         let d = std::env::temp_dir().join(format!("scl-creds-{tag}-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    /// The command deadline and the hold-up count at 40 Hz and at 1 kHz: the default
+    /// 0.6 of the period is 15 ms and 0.6 ms; a wake-up 1 ms late loses no tick at 40 Hz and
+    /// this tick at 1 kHz.
+    #[test]
+    fn the_deadline_and_the_lost_ticks_follow_the_period_at_40_hz_and_1_khz() {
+        assert_eq!(command_wait_ns(25_000_000, 0.6), 15_000_000);
+        assert_eq!(command_wait_ns(1_000_000, 0.6), 600_000);
+        let late_1ms = 1_000_000;
+        let (wait_40, wait_1k) = (
+            command_wait_ns(25_000_000, 0.6),
+            command_wait_ns(1_000_000, 0.6),
+        );
+        assert_eq!(ticks_lost(0, late_1ms, wait_40, true), 0);
+        // At 1 kHz the clock reports 1 ms late as one whole period skipped.
+        assert_eq!(ticks_lost(1, 0, wait_1k, false), 1);
+        assert_eq!(ticks_lost(0, 700_000, wait_1k, true), 1);
+        assert_eq!(ticks_lost(3, 700_000, wait_1k, true), 4);
+        assert_eq!(ticks_lost(3, 100_000, wait_1k, true), 3);
+        // Begun past its deadline with its command already there: executed, not lost.
+        assert_eq!(ticks_lost(0, 700_000, wait_1k, false), 0);
     }
 
     #[test]

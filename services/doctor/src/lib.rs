@@ -129,7 +129,7 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     out.push(checks::model(
         &cfg.mapper.model,
         &cfg.graph.robot,
-        scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, robot)
+        scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, robot, cfg.period_s())
             .map(|_| ())
             .map_err(|e| e.to_string()),
     ));

@@ -25,14 +25,16 @@ use mapper::step::MapperStep;
 use ipc_types::signals;
 use scl_node::config::{FaultConfig, GraphSection, RtRole};
 
-/// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile): every
-/// problem is reported here, at start-up, never at tick time.
+/// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile),
+/// ticking every `period_s` seconds (`[graph] rate_hz`): every problem is reported here, at
+/// start-up, never at tick time.
 pub fn load_step(
     spec: &str,
     id: u32,
     robot: &'static kinematics::RobotProfile,
+    period_s: f64,
 ) -> Result<MapperStep, MapperNodeError> {
-    let model = LoadedModel::load_for(spec, robot)?;
+    let model = LoadedModel::load_for(spec, robot)?.at_period(period_s);
     Ok(MapperStep::new(id, model, robot.n_joints())?)
 }
 
@@ -44,7 +46,7 @@ pub fn run(
     model: &str,
     id: u32,
 ) -> Result<(), MapperNodeError> {
-    let mut step = load_step(model, id, graph_cfg.profile()?)?;
+    let mut step = load_step(model, id, graph_cfg.profile()?, graph_cfg.period_s())?;
     let graph = Graph::join_with(prefix, &format!("mapper-{id}"), graph_cfg.transport)?;
     let states = graph.robot_state_subscriber(true)?;
     let joystick = graph.joystick_subscriber(true)?;

@@ -15,6 +15,9 @@ use kinematics::RobotProfile;
 use safety::SafetyConfig;
 use serde::{Deserialize, Serialize};
 
+/// The highest `[graph] rate_hz` (Hz): the Gen3 lite's low-level servo rate.
+pub const MAX_RATE_HZ: f64 = 1000.0;
+
 /// The whole graph configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -160,8 +163,24 @@ pub struct GraphSection {
     /// SCHED_FIFO priority of the bridge; safety, mappers and the joystick take the next
     /// three below it, in the order the data flows back from the clock.
     pub rt_priority: i32,
+    /// With `realtime`: the control-path processes ask for SCHED_FIFO (bridge at
+    /// `rt_priority`, the others below it). Off, they keep the normal scheduler (to measure
+    /// the other settings alone).
+    pub rt_fifo: bool,
+    /// With `realtime`: the control-path processes lock their memory (`mlockall`).
+    pub rt_mlock: bool,
     /// CPU the control-path processes are pinned to when real-time is on (`-1`: not pinned).
     pub rt_cpu: i32,
+    /// With `realtime`: `scl up` holds `/dev/cpu_dma_latency` at this many µs while the graph
+    /// runs (the PM QoS request cyclictest makes: idle CPUs stay out of deep sleep states
+    /// between ticks); `-1`: no request.
+    pub rt_cpu_dma_latency_us: i32,
+    /// The graph's tick rate (Hz, at most 1000): the bridge's clock, the mock arm, the scripted
+    /// joystick, and everything tied to the period (the command deadline, the acceleration per
+    /// tick, staleness in ticks, the heartbeat cadence). Default: the robot profile's control
+    /// rate (the Gen3 lite's high-level API runs at 40 Hz). `[bridge] rate_hz` is its
+    /// deprecated alias.
+    pub rate_hz: f64,
     /// Transport of the data-plane topics: `iceoryx2` (the product) or `uds` (Unix-domain
     /// datagram sockets, for latency comparisons; no single-publisher guarantee).
     pub transport: ipc_types::Transport,
@@ -191,6 +210,16 @@ impl GraphSection {
         })
     }
 
+    /// The tick period (s): `1 / rate_hz`.
+    pub fn period_s(&self) -> f64 {
+        1.0 / self.rate_hz
+    }
+
+    /// The tick period (ns), as the bridge's clock counts it.
+    pub fn period_ns(&self) -> u64 {
+        (1e9 / self.rate_hz) as u64
+    }
+
     /// The SCHED_FIFO priority of `role`, or `None` when real-time is off.
     pub fn rt_priority_of(&self, role: RtRole) -> Option<i32> {
         let below = match role {
@@ -212,7 +241,11 @@ impl Default for GraphSection {
             start_timeout_s: 10.0,
             realtime: true,
             rt_priority: 80,
+            rt_fifo: true,
+            rt_mlock: true,
             rt_cpu: -1,
+            rt_cpu_dma_latency_us: -1,
+            rate_hz: RobotProfile::default_robot().control_rate_hz(),
             transport: ipc_types::Transport::Iceoryx2,
         }
     }
@@ -312,9 +345,11 @@ pub struct BridgeConfig {
     /// Robot backend: `mock` (the simulation of the graph's robot profile) or `kortex` (the
     /// arm over the Kortex API, settings in `[bridge.kortex]`).
     pub robot: String,
-    /// Tick rate (Hz). Default: the robot profile's control rate (the Gen3 lite's high-level
-    /// API runs at 40 Hz).
-    pub rate_hz: f64,
+    /// Deprecated alias of `[graph] rate_hz`, still read (with a warning) so older files and
+    /// recordings keep working; a file giving both with different values is refused. Parsing
+    /// moves it to `[graph] rate_hz`, so it is always `None` in a parsed configuration.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rate_hz: Option<f64>,
     /// How far into the period the bridge waits for the tick's command, as a fraction of the
     /// period; a command later than this is a miss.
     pub command_deadline: f64,
@@ -340,7 +375,7 @@ impl BridgeConfig {
     pub fn for_robot(robot: &RobotProfile) -> Self {
         Self {
             robot: "mock".into(),
-            rate_hz: robot.control_rate_hz(),
+            rate_hz: None,
             command_deadline: 0.6,
             stop_acceleration_rad_s2: robot.limits().max_acceleration_rad_s2.clone(),
             mock: MockConfig::for_robot(robot),
@@ -419,11 +454,15 @@ impl GraphConfig {
         Self {
             graph: GraphSection {
                 robot: robot.name().to_owned(),
+                rate_hz: robot.control_rate_hz(),
                 ..GraphSection::default()
             },
             joystick: JoystickConfig::default(),
             mapper: MapperConfig::default(),
-            safety: SafetyConfig::for_robot(robot),
+            safety: SafetyConfig {
+                max_state_age_ms: SafetyConfig::state_age_ms_for(1.0 / robot.control_rate_hz()),
+                ..SafetyConfig::for_robot(robot)
+            },
             bridge: BridgeConfig::for_robot(robot),
             supervisor: SupervisorConfig::default(),
             faults: FaultConfig::default(),
@@ -449,9 +488,53 @@ impl GraphConfig {
             return Ok(cfg);
         };
         if robot.name() == RobotProfile::default_name() {
-            return Ok(cfg);
+            return cfg.settle_rate(text, path);
         }
         Self::parse_for(text, path, robot)
+    }
+
+    /// Settles the rate of a parsed file: moves the deprecated `[bridge] rate_hz` to
+    /// `[graph] rate_hz` (with a warning; both given with different values is an error naming
+    /// the file and both keys), and gives `[safety] max_state_age_ms`, if the file leaves it
+    /// out, its default at that rate.
+    fn settle_rate(mut self, text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let table: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        let given =
+            |section: &str, key: &str| table.get(section).and_then(|g| g.get(key)).is_some();
+        if let Some(old) = self.bridge.rate_hz.take() {
+            if given("graph", "rate_hz") && self.graph.rate_hz != old {
+                return Err(ConfigError::Parse {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "graph.rate_hz = {} and the deprecated bridge.rate_hz = {old} disagree; \
+                         keep graph.rate_hz only",
+                        self.graph.rate_hz
+                    ),
+                });
+            }
+            tracing::warn!(
+                file = %path.display(),
+                "bridge.rate_hz is deprecated: it is read as graph.rate_hz = {old}; move it to [graph]"
+            );
+            self.graph.rate_hz = old;
+        }
+        if !given("safety", "max_state_age_ms") {
+            self.safety.max_state_age_ms = SafetyConfig::state_age_ms_for(self.period_s());
+        }
+        Ok(self)
+    }
+
+    /// Sets the graph's rate, and with it the period-tied defaults still at their value for
+    /// the old rate (`[safety] max_state_age_ms`); explicitly set values stay and
+    /// [`GraphConfig::validate`] checks them against the new period.
+    pub fn set_rate_hz(&mut self, rate_hz: f64) {
+        if self.safety.max_state_age_ms == SafetyConfig::state_age_ms_for(self.period_s()) {
+            self.safety.max_state_age_ms = SafetyConfig::state_age_ms_for(1.0 / rate_hz);
+        }
+        self.graph.rate_hz = rate_hz;
     }
 
     /// Parses a graph TOML whose left-out keys take `robot`'s defaults.
@@ -464,7 +547,8 @@ impl GraphConfig {
         let mut table = toml::Table::try_from(Self::for_robot(robot))
             .map_err(|e| parse_err(format!("the defaults of robot {}: {e}", robot.name())))?;
         merge_tables(&mut table, over);
-        table.try_into().map_err(|e| parse_err(e.to_string()))
+        let cfg: Self = table.try_into().map_err(|e| parse_err(e.to_string()))?;
+        cfg.settle_rate(text, path)
     }
 
     /// Reads `path`, or the defaults if `None`. Relative model paths are resolved against
@@ -534,10 +618,18 @@ impl GraphConfig {
                 format!("`{}` is not a robot; use `mock` or `kortex`", b.robot),
             ));
         }
-        if !(b.rate_hz.is_finite() && b.rate_hz > 0.0 && b.rate_hz <= 1000.0) {
+        let rate = self.graph.rate_hz;
+        if !(rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ) {
+            return Err(err(
+                "graph.rate_hz",
+                format!("{rate} is outside (0, {MAX_RATE_HZ}]"),
+            ));
+        }
+        if let Some(r) = b.rate_hz {
+            // Only a configuration built in code gets here with the alias set.
             return Err(err(
                 "bridge.rate_hz",
-                format!("{} is outside (0, 1000]", b.rate_hz),
+                format!("{r}: deprecated, set graph.rate_hz instead"),
             ));
         }
         if !(b.command_deadline > 0.0 && b.command_deadline < 1.0) {
@@ -563,7 +655,7 @@ impl GraphConfig {
         hw_bridge::mock::MockArm::for_robot(robot, b.mock.clone())
             .map_err(|e| err(&format!("bridge.mock.{}", e.key), e.reason))?;
         b.kortex
-            .validate(1.0 / b.rate_hz)
+            .validate(self.period_s())
             .map_err(|e| err(&format!("bridge.kortex.{}", e.key), e.reason))?;
         if self.graph.transport == ipc_types::Transport::Uds && b.robot == "kortex" {
             return Err(err(
@@ -607,7 +699,7 @@ impl GraphConfig {
 
     /// The tick period (s).
     pub fn period_s(&self) -> f64 {
-        1.0 / self.bridge.rate_hz
+        self.graph.period_s()
     }
 }
 
@@ -635,7 +727,7 @@ mod tests {
             cfg.safety.max_velocity_rad_s,
             robot.limits().max_velocity_rad_s
         );
-        assert_eq!(cfg.bridge.rate_hz, robot.control_rate_hz());
+        assert_eq!(cfg.graph.rate_hz, robot.control_rate_hz());
         // Another arm: the keys a file leaves out take its defaults; the keys it sets win.
         let planar = RobotProfile::new(&kinematics::ProfileSpec::planar5()).unwrap();
         let text = "[graph]\nrobot = \"planar5\"\n[safety]\nspeed_override = 0.5\n\
@@ -645,7 +737,8 @@ mod tests {
         assert_eq!(cfg.safety.max_velocity_rad_s, [1.0; 5]);
         assert_eq!(cfg.safety.speed_override, 0.5);
         assert_eq!(cfg.bridge.stop_acceleration_rad_s2, [2.0; 5]);
-        assert_eq!(cfg.bridge.rate_hz, 20.0);
+        // The deprecated `[bridge] rate_hz` lands in `[graph] rate_hz`.
+        assert_eq!((cfg.graph.rate_hz, cfg.bridge.rate_hz), (20.0, None));
         assert_eq!(cfg.bridge.mock.gripper_time_constant_s, 0.1);
         assert_eq!(cfg.joystick, JoystickConfig::default());
         // An unknown robot is refused by name, with the known ones.
@@ -656,6 +749,47 @@ mod tests {
             e,
             "config: graph.robot: `ur5` is not a known robot; known: gen3_lite"
         );
+    }
+
+    #[test]
+    fn the_rate_is_a_graph_setting_with_the_bridge_key_as_its_alias() {
+        let p = Path::new("g.toml");
+        let cfg = GraphConfig::parse("[graph]\nrate_hz = 1000\n", p).unwrap();
+        cfg.validate().unwrap();
+        assert_eq!((cfg.period_s(), cfg.graph.period_ns()), (1e-3, 1_000_000));
+        // The state age limit left out follows the period; one given stays and is checked.
+        assert!((cfg.safety.max_state_age_ms - 0.8).abs() < 1e-12);
+        let set = "[graph]\nrate_hz = 1000\n[safety]\nmax_state_age_ms = 20.0\n";
+        let e = GraphConfig::parse(set, p).unwrap().validate().unwrap_err();
+        assert!(e.to_string().contains("safety.max_state_age_ms"), "{e}");
+        let mut cfg = GraphConfig::default();
+        cfg.set_rate_hz(500.0);
+        cfg.validate().unwrap();
+        assert_eq!(
+            (cfg.graph.rate_hz, cfg.safety.max_state_age_ms),
+            (500.0, 1.6)
+        );
+        let cfg = GraphConfig::parse("[bridge]\nrate_hz = 500\n", p).unwrap();
+        assert_eq!((cfg.graph.rate_hz, cfg.bridge.rate_hz), (500.0, None));
+        // A parsed configuration writes only the new key, and reads back the same.
+        let text = toml::to_string(&cfg).unwrap();
+        assert!(!text.contains("[bridge]\nrate_hz"), "{text}");
+        assert_eq!(GraphConfig::parse(&text, p).unwrap(), cfg);
+        // Both keys: the same value is fine, different values are refused naming both.
+        let both = "[graph]\nrate_hz = 250\n[bridge]\nrate_hz = 250\n";
+        assert_eq!(GraphConfig::parse(both, p).unwrap().graph.rate_hz, 250.0);
+        let e = GraphConfig::parse("[graph]\nrate_hz = 250\n[bridge]\nrate_hz = 40\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("g.toml") && e.contains("graph.rate_hz") && e.contains("bridge.rate_hz"),
+            "{e}"
+        );
+        // Set in code, the alias is refused by name.
+        let mut cfg = GraphConfig::default();
+        cfg.bridge.rate_hz = Some(100.0);
+        let e = cfg.validate().unwrap_err().to_string();
+        assert!(e.contains("bridge.rate_hz"), "{e}");
     }
 
     #[test]
@@ -681,13 +815,20 @@ mod tests {
         std::fs::write(&p, "[safety]\nmax_velocity = 1.0\n").unwrap();
         let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
         assert!(e.contains("max_velocity"), "{e}");
+        std::fs::write(&p, "[graph]\nrate_hz = 1001\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("graph.rate_hz") && e.contains("1000"), "{e}");
         std::fs::write(&p, "[bridge]\nrate_hz = -4\n").unwrap();
         let e = GraphConfig::load(Some(&p))
             .unwrap()
             .validate()
             .unwrap_err()
             .to_string();
-        assert!(e.contains("bridge.rate_hz"), "{e}");
+        assert!(e.contains("graph.rate_hz"), "{e}");
         std::fs::write(&p, "[safety]\nmax_velocity_rad_s = [1, 1, 1, 1, 1, 0]\n").unwrap();
         let e = GraphConfig::load(Some(&p))
             .unwrap()
@@ -741,7 +882,11 @@ mod tests {
         std::fs::write(&p, "[graph]\ntransport = \"uds\"\n").unwrap();
         GraphConfig::load(Some(&p)).unwrap().validate().unwrap();
         // Age limits are checked against the period: 20 ms is a whole period at 50 Hz.
-        std::fs::write(&p, "[bridge]\nrate_hz = 50.0\n").unwrap();
+        std::fs::write(
+            &p,
+            "[bridge]\nrate_hz = 50.0\n[safety]\nmax_state_age_ms = 20.0\n",
+        )
+        .unwrap();
         let e = GraphConfig::load(Some(&p))
             .unwrap()
             .validate()

@@ -10,9 +10,9 @@ pub fn elevate(graph: &GraphSection, role: RtRole) -> String {
     let Some(priority) = graph.rt_priority_of(role) else {
         return String::new();
     };
-    let rt = hw_bridge::clock::request_realtime(priority);
+    let rt = hw_bridge::clock::request(graph.rt_fifo.then_some(priority), graph.rt_mlock);
     let mut line = rt.summary();
-    let mut ok = rt.fifo.is_ok() && rt.mlock.is_ok();
+    let mut ok = rt.ok();
     if graph.rt_cpu >= 0 && role != RtRole::Supervisor {
         match pin_to_cpu(graph.rt_cpu as usize) {
             Ok(()) => line.push_str(&format!("; pinned to CPU {}", graph.rt_cpu)),
@@ -28,6 +28,34 @@ pub fn elevate(graph: &GraphSection, role: RtRole) -> String {
         tracing::warn!("real-time not fully available: {line}");
     }
     line
+}
+
+/// Holds `[graph] rt_cpu_dma_latency_us` (with `realtime`) for as long as the returned value
+/// lives (`scl up` holds it while the graph runs); logs one line saying what was held or why
+/// the machine refused it, and returns that line (empty when not asked for).
+pub fn hold_dma_latency(graph: &GraphSection) -> (Option<hw_bridge::clock::DmaLatency>, String) {
+    if !graph.realtime || graph.rt_cpu_dma_latency_us < 0 {
+        return (None, String::new());
+    }
+    let us = graph.rt_cpu_dma_latency_us;
+    match hw_bridge::clock::DmaLatency::hold(us) {
+        Ok(h) => {
+            let line = format!(
+                "{} held at {us} µs while the graph runs",
+                hw_bridge::clock::CPU_DMA_LATENCY
+            );
+            tracing::info!("real-time: {line}");
+            (Some(h), line)
+        }
+        Err(e) => {
+            let line = format!(
+                "{} not held at {us} µs ({e}); idle CPUs may sleep deeply between ticks",
+                hw_bridge::clock::CPU_DMA_LATENCY
+            );
+            tracing::warn!("real-time not fully available: {line}");
+            (None, line)
+        }
+    }
 }
 
 /// Pins the calling process to `cpu`.

@@ -711,7 +711,10 @@ impl<'a> Supervisor<'a> {
         let new_id = self.next_mapper_id;
         let loaded = self.opts.config.profile().map_or_else(
             |e| Err(e.into()),
-            |robot| scl_mapper_node::load_step(&model, new_id, robot),
+            |robot| {
+                let period_s = self.opts.config.period_s();
+                scl_mapper_node::load_step(&model, new_id, robot, period_s)
+            },
         );
         if let Err(e) = loaded {
             refuse(&request, &e.to_string());
@@ -860,7 +863,12 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     cfg.validate()?;
     scl_joystick::validate(&cfg.joystick)?;
     // Refuse a bad model, or a recording over an existing file, before anything starts.
-    scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, cfg.profile()?)?;
+    scl_mapper_node::load_step(
+        &cfg.mapper.model,
+        cfg.mapper.id,
+        cfg.profile()?,
+        cfg.period_s(),
+    )?;
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }
@@ -899,6 +907,8 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     };
     // Reaping and holding the arm must not wait behind other load; below the control path.
     scl_node::rt::elevate(&cfg.graph, scl_node::config::RtRole::Supervisor);
+    // Idle CPUs kept out of deep sleep while the graph runs; released when `_dma` drops.
+    let (_dma, _) = scl_node::rt::hold_dma_latency(&cfg.graph);
     let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
     let mut live = match &opts.live {
         Some(addr) => Some(start_live(&sv, addr, start_timeout)?),

@@ -1,0 +1,143 @@
+//! Each graph process's CPU time per tick: the processes are found by their heartbeats'
+//! `pid` (the supervisor by its child id) and read through their CPU-time clocks
+//! (`clock_getcpuclockid`: user + system time of every thread, in ns, where `/proc/PID/stat`
+//! counts 10 ms clock ticks).
+
+use ipc_types::{NodeRole, NodeStatus};
+
+/// A process's CPU time so far (ns), or `None` once it is gone (or not ours to read).
+pub fn cpu_ns(pid: u32) -> Option<u64> {
+    let pid = i32::try_from(pid).ok()?;
+    let clock = nix::time::clock_getcpuclockid(nix::unistd::Pid::from_raw(pid)).ok()?;
+    let t = nix::time::clock_gettime(clock).ok()?;
+    u64::try_from(t.tv_sec())
+        .ok()?
+        .checked_mul(1_000_000_000)?
+        .checked_add(u64::try_from(t.tv_nsec()).ok()?)
+}
+
+#[derive(Debug, Clone)]
+struct Watched {
+    name: &'static str,
+    pid: u32,
+    /// (CPU ns, ticks seen) at the first and at the latest reading.
+    first: Option<(u64, u64)>,
+    last: Option<(u64, u64)>,
+}
+
+/// The processes of one run and their CPU readings.
+#[derive(Debug, Clone)]
+pub struct CpuWatch {
+    procs: Vec<Watched>,
+}
+
+/// The order processes are reported in: the control path from the clock back, then the
+/// supervisor.
+pub const ORDER: [&str; 5] = ["bridge", "safety", "mapper", "joystick", "supervisor"];
+
+impl CpuWatch {
+    /// Watches the supervisor (`scl up`, process `supervisor_pid`) and every control-path
+    /// process that sends a heartbeat.
+    pub fn new(supervisor_pid: u32) -> Self {
+        Self {
+            procs: vec![Watched {
+                name: "supervisor",
+                pid: supervisor_pid,
+                first: None,
+                last: None,
+            }],
+        }
+    }
+
+    /// Takes a heartbeat: a new process (or a restarted one) is watched from the next reading.
+    pub fn heartbeat(&mut self, s: &NodeStatus) {
+        let name = match NodeRole::from_u32(s.role) {
+            Some(NodeRole::Bridge) => "bridge",
+            Some(NodeRole::Safety) => "safety",
+            Some(NodeRole::Mapper) => "mapper",
+            Some(NodeRole::Joystick) => "joystick",
+            _ => return,
+        };
+        match self.procs.iter_mut().find(|p| p.name == name) {
+            Some(p) if p.pid == s.pid => {}
+            Some(p) => {
+                // A restart: the new process's time from its own first reading.
+                *p = Watched {
+                    name,
+                    pid: s.pid,
+                    first: None,
+                    last: None,
+                };
+            }
+            None => self.procs.push(Watched {
+                name,
+                pid: s.pid,
+                first: None,
+                last: None,
+            }),
+        }
+    }
+
+    /// Reads every watched process's CPU time at `ticks` ticks into the run.
+    pub fn read(&mut self, ticks: u64) {
+        for p in &mut self.procs {
+            if let Some(ns) = cpu_ns(p.pid) {
+                if p.first.is_none() {
+                    p.first = Some((ns, ticks));
+                } else {
+                    p.last = Some((ns, ticks));
+                }
+            }
+        }
+    }
+
+    /// CPU time per tick (µs) of each process read at least twice with ticks in between, in
+    /// [`ORDER`].
+    pub fn per_tick_us(&self) -> Vec<(String, f64)> {
+        ORDER
+            .iter()
+            .filter_map(|name| {
+                let p = self.procs.iter().find(|p| p.name == *name)?;
+                per_tick_us(p.first?, p.last?).map(|us| ((*name).to_owned(), us))
+            })
+            .collect()
+    }
+}
+
+/// CPU µs per tick between two (CPU ns, ticks) readings; `None` without ticks in between.
+pub fn per_tick_us(first: (u64, u64), last: (u64, u64)) -> Option<f64> {
+    let ticks = last.1.checked_sub(first.1).filter(|t| *t > 0)?;
+    Some(last.0.saturating_sub(first.0) as f64 / ticks as f64 * 1e-3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn own_cpu_time_grows_and_per_tick_divides() {
+        let me = std::process::id();
+        let a = cpu_ns(me).unwrap();
+        let mut x = 0u64;
+        for i in 0..2_000_000u64 {
+            x = std::hint::black_box(x.wrapping_add(i));
+        }
+        assert!(cpu_ns(me).unwrap() > a);
+        assert_eq!(per_tick_us((1_000, 10), (41_000, 50)), Some(1.0));
+        assert_eq!(per_tick_us((1_000, 10), (2_000, 10)), None);
+        // A pid that is not running.
+        assert_eq!(cpu_ns(u32::MAX), None);
+    }
+
+    #[test]
+    fn processes_are_found_by_heartbeat_and_reported_in_order() {
+        let mut w = CpuWatch::new(std::process::id());
+        let mut hb = NodeStatus::new(NodeRole::Bridge, ipc_types::phase::RUNNING, 0);
+        hb.pid = std::process::id();
+        w.heartbeat(&hb);
+        w.read(0);
+        w.read(100);
+        let names: Vec<String> = w.per_tick_us().into_iter().map(|(n, _)| n).collect();
+        assert_eq!(names, ["bridge", "supervisor"]);
+    }
+}
