@@ -287,9 +287,10 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
 
 #[test]
 fn a_command_late_for_want_of_cpu_is_counted_as_held_up() {
-    // Safety stalls for 80 % of a period before it filters tick 60's command, as a process
-    // the machine does not run: the command comes after the bridge's deadline, with the
-    // chain's own work well within it. The bridge counts that miss as held up, in its
+    // Safety stalls for 1.2 periods before it filters tick 60's command, as a process the
+    // machine does not run: the command comes after the next tick began (so even a bridge
+    // held up past its deadline cannot take it for tick 60), with the chain's own work well
+    // within the deadline. The bridge counts that miss as held up, in its
     // heartbeat (the summary's `held_up`) and its log; a graph's own miss would not be.
     let _serial = serial();
     let prefix = unique_prefix("stall");

@@ -392,7 +392,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 if matches!(reason, MissReason::NoCommand | MissReason::WrongTick)
                     && lateness_ns < wait_ns
                 {
-                    late.missed(state.tick, state.t_ns, deadline);
+                    late.missed(state.tick, ideal_ns, state.t_ns, deadline);
                 }
                 if core.missed() <= 10 || core.missed().is_power_of_two() {
                     tracing::warn!(

@@ -55,9 +55,9 @@ pub struct FaultConfig {
     pub joystick_silent_after_ticks: u64,
     /// The bridge stops publishing robot states after this many ticks (its clock goes on).
     pub bridge_states_stop_after_ticks: u64,
-    /// Safety stalls for 80 % of a period before it filters this one tick's command, as if
-    /// the machine did not run it: the command reaches the bridge after its deadline, which
-    /// counts the miss as held up (`NodeStatus::held_up`).
+    /// Safety stalls for 1.2 periods before it filters this one tick's command, as if the
+    /// machine did not run it: the command reaches the bridge after the next tick began,
+    /// which counts the miss as held up (`NodeStatus::held_up`).
     pub safety_stall_at_tick: u64,
 }
 

@@ -186,7 +186,7 @@ pub fn run(
         last_tick = cmd.tick;
         if faults.safety_stall_at_tick != 0 && cmd.tick == faults.safety_stall_at_tick {
             tracing::warn!(tick = cmd.tick, "fault injection: safety stalls");
-            std::thread::sleep(Duration::from_secs_f64(0.8 * period_s));
+            std::thread::sleep(Duration::from_secs_f64(1.2 * period_s));
         }
         let t0 = now_ns();
         last_step_ns = t0;
