@@ -7,9 +7,9 @@
 //! the plane `z = 0`):
 //!
 //! * **pick-and-place**: the bottle at (0.525, −0.12), the target mark at (0.505, 0.16),
-//!   grasped 7 cm above the table. Above the bottle (10 cm over the grasp point), down to it,
-//!   close the gripper, lift (10 cm), carry to above the mark, lower to the place point,
-//!   open: seven subgoals.
+//!   grasped 7 cm above the table. In front of the bottle (10 cm back along the side
+//!   approach the demonstrations use), to it, close the gripper, lift (6 cm), carry to above
+//!   the mark, lower to the place point, open: seven subgoals.
 //! * **table cleaning**: five objects on a round patch of table (the demonstrations' scrubbing
 //!   circle, centre (0.38, 0), radius [`TABLE_RADIUS_M`]) at [`OBJECT_RING_M`] from its
 //!   centre. An object is pushed when the tool passes through it at table height (below
@@ -154,20 +154,29 @@ pub struct TaskGoals {
 impl TaskGoals {
     /// The goals of `task` (none for the planar reaches: no scene).
     pub fn of(task: Task, tol: Tolerances) -> Option<Self> {
-        let v = Vector3::new;
+        let v = Vector3::<f64>::new;
         let mut objects = Vec::new();
         let subgoals = match task {
             Task::PickAndPlace => {
                 let (bottle, mark, grasp_z, lift) =
-                    (v(0.525, -0.12, 0.0), v(0.505, 0.16, 0.0), 0.07, 0.10);
+                    (v(0.525, -0.12, 0.0), v(0.505, 0.16, 0.0), 0.07, 0.06);
                 let up = |p: Vector3<f64>, z: f64| p + Vector3::z() * z;
+                // The demonstrations approach from the side: 10 cm back along the approach
+                // (heading to the bottle, pitched 10° down).
+                let psi = bottle.y.atan2(bottle.x);
+                let pitch = 10f64.to_radians();
+                let approach = v(
+                    psi.cos() * pitch.cos(),
+                    psi.sin() * pitch.cos(),
+                    -pitch.sin(),
+                );
                 vec![
                     Subgoal::Reach {
-                        name: "above the bottle",
-                        at: up(bottle, grasp_z + lift),
+                        name: "in front of the bottle",
+                        at: up(bottle, grasp_z) - approach * 0.10,
                     },
                     Subgoal::Reach {
-                        name: "down to the bottle",
+                        name: "to the bottle",
                         at: up(bottle, grasp_z),
                     },
                     Subgoal::Grip {
