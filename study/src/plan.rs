@@ -595,6 +595,18 @@ nasa_tlx = true
             let text = std::fs::read_to_string(dir.join(name)).unwrap();
             let f: StudyFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(f.conditions.len(), 3, "{name}");
+            assert_eq!(
+                f.simulation,
+                crate::simulate::SimParams::default(),
+                "{name}: the documented defaults"
+            );
+            for t in &f.tasks {
+                assert_eq!(
+                    t.tolerances(),
+                    learning::goals::Tolerances::default(),
+                    "{name}"
+                );
+            }
             assert!(
                 f.questionnaire.nasa_tlx && f.questionnaire.likert.len() == 5,
                 "{name}"
