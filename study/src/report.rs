@@ -835,7 +835,9 @@ mod tests {
     #[test]
     fn the_papers_claims_are_checked_with_the_tests() {
         let mut d = data();
-        d.trials.iter_mut().for_each(|t| t.task = "pick-and-place".into());
+        d.trials
+            .iter_mut()
+            .for_each(|t| t.task = "pick-and-place".into());
         d.answers.clear();
         let r = analyse(&d, None).unwrap();
         let c = claims(&r);
