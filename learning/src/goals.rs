@@ -52,8 +52,6 @@ pub const PUSHER_RADIUS_M: f64 = 0.02;
 pub const CONTACT_HEIGHT_M: f64 = 0.08;
 /// Table cleaning: the height the operator pushes at (m).
 pub const PUSH_HEIGHT_M: f64 = 0.065;
-/// Table cleaning: the height the operator moves between objects at (m), clear of them.
-pub const HOVER_HEIGHT_M: f64 = 0.11;
 
 /// Tolerances of a task's goals (the study file's optional task keys).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -325,10 +323,8 @@ impl Aim {
 /// Table-cleaning phases of the object being pushed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Push {
-    /// Over the point behind the object at the hover height.
-    Hover,
-    /// Down behind it.
-    Descend,
+    /// To the point behind the object, at the pushing height.
+    Behind,
     /// Through it, out of the patch.
     Through,
 }
@@ -355,7 +351,7 @@ impl GoalRun {
             goals: goals.clone(),
             next: 0,
             held_s: 0.0,
-            push: Push::Hover,
+            push: Push::Behind,
             last_xy: None,
             roll_dir: None,
         }
@@ -425,7 +421,7 @@ impl GoalRun {
             }
             self.next += 1;
             self.held_s = 0.0;
-            self.push = Push::Hover;
+            self.push = Push::Behind;
         }
     }
 
@@ -511,21 +507,16 @@ impl GoalRun {
                 let along = (xy - o).dot(&dir);
                 let across = ((xy - o) - dir * along).norm();
                 if self.push == Push::Through && (along > 0.0 || across > PUSHER_RADIUS_M) {
-                    self.push = Push::Descend;
+                    self.push = Push::Behind;
                 }
-                if self.push == Push::Hover && (xy - behind).norm() <= close {
-                    self.push = Push::Descend;
-                }
-                if self.push == Push::Descend {
-                    if (xy - behind).norm() > 0.05 {
-                        self.push = Push::Hover;
-                    } else if p.z <= PUSH_HEIGHT_M + 0.01 {
-                        self.push = Push::Through;
-                    }
+                if self.push == Push::Behind
+                    && (xy - behind).norm() <= close
+                    && p.z <= CONTACT_HEIGHT_M
+                {
+                    self.push = Push::Through;
                 }
                 let position = match self.push {
-                    Push::Hover => at(behind, HOVER_HEIGHT_M.max(p.z.min(0.2))),
-                    Push::Descend => at(behind, PUSH_HEIGHT_M),
+                    Push::Behind => at(behind, PUSH_HEIGHT_M),
                     Push::Through => at(beyond, PUSH_HEIGHT_M),
                 };
                 Aim {
