@@ -154,16 +154,23 @@ pub struct AttemptResult {
 /// Makes a fresh instance of the served model (the map served and the operator's copies).
 pub type ModelFactory<'a> = dyn Fn() -> Result<LoadedModel, SimError> + 'a;
 
-/// The operator's copies of the served map, one per mode, to try candidates on.
+/// The operator's copies of the served map, one per mode, to try candidates on. A map with
+/// modes (mode switching) keeps state between ticks (its twist ramps under acceleration
+/// limits), so each candidate is tried on a fresh copy in that mode: what the input does
+/// from rest, which is what a person learns of it.
 struct Probes {
     maps: Vec<LoadedModel>,
+    stateful: bool,
 }
 
 impl Probes {
     fn new(make: &ModelFactory<'_>) -> Result<Self, SimError> {
         let first = make()?;
         if first.map.mode().is_none() {
-            return Ok(Self { maps: vec![first] });
+            return Ok(Self {
+                maps: vec![first],
+                stateful: false,
+            });
         }
         let mut maps = vec![first];
         for k in 1..8u32 {
@@ -176,7 +183,32 @@ impl Probes {
             }
             maps.push(m);
         }
-        Ok(Self { maps })
+        Ok(Self {
+            maps,
+            stateful: true,
+        })
+    }
+
+    /// Mode `m`'s output for action `a` at `(q, c)` into `out`; the speed scale.
+    fn eval(
+        &mut self,
+        make: &ModelFactory<'_>,
+        m: usize,
+        q: &[f64],
+        c: f64,
+        a: &[f64],
+        out: &mut [f64],
+    ) -> Option<f64> {
+        if self.stateful {
+            let mut copy = make().ok()?;
+            for _ in 0..m {
+                copy.map.press(buttons::MODE);
+            }
+            *self.maps.get_mut(m)? = copy;
+        }
+        let model = self.maps.get_mut(m)?;
+        model.map.eval(q, c, a, out);
+        Some(model.header.speed_scale_rad_s)
     }
 }
 
@@ -234,6 +266,7 @@ impl Operator {
     /// The best candidate in mode `m` and its error one tick ahead.
     fn best(
         &mut self,
+        make: &ModelFactory<'_>,
         m: usize,
         state: &RobotState,
         tool: &Isometry3<f64>,
@@ -245,15 +278,14 @@ impl Operator {
         let z = tool.rotation * Vector3::z();
         let t0 = tilt(&tool.rotation);
         let mut best = ([0.0; 2], f64::INFINITY);
-        let Some(model) = self.probes.maps.get_mut(m) else {
-            return best;
-        };
-        let scale = model.header.speed_scale_rad_s;
         let jm = jac.matrix();
         for a in &self.cands {
-            model
-                .map
-                .eval(state.q(), state.gripper, a, &mut self.out[..n]);
+            let Some(scale) =
+                self.probes
+                    .eval(make, m, state.q(), state.gripper, a, &mut self.out[..n])
+            else {
+                continue;
+            };
             let mut v = Vector6::zeros();
             for (j, qd) in self.out[..n].iter().enumerate() {
                 if qd.is_finite() {
@@ -280,6 +312,7 @@ impl Operator {
     #[allow(clippy::too_many_arguments)]
     fn act(
         &mut self,
+        make: &ModelFactory<'_>,
         state: &RobotState,
         tool: &Isometry3<f64>,
         jac: &Jacobian,
@@ -312,14 +345,17 @@ impl Operator {
                 self.cands.push([r * th.cos(), r * th.sin()]);
             }
             let cur = mode.unwrap_or(0);
-            let (a, e) = self.best(cur, state, tool, jac, &aim);
+            let (a, e) = self.best(make, cur, state, tool, jac, &aim);
             choice = a;
             let modes = self.probes.maps.len();
-            if modes > 1 {
+            // Within the tolerance of a position (a grip, the end of a reach) there is nothing
+            // to switch for.
+            let settled = aim.tilt.is_none() && (aim.position - p).norm() <= self.tol.position_m;
+            if modes > 1 && !settled {
                 let gain = now - e;
                 let mut other: Option<(usize, f64)> = None;
                 for m in (0..modes).filter(|&m| m != cur) {
-                    let (_, em) = self.best(m, state, tool, jac, &aim);
+                    let (_, em) = self.best(make, m, state, tool, jac, &aim);
                     if other.is_none_or(|(_, g)| now - em > g) {
                         other = Some((m, now - em));
                     }
@@ -445,7 +481,7 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
             *e = a.error(&tool);
         }
         let mode = step.mode().map(|m| m.index as usize);
-        let joy = op.act(&state, &tool, &jac, aim, mode, t_ns, &mut rng);
+        let joy = op.act(s.model, &state, &tool, &jac, aim, mode, t_ns, &mut rng);
         let mut cmd = step.step(&state, Some(&joy));
         cmd.t_ns = t_ns;
         let safe = filter.step(&cmd, &state, t_ns);
@@ -457,6 +493,8 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
             safety_flags = safe.flags,
             gripper = state.gripper,
             subgoal = ?run.current().map(Subgoal::name),
+            mode = ?mode,
+            buttons = joy.buttons,
             "simulated tick"
         );
         arm.set_command(&safe.qdot_rad_s[..n], safe.gripper_rate);
