@@ -562,7 +562,8 @@ pub fn start_q(robot: &RobotProfile, start: &StartPose) -> Option<Vec<f64>> {
 
 /// Runs participant `p`'s protocol (tasks in order, conditions in their Latin-square order,
 /// every attempt; practice left out) and writes `dir/trials.csv` (refusing a directory that
-/// has one) and a copy of the study file. `progress` is called after each attempt.
+/// has one) and a copy of the study file. `progress` is called after each attempt; `stop`
+/// before each (true: stop there, an error saying how far it got).
 pub fn simulate_participant(
     study: &Study,
     sim: &Loop,
@@ -570,6 +571,7 @@ pub fn simulate_participant(
     seed: u64,
     dir: &Path,
     progress: &(dyn Fn() + Sync),
+    stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<Vec<TrialRow>, StudyError> {
     let goals = study_goals(study)?;
     let params = study.file.simulation.clone();
@@ -606,6 +608,12 @@ pub fn simulate_participant(
                 })
             };
             for attempt in 1..=task.attempts {
+                if stop() {
+                    return Err(StudyError::Data {
+                        path: trials.clone(),
+                        reason: format!("stopped after {} attempts", rows.len()),
+                    });
+                }
                 let setup = AttemptSetup {
                     sim,
                     start_q: &q0,
@@ -788,15 +796,24 @@ candidates = 16
         let run = |sub: &str, seed: u64| {
             let d = dir.join(sub);
             let rows =
-                simulate_participant(&study, &sim(), Participant(2), seed, &d, &|| {}).unwrap();
+                simulate_participant(&study, &sim(), Participant(2), seed, &d, &|| {}, &|| false)
+                    .unwrap();
             assert_eq!(rows.len(), 4);
             std::fs::read(d.join(TRIALS)).unwrap()
         };
         let a = run("a", 7);
         assert_eq!(a, run("b", 7));
-        let e = simulate_participant(&study, &sim(), Participant(2), 7, &dir.join("a"), &|| {})
-            .unwrap_err()
-            .to_string();
+        let e = simulate_participant(
+            &study,
+            &sim(),
+            Participant(2),
+            7,
+            &dir.join("a"),
+            &|| {},
+            &|| false,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("never written over"), "{e}");
         let data = crate::report::Data::load(&[dir.join("a")]).unwrap();
         let r = crate::report::analyse(&data, None).unwrap();

@@ -1157,7 +1157,15 @@ pub fn simulate(
             .enumerate()
             .map(|(i, dir)| {
                 let p = Participant(i as u32 + 1);
-                study::simulate::simulate_participant(&s, &sim, p, seed, dir, &|| bar.inc(1))
+                study::simulate::simulate_participant(
+                    &s,
+                    &sim,
+                    p,
+                    seed,
+                    dir,
+                    &|| bar.inc(1),
+                    &ipc_types::signals::stop_requested,
+                )
             })
             .collect()
     });
