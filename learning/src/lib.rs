@@ -23,6 +23,7 @@ pub mod dataset;
 pub mod demos;
 pub mod eval;
 pub mod experiments;
+pub mod goals;
 pub mod greedy;
 pub mod import;
 pub mod pca;

@@ -70,7 +70,7 @@ enum Cmd {
     Record(scl_recorder::RecordArgs),
     /// User studies as the paper ran them: `run` walks a participant through a study file on
     /// the live graph, `report` draws the figures and runs the tests, `plan` prints the
-    /// counterbalanced orders.
+    /// counterbalanced orders, `simulate` runs simulated participants on the mock arm.
     Study {
         #[command(subcommand)]
         what: scl_study::StudyCmd,
@@ -632,7 +632,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         }
         Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
         Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
-        Cmd::Study { what } => Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what)?),
+        Cmd::Study { what } => Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what, &cfg)?),
         Cmd::Live(args) => Ok(scl_live::cli(&prefix, cfg, &args)?),
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
         Cmd::Replay(args) => Ok(replay::cli(&args)?),

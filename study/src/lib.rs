@@ -4,7 +4,8 @@
 //!
 //! * [`plan`]: the study file and each participant's order (a balanced Latin square);
 //! * [`data`]: `trials.csv` and `questionnaire.csv`, append-only, and where to resume;
-//! * [`report`] and [`figures`]: the merged data's tables, rank tests and figures.
+//! * [`report`] and [`figures`]: the merged data's tables, rank tests and figures;
+//! * [`simulate`]: simulated participants running the protocol on the mock arm.
 //!
 //! The experimenter's screen that runs a study on the live graph is `scl-study`
 //! (`scl study run`).
@@ -15,6 +16,7 @@ pub mod data;
 pub mod figures;
 pub mod plan;
 pub mod report;
+pub mod simulate;
 
 use std::path::PathBuf;
 
@@ -73,6 +75,9 @@ pub enum StudyError {
         /// Why.
         reason: String,
     },
+    /// A simulated participant could not run.
+    #[error(transparent)]
+    Simulate(#[from] simulate::SimError),
     /// The report could not be made.
     #[error("report: {0}")]
     Report(String),

@@ -38,6 +38,9 @@ pub struct StudyFile {
     /// The questionnaire after each condition of each task.
     #[serde(default)]
     pub questionnaire: Questionnaire,
+    /// The simulated participants' operator (`scl study simulate`); defaults where absent.
+    #[serde(default)]
+    pub simulation: crate::simulate::SimParams,
 }
 
 /// One task.
@@ -58,6 +61,22 @@ pub struct Task {
     pub practice_s: f64,
     /// Attempts per condition.
     pub attempts: u32,
+    /// Simulated participants: which task's goals this is (`table-cleaning`,
+    /// `pick-and-place`, `pouring`); default: the task's name.
+    #[serde(default)]
+    pub goals: Option<String>,
+    /// Simulated participants: position tolerance of the goals (m); default 0.03.
+    #[serde(default)]
+    pub tolerance_m: Option<f64>,
+    /// Simulated pouring: the tilt that pours (degrees); default 90.
+    #[serde(default)]
+    pub pour_angle_deg: Option<f64>,
+    /// Simulated pouring: how long the pour is held (s); default 1.
+    #[serde(default)]
+    pub hold_s: Option<f64>,
+    /// Simulated pouring: the tilt that counts as upright again (degrees); default 20.
+    #[serde(default)]
+    pub upright_deg: Option<f64>,
 }
 
 fn default_approach_speed() -> f64 {
@@ -262,6 +281,18 @@ impl Study {
             if t.attempts == 0 {
                 return Err(bad(key("attempts"), "must be at least 1".into()));
             }
+            for (k, v, hi) in [
+                ("tolerance_m", t.tolerance_m, 1.0),
+                ("pour_angle_deg", t.pour_angle_deg, 180.0),
+                ("hold_s", t.hold_s, 3600.0),
+                ("upright_deg", t.upright_deg, 180.0),
+            ] {
+                if let Some(v) = v
+                    && !(v.is_finite() && v > 0.0 && v <= hi)
+                {
+                    return Err(bad(key(k), format!("{v} is not in (0, {hi}]")));
+                }
+            }
             mapper::goto::GotoMap::from_spec_for(robot, &t.goto_spec())
                 .map_err(|e| bad(key("start"), e.to_string()))?;
         }
@@ -314,6 +345,9 @@ impl Study {
             }
             models.push(per_task);
         }
+        file.simulation
+            .check()
+            .map_err(|(key, reason)| bad(key, reason))?;
         let q = &file.questionnaire;
         if !q.likert.is_empty() && q.scale < 2 {
             return Err(bad(
@@ -357,6 +391,20 @@ impl Study {
 }
 
 impl Task {
+    /// The goals' tolerances: the keys given, the defaults of
+    /// [`learning::goals::Tolerances`] for the rest.
+    pub fn tolerances(&self) -> learning::goals::Tolerances {
+        let d = learning::goals::Tolerances::default();
+        learning::goals::Tolerances {
+            position_m: self.tolerance_m.unwrap_or(d.position_m),
+            pour_angle_rad: self
+                .pour_angle_deg
+                .map_or(d.pour_angle_rad, f64::to_radians),
+            hold_s: self.hold_s.unwrap_or(d.hold_s),
+            upright_rad: self.upright_deg.map_or(d.upright_rad, f64::to_radians),
+        }
+    }
+
     /// The go-to map's spec for the start pose.
     pub fn goto_spec(&self) -> String {
         let pose = match &self.start {
@@ -547,6 +595,18 @@ nasa_tlx = true
             let text = std::fs::read_to_string(dir.join(name)).unwrap();
             let f: StudyFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(f.conditions.len(), 3, "{name}");
+            assert_eq!(
+                f.simulation,
+                crate::simulate::SimParams::default(),
+                "{name}: the documented defaults"
+            );
+            for t in &f.tasks {
+                assert_eq!(
+                    t.tolerances(),
+                    learning::goals::Tolerances::default(),
+                    "{name}"
+                );
+            }
             assert!(
                 f.questionnaire.nasa_tlx && f.questionnaire.likert.len() == 5,
                 "{name}"

@@ -497,7 +497,233 @@ pub fn summary(r: &Report) -> String {
             }
         }
     }
+    let checked: Vec<Claim> = claims(r)
+        .into_iter()
+        .filter(|c| c.supported.is_some())
+        .collect();
+    if !checked.is_empty() {
+        let _ = writeln!(s, "\n## The paper's claims\n");
+        for c in checked {
+            let verdict = if c.supported == Some(true) {
+                "supported"
+            } else {
+                "not supported"
+            };
+            let _ = writeln!(s, "- **{}**: {verdict}. {}", c.claim, c.evidence);
+        }
+    }
     s
+}
+
+/// A claim of the paper checked on the data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Claim {
+    /// The claim as the paper makes it.
+    pub claim: &'static str,
+    /// Whether the data supports it (`None`: the data lacks the task or the conditions).
+    pub supported: Option<bool>,
+    /// The evidence: counts, the test and its p values, and how the verdict was reached.
+    pub evidence: String,
+}
+
+/// The condition called `name` (case and `-`/`_`/space insensitive; `modeswitch` is mode
+/// switching).
+fn condition(r: &Report, names: &[&str]) -> Option<usize> {
+    let norm = |s: &str| {
+        s.chars()
+            .filter(|c| c.is_ascii_alphanumeric())
+            .collect::<String>()
+            .to_ascii_lowercase()
+    };
+    r.conditions
+        .iter()
+        .position(|c| names.iter().any(|n| norm(c) == norm(n)))
+}
+
+/// The completion measure of `task`.
+fn completion<'a>(r: &'a Report, task: &str) -> Option<&'a Tested> {
+    r.measures
+        .iter()
+        .find(|m| m.task == task && m.kind == "completion")
+}
+
+/// Dunn's Holm-adjusted p between conditions `a` and `b` (only when Kruskal-Wallis is
+/// significant) and whether `a`'s mean completion is the higher.
+fn pair(m: &Tested, a: usize, b: usize) -> (Option<f64>, bool) {
+    let higher = mean(&m.values[a]) > mean(&m.values[b]);
+    let p = m
+        .tests
+        .as_ref()
+        .filter(|_| m.significant())
+        .and_then(|t| {
+            t.dunn
+                .iter()
+                .find(|d| (d.a, d.b) == (a, b) || (d.a, d.b) == (b, a))
+        })
+        .map(|d| d.p_holm);
+    (p, higher)
+}
+
+fn kw(m: &Tested) -> String {
+    match &m.tests {
+        Some(t) => format!(
+            "Kruskal-Wallis on completion H({}) = {:.3}, p = {:.4}, N = {}",
+            t.kruskal.df, t.kruskal.h, t.kruskal.p, t.kruskal.n
+        ),
+        None => "completion not tested (no spread)".into(),
+    }
+}
+
+fn counts(r: &Report, task: &str) -> String {
+    r.successes
+        .iter()
+        .filter(|s| s.task == task)
+        .map(|s| format!("{} {}/{}", s.condition, s.successes, s.attempts))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn dunn_text(r: &Report, m: &Tested, a: usize, b: usize) -> String {
+    let (p, higher) = pair(m, a, b);
+    let who = if higher {
+        &r.conditions[a]
+    } else {
+        &r.conditions[b]
+    };
+    match p {
+        Some(p) => format!(
+            "Dunn {} vs {} p_holm = {p:.4} ({who} higher)",
+            r.conditions[a], r.conditions[b]
+        ),
+        None => format!(
+            "{} vs {}: no pairwise test (Kruskal-Wallis not significant; {who} higher mean)",
+            r.conditions[a], r.conditions[b]
+        ),
+    }
+}
+
+/// The paper's four claims about its user studies, each checked on the data with the rank
+/// tests on completion (Kruskal-Wallis, then Dunn with Holm at [`ALPHA`]).
+pub fn claims(r: &Report) -> Vec<Claim> {
+    let scl = condition(r, &["SCL"]);
+    let pca = condition(r, &["PCA"]);
+    let cae = condition(r, &["CAE"]);
+    let modes = condition(r, &["mode switching", "modeswitch"]);
+    let sig_better = |m: &Tested, a: usize, b: usize| {
+        let (p, higher) = pair(m, a, b);
+        higher && p.is_some_and(|p| p < ALPHA)
+    };
+    let mut out = Vec::new();
+    let claim = "SCL beats PCA and CAE on pick-and-place";
+    out.push(match (completion(r, "pick-and-place"), scl, pca, cae) {
+        (Some(m), Some(s), Some(p), Some(c)) => Claim {
+            claim,
+            supported: Some(sig_better(m, s, p) && sig_better(m, s, c)),
+            evidence: format!(
+                "successes {}; {}; {}; {}. Supported when SCL's completion is significantly \
+                 higher than both.",
+                counts(r, "pick-and-place"),
+                kw(m),
+                dunn_text(r, m, s, p),
+                dunn_text(r, m, s, c)
+            ),
+        },
+        _ => Claim {
+            claim,
+            supported: None,
+            evidence: "the data lacks pick-and-place or one of SCL, PCA, CAE".into(),
+        },
+    });
+    let claim = "PCA does well on table cleaning";
+    out.push(match (completion(r, "table-cleaning"), pca) {
+        (Some(m), Some(p)) => {
+            let beaten: Vec<&str> = (0..r.conditions.len())
+                .filter(|&o| o != p && sig_better(m, o, p))
+                .map(|o| r.conditions[o].as_str())
+                .collect();
+            let s = r
+                .successes
+                .iter()
+                .find(|s| s.task == "table-cleaning" && s.condition == r.conditions[p]);
+            let half = s.is_some_and(|s| 2 * s.successes >= s.attempts && s.attempts > 0);
+            Claim {
+                claim,
+                supported: Some(beaten.is_empty() && half),
+                evidence: format!(
+                    "successes {}; {}; {}. Supported when PCA succeeds in at least half of its \
+                     attempts and no condition's completion is significantly higher.",
+                    counts(r, "table-cleaning"),
+                    kw(m),
+                    if beaten.is_empty() {
+                        "no condition significantly above PCA".to_owned()
+                    } else {
+                        format!("significantly above PCA: {}", beaten.join(", "))
+                    }
+                ),
+            }
+        }
+        _ => Claim {
+            claim,
+            supported: None,
+            evidence: "the data lacks table-cleaning or PCA".into(),
+        },
+    });
+    let claim = "SCL is comparable to mode switching on pouring";
+    out.push(match (completion(r, "pouring"), scl, modes) {
+        (Some(m), Some(s), Some(o)) => Claim {
+            claim,
+            supported: Some(!sig_better(m, s, o) && !sig_better(m, o, s)),
+            evidence: format!(
+                "successes {}; {}; {}. Supported when the two do not differ significantly (no \
+                 difference found is not an equivalence test).",
+                counts(r, "pouring"),
+                kw(m),
+                dunn_text(r, m, s, o)
+            ),
+        },
+        _ => Claim {
+            claim,
+            supported: None,
+            evidence: "the data lacks pouring or one of SCL, mode switching".into(),
+        },
+    });
+    let claim = "CAE fails when users leave the training distribution";
+    out.push(match (scl, cae) {
+        (Some(s), Some(c)) => {
+            let tasks: Vec<(&String, &Tested)> = r
+                .tasks
+                .iter()
+                .filter_map(|t| completion(r, t).map(|m| (t, m)))
+                .collect();
+            let below: Vec<&str> = tasks
+                .iter()
+                .filter(|(_, m)| sig_better(m, s, c))
+                .map(|(t, _)| t.as_str())
+                .collect();
+            let above = tasks.iter().any(|(_, m)| sig_better(m, c, s));
+            let per: Vec<String> = tasks
+                .iter()
+                .map(|(t, m)| format!("{t}: {}; {}", kw(m), dunn_text(r, m, s, c)))
+                .collect();
+            Claim {
+                claim,
+                supported: Some(!below.is_empty() && !above),
+                evidence: format!(
+                    "{}. Supported when CAE's completion is significantly below SCL's on at \
+                     least one task and above it on none (the simulated operator leaves the \
+                     demonstrations wherever the subgoals do; its distance to the training \
+                     data is not measured).",
+                    per.join("; ")
+                ),
+            }
+        }
+        _ => Claim {
+            claim,
+            supported: None,
+            evidence: "the data lacks SCL or CAE".into(),
+        },
+    });
+    out
 }
 
 fn short(x: f64) -> String {
@@ -604,6 +830,30 @@ mod tests {
             "{md}"
         );
         assert!(md.contains("| t | 1 / 3 | 0 / 3 | 0 / 3 |"), "{md}");
+    }
+
+    #[test]
+    fn the_papers_claims_are_checked_with_the_tests() {
+        let mut d = data();
+        d.trials
+            .iter_mut()
+            .for_each(|t| t.task = "pick-and-place".into());
+        d.answers.clear();
+        let r = analyse(&d, None).unwrap();
+        let c = claims(&r);
+        // SCL vs CAE is significant after Holm, SCL vs PCA is not.
+        assert_eq!(c[0].supported, Some(false), "{c:?}");
+        assert!(c[0].evidence.contains("Dunn SCL vs CAE p_holm"), "{c:?}");
+        assert_eq!(c[1].supported, None);
+        assert_eq!(c[2].supported, None);
+        assert_eq!(c[3].supported, Some(true), "{c:?}");
+        let md = summary(&r);
+        assert!(
+            md.contains("## The paper's claims")
+                && md.contains("**SCL beats PCA and CAE on pick-and-place**: not supported")
+                && !md.contains("PCA does well"),
+            "{md}"
+        );
     }
 
     #[test]

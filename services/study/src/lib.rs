@@ -1010,6 +1010,29 @@ pub enum StudyCmd {
         #[arg(long)]
         reference: Option<String>,
     },
+    /// Run the study with simulated participants instead of people: the same protocol
+    /// (Latin-square order, attempts, time limits; practice and questionnaires left out)
+    /// through the served maps, the graph's safety filter (--config) and the mock arm, faster
+    /// than real time and deterministic for a seed. Writes DIR/P01/trials.csv ... and the
+    /// report (DIR/report, with the paper's claims checked in summary.md).
+    Simulate {
+        /// The study file (its `[simulation]` section sets the operator; see
+        /// examples/study/).
+        study: PathBuf,
+        /// How many simulated participants (P01 ..; orders by the Latin square).
+        #[arg(long, default_value = "13")]
+        participants: u32,
+        /// Where to write the participants' directories and the report (refused if a
+        /// participant's trials.csv is there already).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// The random seed (the same seed gives the same files).
+        #[arg(long, default_value = "1")]
+        seed: u64,
+        /// Participants simulated at once (default: the cores available).
+        #[arg(long)]
+        jobs: Option<usize>,
+    },
     /// Print the plan: each participant's order of the conditions (blind labels), checking
     /// the study file on the way.
     Plan {
@@ -1026,8 +1049,19 @@ pub fn cli(
     prefix: &Prefix,
     robot: &'static kinematics::RobotProfile,
     cmd: &StudyCmd,
+    graph: &scl_node::config::GraphConfig,
 ) -> Result<std::process::ExitCode, StudyRunError> {
     match cmd {
+        StudyCmd::Simulate {
+            study,
+            participants,
+            out,
+            seed,
+            jobs,
+        } => {
+            simulate(robot, graph, study, *participants, out, *seed, *jobs)?;
+            Ok(std::process::ExitCode::SUCCESS)
+        }
         StudyCmd::Run {
             study,
             participant,
@@ -1090,4 +1124,99 @@ pub fn cli(
             Ok(std::process::ExitCode::SUCCESS)
         }
     }
+}
+
+/// `scl study simulate`: `participants` simulated participants of `study_path` into `out`
+/// (one directory each), then the report into `out/report`.
+pub fn simulate(
+    robot: &'static kinematics::RobotProfile,
+    graph: &scl_node::config::GraphConfig,
+    study_path: &Path,
+    participants: u32,
+    out: &Path,
+    seed: u64,
+    jobs: Option<usize>,
+) -> Result<(), StudyRunError> {
+    use rayon::prelude::*;
+    if participants == 0 {
+        return Err(StudyRunError::Graph(
+            "--participants 0: simulate at least one".into(),
+        ));
+    }
+    let s = Study::load(study_path, robot)?;
+    let sim = study::simulate::Loop {
+        robot,
+        safety: graph.safety.clone(),
+        period_s: graph.period_s(),
+    };
+    // Refuse a bad task before anything runs.
+    study::simulate::study_goals(&s).map_err(study::StudyError::from)?;
+    let attempts: u64 = s
+        .file
+        .tasks
+        .iter()
+        .map(|t| u64::from(t.attempts))
+        .sum::<u64>()
+        * s.file.conditions.len() as u64
+        * u64::from(participants);
+    let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        let b = indicatif::ProgressBar::new(attempts);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} attempts, {eta} left",
+        ) {
+            b.set_style(style.progress_chars("=> "));
+        }
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let started = Instant::now();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(jobs.unwrap_or(0))
+        .build()
+        .map_err(|e| StudyRunError::Graph(format!("--jobs: {e}")))?;
+    let dirs: Vec<PathBuf> = (1..=participants)
+        .map(|n| out.join(Participant(n).to_string()))
+        .collect();
+    let results: Vec<Result<Vec<study::data::TrialRow>, study::StudyError>> = pool.install(|| {
+        dirs.par_iter()
+            .enumerate()
+            .map(|(i, dir)| {
+                let p = Participant(i as u32 + 1);
+                study::simulate::simulate_participant(
+                    &s,
+                    &sim,
+                    p,
+                    seed,
+                    dir,
+                    &|| bar.inc(1),
+                    &ipc_types::signals::stop_requested,
+                )
+            })
+            .collect()
+    });
+    bar.finish_and_clear();
+    let mut rows = 0;
+    for r in results {
+        rows += r?.len();
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let data = study::report::Data::load(&dirs)?;
+    let r = study::report::analyse(&data, None)?;
+    let report = out.join("report");
+    study::report::write(&r, &report)?;
+    println!(
+        "{participants} simulated participants, {rows} attempts in {wall:.1} s (seed {seed}); \
+         data in {}/P*, report in {}",
+        out.display(),
+        report.display()
+    );
+    for t in &r.successes {
+        println!(
+            "  {:<16} {:<16} {:>3} / {} successes",
+            t.task, t.condition, t.successes, t.attempts
+        );
+    }
+    println!("summary: {}", report.join("summary.md").display());
+    Ok(())
 }

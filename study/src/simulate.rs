@@ -1,0 +1,823 @@
+//! Simulated participants (`scl study simulate`): the study's protocol run without people,
+//! through the same step functions as the live graph (the served map in
+//! [`mapper::step::MapperStep`], the [`safety::SafetyFilter`] of the graph, the mock arm),
+//! faster than real time and deterministic for a seed.
+//!
+//! The simulated operator sees what a person sees: the tool's pose, the gripper, the map's
+//! mode (the screen shows it) and the next subgoal ([`learning::goals`]); not the map's
+//! internals. Each tick it draws [`SimParams::candidates`] stick inputs uniformly over the
+//! stick's disc (plus rest and its current input) and picks the one whose tool pose one tick
+//! ahead through the served map (`qdot = map(q, c, a)`, the tool's twist `J(q) qdot`) is
+//! closest to the subgoal. Its limits: a reaction delay (the hand carries out what was chosen
+//! that long ago), a bounded rate of change of the stick, Gaussian input noise. It closes or
+//! opens the gripper when a grip subgoal's point is within the tolerance. With a map that has
+//! modes it presses the mode button when another mode would reduce the error by
+//! [`SimParams::mode_switch_margin`] more than the current one, letting go of the stick for
+//! [`SimParams::mode_switch_s`]; every press is counted.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use ipc_types::{JoystickInput, MAX_JOINTS, RobotState, buttons, state_flags};
+use kinematics::{Jacobian, RobotProfile};
+use learning::goals::{Aim, GoalRun, Subgoal, TaskGoals, Tolerances, tilt};
+use learning::tasks::Task as GoalTask;
+use mapper::LoadedModel;
+use mapper::model::ModelError;
+use mapper::rng::Rng;
+use mapper::step::MapperStep;
+use nalgebra::{Isometry3, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Appender, Outcome, STUDY_COPY, TRIALS, TrialRow};
+use crate::plan::{StartPose, Study};
+use crate::{Participant, StudyError};
+
+/// The simulated operator's parameters: the study file's `[simulation]` section. The same for
+/// every condition (never tuned per model).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimParams {
+    /// Candidate stick inputs drawn per tick (the greedy user's idea, with far fewer than its
+    /// 4096: a person weighs a handful of directions, not thousands). Default 64.
+    pub candidates: usize,
+    /// Reaction delay (s): the stick carries out what was chosen this long ago. Default 0.2 s,
+    /// the visuomotor delay of manual tracking.
+    pub reaction_delay_s: f64,
+    /// Standard deviation of the noise added to each stick axis (fraction of full
+    /// deflection). Default 0.05.
+    pub input_noise: f64,
+    /// Largest rate of change of the stick (full deflections per second). Default 5: rest to
+    /// full deflection in 0.2 s.
+    pub stick_rate_per_s: f64,
+    /// Press the mode button when another mode would reduce the error one tick ahead by this
+    /// fraction more than the current one (0.25: a quarter more). Default 0.25.
+    pub mode_switch_margin: f64,
+    /// The stick rests this long around a mode press (s): the thumb leaves the stick for the
+    /// button and the operator re-orients. Default 0.5 s.
+    pub mode_switch_s: f64,
+    /// How the operator weighs a tilt error against a position error (m per rad): 1 rad of
+    /// tilt counts as 10 cm. Default 0.1.
+    pub tilt_weight_m_per_rad: f64,
+}
+
+impl Default for SimParams {
+    fn default() -> Self {
+        Self {
+            candidates: 64,
+            reaction_delay_s: 0.2,
+            input_noise: 0.05,
+            stick_rate_per_s: 5.0,
+            mode_switch_margin: 0.25,
+            mode_switch_s: 0.5,
+            tilt_weight_m_per_rad: 0.1,
+        }
+    }
+}
+
+impl SimParams {
+    /// Checks the values; the error names the key.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let bad = |k: &str, r: &str| Err((format!("simulation.{k}"), r.to_owned()));
+        if self.candidates == 0 || self.candidates > 100_000 {
+            return bad("candidates", "must be 1 to 100000");
+        }
+        for (k, v) in [
+            ("reaction_delay_s", self.reaction_delay_s),
+            ("input_noise", self.input_noise),
+            ("mode_switch_margin", self.mode_switch_margin),
+            ("mode_switch_s", self.mode_switch_s),
+            ("tilt_weight_m_per_rad", self.tilt_weight_m_per_rad),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(k, "must be 0 or more");
+            }
+        }
+        if !(self.stick_rate_per_s.is_finite() && self.stick_rate_per_s > 0.0) {
+            return bad("stick_rate_per_s", "must be positive");
+        }
+        Ok(())
+    }
+}
+
+/// Why a simulation could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// A model did not load.
+    #[error("model `{spec}`: {source}")]
+    Model {
+        /// The spec.
+        spec: String,
+        /// Why.
+        source: ModelError,
+    },
+    /// The safety filter or the mock arm refused its configuration.
+    #[error("{0}")]
+    Setup(String),
+    /// A task has no simulated goals.
+    #[error("{path}: `tasks[{index}].goals`: {reason}", path = path.display())]
+    Goals {
+        /// The study file.
+        path: PathBuf,
+        /// The task's index.
+        index: usize,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// The closed loop a simulated attempt runs in.
+#[derive(Debug, Clone)]
+pub struct Loop {
+    /// The robot.
+    pub robot: &'static RobotProfile,
+    /// The graph's safety configuration.
+    pub safety: safety::SafetyConfig,
+    /// The control period (s).
+    pub period_s: f64,
+}
+
+/// How one simulated attempt ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AttemptResult {
+    /// Success (every subgoal in time) or timeout.
+    pub outcome: Outcome,
+    /// Subgoals done (%).
+    pub completion_pct: f64,
+    /// Time to the success, else the time limit (s).
+    pub duration_s: f64,
+    /// Mode presses.
+    pub mode_switches: u32,
+}
+
+/// Makes a fresh instance of the served model (the map served and the operator's copies).
+pub type ModelFactory<'a> = dyn Fn() -> Result<LoadedModel, SimError> + 'a;
+
+/// The operator's copies of the served map, one per mode, to try candidates on. A map with
+/// modes (mode switching) keeps state between ticks (its twist ramps under acceleration
+/// limits), so each candidate is tried on a fresh copy in that mode: what the input does
+/// from rest, which is what a person learns of it.
+struct Probes {
+    maps: Vec<LoadedModel>,
+    stateful: bool,
+}
+
+impl Probes {
+    fn new(make: &ModelFactory<'_>) -> Result<Self, SimError> {
+        let first = make()?;
+        if first.map.mode().is_none() {
+            return Ok(Self {
+                maps: vec![first],
+                stateful: false,
+            });
+        }
+        let mut maps = vec![first];
+        for k in 1..8u32 {
+            let mut m = make()?;
+            for _ in 0..k {
+                m.map.press(buttons::MODE);
+            }
+            if m.map.mode().is_some_and(|x| x.index == 0) {
+                break;
+            }
+            maps.push(m);
+        }
+        Ok(Self {
+            maps,
+            stateful: true,
+        })
+    }
+
+    /// Mode `m`'s output for action `a` at `(q, c)` into `out`; the speed scale.
+    fn eval(
+        &mut self,
+        make: &ModelFactory<'_>,
+        m: usize,
+        q: &[f64],
+        c: f64,
+        a: &[f64],
+        out: &mut [f64],
+    ) -> Option<f64> {
+        if self.stateful {
+            let mut copy = make().ok()?;
+            for _ in 0..m {
+                copy.map.press(buttons::MODE);
+            }
+            *self.maps.get_mut(m)? = copy;
+        }
+        let model = self.maps.get_mut(m)?;
+        model.map.eval(q, c, a, out);
+        Some(model.header.speed_scale_rad_s)
+    }
+}
+
+/// The simulated operator of one attempt.
+struct Operator {
+    params: SimParams,
+    tol: Tolerances,
+    dt: f64,
+    probes: Probes,
+    delay: VecDeque<[f64; 2]>,
+    /// The stick's position (before the noise).
+    stick: [f64; 2],
+    /// What the operator chose last.
+    chosen: [f64; 2],
+    /// Mode presses still to make.
+    presses_left: u32,
+    /// Ticks the stick rests around a mode press.
+    rest_ticks: u32,
+    button_down: bool,
+    presses: u32,
+    seq: u64,
+    cands: Vec<[f64; 2]>,
+    out: [f64; MAX_JOINTS],
+}
+
+impl Operator {
+    fn new(params: &SimParams, tol: Tolerances, dt: f64, probes: Probes) -> Self {
+        let delay_ticks = (params.reaction_delay_s / dt).round() as usize;
+        Self {
+            params: params.clone(),
+            tol,
+            dt,
+            probes,
+            delay: std::iter::repeat_n([0.0; 2], delay_ticks).collect(),
+            stick: [0.0; 2],
+            chosen: [0.0; 2],
+            presses_left: 0,
+            rest_ticks: 0,
+            button_down: false,
+            presses: 0,
+            seq: 0,
+            cands: Vec::with_capacity(params.candidates + 2),
+            out: [0.0; MAX_JOINTS],
+        }
+    }
+
+    fn error(&self, p: &Vector3<f64>, t: f64, aim: &Aim) -> f64 {
+        let e = (aim.position - p).norm();
+        match aim.tilt {
+            Some(goal) => e + self.params.tilt_weight_m_per_rad * (goal - t).abs(),
+            None => e,
+        }
+    }
+
+    /// The best candidate in mode `m` and its error one tick ahead.
+    fn best(
+        &mut self,
+        make: &ModelFactory<'_>,
+        m: usize,
+        state: &RobotState,
+        tool: &Isometry3<f64>,
+        jac: &Jacobian,
+        aim: &Aim,
+    ) -> ([f64; 2], f64) {
+        let n = state.n_joints as usize;
+        let p = tool.translation.vector;
+        let z = tool.rotation * Vector3::z();
+        let t0 = tilt(&tool.rotation);
+        let mut best = ([0.0; 2], f64::INFINITY);
+        let jm = jac.matrix();
+        for a in &self.cands {
+            let Some(scale) =
+                self.probes
+                    .eval(make, m, state.q(), state.gripper, a, &mut self.out[..n])
+            else {
+                continue;
+            };
+            let mut v = Vector6::zeros();
+            for (j, qd) in self.out[..n].iter().enumerate() {
+                if qd.is_finite() {
+                    v += jm.column(j) * (qd * scale);
+                }
+            }
+            let pn = p + Vector3::new(v[0], v[1], v[2]) * self.dt;
+            let tn = t0 + Vector3::new(v[3], v[4], v[5]).dot(&z) * self.dt;
+            let e = {
+                let e = (aim.position - pn).norm();
+                match aim.tilt {
+                    Some(goal) => e + self.params.tilt_weight_m_per_rad * (goal - tn).abs(),
+                    None => e,
+                }
+            };
+            if e < best.1 {
+                best = (*a, e);
+            }
+        }
+        best
+    }
+
+    /// This tick's joystick sample.
+    #[allow(clippy::too_many_arguments)]
+    fn act(
+        &mut self,
+        make: &ModelFactory<'_>,
+        state: &RobotState,
+        tool: &Isometry3<f64>,
+        jac: &Jacobian,
+        aim: Option<Aim>,
+        mode: Option<usize>,
+        t_ns: u64,
+        rng: &mut Rng,
+    ) -> JoystickInput {
+        let mut buttons_now = buttons::DEADMAN;
+        let mut gripper = 0.0f32;
+        let mut choice = [0.0; 2];
+        if self.button_down {
+            self.button_down = false;
+        } else if self.presses_left > 0 {
+            self.presses_left -= 1;
+            self.presses += 1;
+            self.button_down = true;
+            buttons_now |= buttons::MODE;
+        } else if self.rest_ticks > 0 {
+            self.rest_ticks -= 1;
+        } else if let Some(aim) = aim {
+            let p = tool.translation.vector;
+            let now = self.error(&p, tilt(&tool.rotation), &aim);
+            self.cands.clear();
+            self.cands.push([0.0; 2]);
+            self.cands.push(self.chosen);
+            for _ in 0..self.params.candidates {
+                let r = rng.uniform().sqrt();
+                let th = rng.range(0.0, std::f64::consts::TAU);
+                self.cands.push([r * th.cos(), r * th.sin()]);
+            }
+            let cur = mode.unwrap_or(0);
+            let (a, e) = self.best(make, cur, state, tool, jac, &aim);
+            choice = a;
+            let modes = self.probes.maps.len();
+            // Within the tolerance of a position (a grip, the end of a reach) there is nothing
+            // to switch for.
+            let settled = aim.tilt.is_none() && (aim.position - p).norm() <= self.tol.position_m;
+            if modes > 1 && !settled {
+                let gain = now - e;
+                let mut other: Option<(usize, f64)> = None;
+                for m in (0..modes).filter(|&m| m != cur) {
+                    let (_, em) = self.best(make, m, state, tool, jac, &aim);
+                    if other.is_none_or(|(_, g)| now - em > g) {
+                        other = Some((m, now - em));
+                    }
+                }
+                if let Some((m, g)) = other
+                    && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + 1e-5
+                {
+                    // Let go of the stick, press until the mode comes round, rest.
+                    self.presses_left = ((m + modes - cur) % modes) as u32;
+                    self.rest_ticks = (self.params.mode_switch_s / self.dt).round() as u32;
+                    self.delay.iter_mut().for_each(|d| *d = [0.0; 2]);
+                    self.stick = [0.0; 2];
+                    choice = [0.0; 2];
+                }
+            }
+            if let Some(close) = aim.grip
+                && (aim.position - p).norm() <= self.tol.position_m
+            {
+                gripper = if close { 1.0 } else { -1.0 };
+            }
+        }
+        self.chosen = choice;
+        self.delay.push_back(choice);
+        let intended = self.delay.pop_front().unwrap_or([0.0; 2]);
+        let resting = self.presses_left > 0 || self.button_down || self.rest_ticks > 0;
+        let intended = if resting { [0.0; 2] } else { intended };
+        let step = self.params.stick_rate_per_s * self.dt;
+        let d = [intended[0] - self.stick[0], intended[1] - self.stick[1]];
+        let dn = d[0].hypot(d[1]);
+        let k = if dn > step { step / dn } else { 1.0 };
+        self.stick = [self.stick[0] + d[0] * k, self.stick[1] + d[1] * k];
+        let mut a = self.stick;
+        if !resting && self.params.input_noise > 0.0 {
+            a[0] += self.params.input_noise * rng.normal();
+            a[1] += self.params.input_noise * rng.normal();
+        }
+        let an = a[0].hypot(a[1]);
+        if an > 1.0 {
+            a = [a[0] / an, a[1] / an];
+        }
+        self.seq += 1;
+        JoystickInput {
+            tick: state.tick,
+            t_ns,
+            seq: self.seq,
+            axes: [a[0] as f32, a[1] as f32],
+            gripper,
+            buttons: buttons_now,
+        }
+    }
+}
+
+/// What one attempt needs.
+pub struct AttemptSetup<'a> {
+    /// The closed loop.
+    pub sim: &'a Loop,
+    /// The start pose (rad).
+    pub start_q: &'a [f64],
+    /// The task's goals.
+    pub goals: &'a TaskGoals,
+    /// The time limit (s).
+    pub time_limit_s: f64,
+    /// The operator.
+    pub params: &'a SimParams,
+    /// Fresh instances of the condition's model.
+    pub model: &'a ModelFactory<'a>,
+    /// The random stream's seed.
+    pub seed: u64,
+    /// For scripted maps that move straight to the goal: each tick the pose error to the
+    /// operator's current aim ([`Aim::error`]) is written here before the map is evaluated.
+    pub aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+}
+
+/// Runs one attempt from the start pose until every subgoal is done or the time runs out.
+pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
+    let robot = s.sim.robot;
+    let n = robot.n_joints();
+    let dt = s.sim.period_s;
+    let period_ns = (dt * 1e9).round() as u64;
+    let served = (s.model)()?;
+    let mut step = MapperStep::new(0, served, n).map_err(|source| SimError::Model {
+        spec: "the served model".into(),
+        source,
+    })?;
+    let mut filter = safety::SafetyFilter::for_graph(s.sim.safety.clone(), robot, dt)
+        .map_err(|e| SimError::Setup(format!("the safety filter: {e}")))?;
+    let mut arm =
+        hw_bridge::mock::MockArm::for_robot(robot, hw_bridge::mock::MockConfig::for_robot(robot))
+            .map_err(|e| SimError::Setup(format!("the mock arm: {e}")))?;
+    arm.resume(s.start_q, 0.0);
+    let mut state = RobotState::at_rest(0, period_ns, n as u32);
+    state.q_rad[..n].copy_from_slice(&s.start_q[..n.min(s.start_q.len())]);
+    state.flags = state_flags::MOCK;
+    let mut op = Operator::new(s.params, s.goals.tol, dt, Probes::new(s.model)?);
+    let mut run = GoalRun::new(s.goals);
+    let mut rng = Rng::new(s.seed);
+    let mut jac = Jacobian::zeros(n);
+    let ticks = (s.time_limit_s / dt).ceil() as u64;
+    for k in 0..=ticks {
+        let t_ns = (k + 1) * period_ns;
+        state.tick = k;
+        state.t_ns = t_ns;
+        let tool = robot
+            .arm()
+            .fk_jacobian(state.q(), &mut jac)
+            .map_err(|e| SimError::Setup(format!("forward kinematics: {e}")))?;
+        run.update(&tool, state.gripper, if k == 0 { 0.0 } else { dt });
+        if run.done() {
+            return Ok(AttemptResult {
+                outcome: Outcome::Success,
+                completion_pct: 100.0,
+                duration_s: k as f64 * dt,
+                mode_switches: op.presses,
+            });
+        }
+        if k == ticks {
+            break;
+        }
+        let aim = run.aim(&tool, state.q().last().copied().unwrap_or(0.0));
+        if let (Some(cell), Some(a)) = (&s.aim_out, &aim)
+            && let Ok(mut e) = cell.lock()
+        {
+            *e = a.error(&tool);
+        }
+        let mode = step.mode().map(|m| m.index as usize);
+        let joy = op.act(s.model, &state, &tool, &jac, aim, mode, t_ns, &mut rng);
+        let mut cmd = step.step(&state, Some(&joy));
+        cmd.t_ns = t_ns;
+        let safe = filter.step(&cmd, &state, t_ns);
+        tracing::trace!(
+            tick = k,
+            tool = ?tool.translation.vector.as_slice(),
+            aim = ?aim.map(|a| a.position),
+            axes = ?joy.axes,
+            safety_flags = safe.flags,
+            gripper = state.gripper,
+            subgoal = ?run.current().map(Subgoal::name),
+            mode = ?mode,
+            buttons = joy.buttons,
+            "simulated tick"
+        );
+        arm.set_command(&safe.qdot_rad_s[..n], safe.gripper_rate);
+        let r = arm.step(dt);
+        state.q_rad = r.q_rad;
+        state.qdot_rad_s = r.qdot_rad_s;
+        state.gripper = r.gripper;
+        state.applied_tick = k;
+    }
+    Ok(AttemptResult {
+        outcome: Outcome::Timeout,
+        completion_pct: run.completion_pct(),
+        duration_s: s.time_limit_s,
+        mode_switches: op.presses,
+    })
+}
+
+/// A seed for one attempt, from the study's seed and where the attempt is in the plan (the
+/// same attempt gets the same stream whatever else runs).
+pub fn attempt_seed(seed: u64, parts: &[u64]) -> u64 {
+    let mut h = seed ^ 0x9e37_79b9_7f4a_7c15;
+    for &p in parts {
+        h ^= p.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        h = h.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h ^= h >> 31;
+        h = h.wrapping_mul(0x94d0_49bb_1331_11eb);
+        h ^= h >> 29;
+    }
+    h
+}
+
+/// The goals of each task of `study` (its `goals` key, else its name, with its tolerances).
+pub fn study_goals(study: &Study) -> Result<Vec<TaskGoals>, SimError> {
+    study
+        .file
+        .tasks
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let which = t.goals.as_deref().unwrap_or(&t.name);
+            let bad = |reason: String| SimError::Goals {
+                path: study.path.clone(),
+                index: i,
+                reason,
+            };
+            let task = GoalTask::from_name(which).map_err(|e| {
+                bad(format!(
+                    "task `{}`: {e}; set `goals` to the task it is",
+                    t.name
+                ))
+            })?;
+            TaskGoals::of(task, t.tolerances())
+                .ok_or_else(|| bad(format!("`{which}` has no scene to simulate")))
+        })
+        .collect()
+}
+
+/// The start pose of a task as joint angles.
+pub fn start_q(robot: &RobotProfile, start: &StartPose) -> Option<Vec<f64>> {
+    match start {
+        StartPose::Named(name) => robot.named_pose(name).map(<[f64]>::to_vec),
+        StartPose::Joints(q) => Some(q.clone()),
+    }
+}
+
+/// Runs participant `p`'s protocol (tasks in order, conditions in their Latin-square order,
+/// every attempt; practice left out) and writes `dir/trials.csv` (refusing a directory that
+/// has one) and a copy of the study file. `progress` is called after each attempt; `stop`
+/// before each (true: stop there, an error saying how far it got).
+pub fn simulate_participant(
+    study: &Study,
+    sim: &Loop,
+    p: Participant,
+    seed: u64,
+    dir: &Path,
+    progress: &(dyn Fn() + Sync),
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<Vec<TrialRow>, StudyError> {
+    let goals = study_goals(study)?;
+    let params = study.file.simulation.clone();
+    let trials = dir.join(TRIALS);
+    if trials.exists() {
+        return Err(StudyError::Data {
+            path: trials,
+            reason: "exists: simulated data is never written over; choose another --out".into(),
+        });
+    }
+    std::fs::create_dir_all(dir).map_err(|source| StudyError::Write {
+        path: dir.to_owned(),
+        source,
+    })?;
+    let copy = dir.join(STUDY_COPY);
+    std::fs::write(&copy, &study.text)
+        .map_err(|source| StudyError::Write { path: copy, source })?;
+    let mut out = Appender::open(&trials)?;
+    let mut rows = Vec::new();
+    let mut clock = 0.0;
+    for (ti, task) in study.file.tasks.iter().enumerate() {
+        let q0 = start_q(sim.robot, &task.start).ok_or_else(|| StudyError::Invalid {
+            path: study.path.clone(),
+            key: format!("tasks[{ti}].start"),
+            reason: "not a pose of the robot".into(),
+        })?;
+        for (pos, &ci) in study.order(p).iter().enumerate() {
+            let c = &study.file.conditions[ci];
+            let spec = &study.models[ci][ti];
+            let make = || {
+                LoadedModel::load_for(spec, sim.robot).map_err(|source| SimError::Model {
+                    spec: spec.clone(),
+                    source,
+                })
+            };
+            for attempt in 1..=task.attempts {
+                if stop() {
+                    return Err(StudyError::Data {
+                        path: trials.clone(),
+                        reason: format!("stopped after {} attempts", rows.len()),
+                    });
+                }
+                let setup = AttemptSetup {
+                    sim,
+                    start_q: &q0,
+                    goals: &goals[ti],
+                    time_limit_s: task.time_limit_s,
+                    params: &params,
+                    model: &make,
+                    seed: attempt_seed(
+                        seed,
+                        &[u64::from(p.0), ti as u64, ci as u64, u64::from(attempt)],
+                    ),
+                    aim_out: None,
+                };
+                let r = run_attempt(&setup)?;
+                tracing::debug!(participant = %p, task = %task.name, condition = %c.name, attempt, ?r, "simulated attempt");
+                let row = TrialRow {
+                    study: study.file.name.clone(),
+                    participant: p.to_string(),
+                    task: task.name.clone(),
+                    label: c.label.clone(),
+                    condition: c.name.clone(),
+                    model: spec.clone(),
+                    position: pos as u32 + 1,
+                    attempt,
+                    repeated: false,
+                    outcome: r.outcome,
+                    completion_pct: r.completion_pct,
+                    duration_s: r.duration_s,
+                    mode_switches: r.mode_switches,
+                    estops: 0,
+                    recording: String::new(),
+                    started_unix_s: clock,
+                };
+                clock += r.duration_s;
+                out.push(&row)?;
+                rows.push(row);
+                progress();
+            }
+        }
+    }
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kinematics::Dls;
+    use mapper::ActionMap;
+    use mapper::model::ModelKind;
+
+    fn robot() -> &'static RobotProfile {
+        RobotProfile::default_robot()
+    }
+
+    fn sim() -> Loop {
+        Loop {
+            robot: robot(),
+            safety: safety::SafetyConfig::for_robot(robot()),
+            period_s: 0.025,
+        }
+    }
+
+    /// The scripted perfect map: the damped pseudo-inverse of the Jacobian applied to the
+    /// pose error to the operator's aim (3 /s, at most 0.15 m/s and 1 rad/s), times the
+    /// first stick axis. `None`: the zero map.
+    struct Scripted {
+        aim: Option<Arc<Mutex<Vector6<f64>>>>,
+        jac: Jacobian,
+    }
+
+    impl ActionMap for Scripted {
+        fn kind(&self) -> ModelKind {
+            ModelKind::Scl
+        }
+        fn n_joints(&self) -> usize {
+            robot().n_joints()
+        }
+        fn latent_dim(&self) -> usize {
+            2
+        }
+        fn eval(&mut self, q: &[f64], _c: f64, a: &[f64], out: &mut [f64]) {
+            out.fill(0.0);
+            let Some(cell) = &self.aim else { return };
+            let mut e = *cell.lock().unwrap() * 3.0;
+            let lin = e.fixed_rows::<3>(0).norm();
+            if lin > 0.15 {
+                e.fixed_rows_mut::<3>(0).scale_mut(0.15 / lin);
+            }
+            let ang = e.fixed_rows::<3>(3).norm();
+            if ang > 1.0 {
+                e.fixed_rows_mut::<3>(3).scale_mut(1.0 / ang);
+            }
+            robot().arm().fk_jacobian(q, &mut self.jac).unwrap();
+            Dls::default().step(&self.jac, &e, out).unwrap();
+            out.iter_mut().for_each(|v| *v *= a[0]);
+        }
+    }
+
+    fn scripted(aim: Option<Arc<Mutex<Vector6<f64>>>>) -> Result<LoadedModel, SimError> {
+        let mut m = LoadedModel::load_for(mapper::model::BUNDLED_NAME, robot()).unwrap();
+        m.map = Box::new(Scripted {
+            aim,
+            jac: Jacobian::zeros(robot().n_joints()),
+        });
+        m.header.speed_scale_rad_s = 1.0;
+        Ok(m)
+    }
+
+    fn attempt(task: GoalTask, perfect: bool, seed: u64, limit: f64) -> AttemptResult {
+        let sim = sim();
+        let goals = TaskGoals::of(task, Tolerances::default()).unwrap();
+        let cell = Arc::new(Mutex::new(Vector6::zeros()));
+        let aim = perfect.then(|| cell.clone());
+        let make = move || scripted(aim.clone());
+        let q0 = robot().named_pose("home").unwrap().to_vec();
+        run_attempt(&AttemptSetup {
+            sim: &sim,
+            start_q: &q0,
+            goals: &goals,
+            time_limit_s: limit,
+            params: &SimParams::default(),
+            model: &make,
+            seed,
+            aim_out: Some(cell),
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn a_perfect_map_succeeds_on_every_task_and_a_zero_map_never_does() {
+        let mut failed = Vec::new();
+        for (task, limit) in [
+            (GoalTask::TableCleaning, 60.0),
+            (GoalTask::PickAndPlace, 90.0),
+            (GoalTask::Pouring, 120.0),
+        ] {
+            for seed in [1, 2] {
+                let r = attempt(task, true, seed, limit);
+                if !(r.outcome == Outcome::Success
+                    && r.duration_s < limit
+                    && r.completion_pct == 100.0)
+                {
+                    failed.push(format!("perfect {task:?} seed {seed}: {r:?}"));
+                }
+            }
+            let r = attempt(task, false, 1, limit);
+            if !(r.outcome == Outcome::Timeout && r.completion_pct < 100.0 && r.duration_s == limit)
+            {
+                failed.push(format!("zero {task:?}: {r:?}"));
+            }
+        }
+        assert!(failed.is_empty(), "{failed:#?}");
+    }
+
+    const STUDY: &str = r#"
+name = "sim"
+participants = 2
+[[tasks]]
+name = "pick-and-place"
+start = "home"
+time_limit_s = 4
+attempts = 2
+[[conditions]]
+label = "A"
+name = "bundled"
+model = "bundled"
+[[conditions]]
+label = "B"
+name = "mode switching"
+model = "modeswitch"
+[simulation]
+candidates = 16
+"#;
+
+    #[test]
+    fn the_same_seed_gives_the_same_trials_file() {
+        let dir = std::env::temp_dir().join(format!("scl-study-sim-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let study = Study::parse(STUDY, &dir.join("s.toml"), robot()).unwrap();
+        let run = |sub: &str, seed: u64| {
+            let d = dir.join(sub);
+            let rows =
+                simulate_participant(&study, &sim(), Participant(2), seed, &d, &|| {}, &|| false)
+                    .unwrap();
+            assert_eq!(rows.len(), 4);
+            std::fs::read(d.join(TRIALS)).unwrap()
+        };
+        let a = run("a", 7);
+        assert_eq!(a, run("b", 7));
+        let e = simulate_participant(
+            &study,
+            &sim(),
+            Participant(2),
+            7,
+            &dir.join("a"),
+            &|| {},
+            &|| false,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("never written over"), "{e}");
+        let data = crate::report::Data::load(&[dir.join("a")]).unwrap();
+        let r = crate::report::analyse(&data, None).unwrap();
+        assert_eq!(r.conditions, ["bundled", "mode switching"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
