@@ -476,3 +476,86 @@ fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
         Vec::<String>::new()
     );
 }
+
+/// `[bridge.kortex] mode = "low-level"` at 1 kHz for a few seconds: the bridge drives the fake
+/// arm with a BaseCyclic.Refresh per tick over UDP (position commands integrated from the safe
+/// joint speeds), no joint speed command ever, and goes back to single-level servoing at the
+/// end. It checks the logic, not the timing: the machine's hold-ups are tolerated (the fake's
+/// cyclic timeout is long for a loaded machine; the product's figure is the robot's).
+#[test]
+fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
+    let _serial = serial();
+    let fake = FakeKortex::start(FakeConfig {
+        credentials: Credentials::new(USER, PASSWORD),
+        cyclic_timeout: Duration::from_millis(500),
+        ..FakeConfig::default()
+    })
+    .unwrap();
+    let start_q = fake.snapshot().q_rad;
+    let dir = TempDir::new("lowlevel");
+    let config = dir.0.join("graph.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[graph]\nrate_hz = 1000\n\n[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\n\
+             address = \"127.0.0.1\"\nport = {}\ncyclic_port = {}\nmode = \"low-level\"\n\
+             reply_timeout_ms = 1000\n",
+            fake.addr().port(),
+            fake.cyclic_addr().port()
+        ),
+    )
+    .unwrap();
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxlow");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = ChildGuard(Some(
+        Command::new(scl_binary())
+            .arg("--config")
+            .arg(&config)
+            .args(["up", "--for", "3s", "--json", "--script", "circle"])
+            .env("SCL_PREFIX", prefix.as_str())
+            .env("SCL_LOG", "info")
+            .env("SCL_KORTEX_USER", USER)
+            .env("SCL_KORTEX_PASSWORD", PASSWORD)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    ));
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(out.status.success(), "scl up failed: {log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(summary["failure"].is_null(), "{summary}");
+    let ticks = summary["ticks"].as_u64().unwrap();
+    assert!(ticks >= 1000, "{summary}");
+    assert!(
+        log_text.contains("first position command = the measured position"),
+        "{log_text}"
+    );
+
+    let s = fake.snapshot();
+    // The first command was the measured position (the arm at rest at its start pose).
+    let first = s.first_position_command.unwrap();
+    for j in 0..6 {
+        assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
+    }
+    // A Refresh per tick (the bridge's stops hold the position with one too), no joint speeds.
+    assert!(s.stats.refreshes >= ticks / 2, "{ticks} ticks: {s:?}");
+    assert_eq!(s.stats.joint_speed_commands, 0, "{s:?}");
+    assert_eq!(s.stats.cyclic_timeouts, 0, "{s:?}");
+    assert!(!s.in_fault, "{s:?}");
+    // The circle script moved the arm through its position commands.
+    let moved: f64 = (0..6).map(|j| (s.q_rad[j] - start_q[j]).abs()).sum();
+    assert!(moved > 1e-3, "the arm did not move: {s:?}");
+    // Back to single-level servoing, both sessions closed.
+    assert!(s.single_level_servoing && !s.low_level_servoing, "{s:?}");
+    assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
+    assert_no_credentials(&log_text);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}

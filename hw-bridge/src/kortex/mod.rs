@@ -205,6 +205,9 @@ pub enum KortexMode {
     LowLevel,
 }
 
+/// The period of the low-level cyclic channel (s): 1 kHz.
+pub const LOW_LEVEL_PERIOD_S: f64 = 0.001;
+
 /// The robot's UDP port of the low-level cyclic channel.
 pub const DEFAULT_CYCLIC_PORT: u16 = 10001;
 
@@ -299,6 +302,18 @@ impl KortexConfig {
             );
         }
         if self.mode == KortexMode::LowLevel {
+            // The Gen3 lite's cyclic channel expects a command every millisecond (issue 22;
+            // the reference gives no tolerance): refuse a slower graph rather than guess.
+            if period_s > LOW_LEVEL_PERIOD_S * 1.0001 {
+                return err(
+                    "mode",
+                    format!(
+                        "\"low-level\" sends a command every tick and the arm expects one every \
+                         millisecond: the graph's period is {period_ms} ms; set [graph] \
+                         rate_hz = 1000"
+                    ),
+                );
+            }
             let addr = self.socket_addr()?;
             // The cyclic command's layout is not in the protocol reference (see
             // msg::Command): the conservative choice is to drive no real arm with it.
@@ -969,6 +984,8 @@ mod tests {
             ..local.clone()
         });
         assert!(e.starts_with("bridge.kortex.cyclic_port:"), "{e}");
+        let e = local.validate(0.025).unwrap_err().to_string();
+        assert!(e.starts_with("bridge.kortex.mode:") && e.contains("rate_hz = 1000"), "{e}");
         // The mode's spelling in TOML.
         let c: KortexConfig = toml::from_str("mode = \"low-level\"").unwrap();
         assert_eq!(c.mode, KortexMode::LowLevel);
