@@ -456,6 +456,19 @@ impl FakeKortex {
         self.shared.state().arm_blocked = blocked;
     }
 
+    /// Moves the arm by `delta_rad` at once (a push, a collision), kept inside the limits.
+    /// With [`FakeKortex::block_arm`] it stays there whatever the commands say.
+    pub fn push_arm(&self, delta_rad: &[f64]) {
+        let mut st = self.shared.state();
+        let mut q = st.reading.q_rad;
+        for (q, d) in q.iter_mut().zip(delta_rad) {
+            *q += d;
+        }
+        let gripper = st.reading.gripper;
+        st.arm.resume(&q, gripper);
+        st.reading = st.arm.step(1e-9);
+    }
+
     /// Puts joint speeds `qdot_rad_s` in force as if another client had commanded them (for
     /// tests of what may only start from rest).
     pub fn set_joint_speeds(&self, qdot_rad_s: &[f64]) {

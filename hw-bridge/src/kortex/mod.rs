@@ -985,7 +985,10 @@ mod tests {
         });
         assert!(e.starts_with("bridge.kortex.cyclic_port:"), "{e}");
         let e = local.validate(0.025).unwrap_err().to_string();
-        assert!(e.starts_with("bridge.kortex.mode:") && e.contains("rate_hz = 1000"), "{e}");
+        assert!(
+            e.starts_with("bridge.kortex.mode:") && e.contains("rate_hz = 1000"),
+            "{e}"
+        );
         // The mode's spelling in TOML.
         let c: KortexConfig = toml::from_str("mode = \"low-level\"").unwrap();
         assert_eq!(c.mode, KortexMode::LowLevel);
