@@ -20,6 +20,13 @@
 //! No KeepAlive is ever sent: if the control loop freezes or dies, frames stop, and the robot
 //! stops the arm when `connection_timeout_ms` passes.
 //!
+//! With `mode = "low-level"` ([`super::cyclic`]), start-up goes on: the measured joint speeds
+//! must be ~0, the UDP session opens, SetServoingMode(low-level), and a first Refresh with the
+//! measured position (awaited). Each tick then takes the newest cyclic feedback (following-error
+//! check, arm-in-fault check) and sends the next position command; a stop holds the commanded
+//! position; the TCP session gets a RefreshFeedback every 25 ms from the control loop. Exit and
+//! every fault go back to single-level servoing and close the UDP session before the Stop.
+//!
 //! Every fault (an error reply, a reply for an unknown message id, an undecodable frame, a
 //! reply timeout, a closed or reset connection) stops the arm and closes the session as far as
 //! the connection still works, then returns the error; so does [`Robot::shutdown`] and `Drop`.

@@ -18,8 +18,9 @@
 //! session opened ([`FakeSnapshot::connection_timeout_ms`]), so tests can check what the client
 //! sent and in which order.
 //!
-//! Threads: the watchdog, a blocking accept loop, and one thread per connection that reads,
-//! answers, and holds delayed replies until they are due. They sleep unless something happens,
+//! Threads: the watchdog, a blocking accept loop, one thread per connection that reads,
+//! answers, and holds delayed replies until they are due, and the cyclic channel's UDP thread
+//! (which also watches for the missing cyclic command). They sleep unless something happens,
 //! so the fake takes little from the processes it is tested with.
 //!
 //! Faults can be injected ([`FakeKortex::inject`]): drop or delay a reply, close the
@@ -932,7 +933,7 @@ fn execute(
             st.in_fault = false;
             Ok(Vec::new())
         }
-        Function::Refresh => refresh(cfg, st, frame),
+        Function::Refresh => refresh(st, frame),
         Function::CloseSession => {
             st.arm.halt();
             st.session = None;
@@ -1093,8 +1094,7 @@ fn state_feedback(st: &State) -> msg::Feedback {
 }
 
 /// `BaseCyclic.Refresh`: the command's positions become the arm's (unless blocked).
-fn refresh(cfg: &FakeConfig, st: &mut State, frame: &Frame) -> CallResult {
-    let _ = cfg;
+fn refresh(st: &mut State, frame: &Frame) -> CallResult {
     if st.in_fault {
         return Err((
             3,
@@ -1246,7 +1246,7 @@ fn on_datagram(sh: &Shared, peer: SocketAddr, frame: &Frame) -> Option<Frame> {
             tracing::info!("fake Kortex: cyclic session closed");
             Ok(Vec::new())
         }
-        Some(Function::Refresh) => refresh(&sh.cfg, &mut st, frame),
+        Some(Function::Refresh) => refresh(&mut st, frame),
         Some(Function::RefreshFeedback) => {
             st.stats.feedback_requests += 1;
             Ok(state_feedback(&st).encode_to_vec())

@@ -9,8 +9,12 @@
 //!   limits), then a pipelined 40 Hz exchange (joint speeds, gripper position, feedback; replies
 //!   matched by message id on a socket reader thread), and Stop + CloseSession on exit and on
 //!   every fault.
-//! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol, for tests and
-//!   for trying the bridge without an arm.
+//! * [`cyclic`]: low-level servoing (`mode = "low-level"`): the second session over UDP, a
+//!   `BaseCyclic.Refresh` per tick with joint positions integrated from the safe speeds,
+//!   entered only from rest at the measured position, the following-error check; what the
+//!   protocol reference does not say and what is assumed instead is listed there.
+//! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol (the cyclic
+//!   channel included), for tests and for trying the bridge without an arm.
 //!
 //! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
 //! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
