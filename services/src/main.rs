@@ -176,7 +176,8 @@ enum Cmd {
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
     FakeKortex {
-        /// TCP port on 127.0.0.1 (0: a free one; the first line on stdout names it).
+        /// TCP port on 127.0.0.1 (0: a free one; the first line on stdout names it); the
+        /// low-level cyclic channel listens on UDP with the same number.
         #[arg(long, default_value_t = hw_bridge::kortex::DEFAULT_PORT)]
         port: u16,
     },

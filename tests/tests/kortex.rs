@@ -476,3 +476,182 @@ fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
         Vec::<String>::new()
     );
 }
+
+/// A fake robot for low-level mode (its cyclic timeout long for a loaded machine; the
+/// product's figure is the robot's) and `scl up --for RUN_FOR --script circle` on it at 1 kHz with
+/// `mode = "low-level"`.
+struct LowLevelRun {
+    fake: FakeKortex,
+    start_q: [f64; 6],
+    dir: TempDir,
+    log: PathBuf,
+    prefix: ipc_types::Prefix,
+    rec: Recorder,
+    guard: ChildGuard,
+}
+
+fn low_level_up(tag: &str, run_for: &str) -> LowLevelRun {
+    let fake = FakeKortex::start(FakeConfig {
+        credentials: Credentials::new(USER, PASSWORD),
+        cyclic_timeout: Duration::from_millis(500),
+        ..FakeConfig::default()
+    })
+    .unwrap();
+    let start_q = fake.snapshot().q_rad;
+    let dir = TempDir::new(tag);
+    let config = dir.0.join("graph.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[graph]\nrate_hz = 1000\n\n[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\n\
+             address = \"127.0.0.1\"\nport = {}\ncyclic_port = {}\nmode = \"low-level\"\n\
+             reply_timeout_ms = 1000\n",
+            fake.addr().port(),
+            fake.cyclic_addr().port()
+        ),
+    )
+    .unwrap();
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix(tag);
+    let rec = Recorder::join(&prefix);
+    let guard = ChildGuard(Some(
+        Command::new(scl_binary())
+            .arg("--config")
+            .arg(&config)
+            .args(["up", "--for", run_for, "--json", "--script", "circle"])
+            .env("SCL_PREFIX", prefix.as_str())
+            .env("SCL_LOG", "info")
+            .env("SCL_KORTEX_USER", USER)
+            .env("SCL_KORTEX_PASSWORD", PASSWORD)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    ));
+    LowLevelRun {
+        fake,
+        start_q,
+        dir,
+        log,
+        prefix,
+        rec,
+        guard,
+    }
+}
+
+/// `[bridge.kortex] mode = "low-level"` at 1 kHz for a few seconds: the bridge drives the fake
+/// arm with a BaseCyclic.Refresh per tick over UDP (position commands integrated from the safe
+/// joint speeds), no joint speed command ever, and goes back to single-level servoing at the
+/// end. It checks the logic, not the timing: the machine's hold-ups are tolerated (the fake's
+/// cyclic timeout is long for a loaded machine; the product's figure is the robot's).
+#[test]
+fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
+    let _serial = serial();
+    let LowLevelRun {
+        fake,
+        start_q,
+        dir: _dir,
+        log,
+        prefix,
+        mut rec,
+        mut guard,
+    } = low_level_up("kxlow", "3s");
+    let _domain = DomainGuard(prefix.clone());
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(out.status.success(), "scl up failed: {log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(summary["failure"].is_null(), "{summary}");
+    let ticks = summary["ticks"].as_u64().unwrap();
+    assert!(ticks >= 1000, "{summary}");
+    assert!(
+        log_text.contains("first position command = the measured position"),
+        "{log_text}"
+    );
+
+    eprintln!("low-level graph at 1 kHz: {summary}");
+    let s = fake.snapshot();
+    // The first command was the measured position (the arm at rest at its start pose).
+    let first = s.first_position_command.unwrap();
+    for j in 0..6 {
+        assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
+    }
+    // A Refresh per tick (the bridge's stops hold the position with one too), no joint speeds.
+    assert!(s.stats.refreshes >= ticks / 2, "{ticks} ticks: {s:?}");
+    assert_eq!(s.stats.joint_speed_commands, 0, "{s:?}");
+    assert_eq!(s.stats.cyclic_timeouts, 0, "{s:?}");
+    assert!(!s.in_fault, "{s:?}");
+    // The arm moved through its position commands as far as safety let the stick move it (on
+    // a loaded machine a stale state may hold it still until the stick is neutral: the
+    // integration itself is tested in hw-bridge's kortex_low_level), and the last state the
+    // graph published is the robot's own.
+    let travel = summary["joint_travel_rad"].as_f64().unwrap();
+    let moved: f64 = (0..6).map(|j| (s.q_rad[j] - start_q[j]).abs()).sum();
+    assert!(travel == 0.0 || moved > 0.0, "travel {travel} rad: {s:?}");
+    let last = rec.robot_states.last().unwrap();
+    assert!(last.flags & state_flags::SHUTDOWN != 0);
+    for j in 0..6 {
+        assert!(
+            (last.q_rad[j] - s.q_rad[j]).abs() < 1e-4,
+            "joint {j}: {s:?}"
+        );
+    }
+    // Back to single-level servoing, both sessions closed.
+    assert!(s.single_level_servoing && !s.low_level_servoing, "{s:?}");
+    assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
+    assert_no_credentials(&log_text);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+/// Low-level mode: the arm is pushed off its position command and held; the bridge's
+/// following-error check stops the arm and ends the graph with a clear error, and the robot is
+/// back in single-level servoing.
+#[test]
+fn a_following_error_in_low_level_mode_stops_the_graph() {
+    let _serial = serial();
+    let LowLevelRun {
+        fake,
+        dir: _dir,
+        log,
+        prefix,
+        mut rec,
+        mut guard,
+        ..
+    } = low_level_up("kxfollow", "15s");
+    let _domain = DomainGuard(prefix.clone());
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| running_states(r).len() >= 300),
+        "the graph did not start: {}",
+        std::fs::read_to_string(&log).unwrap()
+    );
+    // Whatever the stick does (safety may hold the arm still on a loaded machine), the arm is
+    // pushed 0.1 rad off its command on joint 3 and held there.
+    fake.block_arm(true);
+    fake.push_arm(&[0.0, 0.0, 0.0, 0.1, 0.0, 0.0]);
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}: {log_text}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert!(
+        log_text.contains("following error: joint 3")
+            && log_text.contains("bridge.kortex.following_error_rad = 0.05"),
+        "{log_text}"
+    );
+    let s = fake.snapshot();
+    assert!(s.single_level_servoing && !s.low_level_servoing, "{s:?}");
+    assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
+    assert!(!s.commanded_to_move(), "{s:?}");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}

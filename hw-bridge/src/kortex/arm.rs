@@ -20,6 +20,13 @@
 //! No KeepAlive is ever sent: if the control loop freezes or dies, frames stop, and the robot
 //! stops the arm when `connection_timeout_ms` passes.
 //!
+//! With `mode = "low-level"` ([`super::cyclic`]), start-up goes on: the measured joint speeds
+//! must be ~0, the UDP session opens, SetServoingMode(low-level), and a first Refresh with the
+//! measured position (awaited). Each tick then takes the newest cyclic feedback (following-error
+//! check, arm-in-fault check) and sends the next position command; a stop holds the commanded
+//! position; the TCP session gets a RefreshFeedback every 25 ms from the control loop. Exit and
+//! every fault go back to single-level servoing and close the UDP session before the Stop.
+//!
 //! Every fault (an error reply, a reply for an unknown message id, an undecodable frame, a
 //! reply timeout, a closed or reset connection) stops the arm and closes the session as far as
 //! the connection still works, then returns the error; so does [`Robot::shutdown`] and `Drop`.
@@ -34,10 +41,11 @@ use ipc_types::MAX_JOINTS;
 use kinematics::{ArmLimits, RobotProfile};
 use prost::Message as _;
 
+use super::cyclic::{self, CyclicSession};
 use super::wire::{Decoded, Frame, FrameDecoder, FrameType, WireError};
 use super::{
-    Credentials, Function, KortexConfig, KortexError, function_name, gripper_position_msg,
-    joint_speeds_msg, msg, reading_from_feedback, scale_to_limits,
+    Credentials, Function, KortexConfig, KortexError, KortexMode, function_name,
+    gripper_position_msg, joint_speeds_msg, msg, reading_from_feedback, scale_to_limits,
 };
 use crate::{LinkStats, Reading, Robot, RobotError};
 
@@ -46,6 +54,12 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// A gripper target that moved less than this since the last position sent is not sent.
 const GRIPPER_EPS: f64 = 1e-4;
+
+/// Low-level mode: the TCP session gets a RefreshFeedback from the control loop at least this
+/// often, so that its connection inactivity timeout does not fire while the commands go over
+/// UDP (the reference is silent on whether the cyclic session's frames count for the TCP
+/// session; the bridge assumes they do not). 25 ms: the high-level rate.
+const TCP_FRAME_EVERY: Duration = Duration::from_millis(25);
 
 /// What a read-only session ([`KortexArm::probe`]) told about the arm.
 #[derive(Debug, Clone, PartialEq)]
@@ -178,6 +192,13 @@ pub struct KortexArm {
     gripper_sent: f64,
     stats: KortexStats,
     out: Vec<u8>,
+    /// Low-level mode: the UDP session (from its opening until the exit).
+    cyclic: Option<CyclicSession>,
+    /// Low-level servoing was set on the robot (to be undone on exit).
+    low_level_set: bool,
+    following_error_rad: f64,
+    last_tcp_sent: Instant,
+    gripper_warned: bool,
 }
 
 impl std::fmt::Debug for KortexArm {
@@ -331,6 +352,11 @@ impl KortexArm {
             stats: KortexStats::default(),
             out: Vec::with_capacity(256),
             limits,
+            cyclic: None,
+            low_level_set: false,
+            following_error_rad: cfg.following_error_rad,
+            last_tcp_sent: Instant::now(),
+            gripper_warned: false,
         };
         Ok(arm)
     }
@@ -389,6 +415,151 @@ impl KortexArm {
             "Kortex session open; {n} actuators; joint speed hard limits [{}] deg/s",
             limits_deg.join(", ")
         );
+        if cfg.mode == KortexMode::LowLevel {
+            self.enter_low_level(cfg, credentials)?;
+        }
+        Ok(())
+    }
+
+    /// Low-level mode, entered only from rest: checks the measured joint speeds, opens the UDP
+    /// session, sets low-level servoing, and sends the first position command, equal to the
+    /// measured position (awaited). On failure the caller's fault path goes back to
+    /// single-level servoing and closes both sessions.
+    fn enter_low_level(
+        &mut self,
+        cfg: &KortexConfig,
+        credentials: &Credentials,
+    ) -> Result<(), KortexError> {
+        let n = self.robot.n_joints();
+        cyclic::check_at_rest(&self.reading.qdot_rad_s[..n], cyclic::REST_SPEED_RAD_S)?;
+        let addr = cfg.cyclic_addr()?;
+        self.cyclic = Some(CyclicSession::open_with(
+            addr,
+            credentials,
+            cfg.connection_timeout_ms,
+            cfg.session_timeout_ms,
+            n,
+            self.reply_timeout,
+        )?);
+        // The robot may have moved since the speeds were read: read them again right before
+        // the mode changes.
+        let reply = self.call(Function::RefreshFeedback, Vec::new())?;
+        let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
+        self.reading = self.reading_of(&fb)?;
+        cyclic::check_at_rest(&self.reading.qdot_rad_s[..n], cyclic::REST_SPEED_RAD_S)?;
+        self.call(
+            Function::SetServoingMode,
+            msg::ServoingModeInformation {
+                servoing_mode: msg::servoing_mode::LOW_LEVEL,
+            }
+            .encode_to_vec(),
+        )?;
+        self.low_level_set = true;
+        self.last_tcp_sent = Instant::now();
+        let q = self.reading.q_rad;
+        let Some(c) = self.cyclic.as_mut() else {
+            return Err(KortexError::SessionClosed);
+        };
+        let fb = c.first_command(&q[..n])?;
+        let session = c.session_id();
+        self.take_cyclic_feedback(&fb)?;
+        tracing::info!(
+            address = %addr,
+            session = format_args!("{session:#06x}"),
+            following_error_rad = self.following_error_rad,
+            "low-level servoing: first position command = the measured position"
+        );
+        Ok(())
+    }
+
+    /// Whether low-level servoing is in force.
+    pub fn is_low_level(&self) -> bool {
+        self.low_level_set && self.cyclic.is_some()
+    }
+
+    /// The low-level position command in force (rad), if in low-level mode.
+    pub fn position_command(&self) -> Option<&[f64]> {
+        self.cyclic.as_ref().map(CyclicSession::q_cmd)
+    }
+
+    fn reading_of(&self, fb: &msg::Feedback) -> Result<Reading, KortexError> {
+        reading_from_feedback(
+            fb,
+            self.robot.n_joints(),
+            &self.limits,
+            self.reading.gripper,
+        )
+        .map_err(|reason| KortexError::Payload {
+            function: Function::RefreshFeedback.name(),
+            reason,
+        })
+    }
+
+    /// A cyclic feedback: the arm's state (an arm in fault is an error), the new reading,
+    /// and the following-error check against the position command.
+    fn take_cyclic_feedback(&mut self, fb: &msg::Feedback) -> Result<(), KortexError> {
+        if let Some(b) = fb.base.as_ref()
+            && b.active_state == msg::arm_state::IN_FAULT
+        {
+            return Err(KortexError::ArmInFault {
+                state: b.active_state,
+            });
+        }
+        self.reading = self.reading_of(fb)?;
+        let n = self.robot.n_joints();
+        if let Some(c) = self.cyclic.as_ref() {
+            cyclic::check_following(
+                &self.reading.q_rad[..n],
+                c.q_cmd(),
+                self.following_error_rad,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Back to single-level servoing and the UDP session closed (each awaited; every step
+    /// tried, the first error returned).
+    fn leave_low_level(&mut self) -> Result<(), KortexError> {
+        let mut first_err = None;
+        if self.low_level_set && self.connected {
+            self.low_level_set = false;
+            match self.call(
+                Function::SetServoingMode,
+                msg::ServoingModeInformation {
+                    servoing_mode: msg::servoing_mode::SINGLE_LEVEL,
+                }
+                .encode_to_vec(),
+            ) {
+                Ok(_) => tracing::info!("low-level servoing left: back to single-level"),
+                Err(e) => {
+                    first_err.get_or_insert(e);
+                }
+            }
+        }
+        if let Some(mut c) = self.cyclic.take()
+            && let Err(e) = c.close()
+        {
+            first_err.get_or_insert(e);
+        }
+        first_err.map_or(Ok(()), Err)
+    }
+
+    /// Low-level ticks: takes the newest cyclic feedback and keeps the TCP session's frames
+    /// coming.
+    fn advance_low_level(&mut self) -> Result<(), KortexError> {
+        let fb = match self.cyclic.as_mut() {
+            Some(c) => c.poll()?,
+            None => return Err(KortexError::SessionClosed),
+        };
+        match fb {
+            Some(fb) => self.take_cyclic_feedback(&fb)?,
+            None => self.stats.stale_readings += 1,
+        }
+        if self.last_tcp_sent.elapsed() >= TCP_FRAME_EVERY {
+            self.queue_feedback_request()?;
+            self.flush()?;
+            self.last_tcp_sent = Instant::now();
+        }
         Ok(())
     }
 
@@ -634,16 +805,10 @@ impl KortexArm {
                 self.feedback_pending = None;
             }
             let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
-            self.reading = reading_from_feedback(
-                &fb,
-                self.robot.n_joints(),
-                &self.limits,
-                self.reading.gripper,
-            )
-            .map_err(|reason| KortexError::Payload {
-                function: Function::RefreshFeedback.name(),
-                reason,
-            })?;
+            // In low-level mode the reading comes from the cyclic channel.
+            if !self.is_low_level() {
+                self.reading = self.reading_of(&fb)?;
+            }
         }
         Ok(())
     }
@@ -712,6 +877,9 @@ impl KortexArm {
         self.pending.clear();
         self.feedback_pending = None;
         let mut first_err = None;
+        if let Err(e) = self.leave_low_level() {
+            first_err.get_or_insert(e);
+        }
         if let Err(e) = self.call(Function::Stop, Vec::new()) {
             first_err.get_or_insert(e);
         }
@@ -810,6 +978,12 @@ impl Robot for KortexArm {
         self.dt = dt;
         let r = self.drain();
         self.in_loop(r)?;
+        if self.is_low_level() {
+            self.tick += 1;
+            let r = self.advance_low_level();
+            self.in_loop(r)?;
+            return Ok(self.reading);
+        }
         let previous = self.tick;
         self.tick += 1;
         if self.feedback_pending.is_some() {
@@ -833,6 +1007,19 @@ impl Robot for KortexArm {
         if scale_to_limits(&mut v[..n], &self.speed_limit_rad_s[..n]) < 1.0 {
             self.stats.clamped_commands += 1;
         }
+        if self.is_low_level() {
+            if gripper_rate.is_finite() && gripper_rate != 0.0 && !self.gripper_warned {
+                // The reference names no cyclic gripper command: none is sent.
+                self.gripper_warned = true;
+                tracing::warn!("low-level mode: gripper commands are not sent (the gripper holds)");
+            }
+            let (dt, limits) = (self.dt, &self.limits);
+            let r = match self.cyclic.as_mut() {
+                Some(c) => c.command(&v[..n], dt, limits),
+                None => Err(KortexError::SessionClosed),
+            };
+            return self.in_loop(r);
+        }
         let payload = joint_speeds_msg(&v[..n]).encode_to_vec();
         let r = self.queue(Function::SendJointSpeedsCommand, payload);
         self.in_loop(r)?;
@@ -854,6 +1041,14 @@ impl Robot for KortexArm {
     fn stop(&mut self) -> Result<(), RobotError> {
         let r = self.ensure_open();
         self.in_loop(r)?;
+        if self.is_low_level() {
+            // Holds the commanded position.
+            let r = match self.cyclic.as_mut() {
+                Some(c) => c.refresh(),
+                None => Err(KortexError::SessionClosed),
+            };
+            return self.in_loop(r);
+        }
         let r = self
             .queue(Function::Stop, Vec::new())
             .and_then(|_| self.queue_feedback_request())

@@ -18,17 +18,30 @@
 //! session opened ([`FakeSnapshot::connection_timeout_ms`]), so tests can check what the client
 //! sent and in which order.
 //!
-//! Threads: the watchdog, a blocking accept loop, and one thread per connection that reads,
-//! answers, and holds delayed replies until they are due. They sleep unless something happens,
+//! Threads: the watchdog, a blocking accept loop, one thread per connection that reads,
+//! answers, and holds delayed replies until they are due, and the cyclic channel's UDP thread
+//! (which also watches for the missing cyclic command). They sleep unless something happens,
 //! so the fake takes little from the processes it is tested with.
 //!
 //! Faults can be injected ([`FakeKortex::inject`]): drop or delay a reply, close the
 //! connection, answer with an error frame, send garbage before a reply, damage a reply's magic,
 //! cut a reply short, answer with an unknown message id.
+//!
+//! Low-level servoing: the fake also listens on UDP ([`FakeKortex::cyclic_addr`]; by default
+//! the same port number as TCP) for the cyclic channel's own session (CreateSession,
+//! CloseSession, `BaseCyclic.Refresh`, `BaseCyclic.RefreshFeedback`, bare frames). After
+//! `Base.SetServoingMode(low-level)` it refuses joint speed and gripper commands, takes each
+//! Refresh's joint positions as the arm's new position (unless [`FakeKortex::block_arm`] holds
+//! it, for following-error tests) and answers with the feedback. The arm's own reaction to a
+//! missing cyclic command: if no Refresh arrives within [`FakeConfig::cyclic_timeout`] while in
+//! low-level servoing, the arm stops where it is and goes into fault (feedback active state
+//! "in fault"; further Refreshes are refused with "robot in fault", sub-code 22, until
+//! `Base.ClearFaults`). The reference gives neither the real arm's timeout nor its exact
+//! reaction; this is the conservative reading (it stops and demands attention).
 
 use std::collections::VecDeque;
 use std::io::{Read, Write};
-use std::net::{Ipv4Addr, Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::net::{Ipv4Addr, Shutdown, SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
@@ -67,6 +80,12 @@ pub struct FakeConfig {
     pub firmware_version: u32,
     /// The simulated arm.
     pub mock: MockConfig,
+    /// UDP port of the cyclic channel on 127.0.0.1: `None` takes the TCP port's number,
+    /// `Some(0)` a free one ([`FakeKortex::cyclic_addr`] tells which).
+    pub cyclic_port: Option<u16>,
+    /// In low-level servoing, the arm faults when no Refresh arrives for this long. The
+    /// reference does not give the real arm's figure; 50 ms is the fake's choice.
+    pub cyclic_timeout: Duration,
 }
 
 impl Default for FakeConfig {
@@ -84,6 +103,8 @@ impl Default for FakeConfig {
                 .collect(),
             firmware_version: 0x02_03_00,
             mock: MockConfig::default(),
+            cyclic_port: None,
+            cyclic_timeout: Duration::from_millis(50),
         }
     }
 }
@@ -148,6 +169,14 @@ pub struct FakeStats {
     pub skipped_bytes: u64,
     /// Joint speed or gripper commands refused because single-level servoing was not set.
     pub refused_not_servoing: u64,
+    /// Cyclic (UDP) sessions opened.
+    pub cyclic_sessions_opened: u64,
+    /// Cyclic (UDP) sessions closed by CloseSession.
+    pub cyclic_sessions_closed: u64,
+    /// `BaseCyclic.Refresh` commands executed.
+    pub refreshes: u64,
+    /// Times a missing cyclic command put the arm in fault.
+    pub cyclic_timeouts: u64,
 }
 
 /// A request the fake robot received, in the order of arrival ([`FakeKortex::request_log`]).
@@ -197,6 +226,16 @@ pub struct FakeSnapshot {
     pub session_timeout_ms: Option<u32>,
     /// Single-level servoing is set (joint speed and gripper commands are accepted).
     pub single_level_servoing: bool,
+    /// Low-level servoing is set (Refresh commands are accepted).
+    pub low_level_servoing: bool,
+    /// The arm is in fault (until ClearFaults).
+    pub in_fault: bool,
+    /// The joint positions of the first Refresh of the last low-level entry (rad).
+    pub first_position_command: Option<[f64; gen3_lite::N_JOINTS]>,
+    /// The joint positions of the last Refresh (rad).
+    pub last_position_command: Option<[f64; gen3_lite::N_JOINTS]>,
+    /// A cyclic (UDP) session exists.
+    pub cyclic_session_open: bool,
 }
 
 impl FakeSnapshot {
@@ -255,6 +294,17 @@ struct State {
     created_timeouts_ms: Option<(u32, u32)>,
     /// Robot-wide, as on the real arm: it outlives sessions.
     single_level_servoing: bool,
+    low_level_servoing: bool,
+    in_fault: bool,
+    /// The cyclic session (id, peer).
+    cyclic: Option<(u16, SocketAddr)>,
+    /// The last Refresh (or the entry into low-level servoing).
+    last_refresh: Instant,
+    /// Joint speeds implied by the last two Refreshes (rad/s).
+    cyclic_qdot: [f64; MAX_JOINTS],
+    arm_blocked: bool,
+    first_cmd: Option<[f64; gen3_lite::N_JOINTS]>,
+    last_cmd: Option<[f64; gen3_lite::N_JOINTS]>,
 }
 
 struct Shared {
@@ -288,6 +338,7 @@ impl Shared {
 /// A running fake robot; stops its threads when dropped.
 pub struct FakeKortex {
     addr: SocketAddr,
+    cyclic_addr: SocketAddr,
     shared: Arc<Shared>,
 }
 
@@ -315,6 +366,22 @@ impl FakeKortex {
             source,
         };
         let addr = listener.local_addr().map_err(bind_err)?;
+        let udp_port = cfg.cyclic_port.unwrap_or(addr.port());
+        let udp = match UdpSocket::bind((Ipv4Addr::LOCALHOST, udp_port)) {
+            // A free TCP port whose number is taken on UDP: any free UDP port.
+            Err(_) if cfg.port == 0 && cfg.cyclic_port.is_none() => {
+                UdpSocket::bind((Ipv4Addr::LOCALHOST, 0))
+            }
+            r => r,
+        }
+        .map_err(|source| FakeError::Bind {
+            port: udp_port,
+            source,
+        })?;
+        let cyclic_addr = udp.local_addr().map_err(|source| FakeError::Bind {
+            port: udp_port,
+            source,
+        })?;
         let shared = Arc::new(Shared {
             cfg,
             stop: AtomicBool::new(false),
@@ -334,13 +401,27 @@ impl FakeKortex {
                 requests: VecDeque::new(),
                 created_timeouts_ms: None,
                 single_level_servoing: false,
+                low_level_servoing: false,
+                in_fault: false,
+                cyclic: None,
+                last_refresh: Instant::now(),
+                cyclic_qdot: [0.0; MAX_JOINTS],
+                arm_blocked: false,
+                first_cmd: None,
+                last_cmd: None,
             }),
             threads: Mutex::new(Vec::new()),
             conns: Mutex::new(Vec::new()),
         });
-        let fake = Self { addr, shared };
+        let fake = Self {
+            addr,
+            cyclic_addr,
+            shared,
+        };
         let sh = fake.shared.clone();
         fake.spawn("fake-kortex-watchdog", move || watchdog_loop(sh))?;
+        let sh = fake.shared.clone();
+        fake.spawn("fake-kortex-cyclic", move || cyclic_loop(sh, udp))?;
         let sh = fake.shared.clone();
         fake.spawn("fake-kortex-accept", move || accept_loop(sh, listener))?;
         tracing::info!(address = %addr, "fake Kortex robot listening");
@@ -365,6 +446,36 @@ impl FakeKortex {
         self.addr
     }
 
+    /// The UDP address of the cyclic channel (always 127.0.0.1).
+    pub fn cyclic_addr(&self) -> SocketAddr {
+        self.cyclic_addr
+    }
+
+    /// Holds the arm where it is whatever the position commands say (an obstacle, a blocked
+    /// joint): what the bridge's following-error check must catch.
+    pub fn block_arm(&self, blocked: bool) {
+        self.shared.state().arm_blocked = blocked;
+    }
+
+    /// Moves the arm by `delta_rad` at once (a push, a collision), kept inside the limits.
+    /// With [`FakeKortex::block_arm`] it stays there whatever the commands say.
+    pub fn push_arm(&self, delta_rad: &[f64]) {
+        let mut st = self.shared.state();
+        let mut q = st.reading.q_rad;
+        for (q, d) in q.iter_mut().zip(delta_rad) {
+            *q += d;
+        }
+        let gripper = st.reading.gripper;
+        st.arm.resume(&q, gripper);
+        st.reading = st.arm.step(1e-9);
+    }
+
+    /// Puts joint speeds `qdot_rad_s` in force as if another client had commanded them (for
+    /// tests of what may only start from rest).
+    pub fn set_joint_speeds(&self, qdot_rad_s: &[f64]) {
+        self.shared.state().arm.set_command(qdot_rad_s, 0.0);
+    }
+
     /// Queues `fault` for the next request of `on` (any function if `None`).
     pub fn inject(&self, fault: Fault, on: Option<Function>) {
         self.shared.state().faults.push_back((on, fault));
@@ -387,6 +498,11 @@ impl FakeKortex {
             connection_timeout_ms: st.created_timeouts_ms.map(|(c, _)| c),
             session_timeout_ms: st.created_timeouts_ms.map(|(_, s)| s),
             single_level_servoing: st.single_level_servoing,
+            low_level_servoing: st.low_level_servoing,
+            in_fault: st.in_fault,
+            first_position_command: st.first_cmd,
+            last_position_command: st.last_cmd,
+            cyclic_session_open: st.cyclic.is_some(),
         };
         s.q_rad.copy_from_slice(&st.reading.q_rad[..n]);
         s.qdot_rad_s.copy_from_slice(&st.reading.qdot_rad_s[..n]);
@@ -812,7 +928,12 @@ fn execute(
     }
     let n = gen3_lite::N_JOINTS;
     match function {
-        Function::CreateSession | Function::KeepAlive | Function::ClearFaults => Ok(Vec::new()),
+        Function::CreateSession | Function::KeepAlive => Ok(Vec::new()),
+        Function::ClearFaults => {
+            st.in_fault = false;
+            Ok(Vec::new())
+        }
+        Function::Refresh => refresh(st, frame),
         Function::CloseSession => {
             st.arm.halt();
             st.session = None;
@@ -827,14 +948,32 @@ fn execute(
         }
         Function::SetServoingMode => {
             let m: msg::ServoingModeInformation = decode_req(frame, "ServoingModeInformation")?;
-            if m.servoing_mode != msg::servoing_mode::SINGLE_LEVEL {
-                return Err((
-                    3,
-                    0,
-                    "this fake robot serves single-level servoing only".into(),
-                ));
+            match m.servoing_mode {
+                msg::servoing_mode::SINGLE_LEVEL => {
+                    st.single_level_servoing = true;
+                    st.low_level_servoing = false;
+                }
+                msg::servoing_mode::LOW_LEVEL => {
+                    if st.in_fault {
+                        return Err((3, 22, "the robot is in fault".into()));
+                    }
+                    // Speeds in force stop: from now on positions drive the arm.
+                    st.arm.halt();
+                    st.single_level_servoing = false;
+                    st.low_level_servoing = true;
+                    st.last_refresh = Instant::now();
+                    st.cyclic_qdot = [0.0; MAX_JOINTS];
+                    st.first_cmd = None;
+                    tracing::info!("fake Kortex: low-level servoing");
+                }
+                other => {
+                    return Err((
+                        3,
+                        0,
+                        format!("this fake robot does not serve servoing mode {other}"),
+                    ));
+                }
             }
-            st.single_level_servoing = true;
             Ok(Vec::new())
         }
         Function::GetActuatorCount => Ok(msg::ActuatorInformation {
@@ -868,7 +1007,7 @@ fn execute(
         .encode_to_vec()),
         Function::RefreshFeedback => {
             st.stats.feedback_requests += 1;
-            Ok(feedback(&st.reading, n).encode_to_vec())
+            Ok(state_feedback(st).encode_to_vec())
         }
         Function::SendJointSpeedsCommand | Function::SendGripperCommand
             if !st.single_level_servoing =>
@@ -936,6 +1075,222 @@ fn execute(
             }
         }
     }
+}
+
+/// The feedback of the arm now: the arm's state, and in low-level servoing the speeds the
+/// position commands imply.
+fn state_feedback(st: &State) -> msg::Feedback {
+    let mut r = st.reading;
+    if st.low_level_servoing {
+        r.qdot_rad_s = st.cyclic_qdot;
+    }
+    let mut fb = feedback(&r, gen3_lite::N_JOINTS);
+    if st.in_fault
+        && let Some(b) = fb.base.as_mut()
+    {
+        b.active_state = msg::arm_state::IN_FAULT;
+    }
+    fb
+}
+
+/// `BaseCyclic.Refresh`: the command's positions become the arm's (unless blocked).
+fn refresh(st: &mut State, frame: &Frame) -> CallResult {
+    if st.in_fault {
+        return Err((
+            3,
+            22,
+            "BaseCyclic.Refresh refused: the robot is in fault".into(),
+        ));
+    }
+    if !st.low_level_servoing {
+        return Err((
+            3,
+            0,
+            "BaseCyclic.Refresh refused: the robot is not in low-level servoing".into(),
+        ));
+    }
+    let m: msg::Command = decode_req(frame, "Command")?;
+    let n = gen3_lite::N_JOINTS;
+    if m.actuators.len() != n {
+        return Err((
+            3,
+            0,
+            format!("{} actuator commands for {n} actuators", m.actuators.len()),
+        ));
+    }
+    let mut q = [0.0; MAX_JOINTS];
+    for (j, a) in m.actuators.iter().enumerate() {
+        let p = f64::from(a.position);
+        if !p.is_finite() {
+            return Err((3, 0, format!("actuator {j}: position {p} deg")));
+        }
+        q[j] = super::angle_deg_to_rad(p);
+    }
+    let mut cmd = [0.0; gen3_lite::N_JOINTS];
+    cmd.copy_from_slice(&q[..n]);
+    if st.first_cmd.is_none() {
+        st.first_cmd = Some(cmd);
+    }
+    st.last_cmd = Some(cmd);
+    let now = Instant::now();
+    let dt = now.duration_since(st.last_refresh).as_secs_f64().max(1e-4);
+    st.last_refresh = now;
+    if !st.arm_blocked {
+        let before = st.reading.q_rad;
+        let gripper = st.reading.gripper;
+        st.arm.resume(&q[..n], gripper);
+        st.reading = st.arm.step(1e-9);
+        let now_q = st.reading.q_rad;
+        for ((v, q), b) in st.cyclic_qdot.iter_mut().zip(now_q).zip(before).take(n) {
+            *v = (q - b) / dt;
+        }
+    } else {
+        st.cyclic_qdot = [0.0; MAX_JOINTS];
+    }
+    st.stats.refreshes += 1;
+    Ok(state_feedback(st).encode_to_vec())
+}
+
+/// The cyclic channel: bare frames over UDP, its own session; and the arm's reaction to a
+/// missing cyclic command.
+fn cyclic_loop(sh: Arc<Shared>, udp: UdpSocket) {
+    let mut buf = vec![0u8; 65_536];
+    while !sh.stop.load(Ordering::SeqCst) {
+        let wait = {
+            let mut st = sh.state();
+            let now = Instant::now();
+            let due = st.last_refresh + sh.cfg.cyclic_timeout;
+            if st.low_level_servoing && !st.in_fault {
+                if now > due {
+                    st.in_fault = true;
+                    st.arm.halt();
+                    st.cyclic_qdot = [0.0; MAX_JOINTS];
+                    st.stats.cyclic_timeouts += 1;
+                    tracing::warn!(
+                        "fake Kortex: no cyclic command for {} ms in low-level servoing: arm                          stopped, in fault",
+                        now.duration_since(st.last_refresh).as_millis()
+                    );
+                    WATCHDOG_MAX_SLEEP
+                } else {
+                    (due - now + Duration::from_micros(200)).min(WATCHDOG_MAX_SLEEP)
+                }
+            } else {
+                WATCHDOG_MAX_SLEEP
+            }
+        };
+        if udp.set_read_timeout(Some(wait)).is_err() {
+            return;
+        }
+        let (len, peer) = match udp.recv_from(&mut buf) {
+            Ok(x) => x,
+            Err(_) => continue,
+        };
+        let Ok(frame) = Frame::decode(&buf[..len]) else {
+            tracing::warn!("fake Kortex: an undecodable cyclic datagram");
+            continue;
+        };
+        if let Some(reply) = on_datagram(&sh, peer, &frame) {
+            let _ = udp.send_to(&reply.encode_bare(), peer);
+        }
+    }
+}
+
+fn on_datagram(sh: &Shared, peer: SocketAddr, frame: &Frame) -> Option<Frame> {
+    let h = frame.header();
+    if h.frame_type() != Some(FrameType::Request) {
+        return None;
+    }
+    let mut st = sh.state();
+    st.stats.frames += 1;
+    if st.requests.len() == LOG_CAPACITY {
+        st.requests.pop_front();
+    }
+    st.requests.push_back(FakeRequest {
+        function_uid: h.function_uid(),
+        message_id: h.message_id(),
+        session_id: h.session_id(),
+    });
+    let function = Function::from_uid(h.function_uid());
+    let mut session_id = h.session_id();
+    let result: CallResult = match function {
+        Some(Function::CreateSession) => {
+            match decode_req::<msg::CreateSessionInfo>(frame, "CreateSessionInfo") {
+                Ok(info)
+                    if info.username == sh.cfg.credentials.username()
+                        && info.password == sh.cfg.credentials.password() =>
+                {
+                    let id = st.next_session_id;
+                    st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
+                    st.cyclic = Some((id, peer));
+                    st.stats.cyclic_sessions_opened += 1;
+                    session_id = id;
+                    tracing::info!(
+                        session = format_args!("{id:#06x}"),
+                        "fake Kortex: cyclic session open"
+                    );
+                    Ok(Vec::new())
+                }
+                Ok(_) => Err((1, 15, "wrong user name or password".into())),
+                Err(e) => Err(e),
+            }
+        }
+        _ if st
+            .cyclic
+            .is_none_or(|(id, p)| id != h.session_id() || p != peer) =>
+        {
+            Err((1, 12, "no cyclic session for this peer".into()))
+        }
+        Some(Function::CloseSession) => {
+            st.cyclic = None;
+            st.stats.cyclic_sessions_closed += 1;
+            tracing::info!("fake Kortex: cyclic session closed");
+            Ok(Vec::new())
+        }
+        Some(Function::Refresh) => refresh(&mut st, frame),
+        Some(Function::RefreshFeedback) => {
+            st.stats.feedback_requests += 1;
+            Ok(state_feedback(&st).encode_to_vec())
+        }
+        _ => Err((
+            1,
+            0,
+            format!(
+                "{} is not served on the cyclic channel",
+                super::function_name(h.function_uid())
+            ),
+        )),
+    };
+    let (payload, err) = match result {
+        Ok(p) => (p, None),
+        Err((code, sub, detail)) => {
+            st.stats.error_replies += 1;
+            (
+                ErrorPayload {
+                    error_code: i32::from(code),
+                    error_sub_code: u32::from(sub),
+                    error_sub_string: detail,
+                }
+                .encode_to_vec(),
+                Some((code, sub)),
+            )
+        }
+    };
+    let header = Header::new(
+        FrameType::Response,
+        session_id,
+        h.message_id(),
+        h.function_uid(),
+        payload.len(),
+    )
+    .ok()?;
+    let header = match err {
+        Some((code, sub)) => header.with_error(code, sub),
+        None => header,
+    };
+    Some(Frame {
+        header: Some(header),
+        payload,
+    })
 }
 
 fn feedback(r: &Reading, n: usize) -> msg::Feedback {

@@ -9,8 +9,12 @@
 //!   limits), then a pipelined 40 Hz exchange (joint speeds, gripper position, feedback; replies
 //!   matched by message id on a socket reader thread), and Stop + CloseSession on exit and on
 //!   every fault.
-//! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol, for tests and
-//!   for trying the bridge without an arm.
+//! * [`cyclic`]: low-level servoing (`mode = "low-level"`): the second session over UDP, a
+//!   `BaseCyclic.Refresh` per tick with joint positions integrated from the safe speeds,
+//!   entered only from rest at the measured position, the following-error check; what the
+//!   protocol reference does not say and what is assumed instead is listed there.
+//! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol (the cyclic
+//!   channel included), for tests and for trying the bridge without an arm.
 //!
 //! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
 //! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
@@ -36,6 +40,7 @@
 //! ```
 
 pub mod arm;
+pub mod cyclic;
 pub mod fake;
 pub mod msg;
 pub mod wire;
@@ -77,6 +82,9 @@ pub enum Function {
     GetArmState,
     /// `BaseCyclic.RefreshFeedback`.
     RefreshFeedback,
+    /// `BaseCyclic.Refresh` (a cyclic command, answered with a Feedback): the low-level
+    /// channel over UDP. Its UID is not in the protocol reference; see [`msg::Command`].
+    Refresh,
     /// `ControlConfig.GetKinematicHardLimits`.
     GetKinematicHardLimits,
     /// `DeviceConfig.GetFirmwareVersion` (read by `scl doctor` only).
@@ -85,7 +93,7 @@ pub enum Function {
 
 impl Function {
     /// Every function, for look-ups.
-    pub const ALL: [Function; 15] = [
+    pub const ALL: [Function; 16] = [
         Self::CreateSession,
         Self::CloseSession,
         Self::KeepAlive,
@@ -99,6 +107,7 @@ impl Function {
         Self::GetActuatorCount,
         Self::GetArmState,
         Self::RefreshFeedback,
+        Self::Refresh,
         Self::GetKinematicHardLimits,
         Self::GetFirmwareVersion,
     ];
@@ -119,6 +128,8 @@ impl Function {
             Self::GetActuatorCount => 0x2_00AB,
             Self::GetArmState => 0x2_00AF,
             Self::RefreshFeedback => 0x3_0003,
+            // Not in the reference: assumed (see msg::Command).
+            Self::Refresh => 0x3_0001,
             Self::GetKinematicHardLimits => 0x10_0012,
             Self::GetFirmwareVersion => 0x9_0004,
         }
@@ -140,6 +151,7 @@ impl Function {
             Self::GetActuatorCount => "Base.GetActuatorCount",
             Self::GetArmState => "Base.GetArmState",
             Self::RefreshFeedback => "BaseCyclic.RefreshFeedback",
+            Self::Refresh => "BaseCyclic.Refresh",
             Self::GetKinematicHardLimits => "ControlConfig.GetKinematicHardLimits",
             Self::GetFirmwareVersion => "DeviceConfig.GetFirmwareVersion",
         }
@@ -175,7 +187,42 @@ pub struct KortexConfig {
     pub session_timeout_ms: u32,
     /// A request without a reply for this long is a fault (ms).
     pub reply_timeout_ms: u32,
+    /// How the arm is driven: [`KortexMode::SingleLevel`] (joint speeds over TCP, the
+    /// default) or [`KortexMode::LowLevel`] (position commands every tick over UDP).
+    pub mode: KortexMode,
+    /// The robot's UDP port of the low-level cyclic channel (low-level mode only).
+    pub cyclic_port: u16,
+    /// Low-level mode: a measured joint angle further than this from its commanded position
+    /// stops the arm and the graph (rad).
+    pub following_error_rad: f64,
 }
+
+/// How the bridge drives the arm (`[bridge.kortex] mode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum KortexMode {
+    /// Single-level servoing: joint speed commands over the TCP session, pipelined.
+    #[default]
+    SingleLevel,
+    /// Low-level servoing: a second session over UDP, a `BaseCyclic.Refresh` with joint
+    /// position commands every tick (see [`cyclic`]).
+    LowLevel,
+}
+
+/// The period of the low-level cyclic channel (s): 1 kHz.
+pub const LOW_LEVEL_PERIOD_S: f64 = 0.001;
+
+/// The robot's UDP port of the low-level cyclic channel.
+pub const DEFAULT_CYCLIC_PORT: u16 = 10001;
+
+/// Default following-error bound of low-level mode (rad, about 2.9°). The reference is silent
+/// on the robot's own bound; this is the bridge's, chosen tight: at 1 kHz the fastest joint
+/// (3.2 rad/s) moves 0.0032 rad per tick.
+pub const DEFAULT_FOLLOWING_ERROR_RAD: f64 = 0.05;
+
+/// The widest following-error bound accepted (rad, about 29°): beyond it the check protects
+/// nothing.
+pub const MAX_FOLLOWING_ERROR_RAD: f64 = 0.5;
 
 /// The robot's default address (never contacted unless a configuration names it).
 pub const DEFAULT_ADDRESS: &str = "192.168.1.10";
@@ -192,6 +239,9 @@ impl Default for KortexConfig {
             connection_timeout_ms: 200,
             session_timeout_ms: 60_000,
             reply_timeout_ms: 200,
+            mode: KortexMode::SingleLevel,
+            cyclic_port: DEFAULT_CYCLIC_PORT,
+            following_error_rad: DEFAULT_FOLLOWING_ERROR_RAD,
         }
     }
 }
@@ -245,7 +295,51 @@ impl KortexConfig {
                 ),
             );
         }
+        if self.cyclic_port == 0 {
+            return err("cyclic_port", "0 is not a port".into());
+        }
+        let fe = self.following_error_rad;
+        if !(fe.is_finite() && fe > 0.0 && fe <= MAX_FOLLOWING_ERROR_RAD) {
+            return err(
+                "following_error_rad",
+                format!("{fe} rad is not in (0, {MAX_FOLLOWING_ERROR_RAD}]"),
+            );
+        }
+        if self.mode == KortexMode::LowLevel {
+            // The Gen3 lite's cyclic channel expects a command every millisecond (issue 22;
+            // the reference gives no tolerance): refuse a slower graph rather than guess.
+            if period_s > LOW_LEVEL_PERIOD_S * 1.0001 {
+                return err(
+                    "mode",
+                    format!(
+                        "\"low-level\" sends a command every tick and the arm expects one every \
+                         millisecond: the graph's period is {period_ms} ms; set [graph] \
+                         rate_hz = 1000"
+                    ),
+                );
+            }
+            let addr = self.socket_addr()?;
+            // The cyclic command's layout is not in the protocol reference (see
+            // msg::Command): the conservative choice is to drive no real arm with it.
+            if !addr.ip().is_loopback() {
+                return err(
+                    "mode",
+                    format!(
+                        "\"low-level\" runs only against a loopback address (the fake robot) \
+                         for now: the BaseCyclic command's encoding is not in the protocol \
+                         reference and has not been checked against a real arm ({} is not \
+                         loopback)",
+                        self.address
+                    ),
+                );
+            }
+        }
         Ok(())
+    }
+
+    /// The robot's UDP address of the cyclic channel.
+    pub fn cyclic_addr(&self) -> Result<SocketAddr, KortexConfigError> {
+        Ok(SocketAddr::new(self.socket_addr()?.ip(), self.cyclic_port))
     }
 
     /// The robot's socket address.
@@ -409,6 +503,43 @@ pub enum KortexError {
     /// The session is closed (after a fault or shutdown).
     #[error("the Kortex session is closed")]
     SessionClosed,
+    /// Low-level mode is entered only from rest, and a joint was moving.
+    #[error(
+        "low-level mode refused: the arm is not at rest (joint {joint} moves at {speed_rad_s:.4} \
+         rad/s; at rest is below {rest_rad_s} rad/s)"
+    )]
+    NotAtRest {
+        /// The first joint found moving (0-based).
+        joint: usize,
+        /// Its measured speed (rad/s).
+        speed_rad_s: f64,
+        /// The bound of "at rest" (rad/s).
+        rest_rad_s: f64,
+    },
+    /// Low-level mode: a joint is further from its commanded position than the bound.
+    #[error(
+        "following error: joint {joint} measured {measured_rad:.4} rad, commanded \
+         {commanded_rad:.4} rad ({error_rad:.4} rad apart; bridge.kortex.following_error_rad \
+         = {bound_rad})"
+    )]
+    FollowingError {
+        /// The joint (0-based).
+        joint: usize,
+        /// Its measured angle (rad).
+        measured_rad: f64,
+        /// Its commanded angle (rad).
+        commanded_rad: f64,
+        /// The distance between them (rad).
+        error_rad: f64,
+        /// The bound (rad).
+        bound_rad: f64,
+    },
+    /// Low-level mode: the robot's feedback reports the arm in fault.
+    #[error("the robot reports the arm in fault during low-level servoing (active state {state})")]
+    ArmInFault {
+        /// `BaseFeedback.active_state`.
+        state: i32,
+    },
 }
 
 impl KortexError {
@@ -824,6 +955,50 @@ mod tests {
             ..Default::default()
         });
         assert!(e.contains("reply_timeout_ms"), "{e}");
+    }
+
+    #[test]
+    fn low_level_settings_are_validated_and_named() {
+        let period = 0.001;
+        let local = KortexConfig {
+            address: "127.0.0.1".into(),
+            mode: KortexMode::LowLevel,
+            ..Default::default()
+        };
+        local.validate(period).unwrap();
+        assert_eq!(local.cyclic_addr().unwrap().port(), DEFAULT_CYCLIC_PORT);
+        let bad = |c: KortexConfig| c.validate(period).unwrap_err().to_string();
+        let e = bad(KortexConfig {
+            address: DEFAULT_ADDRESS.into(),
+            ..local.clone()
+        });
+        assert!(
+            e.starts_with("bridge.kortex.mode:") && e.contains("loopback"),
+            "{e}"
+        );
+        for fe in [0.0, -0.1, f64::NAN, 0.6] {
+            let e = bad(KortexConfig {
+                following_error_rad: fe,
+                ..local.clone()
+            });
+            assert!(e.starts_with("bridge.kortex.following_error_rad:"), "{e}");
+        }
+        let e = bad(KortexConfig {
+            cyclic_port: 0,
+            ..local.clone()
+        });
+        assert!(e.starts_with("bridge.kortex.cyclic_port:"), "{e}");
+        let e = local.validate(0.025).unwrap_err().to_string();
+        assert!(
+            e.starts_with("bridge.kortex.mode:") && e.contains("rate_hz = 1000"),
+            "{e}"
+        );
+        // The mode's spelling in TOML.
+        let c: KortexConfig = toml::from_str("mode = \"low-level\"").unwrap();
+        assert_eq!(c.mode, KortexMode::LowLevel);
+        let c: KortexConfig = toml::from_str("").unwrap();
+        assert_eq!(c.mode, KortexMode::SingleLevel);
+        assert!(toml::from_str::<KortexConfig>("mode = \"lowlevel\"").is_err());
     }
 
     #[test]

@@ -309,6 +309,46 @@ pub struct MotorFeedback {
     pub velocity: f32,
 }
 
+// ---------------------------------------------------------------------------------------------
+// BaseCyclic command (low-level servoing).
+//
+// NOT IN THE REFERENCE. `shared/reference/kortex-protocol.md` gives the Feedback message and
+// `BaseCyclic.RefreshFeedback` (0x30003) but is silent on the cyclic command: the UID of
+// `BaseCyclic.Refresh` (taken here as function 1 of service 3, beside RefreshFeedback's 3) and
+// the field numbers of `Command` / `ActuatorCommand` below are the project's assumption, not a
+// documented fact. They are kept in this one place so that they are easy to correct, and the
+// conservative consequence is drawn in `KortexConfig::validate`: low-level mode only runs
+// against a loopback address (the fake robot) until they are checked against a real arm.
+// ---------------------------------------------------------------------------------------------
+
+/// `BaseCyclic.Refresh` request (assumed layout, see above): one command per actuator.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct Command {
+    /// Frame counter of the cyclic command.
+    #[prost(fixed32, tag = "1")]
+    pub frame_id: u32,
+    /// One entry per actuator, in joint order.
+    #[prost(message, repeated, tag = "2")]
+    pub actuators: Vec<ActuatorCommand>,
+}
+
+/// One actuator's cyclic command (assumed layout, see above).
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct ActuatorCommand {
+    /// Id of the command (echoed in [`ActuatorFeedback::command_id`]).
+    #[prost(fixed32, tag = "1")]
+    pub command_id: u32,
+    /// Flags (0: none; the bridge sets none).
+    #[prost(fixed32, tag = "2")]
+    pub flags: u32,
+    /// Position target (deg, in [0, 360)).
+    #[prost(float, tag = "3")]
+    pub position: f32,
+    /// Velocity (deg/s; 0: the bridge commands positions only).
+    #[prost(float, tag = "4")]
+    pub velocity: f32,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,7 +1,9 @@
 //! `scl fake-kortex`: a fake Gen3 lite speaking the Kortex protocol on 127.0.0.1, for trying
 //! the bridge without an arm ([`hw_bridge::kortex::FakeKortex`]). It accepts the robot's
 //! default credentials (admin / admin), simulates the arm, and stops it when the bridge's
-//! connection inactivity timeout passes without a frame.
+//! connection inactivity timeout passes without a frame. It also serves the low-level cyclic
+//! channel over UDP on the same port number (`[bridge.kortex] mode = "low-level"`,
+//! `cyclic_port` = that port), and faults the arm when no cyclic command arrives in time.
 
 use std::io::Write;
 use std::time::Duration;
@@ -28,6 +30,12 @@ pub fn run(port: u16) -> Result<(), BridgeNodeError> {
         addr = fake.addr(),
         port = fake.addr().port()
     );
+    eprintln!(
+        "scl fake-kortex: low-level cyclic channel on udp {} ([bridge.kortex] mode = \"low-level\", \
+         cyclic_port = {})",
+        fake.cyclic_addr(),
+        fake.cyclic_addr().port()
+    );
     let mut last = fake.snapshot().stats;
     while !signals::stop_requested() {
         std::thread::sleep(Duration::from_millis(50));
@@ -46,6 +54,8 @@ pub fn run(port: u16) -> Result<(), BridgeNodeError> {
     tracing::info!(
         frames = s.stats.frames,
         sessions = s.stats.sessions_opened,
+        refreshes = s.stats.refreshes,
+        cyclic_timeouts = s.stats.cyclic_timeouts,
         connection_timeouts = s.stats.connection_timeouts,
         "fake Kortex robot stopping"
     );
