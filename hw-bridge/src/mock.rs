@@ -17,6 +17,11 @@ pub struct MockConfig {
     /// Start pose: one of the robot profile's named poses (`home`, `zero` or `retract` on the
     /// default arm).
     pub initial_pose: String,
+    /// Start at these joint angles (rad, one per joint, inside the position limits) instead of
+    /// `initial_pose`: how `scl study simulate --live` starts each attempt exactly at the
+    /// task's start pose. Unset by default.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub initial_q: Option<Vec<f64>>,
     /// Initial gripper state in `[0, 1]`.
     pub initial_gripper: f64,
     /// Time constant of the gripper's first-order lag (s).
@@ -39,6 +44,7 @@ impl MockConfig {
     pub fn for_robot(robot: &RobotProfile) -> Self {
         Self {
             initial_pose: "home".into(),
+            initial_q: None,
             initial_gripper: 0.0,
             gripper_time_constant_s: robot.gripper_time_constant_s(),
             latency_ticks: 0,
@@ -58,6 +64,43 @@ pub struct MockConfigError {
 }
 
 const _: () = assert!(kinematics::MAX_DOF <= MAX_JOINTS);
+
+/// Checks `[bridge.mock] initial_q`: one finite angle per joint of `robot`, inside its
+/// position limits.
+fn check_initial_q(robot: &RobotProfile, q: &[f64]) -> Result<(), MockConfigError> {
+    let bad = |reason: String| MockConfigError {
+        key: "initial_q",
+        reason,
+    };
+    let n = robot.n_joints();
+    if q.len() != n {
+        return Err(bad(format!(
+            "{} angles given; {} has {n} joints",
+            q.len(),
+            robot.name()
+        )));
+    }
+    let l = robot.limits();
+    for (j, &v) in q.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(bad(format!(
+                "joint {} ({}): {v} is not a number",
+                j + 1,
+                l.names[j]
+            )));
+        }
+        if v < l.lower_rad[j] || v > l.upper_rad[j] {
+            return Err(bad(format!(
+                "joint {} ({}): {v} rad is outside its limits [{}, {}]",
+                j + 1,
+                l.names[j],
+                l.lower_rad[j],
+                l.upper_rad[j]
+            )));
+        }
+    }
+    Ok(())
+}
 
 /// The simulated arm.
 #[derive(Debug, Clone)]
@@ -86,7 +129,7 @@ impl MockArm {
     pub fn for_robot(robot: &RobotProfile, cfg: MockConfig) -> Result<Self, MockConfigError> {
         // A chain has at most MAX_DOF joints, which the messages carry (asserted below).
         let n = robot.n_joints();
-        let pose = robot
+        let named = robot
             .named_pose(&cfg.initial_pose)
             .ok_or_else(|| MockConfigError {
                 key: "initial_pose",
@@ -97,6 +140,13 @@ impl MockArm {
                     robot.pose_names().collect::<Vec<_>>().join(", ")
                 ),
             })?;
+        let pose = match &cfg.initial_q {
+            None => named,
+            Some(q) => {
+                check_initial_q(robot, q)?;
+                q.as_slice()
+            }
+        };
         if !(0.0..=1.0).contains(&cfg.initial_gripper) {
             return Err(MockConfigError {
                 key: "initial_gripper",
@@ -370,6 +420,48 @@ mod tests {
         })
         .unwrap_err();
         assert_eq!(e.key, "gripper_time_constant_s");
+    }
+
+    #[test]
+    fn starts_at_a_joint_vector_inside_the_limits_and_refuses_others() {
+        let q = [0.1, 0.2, 1.5, -0.3, 0.4, 0.5];
+        let mut arm = MockArm::new(MockConfig {
+            initial_q: Some(q.to_vec()),
+            ..MockConfig::default()
+        })
+        .unwrap();
+        assert_eq!(&arm.step(DT).q_rad[..6], &q);
+        let refused = |q: Vec<f64>| {
+            MockArm::new(MockConfig {
+                initial_q: Some(q),
+                ..MockConfig::default()
+            })
+            .unwrap_err()
+        };
+        let e = refused(vec![0.0; 5]);
+        assert_eq!(e.key, "initial_q");
+        assert!(e.reason.contains("5 angles given"), "{e}");
+        let e = refused(vec![0.0, f64::NAN, 0.0, 0.0, 0.0, 0.0]);
+        assert!(e.reason.contains("joint 2"), "{e}");
+        let mut far = q.to_vec();
+        far[1] = 10.0;
+        let e = refused(far);
+        assert!(
+            e.reason.contains("joint 2") && e.reason.contains("outside"),
+            "{e}"
+        );
+        // It survives the graph TOML's round trip.
+        let cfg = MockConfig {
+            initial_q: Some(q.to_vec()),
+            ..MockConfig::default()
+        };
+        let text = toml::to_string(&cfg).unwrap();
+        assert_eq!(toml::from_str::<MockConfig>(&text).unwrap(), cfg);
+        assert!(
+            !toml::to_string(&MockConfig::default())
+                .unwrap()
+                .contains("initial_q")
+        );
     }
 
     /// The mock follows the profile it is given: another arm's joints, limits and poses.

@@ -115,6 +115,9 @@ pub enum SimError {
     /// The safety filter or the mock arm refused its configuration.
     #[error("{0}")]
     Setup(String),
+    /// The live graph of `--live` failed (it did not start, stopped or died).
+    #[error("the live graph: {0}")]
+    Live(String),
     /// A task has no simulated goals.
     #[error("{path}: `tasks[{index}].goals`: {reason}", path = path.display())]
     Goals {
@@ -429,7 +432,130 @@ pub struct AttemptSetup<'a> {
     pub aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
 }
 
-/// Runs one attempt from the start pose until every subgoal is done or the time runs out.
+/// What the operator does with a robot state ([`AttemptDriver::on_state`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Answer {
+    /// The attempt goes on: publish this joystick sample (the graph applies it at the next
+    /// tick).
+    Sample(JoystickInput),
+    /// The attempt is over.
+    Done(AttemptResult),
+}
+
+/// One simulated attempt from the operator's side, whatever closes the loop: it takes each
+/// robot state and answers with the next joystick sample or the attempt's end. The in-process
+/// loop ([`run_attempt`]) and the live graph (`scl study simulate --live`) both drive it, so
+/// the operator, the goals and the clock are the same code in both.
+///
+/// The attempt's clock is the state's tick counted from the first state it was given: a
+/// state the live loop could not answer in time still counts its tick.
+pub struct AttemptDriver<'a> {
+    robot: &'static RobotProfile,
+    dt: f64,
+    ticks: u64,
+    time_limit_s: f64,
+    model: &'a ModelFactory<'a>,
+    aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    op: Operator,
+    run: GoalRun,
+    rng: Rng,
+    jac: Jacobian,
+    first_tick: Option<u64>,
+    last_k: u64,
+}
+
+impl<'a> AttemptDriver<'a> {
+    /// The operator of attempt `s`, before its first state.
+    pub fn new(s: &AttemptSetup<'a>) -> Result<Self, SimError> {
+        let dt = s.sim.period_s;
+        Ok(Self {
+            robot: s.sim.robot,
+            dt,
+            ticks: (s.time_limit_s / dt).ceil() as u64,
+            time_limit_s: s.time_limit_s,
+            model: s.model,
+            aim_out: s.aim_out.clone(),
+            op: Operator::new(s.params, s.goals.tol, dt, Probes::new(s.model)?),
+            run: GoalRun::new(s.goals),
+            rng: Rng::new(s.seed),
+            jac: Jacobian::zeros(s.sim.robot.n_joints()),
+            first_tick: None,
+            last_k: 0,
+        })
+    }
+
+    /// The operator's answer to `state`. `mode` is the map's mode as the screen shows it (the
+    /// mapper's heartbeat of the previous tick: 0 the first mode), `t_ns` the sample's time.
+    pub fn on_state(
+        &mut self,
+        state: &RobotState,
+        mode: Option<usize>,
+        t_ns: u64,
+    ) -> Result<Answer, SimError> {
+        let first = *self.first_tick.get_or_insert(state.tick);
+        let k = state.tick.saturating_sub(first);
+        let tool = self
+            .robot
+            .arm()
+            .fk_jacobian(state.q(), &mut self.jac)
+            .map_err(|e| SimError::Setup(format!("forward kinematics: {e}")))?;
+        let elapsed = (k - self.last_k.min(k)) as f64 * self.dt;
+        self.last_k = k;
+        self.run.update(&tool, state.gripper, elapsed);
+        if self.run.done() {
+            return Ok(Answer::Done(AttemptResult {
+                outcome: Outcome::Success,
+                completion_pct: 100.0,
+                duration_s: k as f64 * self.dt,
+                mode_switches: self.op.presses,
+            }));
+        }
+        if k >= self.ticks {
+            return Ok(Answer::Done(AttemptResult {
+                outcome: Outcome::Timeout,
+                completion_pct: self.run.completion_pct(),
+                duration_s: self.time_limit_s,
+                mode_switches: self.op.presses,
+            }));
+        }
+        let aim = self
+            .run
+            .aim(&tool, state.q().last().copied().unwrap_or(0.0));
+        if let (Some(cell), Some(a)) = (&self.aim_out, &aim)
+            && let Ok(mut e) = cell.lock()
+        {
+            *e = a.error(&tool);
+        }
+        let joy = self.op.act(
+            self.model,
+            state,
+            &tool,
+            &self.jac,
+            aim,
+            mode,
+            t_ns,
+            &mut self.rng,
+        );
+        tracing::trace!(
+            tick = k,
+            tool = ?tool.translation.vector.as_slice(),
+            aim = ?aim.map(|a| a.position),
+            axes = ?joy.axes,
+            gripper = state.gripper,
+            subgoal = ?self.run.current().map(Subgoal::name),
+            mode = ?mode,
+            buttons = joy.buttons,
+            "simulated operator"
+        );
+        Ok(Answer::Sample(joy))
+    }
+}
+
+/// Runs one attempt from the start pose until every subgoal is done or the time runs out, in
+/// process on simulated time: the graph's pipeline tick by tick. The robot state of tick `k`
+/// goes to the operator and to the mapper; the mapper maps the newest sample it has, the one
+/// the operator gave for tick `k - 1` (the live graph's mapper has computed tick `k` before
+/// the operator's answer to it arrives); safety filters; the mock arm executes.
 pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
     let robot = s.sim.robot;
     let n = robot.n_joints();
@@ -449,67 +575,32 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
     let mut state = RobotState::at_rest(0, period_ns, n as u32);
     state.q_rad[..n].copy_from_slice(&s.start_q[..n.min(s.start_q.len())]);
     state.flags = state_flags::MOCK;
-    let mut op = Operator::new(s.params, s.goals.tol, dt, Probes::new(s.model)?);
-    let mut run = GoalRun::new(s.goals);
-    let mut rng = Rng::new(s.seed);
-    let mut jac = Jacobian::zeros(n);
-    let ticks = (s.time_limit_s / dt).ceil() as u64;
-    for k in 0..=ticks {
+    let mut driver = AttemptDriver::new(s)?;
+    let mut newest: Option<JoystickInput> = None;
+    let mut k = 0u64;
+    loop {
         let t_ns = (k + 1) * period_ns;
         state.tick = k;
         state.t_ns = t_ns;
-        let tool = robot
-            .arm()
-            .fk_jacobian(state.q(), &mut jac)
-            .map_err(|e| SimError::Setup(format!("forward kinematics: {e}")))?;
-        run.update(&tool, state.gripper, if k == 0 { 0.0 } else { dt });
-        if run.done() {
-            return Ok(AttemptResult {
-                outcome: Outcome::Success,
-                completion_pct: 100.0,
-                duration_s: k as f64 * dt,
-                mode_switches: op.presses,
-            });
-        }
-        if k == ticks {
-            break;
-        }
-        let aim = run.aim(&tool, state.q().last().copied().unwrap_or(0.0));
-        if let (Some(cell), Some(a)) = (&s.aim_out, &aim)
-            && let Ok(mut e) = cell.lock()
-        {
-            *e = a.error(&tool);
-        }
+        // The screen shows the mode of the mapper's last heartbeat: after tick k - 1.
         let mode = step.mode().map(|m| m.index as usize);
-        let joy = op.act(s.model, &state, &tool, &jac, aim, mode, t_ns, &mut rng);
-        let mut cmd = step.step(&state, Some(&joy));
+        let joy = match driver.on_state(&state, mode, t_ns)? {
+            Answer::Done(r) => return Ok(r),
+            Answer::Sample(j) => j,
+        };
+        let mut cmd = step.step(&state, newest.as_ref());
+        newest = Some(joy);
         cmd.t_ns = t_ns;
         let safe = filter.step(&cmd, &state, t_ns);
-        tracing::trace!(
-            tick = k,
-            tool = ?tool.translation.vector.as_slice(),
-            aim = ?aim.map(|a| a.position),
-            axes = ?joy.axes,
-            safety_flags = safe.flags,
-            gripper = state.gripper,
-            subgoal = ?run.current().map(Subgoal::name),
-            mode = ?mode,
-            buttons = joy.buttons,
-            "simulated tick"
-        );
+        tracing::trace!(tick = k, safety_flags = safe.flags, "simulated tick");
         arm.set_command(&safe.qdot_rad_s[..n], safe.gripper_rate);
         let r = arm.step(dt);
         state.q_rad = r.q_rad;
         state.qdot_rad_s = r.qdot_rad_s;
         state.gripper = r.gripper;
         state.applied_tick = k;
+        k += 1;
     }
-    Ok(AttemptResult {
-        outcome: Outcome::Timeout,
-        completion_pct: run.completion_pct(),
-        duration_s: s.time_limit_s,
-        mode_switches: op.presses,
-    })
 }
 
 /// A seed for one attempt, from the study's seed and where the attempt is in the plan (the
@@ -560,6 +651,98 @@ pub fn start_q(robot: &RobotProfile, start: &StartPose) -> Option<Vec<f64>> {
     }
 }
 
+/// Which attempt of the plan a runner is given ([`simulate_participant_with`]).
+#[derive(Debug, Clone)]
+pub struct AttemptInfo<'a> {
+    /// The condition's model spec for this task (what the graph serves).
+    pub spec: &'a str,
+    /// A name for its files: `P01-t1-c2-a1` (participant, task, condition, attempt; 1-based).
+    pub name: String,
+}
+
+/// Part of a study's protocol to simulate (`scl study simulate --task --condition`): all of
+/// it by default. The order and Latin-square positions stay those of the whole plan.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Selection {
+    /// Only the task of this name.
+    pub task: Option<String>,
+    /// Only the condition of this label (or name).
+    pub condition: Option<String>,
+}
+
+impl Selection {
+    /// Checks that the names are the study's; the error lists what there is.
+    pub fn check(&self, study: &Study) -> Result<(), StudyError> {
+        let f = &study.file;
+        if let Some(t) = &self.task
+            && !f.tasks.iter().any(|x| &x.name == t)
+        {
+            return Err(StudyError::Invalid {
+                path: study.path.clone(),
+                key: "--task".into(),
+                reason: format!(
+                    "`{t}` is not a task of the study; its tasks: {}",
+                    f.tasks
+                        .iter()
+                        .map(|x| x.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
+        }
+        if let Some(c) = &self.condition
+            && !f.conditions.iter().any(|x| &x.label == c || &x.name == c)
+        {
+            return Err(StudyError::Invalid {
+                path: study.path.clone(),
+                key: "--condition".into(),
+                reason: format!(
+                    "`{c}` is not a condition of the study; its labels: {}",
+                    f.conditions
+                        .iter()
+                        .map(|x| x.label.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    fn task(&self, t: &crate::plan::Task) -> bool {
+        self.task.as_ref().is_none_or(|n| &t.name == n)
+    }
+
+    fn condition(&self, c: &crate::plan::Condition) -> bool {
+        self.condition
+            .as_ref()
+            .is_none_or(|n| &c.label == n || &c.name == n)
+    }
+
+    /// How many attempts one participant makes.
+    pub fn attempts(&self, study: &Study) -> u64 {
+        let conditions = study
+            .file
+            .conditions
+            .iter()
+            .filter(|c| self.condition(c))
+            .count();
+        study
+            .file
+            .tasks
+            .iter()
+            .filter(|t| self.task(t))
+            .map(|t| u64::from(t.attempts))
+            .sum::<u64>()
+            * conditions as u64
+    }
+}
+
+/// Runs one attempt of a simulated study: in process ([`run_attempt`]) or through the live
+/// graph (`scl study simulate --live`).
+pub type AttemptRunner<'r> =
+    dyn Fn(&AttemptSetup<'_>, &AttemptInfo<'_>) -> Result<AttemptResult, SimError> + Sync + 'r;
+
 /// Runs participant `p`'s protocol (tasks in order, conditions in their Latin-square order,
 /// every attempt; practice left out) and writes `dir/trials.csv` (refusing a directory that
 /// has one) and a copy of the study file. `progress` is called after each attempt; `stop`
@@ -573,6 +756,33 @@ pub fn simulate_participant(
     progress: &(dyn Fn() + Sync),
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<Vec<TrialRow>, StudyError> {
+    simulate_participant_with(
+        study,
+        sim,
+        p,
+        seed,
+        dir,
+        &Selection::default(),
+        progress,
+        stop,
+        &|s, _| run_attempt(s),
+    )
+}
+
+/// [`simulate_participant`] with each attempt run by `runner`.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_participant_with(
+    study: &Study,
+    sim: &Loop,
+    p: Participant,
+    seed: u64,
+    dir: &Path,
+    only: &Selection,
+    progress: &(dyn Fn() + Sync),
+    stop: &(dyn Fn() -> bool + Sync),
+    runner: &AttemptRunner<'_>,
+) -> Result<Vec<TrialRow>, StudyError> {
+    only.check(study)?;
     let goals = study_goals(study)?;
     let params = study.file.simulation.clone();
     let trials = dir.join(TRIALS);
@@ -593,6 +803,9 @@ pub fn simulate_participant(
     let mut rows = Vec::new();
     let mut clock = 0.0;
     for (ti, task) in study.file.tasks.iter().enumerate() {
+        if !only.task(task) {
+            continue;
+        }
         let q0 = start_q(sim.robot, &task.start).ok_or_else(|| StudyError::Invalid {
             path: study.path.clone(),
             key: format!("tasks[{ti}].start"),
@@ -600,12 +813,17 @@ pub fn simulate_participant(
         })?;
         for (pos, &ci) in study.order(p).iter().enumerate() {
             let c = &study.file.conditions[ci];
+            if !only.condition(c) {
+                continue;
+            }
             let spec = &study.models[ci][ti];
             let make = || {
-                LoadedModel::load_for(spec, sim.robot).map_err(|source| SimError::Model {
-                    spec: spec.clone(),
-                    source,
-                })
+                LoadedModel::load_for(spec, sim.robot)
+                    .map(|m| m.at_period(sim.period_s))
+                    .map_err(|source| SimError::Model {
+                        spec: spec.clone(),
+                        source,
+                    })
             };
             for attempt in 1..=task.attempts {
                 if stop() {
@@ -627,7 +845,11 @@ pub fn simulate_participant(
                     ),
                     aim_out: None,
                 };
-                let r = run_attempt(&setup)?;
+                let info = AttemptInfo {
+                    spec,
+                    name: format!("{p}-t{}-c{}-a{attempt}", ti + 1, ci + 1),
+                };
+                let r = runner(&setup, &info)?;
                 tracing::debug!(participant = %p, task = %task.name, condition = %c.name, attempt, ?r, "simulated attempt");
                 let row = TrialRow {
                     study: study.file.name.clone(),

@@ -30,6 +30,8 @@ use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, RobotState, TopicSubscriber
 use study::data::{self, AnswerRow, Appender, Outcome, Progress, TrialRow};
 use study::plan::{Participant, Question, Study};
 
+pub mod simlive;
+
 /// Why a study run stopped, each with the message the experimenter sees.
 #[derive(Debug, thiserror::Error)]
 pub enum StudyRunError {
@@ -1014,7 +1016,8 @@ pub enum StudyCmd {
     /// (Latin-square order, attempts, time limits; practice and questionnaires left out)
     /// through the served maps, the graph's safety filter (--config) and the mock arm, faster
     /// than real time and deterministic for a seed. Writes DIR/P01/trials.csv ... and the
-    /// report (DIR/report, with the paper's claims checked in summary.md).
+    /// report (DIR/report, with the paper's claims checked in summary.md). With --live, each
+    /// attempt runs through the real process graph instead, in real time.
     Simulate {
         /// The study file (its `[simulation]` section sets the operator; see
         /// examples/study/).
@@ -1029,9 +1032,24 @@ pub enum StudyCmd {
         /// The random seed (the same seed gives the same files).
         #[arg(long, default_value = "1")]
         seed: u64,
-        /// Participants simulated at once (default: the cores available).
+        /// Participants simulated at once (default: the cores available; with --live one at
+        /// a time).
         #[arg(long)]
         jobs: Option<usize>,
+        /// Run every attempt through the real process graph at the graph's rate instead of in
+        /// process: a fresh `scl up` per attempt (mock arm at the start pose, the condition's
+        /// model, the `external` joystick source, under the prefix PREFIX-sim) with the
+        /// operator publishing its samples on the joystick topic. For checking that both
+        /// paths agree; takes the attempts' real time. Each attempt's graph configuration and
+        /// log are kept in DIR/Pnn/live/.
+        #[arg(long)]
+        live: bool,
+        /// Only this task (by name); the plan's order is kept.
+        #[arg(long)]
+        task: Option<String>,
+        /// Only this condition (by label or name); the Latin-square positions are kept.
+        #[arg(long)]
+        condition: Option<String>,
     },
     /// Print the plan: each participant's order of the conditions (blind labels), checking
     /// the study file on the way.
@@ -1058,8 +1076,27 @@ pub fn cli(
             out,
             seed,
             jobs,
+            live,
+            task,
+            condition,
         } => {
-            simulate(robot, graph, study, *participants, out, *seed, *jobs)?;
+            let only = study::simulate::Selection {
+                task: task.clone(),
+                condition: condition.clone(),
+            };
+            let how = if *live {
+                Run::Live(prefix)
+            } else {
+                Run::InProcess { jobs: *jobs }
+            };
+            if *live && jobs.is_some_and(|j| j != 1) {
+                return Err(StudyRunError::Graph(
+                    "--jobs with --live: the live graphs run one at a time (each takes the \
+                     machine's real time); leave --jobs out"
+                        .into(),
+                ));
+            }
+            simulate(robot, graph, study, *participants, out, *seed, &only, how)?;
             Ok(std::process::ExitCode::SUCCESS)
         }
         StudyCmd::Run {
@@ -1126,6 +1163,19 @@ pub fn cli(
     }
 }
 
+/// How `scl study simulate` runs the attempts.
+#[derive(Debug, Clone, Copy)]
+pub enum Run<'a> {
+    /// In process on simulated time, `jobs` participants at once (default: the cores).
+    InProcess {
+        /// Participants at once.
+        jobs: Option<usize>,
+    },
+    /// Through the real process graph (`--live`), one attempt at a time, graphs under
+    /// [`simlive::live_prefix`] of this prefix.
+    Live(&'a Prefix),
+}
+
 /// `scl study simulate`: `participants` simulated participants of `study_path` into `out`
 /// (one directory each), then the report into `out/report`.
 pub fn simulate(
@@ -1135,7 +1185,8 @@ pub fn simulate(
     participants: u32,
     out: &Path,
     seed: u64,
-    jobs: Option<usize>,
+    only: &study::simulate::Selection,
+    how: Run<'_>,
 ) -> Result<(), StudyRunError> {
     use rayon::prelude::*;
     if participants == 0 {
@@ -1151,14 +1202,8 @@ pub fn simulate(
     };
     // Refuse a bad task before anything runs.
     study::simulate::study_goals(&s).map_err(study::StudyError::from)?;
-    let attempts: u64 = s
-        .file
-        .tasks
-        .iter()
-        .map(|t| u64::from(t.attempts))
-        .sum::<u64>()
-        * s.file.conditions.len() as u64
-        * u64::from(participants);
+    only.check(&s)?;
+    let attempts = only.attempts(&s) * u64::from(participants);
     let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         let b = indicatif::ProgressBar::new(attempts);
         if let Ok(style) = indicatif::ProgressStyle::with_template(
@@ -1171,30 +1216,59 @@ pub fn simulate(
         indicatif::ProgressBar::hidden()
     };
     let started = Instant::now();
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(jobs.unwrap_or(0))
-        .build()
-        .map_err(|e| StudyRunError::Graph(format!("--jobs: {e}")))?;
     let dirs: Vec<PathBuf> = (1..=participants)
         .map(|n| out.join(Participant(n).to_string()))
         .collect();
-    let results: Vec<Result<Vec<study::data::TrialRow>, study::StudyError>> = pool.install(|| {
-        dirs.par_iter()
-            .enumerate()
-            .map(|(i, dir)| {
-                let p = Participant(i as u32 + 1);
-                study::simulate::simulate_participant(
+    let results: Vec<Result<Vec<study::data::TrialRow>, study::StudyError>> = match how {
+        Run::InProcess { jobs } => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(jobs.unwrap_or(0))
+                .build()
+                .map_err(|e| StudyRunError::Graph(format!("--jobs: {e}")))?;
+            pool.install(|| {
+                dirs.par_iter()
+                    .enumerate()
+                    .map(|(i, dir)| {
+                        study::simulate::simulate_participant_with(
+                            &s,
+                            &sim,
+                            Participant(i as u32 + 1),
+                            seed,
+                            dir,
+                            only,
+                            &|| bar.inc(1),
+                            &ipc_types::signals::stop_requested,
+                            &|setup, _| study::simulate::run_attempt(setup),
+                        )
+                    })
+                    .collect()
+            })
+        }
+        Run::Live(prefix) => {
+            let mut results = Vec::new();
+            for (i, dir) in dirs.iter().enumerate() {
+                let runner = simlive::LiveSim::new(graph, prefix, &dir.join("live"))
+                    .map_err(study::StudyError::from)?;
+                let r = study::simulate::simulate_participant_with(
                     &s,
                     &sim,
-                    p,
+                    Participant(i as u32 + 1),
                     seed,
                     dir,
+                    only,
                     &|| bar.inc(1),
                     &ipc_types::signals::stop_requested,
-                )
-            })
-            .collect()
-    });
+                    &|setup, info| runner.attempt(setup, info),
+                );
+                let failed = r.is_err();
+                results.push(r);
+                if failed {
+                    break;
+                }
+            }
+            results
+        }
+    };
     bar.finish_and_clear();
     let mut rows = 0;
     for r in results {
