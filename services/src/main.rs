@@ -180,6 +180,12 @@ enum Cmd {
         /// low-level cyclic channel listens on UDP with the same number.
         #[arg(long, default_value_t = hw_bridge::kortex::DEFAULT_PORT)]
         port: u16,
+        /// For tests of the bridge's low-level entry check: misread the cyclic command as a
+        /// robot that reads its layout differently would: `zero` (every position as 0°) or
+        /// `offset:JOINT:RAD` (one joint's position off by RAD). The arm then leaves the
+        /// position the bridge holds at entry, and the bridge must stop it.
+        #[arg(long, value_name = "zero|offset:JOINT:RAD")]
+        misread_cyclic: Option<hw_bridge::kortex::CyclicMisread>,
     },
     /// Generate demonstrations as CSV trajectories.
     Demos {
@@ -855,8 +861,11 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             )?;
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::FakeKortex { port } => {
-            scl_bridge_node::fake_kortex::run(port)?;
+        Cmd::FakeKortex {
+            port,
+            misread_cyclic,
+        } => {
+            scl_bridge_node::fake_kortex::run(port, misread_cyclic)?;
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Demos {

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, Fault, Function};
+use hw_bridge::kortex::{Credentials, CyclicMisread, FakeConfig, FakeKortex, Fault, Function};
 use ipc_types::{NodeRole, state_flags};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, Signal, assert_misses_only_held_up, clean_run_at_end,
@@ -478,8 +478,8 @@ fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
 }
 
 /// A fake robot for low-level mode (its cyclic timeout long for a loaded machine; the
-/// product's figure is the robot's) and `scl up --for RUN_FOR --script circle` on it at 1 kHz with
-/// `mode = "low-level"`.
+/// product's figure is the robot's; reading the cyclic command wrongly with `misread`) and
+/// `scl up --for RUN_FOR --script circle` on it at 1 kHz with `mode = "low-level"`.
 struct LowLevelRun {
     fake: FakeKortex,
     start_q: [f64; 6],
@@ -490,10 +490,11 @@ struct LowLevelRun {
     guard: ChildGuard,
 }
 
-fn low_level_up(tag: &str, run_for: &str) -> LowLevelRun {
+fn low_level_up(tag: &str, run_for: &str, misread: Option<CyclicMisread>) -> LowLevelRun {
     let fake = FakeKortex::start(FakeConfig {
         credentials: Credentials::new(USER, PASSWORD),
         cyclic_timeout: Duration::from_millis(500),
+        cyclic_misread: misread,
         ..FakeConfig::default()
     })
     .unwrap();
@@ -555,7 +556,7 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
         prefix,
         mut rec,
         mut guard,
-    } = low_level_up("kxlow", "3s");
+    } = low_level_up("kxlow", "3s", None);
     let _domain = DomainGuard(prefix.clone());
     let out = wait_for_exit(&mut rec, &mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
@@ -566,6 +567,18 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
     assert!(ticks >= 1000, "{summary}");
     assert!(
         log_text.contains("first position command = the measured position"),
+        "{log_text}"
+    );
+    // The entry check held the measured position, counted the commands it held back (said
+    // once), and let the graph's commands apply after it.
+    assert!(
+        log_text.contains("low-level entry check passed")
+            && log_text.contains("commands held back during the hold"),
+        "{log_text}"
+    );
+    assert_eq!(
+        log_text.matches("held back during the hold").count(),
+        1,
         "{log_text}"
     );
 
@@ -621,7 +634,7 @@ fn a_following_error_in_low_level_mode_stops_the_graph() {
         mut rec,
         mut guard,
         ..
-    } = low_level_up("kxfollow", "15s");
+    } = low_level_up("kxfollow", "15s", None);
     let _domain = DomainGuard(prefix.clone());
     assert!(
         rec.poll_until(Duration::from_secs(60), |r| running_states(r).len() >= 300),
@@ -649,6 +662,64 @@ fn a_following_error_in_low_level_mode_stops_the_graph() {
     assert!(s.single_level_servoing && !s.low_level_servoing, "{s:?}");
     assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
     assert!(!s.commanded_to_move(), "{s:?}");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+/// Low-level mode on a robot that reads the cyclic command differently than the bridge means
+/// (here: every position as 0°): during the entry hold the arm leaves the measured position the
+/// bridge holds; the bridge stops it, goes back to single-level servoing, and the graph ends
+/// with the entry check's error naming the joint, the measured and the held position. The
+/// graph's commands never reached the arm: every Refresh carried the held position.
+#[test]
+fn a_robot_that_misreads_the_cyclic_command_fails_the_entry_check_and_ends_the_graph() {
+    let _serial = serial();
+    let LowLevelRun {
+        fake,
+        start_q,
+        dir: _dir,
+        log,
+        prefix,
+        mut rec,
+        mut guard,
+    } = low_level_up("kxentry", "15s", Some(CyclicMisread::ZeroPosition));
+    let _domain = DomainGuard(prefix.clone());
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}: {log_text}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    // Joint 1 is the first joint of the start pose away from 0.
+    assert!(
+        log_text.contains("low-level entry check failed: joint 1")
+            && log_text.contains(&format!("held it at {:.4} rad", start_q[1]))
+            && log_text.contains("did not follow the held position")
+            && log_text.contains("bridge.kortex.entry_hold_tolerance_rad = 0.005"),
+        "{log_text}"
+    );
+    assert!(!log_text.contains("entry check passed"), "{log_text}");
+    let s = fake.snapshot();
+    assert!(s.single_level_servoing && !s.low_level_servoing, "{s:?}");
+    assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
+    assert!(!s.commanded_to_move(), "{s:?}");
+    let (first, last) = (
+        s.first_position_command.unwrap(),
+        s.last_position_command.unwrap(),
+    );
+    for j in 0..6 {
+        assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
+        assert!((last[j] - first[j]).abs() < 1e-6, "joint {j}: {s:?}");
+    }
+    // The arm had moved towards the misread position, beyond the tolerance, when the bridge
+    // stopped it.
+    assert!((s.q_rad[1] - start_q[1]).abs() > 0.005, "{s:?}");
+    assert_no_credentials(&log_text);
     drop(rec);
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(5)),

@@ -22,10 +22,14 @@
 //!
 //! With `mode = "low-level"` ([`super::cyclic`]), start-up goes on: the measured joint speeds
 //! must be ~0, the UDP session opens, SetServoingMode(low-level), and a first Refresh with the
-//! measured position (awaited). Each tick then takes the newest cyclic feedback (following-error
-//! check, arm-in-fault check) and sends the next position command; a stop holds the commanded
-//! position; the TCP session gets a RefreshFeedback every 25 ms from the control loop. Exit and
-//! every fault go back to single-level servoing and close the UDP session before the Stop.
+//! measured position (awaited). Each tick then takes the newest cyclic feedback (arm-in-fault
+//! check; the entry check during the entry hold, the following-error check after it) and sends
+//! the next position command. For the first `entry_hold_ms` of ticks (the entry check,
+//! [`cyclic::EntryHold`]) that command is the measured position of the entry whatever the
+//! graph asks, the graph's commands counted and not applied; the ticks go on as usual. A stop
+//! holds the commanded position; the TCP session gets a RefreshFeedback every 25 ms from the
+//! control loop. Exit and every fault go back to single-level servoing and close the UDP
+//! session before the Stop.
 //!
 //! Every fault (an error reply, a reply for an unknown message id, an undecodable frame, a
 //! reply timeout, a closed or reset connection) stops the arm and closes the session as far as
@@ -197,6 +201,9 @@ pub struct KortexArm {
     /// Low-level servoing was set on the robot (to be undone on exit).
     low_level_set: bool,
     following_error_rad: f64,
+    /// Low-level mode: the entry check (from the first position command; kept after it
+    /// passed, for its counts).
+    entry: Option<cyclic::EntryHold>,
     last_tcp_sent: Instant,
     gripper_warned: bool,
 }
@@ -355,6 +362,7 @@ impl KortexArm {
             cyclic: None,
             low_level_set: false,
             following_error_rad: cfg.following_error_rad,
+            entry: None,
             last_tcp_sent: Instant::now(),
             gripper_warned: false,
         };
@@ -422,9 +430,10 @@ impl KortexArm {
     }
 
     /// Low-level mode, entered only from rest: checks the measured joint speeds, opens the UDP
-    /// session, sets low-level servoing, and sends the first position command, equal to the
-    /// measured position (awaited). On failure the caller's fault path goes back to
-    /// single-level servoing and closes both sessions.
+    /// session, sets low-level servoing, sends the first position command, equal to the
+    /// measured position (awaited), and starts the entry hold (its reply is the hold's first
+    /// check). On failure the caller's fault path goes back to single-level servoing and
+    /// closes both sessions.
     fn enter_low_level(
         &mut self,
         cfg: &KortexConfig,
@@ -462,12 +471,19 @@ impl KortexArm {
         };
         let fb = c.first_command(&q[..n])?;
         let session = c.session_id();
-        self.take_cyclic_feedback(&fb)?;
+        self.entry = Some(cyclic::EntryHold::new(
+            cfg.entry_hold_ms,
+            cfg.entry_hold_tolerance_rad,
+        ));
+        self.take_cyclic_feedback(Some(&fb), 0.0)?;
         tracing::info!(
             address = %addr,
             session = format_args!("{session:#06x}"),
             following_error_rad = self.following_error_rad,
-            "low-level servoing: first position command = the measured position"
+            entry_hold_ms = cfg.entry_hold_ms,
+            entry_hold_tolerance_rad = cfg.entry_hold_tolerance_rad,
+            "low-level servoing: first position command = the measured position; held for the \
+             entry check before the graph's commands apply"
         );
         Ok(())
     }
@@ -475,6 +491,17 @@ impl KortexArm {
     /// Whether low-level servoing is in force.
     pub fn is_low_level(&self) -> bool {
         self.low_level_set && self.cyclic.is_some()
+    }
+
+    /// The entry check of low-level mode: `None` before the first position command; then
+    /// its state (holding, or passed with its counts).
+    pub fn entry_hold(&self) -> Option<&cyclic::EntryHold> {
+        self.entry.as_ref()
+    }
+
+    /// Whether the entry hold is on: the graph's commands are not applied yet.
+    fn entry_holding(&self) -> bool {
+        self.entry.as_ref().is_some_and(cyclic::EntryHold::holding)
     }
 
     /// The low-level position command in force (rad), if in low-level mode.
@@ -495,19 +522,57 @@ impl KortexArm {
         })
     }
 
-    /// A cyclic feedback: the arm's state (an arm in fault is an error), the new reading,
-    /// and the following-error check against the position command.
-    fn take_cyclic_feedback(&mut self, fb: &msg::Feedback) -> Result<(), KortexError> {
-        if let Some(b) = fb.base.as_ref()
-            && b.active_state == msg::arm_state::IN_FAULT
-        {
-            return Err(KortexError::ArmInFault {
-                state: b.active_state,
-            });
+    /// A tick's cyclic feedback (`None`: none arrived) after `period_s` (0: the first
+    /// command's reply): the arm's state (an arm in fault is an error), the new reading, and
+    /// during the entry hold the entry check against the held position, after it the
+    /// following-error check against the position command.
+    fn take_cyclic_feedback(
+        &mut self,
+        fb: Option<&msg::Feedback>,
+        period_s: f64,
+    ) -> Result<(), KortexError> {
+        if let Some(fb) = fb {
+            if let Some(b) = fb.base.as_ref()
+                && b.active_state == msg::arm_state::IN_FAULT
+            {
+                return Err(KortexError::ArmInFault {
+                    state: b.active_state,
+                });
+            }
+            self.reading = self.reading_of(fb)?;
         }
-        self.reading = self.reading_of(fb)?;
         let n = self.robot.n_joints();
-        if let Some(c) = self.cyclic.as_ref() {
+        let Some(c) = self.cyclic.as_ref() else {
+            return Ok(());
+        };
+        if let Some(hold) = self.entry.as_mut().filter(|h| h.holding()) {
+            // The position command is the held one: the entry position.
+            let measured = fb.map(|_| &self.reading.q_rad[..n]);
+            let step = hold.step(measured, c.q_cmd(), period_s);
+            match &step {
+                Ok(cyclic::EntryStep::Passed) => tracing::info!(
+                    hold_ms = hold.hold_ms(),
+                    ticks = hold.ticks(),
+                    feedbacks = hold.feedbacks(),
+                    worst_rad = hold.worst_rad(),
+                    "low-level entry check passed: the arm held the measured position; {} \
+                     commands held back during the hold ({} asked for motion); the graph's \
+                     commands apply from now on",
+                    hold.held_back(),
+                    hold.held_back_moving()
+                ),
+                Ok(cyclic::EntryStep::Holding) => {}
+                Err(_) => tracing::warn!(
+                    ticks = hold.ticks(),
+                    "low-level entry check: {} commands held back before it failed ({} asked \
+                     for motion)",
+                    hold.held_back(),
+                    hold.held_back_moving()
+                ),
+            }
+            return step.map(|_| ());
+        }
+        if fb.is_some() {
             cyclic::check_following(
                 &self.reading.q_rad[..n],
                 c.q_cmd(),
@@ -551,10 +616,10 @@ impl KortexArm {
             Some(c) => c.poll()?,
             None => return Err(KortexError::SessionClosed),
         };
-        match fb {
-            Some(fb) => self.take_cyclic_feedback(&fb)?,
-            None => self.stats.stale_readings += 1,
+        if fb.is_none() {
+            self.stats.stale_readings += 1;
         }
+        self.take_cyclic_feedback(fb.as_ref(), self.dt)?;
         if self.last_tcp_sent.elapsed() >= TCP_FRAME_EVERY {
             self.queue_feedback_request()?;
             self.flush()?;
@@ -1013,8 +1078,15 @@ impl Robot for KortexArm {
                 self.gripper_warned = true;
                 tracing::warn!("low-level mode: gripper commands are not sent (the gripper holds)");
             }
+            // During the entry hold the command (the graph's, or a controlled stop's ramp) is
+            // counted, not applied: the held position goes out again.
+            let holding = self.entry_holding();
+            if holding && let Some(h) = self.entry.as_mut() {
+                h.hold_back(&v[..n]);
+            }
             let (dt, limits) = (self.dt, &self.limits);
             let r = match self.cyclic.as_mut() {
+                Some(c) if holding => c.refresh(),
                 Some(c) => c.command(&v[..n], dt, limits),
                 None => Err(KortexError::SessionClosed),
             };

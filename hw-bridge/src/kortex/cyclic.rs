@@ -3,11 +3,13 @@
 //! What the protocol reference gives: UDP port 10001 carries only the low-level cyclic
 //! channel, in its own session; datagrams carry the bare serialized `Frame`; the servoing mode
 //! is set with `Base.SetServoingMode(low-level 3)`; `BaseCyclic` answers with a `Feedback`.
-//! What it does not give, and what this module therefore assumes or decides conservatively
-//! (each said again where it is used):
+//! What it does not give, and where the bridge takes it from or decides conservatively (each
+//! said again where it is used):
 //!
-//! * the UID of `BaseCyclic.Refresh` and the layout of its `Command` (see [`msg::Command`]);
-//!   low-level mode runs against loopback only until they are checked on a real arm;
+//! * the UID of `BaseCyclic.Refresh` and the layout of its `Command`: from the order of RPCs
+//!   and members in Kinova's published Kortex API documentation, consistent with the
+//!   reference's numbered messages (see [`msg::Command`]). Not yet run on an arm by this
+//!   project: the first use is guarded by the entry check ([`EntryHold`]);
 //! * that the UDP session is opened with the same `CreateSession` as the TCP one (it is the
 //!   only session call the reference names);
 //! * what "at rest" means to the robot: the bridge takes every measured joint speed below
@@ -17,8 +19,16 @@
 //! * the gripper: the reference names no cyclic gripper command, so in low-level mode the
 //!   bridge sends none (the gripper holds where it is).
 //!
-//! The pure steps ([`check_at_rest`], [`integrate`], [`check_following`], [`command_msg`]) take
-//! the period as a parameter and are tested at 40 Hz and 1 kHz.
+//! The entry check: after the switch to low-level servoing and the first Refresh (the
+//! measured position), the bridge holds that position for `entry_hold_ms`, whatever the graph
+//! commands (its commands are counted, not applied; the ticks go on as usual), and every joint
+//! must stay within `entry_hold_tolerance_rad` of it. An arm that reads the command
+//! differently than the bridge means moves away from a position it was told to hold: the
+//! bridge stops it and ends the run ([`KortexError::EntryHold`]). Only then do the graph's
+//! commands apply, watched by the following-error check.
+//!
+//! The pure steps ([`check_at_rest`], [`integrate`], [`check_following`], [`command_msg`],
+//! [`EntryHold::step`]) take the period as a parameter and are tested at 40 Hz and 1 kHz.
 
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
@@ -98,8 +108,151 @@ pub fn command_msg(q_cmd: &[f64], frame_id: u32) -> msg::Command {
                 flags: 0,
                 position: angle_rad_to_wire_deg(*q) as f32,
                 velocity: 0.0,
+                torque_joint: 0.0,
+                current_motor: 0.0,
             })
             .collect(),
+    }
+}
+
+/// What a tick of the entry hold concluded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EntryStep {
+    /// Still holding: the graph's commands are not applied yet.
+    Holding,
+    /// The hold is over and every joint stayed within the tolerance: from now on the graph's
+    /// commands apply.
+    Passed,
+}
+
+/// The entry check of low-level mode, a pure step: the bridge holds the measured position for
+/// `hold_ms` and every measured joint must stay within `tolerance_rad` of it (see the module
+/// documentation). The time is counted in ticks of the period given to [`EntryHold::step`],
+/// so the hold lasts at least `hold_ms` of executed ticks; it ends at the first tick at or past
+/// that time whose feedback is fresh and within the tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EntryHold {
+    hold_ms: u32,
+    tolerance_rad: f64,
+    elapsed_s: f64,
+    ticks: u64,
+    feedbacks: u64,
+    held_back: u64,
+    held_back_moving: u64,
+    worst_rad: f64,
+    passed: bool,
+}
+
+impl EntryHold {
+    /// A hold of `hold_ms` with a tolerance of `tolerance_rad`, starting now (at the first
+    /// position command).
+    pub fn new(hold_ms: u32, tolerance_rad: f64) -> Self {
+        Self {
+            hold_ms,
+            tolerance_rad,
+            elapsed_s: 0.0,
+            ticks: 0,
+            feedbacks: 0,
+            held_back: 0,
+            held_back_moving: 0,
+            worst_rad: 0.0,
+            passed: false,
+        }
+    }
+
+    /// One step: checks the measured angles of a fresh feedback (`None`: none arrived this
+    /// tick) against the `held_rad` position, angles compared on the circle, then lets
+    /// `period_s` pass (0 for the reply to the first command, before the first tick). A joint
+    /// beyond the tolerance (or a non-finite angle) is [`KortexError::EntryHold`]. After the
+    /// hold has passed, steps change nothing and return [`EntryStep::Passed`].
+    pub fn step(
+        &mut self,
+        measured_rad: Option<&[f64]>,
+        held_rad: &[f64],
+        period_s: f64,
+    ) -> Result<EntryStep, KortexError> {
+        if self.passed {
+            return Ok(EntryStep::Passed);
+        }
+        if period_s > 0.0 {
+            self.ticks += 1;
+            self.elapsed_s += period_s;
+        }
+        if let Some(measured) = measured_rad {
+            self.feedbacks += 1;
+            for (joint, (m, h)) in measured.iter().zip(held_rad).enumerate() {
+                let d = (m - h).rem_euclid(std::f64::consts::TAU);
+                let error_rad = d.min(std::f64::consts::TAU - d);
+                if error_rad > self.tolerance_rad || error_rad.is_nan() {
+                    return Err(KortexError::EntryHold {
+                        joint,
+                        measured_rad: *m,
+                        held_rad: *h,
+                        error_rad,
+                        tolerance_rad: self.tolerance_rad,
+                        after_ms: self.elapsed_s * 1e3,
+                        hold_ms: self.hold_ms,
+                    });
+                }
+                self.worst_rad = self.worst_rad.max(error_rad);
+            }
+        }
+        // Half a microsecond of slack for the sum of the periods' rounding.
+        let over = self.elapsed_s * 1e3 + 5e-4 >= f64::from(self.hold_ms);
+        if over && measured_rad.is_some() {
+            self.passed = true;
+            return Ok(EntryStep::Passed);
+        }
+        Ok(EntryStep::Holding)
+    }
+
+    /// Counts a command that the hold did not apply (the graph's, or a controlled stop's ramp;
+    /// `qdot_rad_s`: what it asked for, a non-zero finite speed being a request for motion).
+    pub fn hold_back(&mut self, qdot_rad_s: &[f64]) {
+        self.held_back += 1;
+        if qdot_rad_s.iter().any(|v| v.is_finite() && *v != 0.0) {
+            self.held_back_moving += 1;
+        }
+    }
+
+    /// Whether the hold is still on (the graph's commands are not applied).
+    pub fn holding(&self) -> bool {
+        !self.passed
+    }
+
+    /// The hold's length (ms).
+    pub fn hold_ms(&self) -> u32 {
+        self.hold_ms
+    }
+
+    /// Ticks counted so far.
+    pub fn ticks(&self) -> u64 {
+        self.ticks
+    }
+
+    /// Time counted so far (s): the sum of the steps' periods.
+    pub fn elapsed_s(&self) -> f64 {
+        self.elapsed_s
+    }
+
+    /// Feedbacks checked (the first command's reply included).
+    pub fn feedbacks(&self) -> u64 {
+        self.feedbacks
+    }
+
+    /// Commands held back.
+    pub fn held_back(&self) -> u64 {
+        self.held_back
+    }
+
+    /// Commands held back that asked for motion.
+    pub fn held_back_moving(&self) -> u64 {
+        self.held_back_moving
+    }
+
+    /// The largest distance of a joint from the held position seen so far (rad).
+    pub fn worst_rad(&self) -> f64 {
+        self.worst_rad
     }
 }
 
@@ -461,6 +614,122 @@ mod tests {
         );
         assert!(e.to_string().contains("following_error_rad"), "{e}");
         assert!(check_following(&[f64::NAN], &[0.0], 0.05).is_err());
+    }
+
+    #[test]
+    fn the_entry_hold_lasts_its_time_at_any_rate_and_passes_a_still_arm() {
+        use std::f64::consts::PI;
+        // Joints 3 and 5 held next to +-pi: their measured angles cross it.
+        let held = [0.1, -0.28, 1.309, -(PI - 0.001), -1.047, PI - 0.001];
+        for hz in RATES_HZ {
+            let period = 1.0 / hz;
+            let mut hold = EntryHold::new(100, 0.005);
+            // The first command's reply, before the first tick.
+            assert_eq!(
+                hold.step(Some(&held), &held, 0.0).unwrap(),
+                EntryStep::Holding
+            );
+            // The arm sways a little (joints 3 and 5 across +-pi, 0.003 rad away).
+            let mut measured = held;
+            measured[0] += 0.004;
+            measured[3] = PI - 0.002;
+            measured[5] = -PI + 0.002;
+            let mut ticks = 0;
+            while hold.step(Some(&measured), &held, period).unwrap() == EntryStep::Holding {
+                hold.hold_back(&[0.0, 0.1, 0.0, 0.0, 0.0, 0.0]);
+                ticks += 1;
+                assert!(ticks < 10_000, "{hz} Hz: the hold never ends");
+            }
+            // 100 ms of ticks whatever the rate: 100 at 1 kHz, 4 at 40 Hz.
+            let expected = (0.1 * hz).round() as u64;
+            assert_eq!(hold.ticks(), expected, "{hz} Hz");
+            assert_eq!(hold.held_back(), expected - 1, "{hz} Hz");
+            assert_eq!(hold.held_back_moving(), expected - 1, "{hz} Hz");
+            assert_eq!(hold.feedbacks(), expected + 1, "{hz} Hz");
+            assert!(!hold.holding());
+            assert!((hold.worst_rad() - 0.004).abs() < 1e-9, "{hz} Hz");
+            assert!((hold.elapsed_s() - 0.1).abs() < 1e-9, "{hz} Hz");
+            // Passed for good: a later step changes nothing.
+            let far = [3.0; 6];
+            assert_eq!(
+                hold.step(Some(&far), &held, period).unwrap(),
+                EntryStep::Passed
+            );
+        }
+    }
+
+    #[test]
+    fn the_entry_hold_waits_for_a_fresh_feedback_to_end() {
+        for hz in RATES_HZ {
+            let period = 1.0 / hz;
+            let held = [0.0; 6];
+            let mut hold = EntryHold::new(50, 0.005);
+            let due = (0.05 * hz).round() as u64;
+            for _ in 0..due {
+                assert_eq!(hold.step(None, &held, period).unwrap(), EntryStep::Holding);
+            }
+            // Time is up, but no feedback has shown the arm: still holding.
+            assert!(hold.holding());
+            assert_eq!(hold.step(None, &held, period).unwrap(), EntryStep::Holding);
+            assert_eq!(
+                hold.step(Some(&held), &held, period).unwrap(),
+                EntryStep::Passed
+            );
+            assert_eq!(hold.ticks(), due + 2, "{hz} Hz");
+        }
+    }
+
+    #[test]
+    fn an_arm_that_leaves_the_held_position_fails_the_entry_check() {
+        for hz in RATES_HZ {
+            let period = 1.0 / hz;
+            let held = [0.0, -0.28, 1.309, 0.0, -1.047, 0.0];
+            let mut hold = EntryHold::new(100, 0.005);
+            hold.step(Some(&held), &held, 0.0).unwrap();
+            // Joint 3 drifts at 1.6 rad/s: out of the tolerance within a few ms.
+            let mut measured = held;
+            let e = loop {
+                measured[3] += 1.6 * period;
+                match hold.step(Some(&measured), &held, period) {
+                    Ok(EntryStep::Holding) => {}
+                    Ok(EntryStep::Passed) => panic!("{hz} Hz: passed"),
+                    Err(e) => break e,
+                }
+            };
+            let KortexError::EntryHold {
+                joint,
+                measured_rad,
+                held_rad,
+                error_rad,
+                tolerance_rad,
+                after_ms,
+                hold_ms,
+            } = e
+            else {
+                panic!("{e}")
+            };
+            assert_eq!(
+                (joint, held_rad, tolerance_rad, hold_ms),
+                (3, 0.0, 0.005, 100)
+            );
+            assert_eq!(measured_rad, measured[3]);
+            assert!(error_rad > 0.005, "{hz} Hz: {error_rad}");
+            assert!(after_ms <= 100.0, "{hz} Hz: {after_ms}");
+            let text = e.to_string();
+            assert!(
+                text.contains("entry check failed: joint 3")
+                    && text.contains("held it at 0.0000 rad")
+                    && text.contains("did not follow the held position")
+                    && text.contains("entry_hold_tolerance_rad = 0.005"),
+                "{text}"
+            );
+        }
+        // Already off in the first command's reply; a non-finite angle fails too.
+        let mut hold = EntryHold::new(100, 0.005);
+        let e = hold.step(Some(&[0.0, 0.5]), &[0.0, 0.0], 0.0).unwrap_err();
+        assert!(matches!(e, KortexError::EntryHold { joint: 1, .. }), "{e}");
+        let mut hold = EntryHold::new(100, 0.005);
+        assert!(hold.step(Some(&[f64::NAN]), &[0.0], 0.001).is_err());
     }
 
     #[test]

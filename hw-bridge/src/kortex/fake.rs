@@ -38,6 +38,11 @@
 //! "in fault"; further Refreshes are refused with "robot in fault", sub-code 22, until
 //! `Base.ClearFaults`). The reference gives neither the real arm's timeout nor its exact
 //! reaction; this is the conservative reading (it stops and demands attention).
+//!
+//! For tests of the bridge's entry check, the fake can misread the cyclic command
+//! ([`FakeConfig::cyclic_misread`], `scl fake-kortex --misread-cyclic`): a robot that reads it
+//! differently than the bridge means. The arm then servos towards the misread position at its
+//! joint speed limits (a position loop does not jump), so the error grows over a few ticks.
 
 use std::collections::VecDeque;
 use std::io::{Read, Write};
@@ -86,6 +91,68 @@ pub struct FakeConfig {
     /// In low-level servoing, the arm faults when no Refresh arrives for this long. The
     /// reference does not give the real arm's figure; 50 ms is the fake's choice.
     pub cyclic_timeout: Duration,
+    /// Misread the cyclic command (tests of the bridge's entry check); `None`: read it as the
+    /// bridge means it.
+    pub cyclic_misread: Option<CyclicMisread>,
+}
+
+/// How the fake robot misreads a `BaseCyclic.Refresh` command: what a robot that reads the
+/// command's layout differently than the bridge would do. The arm servos towards the misread
+/// position at its joint speed limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CyclicMisread {
+    /// Every actuator's position read as 0° (as if it came from a field the bridge leaves at
+    /// 0, such as the velocity).
+    ZeroPosition,
+    /// One joint's position read `offset_rad` off (a wrong zero or unit).
+    Offset {
+        /// The joint (0-based).
+        joint: usize,
+        /// The offset (rad).
+        offset_rad: f64,
+    },
+}
+
+impl CyclicMisread {
+    /// The position the fake reads from the commanded `q_rad` (in place).
+    pub fn apply(&self, q_rad: &mut [f64]) {
+        match *self {
+            Self::ZeroPosition => q_rad.iter_mut().for_each(|q| *q = 0.0),
+            Self::Offset { joint, offset_rad } => {
+                if let Some(q) = q_rad.get_mut(joint) {
+                    *q += offset_rad;
+                }
+            }
+        }
+    }
+}
+
+impl std::str::FromStr for CyclicMisread {
+    type Err = String;
+
+    /// `zero`, or `offset:JOINT:RAD` (e.g. `offset:3:0.02`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let usage = || {
+            format!(
+                "`{s}` is not a cyclic misread: use `zero` or `offset:JOINT:RAD` (e.g. offset:3:0.02)"
+            )
+        };
+        if s == "zero" {
+            return Ok(Self::ZeroPosition);
+        }
+        let mut parts = s.split(':');
+        match (parts.next(), parts.next(), parts.next(), parts.next()) {
+            (Some("offset"), Some(j), Some(r), None) => {
+                let joint: usize = j.parse().map_err(|_| usage())?;
+                let offset_rad: f64 = r.parse().map_err(|_| usage())?;
+                if joint >= gen3_lite::N_JOINTS || !offset_rad.is_finite() {
+                    return Err(usage());
+                }
+                Ok(Self::Offset { joint, offset_rad })
+            }
+            _ => Err(usage()),
+        }
+    }
 }
 
 impl Default for FakeConfig {
@@ -105,6 +172,7 @@ impl Default for FakeConfig {
             mock: MockConfig::default(),
             cyclic_port: None,
             cyclic_timeout: Duration::from_millis(50),
+            cyclic_misread: None,
         }
     }
 }
@@ -933,7 +1001,7 @@ fn execute(
             st.in_fault = false;
             Ok(Vec::new())
         }
-        Function::Refresh => refresh(st, frame),
+        Function::Refresh => refresh(cfg, st, frame),
         Function::CloseSession => {
             st.arm.halt();
             st.session = None;
@@ -1093,8 +1161,9 @@ fn state_feedback(st: &State) -> msg::Feedback {
     fb
 }
 
-/// `BaseCyclic.Refresh`: the command's positions become the arm's (unless blocked).
-fn refresh(st: &mut State, frame: &Frame) -> CallResult {
+/// `BaseCyclic.Refresh`: the command's positions become the arm's (unless blocked); with a
+/// misread, the arm servos towards the misread positions at its joint speed limits.
+fn refresh(cfg: &FakeConfig, st: &mut State, frame: &Frame) -> CallResult {
     if st.in_fault {
         return Err((
             3,
@@ -1138,6 +1207,14 @@ fn refresh(st: &mut State, frame: &Frame) -> CallResult {
     if !st.arm_blocked {
         let before = st.reading.q_rad;
         let gripper = st.reading.gripper;
+        if let Some(m) = cfg.cyclic_misread {
+            m.apply(&mut q[..n]);
+            for (j, (q, b)) in q.iter_mut().zip(before).take(n).enumerate() {
+                let deg_s = cfg.joint_speed_limits_deg_s.get(j).copied().unwrap_or(0.0);
+                let step = f64::from(deg_s).to_radians() * dt;
+                *q = b + (*q - b).clamp(-step, step);
+            }
+        }
         st.arm.resume(&q[..n], gripper);
         st.reading = st.arm.step(1e-9);
         let now_q = st.reading.q_rad;
@@ -1246,7 +1323,7 @@ fn on_datagram(sh: &Shared, peer: SocketAddr, frame: &Frame) -> Option<Frame> {
             tracing::info!("fake Kortex: cyclic session closed");
             Ok(Vec::new())
         }
-        Some(Function::Refresh) => refresh(&mut st, frame),
+        Some(Function::Refresh) => refresh(&sh.cfg, &mut st, frame),
         Some(Function::RefreshFeedback) => {
             st.stats.feedback_requests += 1;
             Ok(state_feedback(&st).encode_to_vec())
@@ -1316,5 +1393,44 @@ fn feedback(r: &Reading, n: usize) -> msg::Feedback {
                 }],
             }),
         }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cyclic_misreads_parse_and_apply() {
+        assert_eq!(
+            "zero".parse::<CyclicMisread>(),
+            Ok(CyclicMisread::ZeroPosition)
+        );
+        let m: CyclicMisread = "offset:3:0.02".parse().unwrap();
+        assert_eq!(
+            m,
+            CyclicMisread::Offset {
+                joint: 3,
+                offset_rad: 0.02
+            }
+        );
+        let mut q = [0.1, 0.2, 0.3, 0.5, 0.5, 0.6];
+        m.apply(&mut q);
+        assert_eq!(q, [0.1, 0.2, 0.3, 0.5 + 0.02, 0.5, 0.6]);
+        CyclicMisread::ZeroPosition.apply(&mut q);
+        assert_eq!(q, [0.0; 6]);
+        for bad in [
+            "",
+            "zeros",
+            "offset",
+            "offset:3",
+            "offset:6:0.1",
+            "offset:x:0.1",
+            "offset:1:nan",
+            "offset:1:0.1:2",
+        ] {
+            let e = bad.parse::<CyclicMisread>().unwrap_err();
+            assert!(e.contains("offset:JOINT:RAD"), "{bad}: {e}");
+        }
     }
 }

@@ -11,8 +11,9 @@
 //!   every fault.
 //! * [`cyclic`]: low-level servoing (`mode = "low-level"`): the second session over UDP, a
 //!   `BaseCyclic.Refresh` per tick with joint positions integrated from the safe speeds,
-//!   entered only from rest at the measured position, the following-error check; what the
-//!   protocol reference does not say and what is assumed instead is listed there.
+//!   entered only from rest at the measured position, the entry check (the measured position
+//!   held for `entry_hold_ms` before the graph's commands apply), the following-error check;
+//!   where the cyclic command's layout comes from and what is still assumed is listed there.
 //! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol (the cyclic
 //!   channel included), for tests and for trying the bridge without an arm.
 //!
@@ -50,7 +51,9 @@ use std::net::{IpAddr, SocketAddr};
 use serde::{Deserialize, Serialize};
 
 pub use arm::{ArmInfo, KortexArm, KortexStats};
-pub use fake::{FakeConfig, FakeKortex, FakeRequest, FakeSnapshot, FakeStats, Fault};
+pub use fake::{
+    CyclicMisread, FakeConfig, FakeKortex, FakeRequest, FakeSnapshot, FakeStats, Fault,
+};
 
 /// The functions of the Kortex API the bridge (and the fake robot) use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -83,7 +86,8 @@ pub enum Function {
     /// `BaseCyclic.RefreshFeedback`.
     RefreshFeedback,
     /// `BaseCyclic.Refresh` (a cyclic command, answered with a Feedback): the low-level
-    /// channel over UDP. Its UID is not in the protocol reference; see [`msg::Command`].
+    /// channel over UDP. Its UID is not in the protocol reference; it follows from Kinova's
+    /// published API documentation (see [`msg::Command`]).
     Refresh,
     /// `ControlConfig.GetKinematicHardLimits`.
     GetKinematicHardLimits,
@@ -128,7 +132,9 @@ impl Function {
             Self::GetActuatorCount => 0x2_00AB,
             Self::GetArmState => 0x2_00AF,
             Self::RefreshFeedback => 0x3_0003,
-            // Not in the reference: assumed (see msg::Command).
+            // Not in the reference: function 1 of BaseCyclic, the first of its RPCs in Kinova's
+            // published API documentation, whose third is RefreshFeedback (0x30003, in the
+            // reference). See msg::Command.
             Self::Refresh => 0x3_0001,
             Self::GetKinematicHardLimits => 0x10_0012,
             Self::GetFirmwareVersion => 0x9_0004,
@@ -195,6 +201,12 @@ pub struct KortexConfig {
     /// Low-level mode: a measured joint angle further than this from its commanded position
     /// stops the arm and the graph (rad).
     pub following_error_rad: f64,
+    /// Low-level mode, the entry check: after the first position command, the bridge holds
+    /// the measured position this long (ms) before the graph's commands apply.
+    pub entry_hold_ms: u32,
+    /// Low-level mode, the entry check: a joint further than this from the held position
+    /// during the hold stops the arm and the graph (rad; at most `following_error_rad`).
+    pub entry_hold_tolerance_rad: f64,
 }
 
 /// How the bridge drives the arm (`[bridge.kortex] mode`).
@@ -224,6 +236,21 @@ pub const DEFAULT_FOLLOWING_ERROR_RAD: f64 = 0.05;
 /// nothing.
 pub const MAX_FOLLOWING_ERROR_RAD: f64 = 0.5;
 
+/// Default length of the low-level entry check's hold (ms): 100 ticks at 1 kHz.
+pub const DEFAULT_ENTRY_HOLD_MS: u32 = 100;
+
+/// The shortest entry hold accepted (ms): 20 ticks at 1 kHz, enough for a misread command to
+/// show in the measured position.
+pub const MIN_ENTRY_HOLD_MS: u32 = 20;
+
+/// The longest entry hold accepted (ms): the graph's commands wait this long at start.
+pub const MAX_ENTRY_HOLD_MS: u32 = 1000;
+
+/// Default tolerance of the low-level entry check (rad, about 0.29°): a joint held still
+/// moves much less; a command read differently than the bridge means moves the arm further
+/// within a few ticks.
+pub const DEFAULT_ENTRY_HOLD_TOLERANCE_RAD: f64 = 0.005;
+
 /// The robot's default address (never contacted unless a configuration names it).
 pub const DEFAULT_ADDRESS: &str = "192.168.1.10";
 
@@ -242,6 +269,8 @@ impl Default for KortexConfig {
             mode: KortexMode::SingleLevel,
             cyclic_port: DEFAULT_CYCLIC_PORT,
             following_error_rad: DEFAULT_FOLLOWING_ERROR_RAD,
+            entry_hold_ms: DEFAULT_ENTRY_HOLD_MS,
+            entry_hold_tolerance_rad: DEFAULT_ENTRY_HOLD_TOLERANCE_RAD,
         }
     }
 }
@@ -305,6 +334,22 @@ impl KortexConfig {
                 format!("{fe} rad is not in (0, {MAX_FOLLOWING_ERROR_RAD}]"),
             );
         }
+        if !(MIN_ENTRY_HOLD_MS..=MAX_ENTRY_HOLD_MS).contains(&self.entry_hold_ms) {
+            return err(
+                "entry_hold_ms",
+                format!(
+                    "{} ms is not in [{MIN_ENTRY_HOLD_MS}, {MAX_ENTRY_HOLD_MS}]",
+                    self.entry_hold_ms
+                ),
+            );
+        }
+        let tol = self.entry_hold_tolerance_rad;
+        if !(tol.is_finite() && tol > 0.0 && tol <= fe) {
+            return err(
+                "entry_hold_tolerance_rad",
+                format!("{tol} rad is not in (0, following_error_rad = {fe}]"),
+            );
+        }
         if self.mode == KortexMode::LowLevel {
             // The Gen3 lite's cyclic channel expects a command every millisecond (issue 22;
             // the reference gives no tolerance): refuse a slower graph rather than guess.
@@ -318,21 +363,9 @@ impl KortexConfig {
                     ),
                 );
             }
-            let addr = self.socket_addr()?;
-            // The cyclic command's layout is not in the protocol reference (see
-            // msg::Command): the conservative choice is to drive no real arm with it.
-            if !addr.ip().is_loopback() {
-                return err(
-                    "mode",
-                    format!(
-                        "\"low-level\" runs only against a loopback address (the fake robot) \
-                         for now: the BaseCyclic command's encoding is not in the protocol \
-                         reference and has not been checked against a real arm ({} is not \
-                         loopback)",
-                        self.address
-                    ),
-                );
-            }
+            // Any address: the cyclic command's layout follows Kinova's published API
+            // documentation (see msg::Command), and the entry check (entry_hold_ms) stops the
+            // arm if the robot reads it differently.
         }
         Ok(())
     }
@@ -533,6 +566,32 @@ pub enum KortexError {
         error_rad: f64,
         /// The bound (rad).
         bound_rad: f64,
+    },
+    /// Low-level mode, the entry check: while the bridge held the measured position, a joint
+    /// moved further than the tolerance from it. The arm did not do what the bridge commanded:
+    /// the cyclic command's encoding, or the arm's state, is suspect.
+    #[error(
+        "low-level entry check failed: joint {joint} measured {measured_rad:.4} rad while the \
+         bridge held it at {held_rad:.4} rad ({error_rad:.4} rad apart, {after_ms:.0} ms into the \
+         {hold_ms} ms hold; bridge.kortex.entry_hold_tolerance_rad = {tolerance_rad}): the arm \
+         did not follow the held position, so the cyclic command's encoding or the arm's state \
+         is suspect"
+    )]
+    EntryHold {
+        /// The first joint found beyond the tolerance (0-based).
+        joint: usize,
+        /// Its measured angle (rad).
+        measured_rad: f64,
+        /// The position the bridge held it at (rad): the measured one at entry.
+        held_rad: f64,
+        /// The distance between them (rad, on the circle).
+        error_rad: f64,
+        /// The tolerance (rad).
+        tolerance_rad: f64,
+        /// How far into the hold (ms of ticks).
+        after_ms: f64,
+        /// The hold's length (ms).
+        hold_ms: u32,
     },
     /// Low-level mode: the robot's feedback reports the arm in fault.
     #[error("the robot reports the arm in fault during low-level servoing (active state {state})")]
@@ -967,15 +1026,17 @@ mod tests {
         };
         local.validate(period).unwrap();
         assert_eq!(local.cyclic_addr().unwrap().port(), DEFAULT_CYCLIC_PORT);
-        let bad = |c: KortexConfig| c.validate(period).unwrap_err().to_string();
-        let e = bad(KortexConfig {
+        // A real arm's address is accepted (validation only: nothing is contacted).
+        let arm = KortexConfig {
             address: DEFAULT_ADDRESS.into(),
             ..local.clone()
-        });
-        assert!(
-            e.starts_with("bridge.kortex.mode:") && e.contains("loopback"),
-            "{e}"
+        };
+        arm.validate(period).unwrap();
+        assert_eq!(
+            arm.cyclic_addr().unwrap(),
+            SocketAddr::from(([192, 168, 1, 10], DEFAULT_CYCLIC_PORT))
         );
+        let bad = |c: KortexConfig| c.validate(period).unwrap_err().to_string();
         for fe in [0.0, -0.1, f64::NAN, 0.6] {
             let e = bad(KortexConfig {
                 following_error_rad: fe,
@@ -993,12 +1054,83 @@ mod tests {
             e.starts_with("bridge.kortex.mode:") && e.contains("rate_hz = 1000"),
             "{e}"
         );
+        // The slower-rate refusal holds for a real arm's address too.
+        let e = arm.validate(0.025).unwrap_err().to_string();
+        assert!(e.starts_with("bridge.kortex.mode:"), "{e}");
         // The mode's spelling in TOML.
         let c: KortexConfig = toml::from_str("mode = \"low-level\"").unwrap();
         assert_eq!(c.mode, KortexMode::LowLevel);
         let c: KortexConfig = toml::from_str("").unwrap();
         assert_eq!(c.mode, KortexMode::SingleLevel);
         assert!(toml::from_str::<KortexConfig>("mode = \"lowlevel\"").is_err());
+    }
+
+    #[test]
+    fn entry_hold_keys_are_validated_and_bad_values_named() {
+        let period = 0.001;
+        let cfg = KortexConfig {
+            mode: KortexMode::LowLevel,
+            ..Default::default()
+        };
+        assert_eq!(cfg.entry_hold_ms, 100);
+        assert_eq!(cfg.entry_hold_tolerance_rad, 0.005);
+        cfg.validate(period).unwrap();
+        let bad = |c: KortexConfig| c.validate(period).unwrap_err().to_string();
+        for ms in [MIN_ENTRY_HOLD_MS, 250, MAX_ENTRY_HOLD_MS] {
+            KortexConfig {
+                entry_hold_ms: ms,
+                ..cfg.clone()
+            }
+            .validate(period)
+            .unwrap();
+        }
+        for ms in [0, MIN_ENTRY_HOLD_MS - 1, MAX_ENTRY_HOLD_MS + 1, u32::MAX] {
+            let e = bad(KortexConfig {
+                entry_hold_ms: ms,
+                ..cfg.clone()
+            });
+            assert!(
+                e.starts_with("bridge.kortex.entry_hold_ms:")
+                    && e.contains(&format!("{ms} ms"))
+                    && e.contains("[20, 1000]"),
+                "{e}"
+            );
+        }
+        // Up to the following-error bound, which is the check after the hold.
+        for tol in [1e-4, 0.05] {
+            KortexConfig {
+                entry_hold_tolerance_rad: tol,
+                ..cfg.clone()
+            }
+            .validate(period)
+            .unwrap();
+        }
+        for tol in [0.0, -0.001, 0.051, f64::NAN, f64::INFINITY] {
+            let e = bad(KortexConfig {
+                entry_hold_tolerance_rad: tol,
+                ..cfg.clone()
+            });
+            assert!(
+                e.starts_with("bridge.kortex.entry_hold_tolerance_rad:")
+                    && e.contains(&format!("{tol} rad"))
+                    && e.contains("following_error_rad = 0.05"),
+                "{e}"
+            );
+        }
+        let e = bad(KortexConfig {
+            following_error_rad: 0.01,
+            entry_hold_tolerance_rad: 0.02,
+            ..cfg.clone()
+        });
+        assert!(
+            e.starts_with("bridge.kortex.entry_hold_tolerance_rad:"),
+            "{e}"
+        );
+        // Both keys in TOML, and unknown spellings refused.
+        let c: KortexConfig =
+            toml::from_str("entry_hold_ms = 200\nentry_hold_tolerance_rad = 0.002").unwrap();
+        assert_eq!((c.entry_hold_ms, c.entry_hold_tolerance_rad), (200, 0.002));
+        assert!(toml::from_str::<KortexConfig>("entry_hold = 200").is_err());
     }
 
     #[test]

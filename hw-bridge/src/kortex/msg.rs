@@ -312,16 +312,34 @@ pub struct MotorFeedback {
 // ---------------------------------------------------------------------------------------------
 // BaseCyclic command (low-level servoing).
 //
-// NOT IN THE REFERENCE. `shared/reference/kortex-protocol.md` gives the Feedback message and
-// `BaseCyclic.RefreshFeedback` (0x30003) but is silent on the cyclic command: the UID of
-// `BaseCyclic.Refresh` (taken here as function 1 of service 3, beside RefreshFeedback's 3) and
-// the field numbers of `Command` / `ActuatorCommand` below are the project's assumption, not a
-// documented fact. They are kept in this one place so that they are easy to correct, and the
-// conservative consequence is drawn in `KortexConfig::validate`: low-level mode only runs
-// against a loopback address (the fake robot) until they are checked against a real arm.
+// Source. `shared/reference/kortex-protocol.md` numbers the fields of Feedback and
+// ActuatorFeedback and gives `BaseCyclic.RefreshFeedback` (0x30003), but not the cyclic command.
+// Kinova's published Kortex API documentation (the BaseCyclic service page and its message
+// pages) lists the service's RPCs as Refresh, RefreshCommand, RefreshFeedback,
+// RefreshCustomData, and each message's members in field order, without numbers. Read against
+// the reference, that documentation agrees where both speak: RefreshFeedback is the third RPC
+// (function 3), and the members of Feedback and ActuatorFeedback are listed in the order of
+// their field numbers. So Refresh is function 1 (UID 0x30001), Command's members are
+// frame_id = 1, actuators = 2 (repeated), interconnect = 3, and ActuatorCommand's are
+// command_id = 1, flags = 2, position = 3 (deg), velocity = 4 (deg/s), torque_joint = 5,
+// current_motor = 6.
+//
+// Wire types. The documentation writes "uint32" for fields the reference declares fixed32
+// (ActuatorFeedback.command_id, status_flags, Feedback.frame_id), so "uint32" there does not
+// tell varint from fixed32; the command's frame_id, command_id and flags are taken as fixed32,
+// like their feedback counterparts. The floats are unambiguous. Should the robot expect varints
+// there, a protobuf parser skips those fields as unknown (read as 0): flags are 0 anyway (left
+// out of the encoding), and the positions (float, tag 3) are still read as meant. The
+// documentation describes command_id as a device id (upper 16 bits) and a sequence number
+// (lower 16 bits); the bridge sends its frame counter there (see `cyclic::command_msg`).
+//
+// Status: this layout has not yet been run on an arm by this project. The first use on an arm
+// is guarded by the entry check (`cyclic::EntryHold`): the bridge holds the measured position
+// for `entry_hold_ms` and stops if any joint moves further than `entry_hold_tolerance_rad`.
 // ---------------------------------------------------------------------------------------------
 
-/// `BaseCyclic.Refresh` request (assumed layout, see above): one command per actuator.
+/// `BaseCyclic.Refresh` request: one command per actuator (the interconnect command, field 3,
+/// is not sent: the bridge does not command the gripper in low-level mode).
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct Command {
     /// Frame counter of the cyclic command.
@@ -332,7 +350,7 @@ pub struct Command {
     pub actuators: Vec<ActuatorCommand>,
 }
 
-/// One actuator's cyclic command (assumed layout, see above).
+/// One actuator's cyclic command (layout: see above).
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct ActuatorCommand {
     /// Id of the command (echoed in [`ActuatorFeedback::command_id`]).
@@ -347,6 +365,12 @@ pub struct ActuatorCommand {
     /// Velocity (deg/s; 0: the bridge commands positions only).
     #[prost(float, tag = "4")]
     pub velocity: f32,
+    /// Joint torque (N·m; 0: not used in position servoing, left out of the encoding).
+    #[prost(float, tag = "5")]
+    pub torque_joint: f32,
+    /// Motor current (A; 0: not used in position servoing, left out of the encoding).
+    #[prost(float, tag = "6")]
+    pub current_motor: f32,
 }
 
 #[cfg(test)]
@@ -367,5 +391,59 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("60000") && text.contains("200"), "{text}");
+    }
+
+    /// The cyclic command's bytes, worked out by hand from the field numbers and wire types
+    /// above: a change of layout must change this test too.
+    #[test]
+    fn cyclic_command_encoding() {
+        use prost::Message as _;
+        let m = Command {
+            frame_id: 7,
+            actuators: vec![
+                ActuatorCommand {
+                    command_id: 7,
+                    flags: 0,
+                    position: 90.0,
+                    velocity: 0.0,
+                    torque_joint: 0.0,
+                    current_motor: 0.0,
+                },
+                ActuatorCommand {
+                    command_id: 7,
+                    flags: 1,
+                    position: 1.5,
+                    velocity: -2.0,
+                    torque_joint: 0.0,
+                    current_motor: 0.0,
+                },
+            ],
+        };
+        let expected: Vec<u8> = [
+            // frame_id: field 1, fixed32 (tag byte 0x0d), 7 little-endian.
+            &[0x0d, 0x07, 0x00, 0x00, 0x00][..],
+            // actuators[0]: field 2, length-delimited (0x12), 10 bytes.
+            &[0x12, 0x0a],
+            &[0x0d, 0x07, 0x00, 0x00, 0x00], // command_id: field 1, fixed32
+            &[0x1d, 0x00, 0x00, 0xb4, 0x42], // position: field 3, float 90.0
+            // actuators[1]: 20 bytes.
+            &[0x12, 0x14],
+            &[0x0d, 0x07, 0x00, 0x00, 0x00], // command_id
+            &[0x15, 0x01, 0x00, 0x00, 0x00], // flags: field 2, fixed32
+            &[0x1d, 0x00, 0x00, 0xc0, 0x3f], // position 1.5
+            &[0x25, 0x00, 0x00, 0x00, 0xc0], // velocity: field 4, float -2.0
+        ]
+        .concat();
+        assert_eq!(m.encode_to_vec(), expected);
+        let t = ActuatorCommand {
+            torque_joint: 1.0,
+            current_motor: 2.0,
+            ..Default::default()
+        };
+        // torque_joint: field 5 (0x2d), current_motor: field 6 (0x35), both float.
+        assert_eq!(
+            t.encode_to_vec(),
+            [0x2d, 0x00, 0x00, 0x80, 0x3f, 0x35, 0x00, 0x00, 0x00, 0x40]
+        );
     }
 }

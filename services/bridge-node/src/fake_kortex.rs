@@ -3,21 +3,25 @@
 //! default credentials (admin / admin), simulates the arm, and stops it when the bridge's
 //! connection inactivity timeout passes without a frame. It also serves the low-level cyclic
 //! channel over UDP on the same port number (`[bridge.kortex] mode = "low-level"`,
-//! `cyclic_port` = that port), and faults the arm when no cyclic command arrives in time.
+//! `cyclic_port` = that port), and faults the arm when no cyclic command arrives in time. With
+//! a misread (`--misread-cyclic`) it reads the cyclic command wrongly, for trying the bridge's
+//! low-level entry check.
 
 use std::io::Write;
 use std::time::Duration;
 
-use hw_bridge::kortex::{FakeConfig, FakeKortex};
+use hw_bridge::kortex::{CyclicMisread, FakeConfig, FakeKortex};
 
 use crate::BridgeNodeError;
 use ipc_types::signals;
 
-/// Runs the fake robot on `127.0.0.1:port` (0: a free port) until SIGINT / SIGTERM. The first
-/// line on stdout is `listening on 127.0.0.1:PORT`.
-pub fn run(port: u16) -> Result<(), BridgeNodeError> {
+/// Runs the fake robot on `127.0.0.1:port` (0: a free port) until SIGINT / SIGTERM, reading
+/// the cyclic command wrongly if `misread` says how. The first line on stdout is
+/// `listening on 127.0.0.1:PORT`.
+pub fn run(port: u16, misread: Option<CyclicMisread>) -> Result<(), BridgeNodeError> {
     let fake = FakeKortex::start(FakeConfig {
         port,
+        cyclic_misread: misread,
         ..FakeConfig::default()
     })?;
     let mut out = std::io::stdout();
@@ -36,6 +40,12 @@ pub fn run(port: u16) -> Result<(), BridgeNodeError> {
         fake.cyclic_addr(),
         fake.cyclic_addr().port()
     );
+    if let Some(m) = misread {
+        eprintln!(
+            "scl fake-kortex: misreading the cyclic command ({m:?}): the bridge's low-level entry \
+             check should stop the arm"
+        );
+    }
     let mut last = fake.snapshot().stats;
     while !signals::stop_requested() {
         std::thread::sleep(Duration::from_millis(50));
