@@ -104,7 +104,9 @@ pub fn command_msg(q_cmd: &[f64], frame_id: u32) -> msg::Command {
         actuators: q_cmd
             .iter()
             .map(|q| msg::ActuatorCommand {
-                command_id: frame_id,
+                // Device id 0 (upper 16 bits, as Kinova's examples send), the sequence
+                // number in the lower 16: the frame counter wraps there.
+                command_id: frame_id & 0xFFFF,
                 flags: 0,
                 position: angle_rad_to_wire_deg(*q) as f32,
                 velocity: 0.0,
@@ -739,5 +741,9 @@ mod tests {
         assert_eq!(m.actuators.len(), 3);
         assert!((m.actuators[0].position - 359.0).abs() < 1e-3);
         assert!((m.actuators[2].position - 1.0f64.to_degrees() as f32).abs() < 1e-3);
+        assert_eq!(m.actuators[0].command_id, 7);
+        // The sequence number wraps in the lower 16 bits; the device id stays 0.
+        let m = command_msg(&[0.0], 0x0001_0005);
+        assert_eq!((m.frame_id, m.actuators[0].command_id), (0x0001_0005, 5));
     }
 }

@@ -331,7 +331,8 @@ pub struct MotorFeedback {
 // there, a protobuf parser skips those fields as unknown (read as 0): flags are 0 anyway (left
 // out of the encoding), and the positions (float, tag 3) are still read as meant. The
 // documentation describes command_id as a device id (upper 16 bits) and a sequence number
-// (lower 16 bits); the bridge sends its frame counter there (see `cyclic::command_msg`).
+// (lower 16 bits); the bridge sends device id 0, as Kinova's examples do, and its frame
+// counter's lower 16 bits as the sequence number (see `cyclic::command_msg`).
 //
 // Status: this layout has not yet been run on an arm by this project. The first use on an arm
 // is guarded by the entry check (`cyclic::EntryHold`): the bridge holds the measured position
