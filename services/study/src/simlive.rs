@@ -119,6 +119,7 @@ impl LiveSim {
         info: &AttemptInfo<'_>,
     ) -> Result<AttemptResult, SimError> {
         let live = |m: String| SimError::Live(m);
+        let mut driver = AttemptDriver::new(s)?;
         let cfg = self.config(s, info.spec);
         let cfg_path = self.dir.join(format!("{}.toml", info.name));
         let log_path = self.dir.join(format!("{}.log", info.name));
@@ -156,7 +157,6 @@ impl LiveSim {
         };
         let start_limit = Duration::from_secs_f64(cfg.graph.start_timeout_s + 10.0);
         let t0 = Instant::now();
-        let mut driver = AttemptDriver::new(s)?;
         // (tick, mode + 1) of the mapper's newest heartbeats.
         let mut modes: VecDeque<(u64, u32)> = VecDeque::new();
         let mut seen = 0u32;
@@ -177,81 +177,86 @@ impl LiveSim {
         // The attempt's first tick, and the sample (seq) answering each recent state.
         let mut first_tick = None;
         let mut sent: VecDeque<(u64, u64)> = VecDeque::new();
-        let result = loop {
-            if signals::stop_requested() {
-                break Err(live("stopped (Ctrl-C)".into()));
-            }
-            if let Some(e) = up.exited() {
-                break Err(live(e));
-            }
-            states
-                .wait(Duration::from_millis(100))
-                .map_err(|e| live(e.to_string()))?;
-            status
-                .drain(|h| match NodeRole::from_u32(h.role) {
-                    Some(NodeRole::Mapper) => {
-                        modes.push_back((h.tick, h.mode));
-                        if modes.len() > 16 {
-                            modes.pop_front();
-                        }
-                    }
-                    Some(NodeRole::Bridge) if h.phase == ipc_types::phase::RUNNING => {
-                        bridge = (h.faults, u64::from(h.held_up));
-                    }
-                    _ => {}
-                })
-                .map_err(|e| live(e.to_string()))?;
-            // Each command of the attempt maps the answer to the previous state, or the
-            // sample came late.
-            commands
-                .drain(|c| {
-                    if first_tick.is_some_and(|f| c.tick > f) {
-                        let want = sent.iter().find(|(t, _)| t + 1 == c.tick).map(|x| x.1);
-                        if want != Some(c.joystick_seq) {
-                            counts.late_samples += 1;
-                        }
-                    }
-                })
-                .map_err(|e| live(e.to_string()))?;
-            let mut newest = None;
-            let n = states
-                .drain(|st| newest = Some(*st))
-                .map_err(|e| live(e.to_string()))?;
-            let Some(state) = newest else {
-                if seen == 0 && t0.elapsed() > start_limit {
-                    break Err(live(format!(
-                        "no robot state in {:.0} s; see {}",
-                        start_limit.as_secs_f64(),
-                        log_path.display()
-                    )));
+        // Every way out of the loop comes back here, so the graph is always stopped and its
+        // shared memory released.
+        let mut run = || -> Result<AttemptResult, SimError> {
+            loop {
+                if signals::stop_requested() {
+                    return Err(live("stopped (Ctrl-C)".into()));
                 }
-                continue;
-            };
-            // The screen's mode: the mapper's heartbeat of an earlier tick.
-            let Some(&(_, mode)) = modes.iter().rev().find(|(t, _)| *t < state.tick) else {
-                continue;
-            };
-            seen += 1;
-            if seen <= WARM_UP_STATES {
-                continue;
-            }
-            if first_tick.is_some() {
-                counts.unanswered += n.saturating_sub(1) as u64;
-            }
-            first_tick.get_or_insert(state.tick);
-            bridge_at_start.get_or_insert(bridge);
-            match driver.on_state(&state, mode.checked_sub(1).map(|m| m as usize), now_ns())? {
-                Answer::Done(r) => break Ok(r),
-                Answer::Sample(j) => {
-                    joystick.send(j).map_err(|e| live(e.to_string()))?;
-                    counts.answered += 1;
-                    sent.push_back((state.tick, j.seq));
-                    if sent.len() > 16 {
-                        sent.pop_front();
+                if let Some(e) = up.exited() {
+                    return Err(live(e));
+                }
+                states
+                    .wait(Duration::from_millis(100))
+                    .map_err(|e| live(e.to_string()))?;
+                status
+                    .drain(|h| match NodeRole::from_u32(h.role) {
+                        Some(NodeRole::Mapper) => {
+                            modes.push_back((h.tick, h.mode));
+                            if modes.len() > 16 {
+                                modes.pop_front();
+                            }
+                        }
+                        Some(NodeRole::Bridge) if h.phase == ipc_types::phase::RUNNING => {
+                            bridge = (h.faults, u64::from(h.held_up));
+                        }
+                        _ => {}
+                    })
+                    .map_err(|e| live(e.to_string()))?;
+                // Each command of the attempt maps the answer to the previous state, or the
+                // sample came late.
+                commands
+                    .drain(|c| {
+                        if first_tick.is_some_and(|f| c.tick > f) {
+                            let want = sent.iter().find(|(t, _)| t + 1 == c.tick).map(|x| x.1);
+                            if want != Some(c.joystick_seq) {
+                                counts.late_samples += 1;
+                            }
+                        }
+                    })
+                    .map_err(|e| live(e.to_string()))?;
+                let mut newest = None;
+                let n = states
+                    .drain(|st| newest = Some(*st))
+                    .map_err(|e| live(e.to_string()))?;
+                let Some(state) = newest else {
+                    if seen == 0 && t0.elapsed() > start_limit {
+                        return Err(live(format!(
+                            "no robot state in {:.0} s; see {}",
+                            start_limit.as_secs_f64(),
+                            log_path.display()
+                        )));
+                    }
+                    continue;
+                };
+                // The screen's mode: the mapper's heartbeat of an earlier tick.
+                let Some(&(_, mode)) = modes.iter().rev().find(|(t, _)| *t < state.tick) else {
+                    continue;
+                };
+                seen += 1;
+                if seen <= WARM_UP_STATES {
+                    continue;
+                }
+                if first_tick.is_some() {
+                    counts.unanswered += n.saturating_sub(1) as u64;
+                }
+                first_tick.get_or_insert(state.tick);
+                bridge_at_start.get_or_insert(bridge);
+                match driver.on_state(&state, mode.checked_sub(1).map(|m| m as usize), now_ns())? {
+                    Answer::Done(r) => return Ok(r),
+                    Answer::Sample(j) => {
+                        joystick.send(j).map_err(|e| live(e.to_string()))?;
+                        counts.answered += 1;
+                        sent.push_back((state.tick, j.seq));
+                        if sent.len() > 16 {
+                            sent.pop_front();
+                        }
                     }
                 }
             }
         };
+        let result = run();
         let stopped = up.stop();
         drop((states, status, commands, joystick, graph));
         let _ = ipc_types::graph::release_domain(&self.prefix);
