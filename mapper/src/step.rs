@@ -52,6 +52,20 @@ impl MapperStep {
         self.model.map.mode()
     }
 
+    /// Evaluates the map once at `state` without changing it ([`crate::ActionMap::direction`]
+    /// of the first axis into `out`), so that the next [`MapperStep::step`] finds the map's
+    /// weights and code in cache (`[graph] rt_prewarm_us`). The next step's command is the
+    /// same with or without it.
+    pub fn warm(&mut self, state: &RobotState, out: &mut [f64]) {
+        let m = self.model.header.n_joints;
+        if state.n_joints as usize != m || out.len() < m {
+            return;
+        }
+        self.model
+            .map
+            .direction(state.q(), state.gripper, 0, &mut out[..m]);
+    }
+
     /// Computes the command for `state`'s tick from the newest joystick sample `joy`.
     ///
     /// The action is zero when there is no sample or a non-finite one, and clamped radially to
@@ -227,6 +241,38 @@ mod tests {
         s.n_joints = 5;
         let c = step.step(&s, Some(&joy([1.0, 0.0])));
         assert_eq!(c.flags, mapper_flags::STATE_INVALID);
+    }
+
+    /// Warming leaves every map as it was: the same commands with and without it, for the
+    /// stateless network and for mode switching (its ramp and mode are state).
+    #[test]
+    fn warming_changes_no_command() {
+        for spec in [BUNDLED_NAME, "modeswitch"] {
+            let mk = || {
+                let m = LoadedModel::load(spec).unwrap().at_period(0.025);
+                MapperStep::new(1, m, 6).unwrap()
+            };
+            let (mut plain, mut warmed) = (mk(), mk());
+            let mut out = [0.0; 6];
+            for k in 0..40u64 {
+                let mut st = state(k);
+                st.q_rad[..6].copy_from_slice(&[0.0, 0.3, 1.2, 0.1, -0.9, 0.2]);
+                let mut j = joy([0.6, -0.3]);
+                j.buttons = if k == 10 { ipc_types::buttons::MODE } else { 0 };
+                warmed.warm(&st, &mut out);
+                let (a, b) = (plain.step(&st, Some(&j)), warmed.step(&st, Some(&j)));
+                assert_eq!(a.qdot_rad_s, b.qdot_rad_s, "{spec} tick {k}");
+                assert_eq!(
+                    plain.mode().map(|m| m.index),
+                    warmed.mode().map(|m| m.index)
+                );
+            }
+            // A state of another arm is not evaluated.
+            let other = RobotState::at_rest(0, 1000, 5);
+            out = [7.0; 6];
+            warmed.warm(&other, &mut out);
+            assert_eq!(out, [7.0; 6]);
+        }
     }
 
     #[test]

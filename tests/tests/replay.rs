@@ -1,7 +1,9 @@
 //! Whole-graph tests of deterministic replay: a 20 s run of the real graph recorded with
 //! `scl up --record`, with a live swap to a model file, an e-stop and its reset, replays bit
 //! for bit with `scl replay`; the same recording with one weight of its embedded model
-//! changed diverges, and the report names the first tick the map moved and the mapper. Both
+//! changed diverges, and the report names the first tick the map moved and the mapper. The
+//! run's mappers warm their maps before each tick (`[graph] rt_prewarm_us`), which must change
+//! no command. Both
 //! tests share the one recorded run (made once, under its own prefix, cleaned up). The
 //! counterfactual runs on a second, plain run (the bundled SCL model throughout); a third run
 //! has its mapper and safety processes killed and restarted by their policies.
@@ -50,7 +52,9 @@ fn recorded_run() -> &'static Run {
         let cfg = dir.join("graph.toml");
         std::fs::write(
             &cfg,
-            "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
+            // The mappers warm their maps 5 ms before each tick (`rt_prewarm_us`): the replay,
+            // which never warms, must still match bit for bit.
+            "[graph]\nrt_prewarm_us = 5000\n[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
         )
         .unwrap();
         let file = dir.join("run.mcap");
@@ -311,7 +315,9 @@ fn plain_run() -> &'static Run {
         let cfg = dir.join("graph.toml");
         std::fs::write(
             &cfg,
-            "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
+            // The mappers warm their maps 5 ms before each tick (`rt_prewarm_us`): the replay,
+            // which never warms, must still match bit for bit.
+            "[graph]\nrt_prewarm_us = 5000\n[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
         )
         .unwrap();
         let file = dir.join("run.mcap");

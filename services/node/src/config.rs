@@ -175,6 +175,11 @@ pub struct GraphSection {
     /// runs (the PM QoS request cyclictest makes: idle CPUs stay out of deep sleep states
     /// between ticks); `-1`: no request.
     pub rt_cpu_dma_latency_us: i32,
+    /// The mapper wakes this long (µs) before each expected robot state and evaluates its map
+    /// once without changing it (`MapperStep::warm`), so the tick's own evaluation finds the
+    /// map's weights and code in cache; 0 (default): off. At most half a period. Measured in
+    /// docs/benchmarks.md ("Warming the map before the tick").
+    pub rt_prewarm_us: u32,
     /// The graph's tick rate (Hz, at most 1000): the bridge's clock, the mock arm, the scripted
     /// joystick, and everything tied to the period (the command deadline, the acceleration per
     /// tick, staleness in ticks, the heartbeat cadence). Default: the robot profile's control
@@ -245,6 +250,7 @@ impl Default for GraphSection {
             rt_mlock: true,
             rt_cpu: -1,
             rt_cpu_dma_latency_us: -1,
+            rt_prewarm_us: 0,
             rate_hz: RobotProfile::default_robot().control_rate_hz(),
             transport: ipc_types::Transport::Iceoryx2,
         }
@@ -625,6 +631,16 @@ impl GraphConfig {
                 format!("{rate} is outside (0, {MAX_RATE_HZ}]"),
             ));
         }
+        let half_period_us = 0.5e6 / rate;
+        if f64::from(self.graph.rt_prewarm_us) > half_period_us {
+            return Err(err(
+                "graph.rt_prewarm_us",
+                format!(
+                    "{} µs is more than half a period ({half_period_us:.0} µs at {rate} Hz)",
+                    self.graph.rt_prewarm_us
+                ),
+            ));
+        }
         if let Some(r) = b.rate_hz {
             // Only a configuration built in code gets here with the alias set.
             return Err(err(
@@ -822,6 +838,19 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("graph.rate_hz") && e.contains("1000"), "{e}");
+        // The pre-warm is at most half a period: 12.5 ms at 40 Hz, 0.5 ms at 1 kHz.
+        std::fs::write(&p, "[graph]\nrt_prewarm_us = 12500\n").unwrap();
+        GraphConfig::load(Some(&p)).unwrap().validate().unwrap();
+        std::fs::write(&p, "[graph]\nrate_hz = 1000\nrt_prewarm_us = 600\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("graph.rt_prewarm_us") && e.contains("500 µs"),
+            "{e}"
+        );
         std::fs::write(&p, "[bridge]\nrate_hz = -4\n").unwrap();
         let e = GraphConfig::load(Some(&p))
             .unwrap()

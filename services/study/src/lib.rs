@@ -1096,7 +1096,15 @@ pub fn cli(
                         .into(),
                 ));
             }
-            simulate(robot, graph, study, *participants, out, *seed, &only, how)?;
+            let req = SimulateRequest {
+                study,
+                participants: *participants,
+                out,
+                seed: *seed,
+                only,
+                how,
+            };
+            simulate(robot, graph, &req)?;
             Ok(std::process::ExitCode::SUCCESS)
         }
         StudyCmd::Run {
@@ -1176,19 +1184,39 @@ pub enum Run<'a> {
     Live(&'a Prefix),
 }
 
-/// `scl study simulate`: `participants` simulated participants of `study_path` into `out`
-/// (one directory each), then the report into `out/report`.
+/// What `scl study simulate` is asked for.
+#[derive(Debug, Clone)]
+pub struct SimulateRequest<'a> {
+    /// The study file.
+    pub study: &'a Path,
+    /// How many simulated participants (P01 ..).
+    pub participants: u32,
+    /// Where their directories and the report go.
+    pub out: &'a Path,
+    /// The random seed.
+    pub seed: u64,
+    /// Part of the protocol (`--task`, `--condition`).
+    pub only: study::simulate::Selection,
+    /// In process or through the live graph.
+    pub how: Run<'a>,
+}
+
+/// `scl study simulate`: the request's simulated participants into its `out` (one directory
+/// each), then the report into `out/report`.
 pub fn simulate(
     robot: &'static kinematics::RobotProfile,
     graph: &scl_node::config::GraphConfig,
-    study_path: &Path,
-    participants: u32,
-    out: &Path,
-    seed: u64,
-    only: &study::simulate::Selection,
-    how: Run<'_>,
+    req: &SimulateRequest<'_>,
 ) -> Result<(), StudyRunError> {
     use rayon::prelude::*;
+    let SimulateRequest {
+        study: study_path,
+        participants,
+        out,
+        seed,
+        ref only,
+        how,
+    } = *req;
     if participants == 0 {
         return Err(StudyRunError::Graph(
             "--participants 0: simulate at least one".into(),
