@@ -353,7 +353,7 @@ fn the_simulated_and_live_paths_agree() {
             n("answered") > 1000,
             "the operator answered the graph: {c:?}"
         );
-        if n("unanswered") + n("late_samples") + n("missed") > 0 {
+        if n("unanswered") + n("late_samples") + n("early_samples") + n("missed") > 0 {
             disturbed.push(format!("run {run}: {c:?}"));
             continue;
         }

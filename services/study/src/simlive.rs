@@ -37,6 +37,9 @@ pub struct LiveCounts {
     /// Mapper commands of the attempt that did not map the operator's answer to the previous
     /// state (the sample came too late for the mapper).
     pub late_samples: u64,
+    /// Mapper commands of the attempt that mapped the operator's answer to their own state:
+    /// the answer beat the mapper's wake-up (the in-process loop never does).
+    pub early_samples: u64,
     /// Ticks the bridge missed during the attempt.
     pub missed: u64,
     /// Of those, the ones the bridge counted the machine's.
@@ -46,7 +49,10 @@ pub struct LiveCounts {
 impl LiveCounts {
     /// Whether the attempt ran undisturbed.
     pub fn undisturbed(&self) -> bool {
-        self.unanswered == 0 && self.late_samples == 0 && self.missed == 0
+        self.unanswered == 0
+            && self.late_samples == 0
+            && self.early_samples == 0
+            && self.missed == 0
     }
 }
 
@@ -168,15 +174,14 @@ impl LiveSim {
             answered: 0,
             unanswered: 0,
             late_samples: 0,
+            early_samples: 0,
             missed: 0,
             held_up: 0,
         };
         // The bridge's (missed, held up) counts now and when the attempt started.
         let mut bridge = (0u64, 0u64);
         let mut bridge_at_start = None;
-        // The attempt's first tick, and the sample (seq) answering each recent state.
-        let mut first_tick = None;
-        let mut sent: VecDeque<(u64, u64)> = VecDeque::new();
+        let mut pipeline = Pipeline::default();
         // Every way out of the loop comes back here, so the graph is always stopped and its
         // shared memory released.
         let mut run = || -> Result<AttemptResult, SimError> {
@@ -204,17 +209,8 @@ impl LiveSim {
                         _ => {}
                     })
                     .map_err(|e| live(e.to_string()))?;
-                // Each command of the attempt maps the answer to the previous state, or the
-                // sample came late.
                 commands
-                    .drain(|c| {
-                        if first_tick.is_some_and(|f| c.tick > f) {
-                            let want = sent.iter().find(|(t, _)| t + 1 == c.tick).map(|x| x.1);
-                            if want != Some(c.joystick_seq) {
-                                counts.late_samples += 1;
-                            }
-                        }
-                    })
+                    .drain(|c| pipeline.take(c, &mut counts))
                     .map_err(|e| live(e.to_string()))?;
                 let mut newest = None;
                 let n = states
@@ -238,19 +234,31 @@ impl LiveSim {
                 if seen <= WARM_UP_STATES {
                     continue;
                 }
-                if first_tick.is_some() {
+                if pipeline.first_tick.is_some() {
                     counts.unanswered += n.saturating_sub(1) as u64;
                 }
-                first_tick.get_or_insert(state.tick);
+                pipeline.first_tick.get_or_insert(state.tick);
                 bridge_at_start.get_or_insert(bridge);
                 match driver.on_state(&state, mode.checked_sub(1).map(|m| m as usize), now_ns())? {
                     Answer::Done(r) => return Ok(r),
                     Answer::Sample(j) => {
+                        // As in the in-process loop, the answer is for the next tick: wait
+                        // (at most 10 ms) until the mapper has mapped this one, so it cannot
+                        // take the answer early.
+                        let until = Instant::now() + MAPPER_WAIT;
+                        while pipeline.mapped.is_none_or(|t| t < state.tick)
+                            && Instant::now() < until
+                        {
+                            std::thread::sleep(Duration::from_micros(100));
+                            commands
+                                .drain(|c| pipeline.take(c, &mut counts))
+                                .map_err(|e| live(e.to_string()))?;
+                        }
                         joystick.send(j).map_err(|e| live(e.to_string()))?;
                         counts.answered += 1;
-                        sent.push_back((state.tick, j.seq));
-                        if sent.len() > 16 {
-                            sent.pop_front();
+                        pipeline.sent.push_back((state.tick, j.seq));
+                        if pipeline.sent.len() > 16 {
+                            pipeline.sent.pop_front();
                         }
                     }
                 }
@@ -277,6 +285,7 @@ impl LiveSim {
             answered = counts.answered,
             unanswered = counts.unanswered,
             late_samples = counts.late_samples,
+            early_samples = counts.early_samples,
             missed = counts.missed,
             held_up = counts.held_up,
             "live attempt"
@@ -300,6 +309,40 @@ impl LiveSim {
         w.serialize(c)
             .and_then(|()| w.flush().map_err(csv::Error::from))
             .map_err(|e| SimError::Live(format!("{}: {e}", path.display())))
+    }
+}
+
+/// The longest the operator waits for the mapper to map a state before answering it.
+const MAPPER_WAIT: Duration = Duration::from_millis(10);
+
+/// What the operator knows of the graph's pipeline: which sample each mapper command mapped.
+#[derive(Default)]
+struct Pipeline {
+    /// The attempt's first tick.
+    first_tick: Option<u64>,
+    /// The sample (seq) that answered each recent state, by tick.
+    sent: VecDeque<(u64, u64)>,
+    /// The newest tick the mapper has mapped.
+    mapped: Option<u64>,
+}
+
+impl Pipeline {
+    /// Takes mapper command `c`: each command of the attempt maps the answer to the previous
+    /// state; else the answer to its own state beat the mapper to it (early) or the answer to
+    /// the previous one came too late.
+    fn take(&mut self, c: &ipc_types::MapperCommand, counts: &mut LiveCounts) {
+        self.mapped = Some(self.mapped.map_or(c.tick, |t| t.max(c.tick)));
+        if self.first_tick.is_none_or(|f| c.tick <= f) {
+            return;
+        }
+        let answer = |t: u64| self.sent.iter().find(|x| x.0 == t).map(|x| x.1);
+        if answer(c.tick - 1) != Some(c.joystick_seq) {
+            if answer(c.tick) == Some(c.joystick_seq) {
+                counts.early_samples += 1;
+            } else {
+                counts.late_samples += 1;
+            }
+        }
     }
 }
 
