@@ -18,7 +18,7 @@ SEEDS=${SEEDS:-10}
 KIND=${KIND:-scl}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 data=${1:-}
 if [ -z "$data" ]; then

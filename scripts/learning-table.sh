@@ -16,7 +16,7 @@ data=${1:?usage: scripts/learning-table.sh DATA_DIR [OUT_DIR]}
 out=${2:-target/learning-table/$(basename "$data")}
 EPOCHS=${EPOCHS:-200}
 SEEDS=${SEEDS:-10}
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 mkdir -p "$out"
 net=(--data "$data" --latent-dim 2 --epochs "$EPOCHS" --seeds "$SEEDS" --force)

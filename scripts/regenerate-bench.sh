@@ -6,7 +6,7 @@
 # and a memlock limit) for --rt. Keeps report.json and latency.png of each run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 run() {
     local name=$1; shift

@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUNDLED=(--kind scl --data data/pick-and-place --speed-scale 0.6)
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 for d in data/joint-reach data/pick-and-place; do
     if [ -e "$d" ]; then rm -rf "$d.old"; mv "$d" "$d.old"; fi

@@ -5,7 +5,7 @@
 # same data). Old figures and data are moved aside (to *.old) rather than overwritten.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 mkdir -p out/demos docs
 for task in table-cleaning pick-and-place pouring planar-reach; do

@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-out/study-dry-run}"
 if [ -e "$out" ]; then echo "$out exists: nothing is overwritten; give another directory" >&2; exit 2; fi
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 export SCL_PREFIX="dryrun$$"
 mkdir -p "$out"

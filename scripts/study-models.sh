@@ -10,7 +10,7 @@
 # Existing files are kept (delete them to retrain); training is deterministic per seed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release -q -p services --bin scl
+cargo build --release -q -p scl --bin scl
 scl=target/release/scl
 mkdir -p models/study data/study
 extra=()

@@ -8,7 +8,7 @@
 //! it, so a second arm is a new entry of [`RobotProfile::names`], not edits across crates.
 //!
 //! This module is the one place that names the robots the graph can drive (a test in
-//! `scl-node` checks that no other crate of the graph names one).
+//! `tests/tests/robot_named_once.rs` checks that no other crate of the graph names one).
 //!
 //! ```
 //! use kinematics::RobotProfile;

@@ -37,6 +37,19 @@ impl MapperStep {
         })
     }
 
+    /// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile),
+    /// ticking every `period_s` seconds (`[graph] rate_hz`): every problem is reported here, at
+    /// start-up, never at tick time.
+    pub fn load(
+        spec: &str,
+        id: u32,
+        robot: &'static kinematics::RobotProfile,
+        period_s: f64,
+    ) -> Result<Self, ModelError> {
+        let model = LoadedModel::load_for(spec, robot)?.at_period(period_s);
+        Self::new(id, model, robot.n_joints())
+    }
+
     /// The mapper id.
     pub fn id(&self) -> u32 {
         self.id

@@ -28,7 +28,7 @@ if [ -z "$version" ]; then
 fi
 target_dir="${CARGO_TARGET_DIR:-$root/target}"
 if [ "$build" = 1 ]; then
-    (cd "$root" && cargo build --release --locked -p services --bin scl)
+    (cd "$root" && cargo build --release --locked -p scl --bin scl)
 fi
 bin="$target_dir/release/scl"
 [ -x "$bin" ] || { echo "build.sh: $bin not found (build it, or drop --no-build)" >&2; exit 1; }

@@ -30,7 +30,7 @@ def scl_bin() -> str:
     path = os.environ.get("SCL_BIN", "")
     if not path:
         pytest.exit(
-            "SCL_BIN is not set: build the binary (`cargo build -p services --bin scl`) and run "
+            "SCL_BIN is not set: build the binary (`cargo build -p scl --bin scl`) and run "
             "`SCL_BIN=$CARGO_TARGET_DIR/debug/scl pytest python/tests` (.ci/run does both)",
             returncode=2,
         )

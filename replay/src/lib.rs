@@ -252,7 +252,7 @@ impl Recording {
     fn graph_config(
         &self,
         notes: &mut Vec<String>,
-    ) -> Result<scl_node::config::GraphConfig, ReplayError> {
+    ) -> Result<scl_config::GraphConfig, ReplayError> {
         let safety = self
             .processes
             .values()
@@ -264,7 +264,7 @@ impl Recording {
                  embedded): safety replays with the default graph configuration"
                     .into(),
             );
-            return Ok(scl_node::config::GraphConfig::default());
+            return Ok(scl_config::GraphConfig::default());
         };
         let Some(name) = p.entries.get("config_attachment") else {
             notes.push(format!(
@@ -274,7 +274,7 @@ impl Recording {
                     .get("error")
                     .map_or("none embedded", String::as_str)
             ));
-            return Ok(scl_node::config::GraphConfig::default());
+            return Ok(scl_config::GraphConfig::default());
         };
         let bad = |reason: String| ReplayError::Config {
             path: self.path.clone(),
@@ -293,7 +293,7 @@ impl Recording {
                 "the embedded configuration {name} does not match its recorded SHA-256"
             ));
         }
-        scl_node::config::GraphConfig::parse(text, Path::new(name)).map_err(|e| bad(e.to_string()))
+        scl_config::GraphConfig::parse(text, Path::new(name)).map_err(|e| bad(e.to_string()))
     }
 
     /// The model mapper process `pid` (mapper `mapper_id`) served.

@@ -56,7 +56,7 @@ fn make(path: &Path, ticks: u64, model: &[u8]) {
 /// bits were recorded.
 fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
     let robot = kinematics::RobotProfile::default_robot();
-    let cfg = scl_node::config::GraphConfig::default();
+    let cfg = scl_config::GraphConfig::default();
     let file = recording::create_new(path).unwrap();
     let mut w = LogWriter::new(std::io::BufWriter::new(file), path, None).unwrap();
     for t in Topic::ALL {
@@ -176,7 +176,7 @@ fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
     w.finish(None).unwrap();
 }
 
-fn toml_text(cfg: &scl_node::config::GraphConfig) -> String {
+fn toml_text(cfg: &scl_config::GraphConfig) -> String {
     // The recorder writes the resolved configuration the same way.
     toml::to_string(cfg).unwrap()
 }

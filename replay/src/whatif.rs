@@ -106,7 +106,7 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
         reason,
     };
     if let Some(f) = &what.safety {
-        let other = scl_node::config::GraphConfig::load(Some(f))
+        let other = scl_config::GraphConfig::load(Some(f))
             .map_err(|e| cerr(format!("--safety {}", f.display()), e.to_string()))?;
         cfg.safety = other.safety;
     }

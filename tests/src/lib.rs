@@ -26,7 +26,7 @@ pub fn scl_binary() -> PathBuf {
         let release = profile_dir.file_name().is_some_and(|n| n == "release");
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let mut cmd = Command::new(cargo);
-        cmd.args(["build", "-q", "-p", "services", "--bin", "scl"]);
+        cmd.args(["build", "-q", "-p", "scl", "--bin", "scl"]);
         if release {
             cmd.arg("--release");
         }

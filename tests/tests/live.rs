@@ -18,11 +18,11 @@ use kinematics::RobotProfile;
 use mapper::LoadedModel;
 use nalgebra::{DVector, Quaternion, UnitQuaternion, Vector3};
 use prost::Message;
-use scl_live::client::Client;
 use scl_tests::{
     DomainGuard, Recorder, assert_misses_only_held_up, run_polling, scl, serial, temp_dir,
     unique_prefix, wait_clean,
 };
+use viz::client::Client;
 
 /// One message of a recording: channel topic, schema name, encoding, log time, bytes.
 struct Msg {

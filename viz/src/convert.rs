@@ -13,7 +13,7 @@ use ipc_types::{
 };
 use mapper::LoadedModel;
 use recording::{Event, LogWriter, Payload, RecordError, Topic};
-use scl_node::config::GraphConfig;
+use scl_config::GraphConfig;
 
 use crate::{Viz, VizError, VizMessage, VizTopic};
 

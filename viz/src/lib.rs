@@ -10,6 +10,7 @@
 //!   ([`VizTopic::Map`]), the table, boxes and workspace bounds once a second
 //!   ([`VizTopic::World`]), and one JSON row of plottable numbers ([`VizTopic::Tick`]).
 //! * [`convert`]: `scl record --convert OLD.mcap --out NEW.mcap`.
+//! * [`client`]: a minimal Foxglove WebSocket client (the tests, `scl bench latency --live`).
 //!
 //! The map's directions: for stick axis `i` the arrow is the tool twist `J(q)·s·H(o)·e_i` of
 //! a full deflection, `s` the model's speed scale and `H(o)·e_i` what
@@ -22,6 +23,7 @@
 //! consumer) and the observer off the control path.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod client;
 pub mod convert;
 pub mod scene;
 
@@ -35,7 +37,7 @@ use kinematics::{Chain, Clearance, Jacobian, RobotProfile, Scene};
 use mapper::LoadedModel;
 use nalgebra::{DVector, Vector3};
 use recording::{Payload, SchemaInfo};
-use scl_node::config::GraphConfig;
+use scl_config::GraphConfig;
 use serde::Serialize;
 
 pub use scene::{ANGULAR_ARROW_M_PER_RAD_S, LINEAR_ARROW_S, TOOL_FRAME};

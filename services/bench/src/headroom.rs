@@ -29,7 +29,7 @@ pub struct HeadroomOptions {
     /// The transports, each at every rate.
     pub transports: Vec<Transport>,
     /// The base configuration (rate, transport and real-time settings are overridden).
-    pub config: scl_node::config::GraphConfig,
+    pub config: scl_config::GraphConfig,
     /// Where to keep the report, the plot, and every run's config and log.
     pub out: Option<PathBuf>,
 }

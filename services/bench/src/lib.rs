@@ -20,7 +20,7 @@
 pub enum BenchError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -38,8 +38,8 @@ use serde::Serialize;
 
 use ipc_types::signals;
 use ipc_types::stats::quantile;
-use scl_node::config::GraphConfig;
-use scl_node::stats::sorted_us;
+use node_rt::stats::sorted_us;
+use scl_config::GraphConfig;
 
 pub mod headroom;
 pub mod proc_cpu;
@@ -119,7 +119,7 @@ impl RtSettings {
     }
 
     /// Sets the `[graph]` keys of these settings; `cores` names the last CPU for pinning.
-    pub fn apply(&self, graph: &mut scl_node::config::GraphSection, cores: usize) {
+    pub fn apply(&self, graph: &mut scl_config::GraphSection, cores: usize) {
         graph.realtime = self.any();
         graph.rt_fifo = self.fifo;
         graph.rt_mlock = self.mlock;
@@ -596,8 +596,7 @@ impl LiveClient {
         let thread = std::thread::spawn(move || {
             let mut n = 0;
             while !s2.load(Ordering::SeqCst) {
-                let Ok(mut c) = scl_live::client::Client::connect(&addr, Duration::from_secs(1))
-                else {
+                let Ok(mut c) = viz::client::Client::connect(&addr, Duration::from_secs(1)) else {
                     std::thread::sleep(Duration::from_millis(50));
                     continue;
                 };

@@ -18,7 +18,7 @@ pub mod late;
 pub enum BridgeNodeError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -50,7 +50,7 @@ use ipc_types::{
 use serde::Deserialize;
 
 use ipc_types::signals;
-use scl_node::config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
+use scl_config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
 
 /// Environment variable with the Kortex user name (`scl bridge --user`).
 pub const USER_ENV: &str = "SCL_KORTEX_USER";
@@ -209,7 +209,7 @@ pub fn run(
             )));
         }
     };
-    scl_node::rt::elevate(graph_cfg, RtRole::Bridge);
+    node_rt::rt::elevate(graph_cfg, RtRole::Bridge);
     let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
     let ctx = Ctx {
         graph: &graph,

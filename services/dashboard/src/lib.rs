@@ -9,7 +9,7 @@
 //! * [`render`] draws a [`View`] into a ratatui frame, a pure function of the view.
 //!
 //! The loop ([`cli`]) subscribes read-only, redraws ten times a second, and maps keys
-//! ([`key_action`], a pure function) to `scl estop` / `scl reset` ([`scl_supervisor::control::estop`],
+//! ([`key_action`], a pure function) to `scl estop` / `scl reset` ([`graph_client::control::estop`],
 //! in a thread so the picture keeps moving while safety confirms) and `q` to quit. `scl top --once` prints one 80x24 frame as
 //! text after listening for a second, for scripts and logs.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
@@ -30,7 +30,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::canvas::{Canvas, Circle};
 use ratatui::widgets::{Block, Borders, Paragraph};
 
-use scl_node::stats::{Percentiles, percentiles_us};
+use node_rt::stats::{Percentiles, percentiles_us};
 
 /// Width and height the dashboard is laid out for (it uses more when it gets it).
 pub const SIZE: (u16, u16) = (80, 24);
@@ -68,13 +68,13 @@ pub enum TopError {
     Terminal(std::io::Error),
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
     /// An e-stop or reset request failed.
     #[error(transparent)]
-    Control(#[from] scl_supervisor::SupervisorError),
+    Control(#[from] graph_client::ControlError),
 }
 
 /// One node as the dashboard shows it.
@@ -154,7 +154,7 @@ pub struct View {
     pub latest_flags: Option<u32>,
     /// The closest pair of the arm's collision model in the newest command (`None`: no
     /// command yet, or safety checked nothing).
-    pub closest: Option<scl_supervisor::control::Closest>,
+    pub closest: Option<graph_client::control::Closest>,
     /// The newest joystick sample.
     pub joystick: Option<JoystickView>,
     /// The arm's joints.
@@ -379,7 +379,7 @@ impl Model {
                 })
                 .max_by_key(|s| s.t_ns)
         {
-            v.mode = Some(scl_supervisor::control::mode_name(m.mode));
+            v.mode = Some(graph_client::control::mode_name(m.mode));
             v.mode_switches = Some(m.mode_switches);
         }
         v.joystick = self.joystick.map(|j| JoystickView {
@@ -389,7 +389,7 @@ impl Model {
         v.latest_flags = self.safe.map(|c| c.flags);
         v.closest = self
             .safe
-            .and_then(|c| scl_supervisor::control::Closest::of(&c, &self.box_names));
+            .and_then(|c| graph_client::control::Closest::of(&c, &self.box_names));
         v
     }
 }
@@ -894,7 +894,7 @@ fn send_estop(prefix: &Prefix, action: u32) -> std::sync::mpsc::Receiver<String>
         } else {
             "e-stop reset"
         };
-        let msg = match scl_supervisor::control::estop(
+        let msg = match graph_client::control::estop(
             &prefix,
             ipc_types::Transport::Iceoryx2,
             action,
@@ -1093,7 +1093,7 @@ mod tests {
             missed_recent: 1,
             rule_counts: [0, 0, 0, 0, 120, 7, 0, 40, 0, 2, 0, 0, 0, 0, 0, 0],
             latest_flags: Some(safe_flags::VELOCITY_SCALED | safe_flags::ACCEL_LIMITED),
-            closest: Some(scl_supervisor::control::Closest {
+            closest: Some(graph_client::control::Closest {
                 tick: 12345,
                 pair: "forearm-table".into(),
                 distance_m: 0.0431,

@@ -47,22 +47,16 @@ use ipc_types::{
 };
 
 use ipc_types::signals;
-use scl_node::config::{
-    ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole,
-};
+use scl_config::{ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole};
 
 pub use script::Script;
 
 /// The sources `[joystick] source` accepts.
 pub const SOURCES: [&str; 5] = ["script", "evdev", "keyboard", "replay", EXTERNAL];
 
-/// The source of a graph whose operator is outside it: `scl up` starts no joystick process
-/// and the mapper takes [`JoystickInput`] from whoever publishes it on the joystick topic
-/// (one publisher at a time: the topic admits one). The rules downstream are those of any
-/// source: a sample must answer the newest robot tick (`JoystickInput::tick`), so input that
-/// stops stops the arm within two ticks; no input at all is stale; the deadman and e-stop
-/// bits act in safety.
-pub const EXTERNAL: &str = "external";
+/// The source of a graph whose operator is outside it ([`scl_config::EXTERNAL_JOYSTICK`]):
+/// `scl up` starts no joystick process.
+pub use scl_config::EXTERNAL_JOYSTICK as EXTERNAL;
 
 /// The operator's input at one moment: what a [`JoystickInput`] carries besides its stamps.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -89,7 +83,7 @@ impl Input {
 pub enum JoystickError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -600,7 +594,7 @@ pub fn run(
     } else {
         None
     };
-    scl_node::rt::elevate(graph_cfg, RtRole::Joystick);
+    node_rt::rt::elevate(graph_cfg, RtRole::Joystick);
     let t0 = Instant::now();
     let mut outbox = Outbox::default();
     let mut tick = NO_TICK;
@@ -1104,12 +1098,12 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
             replay_file: "in.csv".into(),
             ..JoystickConfig::default()
         };
-        scl_node::config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
+        scl_config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
         assert_eq!(j.mapping, "/etc/scl/pads/mine.toml");
         assert_eq!(j.replay_file, "/etc/scl/in.csv");
         assert_eq!(j.record_input, "");
         let mut j = JoystickConfig::default();
-        scl_node::config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
+        scl_config::resolve_joystick_paths(&mut j, Path::new("/etc/scl"));
         assert_eq!(j.mapping, "xbox");
     }
 
@@ -1127,7 +1121,7 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
     #[test]
     fn the_config_knows_the_builtin_mappings() {
         let names: Vec<&str> = mapping::BUILTIN.iter().map(|(n, _)| *n).collect();
-        assert_eq!(names, scl_node::config::BUILTIN_MAPPINGS);
+        assert_eq!(names, scl_config::BUILTIN_MAPPINGS);
     }
 
     #[test]

@@ -5,7 +5,7 @@
 
 use ipc_types::{JoystickInput, NO_TICK};
 
-use scl_node::config::JoystickConfig;
+use scl_config::JoystickConfig;
 
 /// Every script holds the stick at rest this long from the first robot tick (s), then
 /// starts its pattern from its beginning.

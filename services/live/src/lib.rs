@@ -18,8 +18,6 @@
 //! by accident.
 #![cfg_attr(test, allow(clippy::unwrap_used))]
 
-pub mod client;
-
 use std::collections::{BTreeMap, BTreeSet};
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -28,10 +26,10 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
+use graph_client::process::{self, ProcessSeen};
 use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, TopicSubscriber, signals};
 use recording::{Payload, SchemaInfo, Topic};
-use scl_node::config::GraphConfig;
-use scl_recorder::process::{self, ProcessSeen};
+use scl_config::GraphConfig;
 use viz::{Viz, VizMessage, VizTopic};
 
 /// The address `scl live` and `scl up --live` listen on by default.
@@ -46,7 +44,7 @@ pub const DEFAULT_QUEUE: usize = 4096;
 pub enum LiveError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),

@@ -7,7 +7,7 @@
 pub enum MapperNodeError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -19,24 +19,10 @@ pub enum MapperNodeError {
 use std::time::Duration;
 
 use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
-use mapper::LoadedModel;
 use mapper::step::MapperStep;
 
 use ipc_types::signals;
-use scl_node::config::{FaultConfig, GraphSection, RtRole};
-
-/// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile),
-/// ticking every `period_s` seconds (`[graph] rate_hz`): every problem is reported here, at
-/// start-up, never at tick time.
-pub fn load_step(
-    spec: &str,
-    id: u32,
-    robot: &'static kinematics::RobotProfile,
-    period_s: f64,
-) -> Result<MapperStep, MapperNodeError> {
-    let model = LoadedModel::load_for(spec, robot)?.at_period(period_s);
-    Ok(MapperStep::new(id, model, robot.n_joints())?)
-}
+use scl_config::{FaultConfig, GraphSection, RtRole};
 
 /// Runs the mapper process until a shutdown is requested.
 pub fn run(
@@ -46,7 +32,7 @@ pub fn run(
     model: &str,
     id: u32,
 ) -> Result<(), MapperNodeError> {
-    let mut step = load_step(model, id, graph_cfg.profile()?, graph_cfg.period_s())?;
+    let mut step = MapperStep::load(model, id, graph_cfg.profile()?, graph_cfg.period_s())?;
     let graph = Graph::join_with(prefix, &format!("mapper-{id}"), graph_cfg.transport)?;
     let states = graph.robot_state_subscriber(true)?;
     let joystick = graph.joystick_subscriber(true)?;
@@ -54,7 +40,7 @@ pub fn run(
     let status = graph.status_publisher()?;
     // Initialised at normal priority (a mapper starting for a live swap must not compete
     // with the running one); real-time from here on.
-    scl_node::rt::elevate(graph_cfg, RtRole::Mapper);
+    node_rt::rt::elevate(graph_cfg, RtRole::Mapper);
     let mut st = NodeStatus::new(NodeRole::Mapper, phase::READY, now_ns());
     st.mapper_id = id;
     set_mode(&mut st, &step);

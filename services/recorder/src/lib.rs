@@ -23,7 +23,7 @@
 pub enum RecorderError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -38,8 +38,7 @@ pub enum RecorderError {
     Graph(String),
 }
 
-pub mod process;
-
+use graph_client::process;
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -324,7 +323,7 @@ impl View {
         w: &mut LogWriter<W>,
         metadata: &BTreeMap<String, String>,
     ) -> Result<Self, RecorderError> {
-        let viz = viz::Viz::new(&scl_node::config::GraphConfig::default())?;
+        let viz = viz::Viz::new(&scl_config::GraphConfig::default())?;
         let mut ids = BTreeMap::new();
         for t in viz::VizTopic::ALL {
             let id = w.add_channel(t.topic(), Some(&t.schema()), t.message_encoding(), metadata)?;

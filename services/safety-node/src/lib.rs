@@ -8,7 +8,7 @@
 pub enum SafetyNodeError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -23,7 +23,7 @@ use ipc_types::{Graph, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_n
 use safety::{SafetyConfig, SafetyFilter};
 
 use ipc_types::signals;
-use scl_node::config::{FaultConfig, GraphSection, RtRole};
+use scl_config::{FaultConfig, GraphSection, RtRole};
 
 /// Without a command for this long (ns) the graph has stopped sending them: the arm will
 /// wait for neutral input when they resume (safety's own gap check says so too, at the next
@@ -131,7 +131,7 @@ pub fn run(
     };
     apply_control(&mut filter)?;
     apply_estop(&mut filter)?;
-    scl_node::rt::elevate(graph_cfg, RtRole::Safety);
+    node_rt::rt::elevate(graph_cfg, RtRole::Safety);
     st.mapper_id = filter.active_for_tick(0);
     // At start-up too the arm waits for neutral input (restart prevention).
     st.safety_state = safety_state_bits(&filter);

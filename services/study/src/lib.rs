@@ -43,7 +43,7 @@ pub enum StudyRunError {
     Ipc(#[from] ipc_types::IpcError),
     /// A swap or the graph refused.
     #[error(transparent)]
-    Supervisor(#[from] scl_supervisor::SupervisorError),
+    Control(#[from] graph_client::ControlError),
     /// The graph did not do what the protocol needs (no graph, a refused swap, the arm not
     /// at the start pose in time, the recorder not starting).
     #[error("{0}")]
@@ -273,7 +273,7 @@ impl Live {
 
     /// Swaps the active mapper for one serving `spec`; the new mapper's id.
     fn swap(&mut self, spec: &str) -> Result<u32, StudyRunError> {
-        let r = scl_supervisor::control::swap(&self.prefix, spec, self.swap_timeout)?;
+        let r = graph_client::control::swap(&self.prefix, spec, self.swap_timeout)?;
         if r.ok != 1 {
             return Err(StudyRunError::Graph(format!(
                 "the graph refused a swap: {}",
@@ -1067,7 +1067,7 @@ pub fn cli(
     prefix: &Prefix,
     robot: &'static kinematics::RobotProfile,
     cmd: &StudyCmd,
-    graph: &scl_node::config::GraphConfig,
+    graph: &scl_config::GraphConfig,
 ) -> Result<std::process::ExitCode, StudyRunError> {
     match cmd {
         StudyCmd::Simulate {
@@ -1205,7 +1205,7 @@ pub struct SimulateRequest<'a> {
 /// each), then the report into `out/report`.
 pub fn simulate(
     robot: &'static kinematics::RobotProfile,
-    graph: &scl_node::config::GraphConfig,
+    graph: &scl_config::GraphConfig,
     req: &SimulateRequest<'_>,
 ) -> Result<(), StudyRunError> {
     use rayon::prelude::*;

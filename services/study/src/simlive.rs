@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use ipc_types::graph::Graph;
 use ipc_types::time::now_ns;
 use ipc_types::{NodeRole, Prefix, signals};
-use scl_node::config::GraphConfig;
+use scl_config::GraphConfig;
 use study::data::Outcome;
 use study::simulate::{Answer, AttemptDriver, AttemptInfo, AttemptResult, AttemptSetup, SimError};
 
@@ -113,7 +113,7 @@ impl LiveSim {
         cfg.bridge.robot = "mock".to_owned();
         cfg.bridge.mock.initial_q = Some(s.start_q.to_vec());
         cfg.bridge.mock.initial_gripper = 0.0;
-        cfg.joystick.source = scl_joystick::EXTERNAL.to_owned();
+        cfg.joystick.source = scl_config::EXTERNAL_JOYSTICK.to_owned();
         cfg.mapper.model = spec.to_owned();
         cfg
     }

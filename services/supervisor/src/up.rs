@@ -40,8 +40,9 @@ use serde::Serialize;
 
 use crate::SupervisorError;
 use ipc_types::signals;
-use scl_node::config::{GraphConfig, RestartPolicy, SupervisorConfig};
-use scl_node::stats::{Percentiles, percentiles_us};
+use mapper::step::MapperStep;
+use node_rt::stats::{Percentiles, percentiles_us};
+use scl_config::{GraphConfig, RestartPolicy, SupervisorConfig};
 
 /// What `scl up` was asked to do.
 #[derive(Debug, Clone)]
@@ -713,7 +714,7 @@ impl<'a> Supervisor<'a> {
             |e| Err(e.into()),
             |robot| {
                 let period_s = self.opts.config.period_s();
-                scl_mapper_node::load_step(&model, new_id, robot, period_s)
+                MapperStep::load(&model, new_id, robot, period_s)
             },
         );
         if let Err(e) = loaded {
@@ -858,12 +859,15 @@ impl<'a> Supervisor<'a> {
 }
 
 /// Runs the graph; returns the summary, with `failure` set if a child died for good.
+///
+/// The caller has checked `[joystick]` (`scl_joystick::validate`, the joystick's sources and
+/// their files: `scl up` does, before this) so that a bad one is refused before anything
+/// starts; the graph configuration and the model are checked here.
 pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     let cfg = &opts.config;
     cfg.validate()?;
-    scl_joystick::validate(&cfg.joystick)?;
     // Refuse a bad model, or a recording over an existing file, before anything starts.
-    scl_mapper_node::load_step(
+    MapperStep::load(
         &cfg.mapper.model,
         cfg.mapper.id,
         cfg.profile()?,
@@ -906,9 +910,9 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         cleanup: CleanupSchedule::new(Duration::from_secs(1)),
     };
     // Reaping and holding the arm must not wait behind other load; below the control path.
-    scl_node::rt::elevate(&cfg.graph, scl_node::config::RtRole::Supervisor);
+    node_rt::rt::elevate(&cfg.graph, scl_config::RtRole::Supervisor);
     // Idle CPUs kept out of deep sleep while the graph runs; released when `_dma` drops.
-    let (_dma, _) = scl_node::rt::hold_dma_latency(&cfg.graph);
+    let (_dma, _) = node_rt::rt::hold_dma_latency(&cfg.graph);
     let start_timeout = Duration::from_secs_f64(cfg.graph.start_timeout_s);
     let mut live = match &opts.live {
         Some(addr) => Some(start_live(&sv, addr, start_timeout)?),
@@ -921,7 +925,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         args.extend(["--out".to_owned(), path.display().to_string()]);
         plan.push((NodeRole::Recorder, 0, args));
     }
-    if cfg.joystick.source == scl_joystick::EXTERNAL {
+    if cfg.joystick.source == scl_config::EXTERNAL_JOYSTICK {
         // No joystick process: the operator publishes from outside (nothing to hold for).
         tracing::info!(
             "joystick source `external`: the input comes from whoever publishes on `{}`",
@@ -1124,7 +1128,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use scl_node::config::RestartPolicies;
+    use scl_config::RestartPolicies;
 
     const MS: fn(u64) -> Duration = Duration::from_millis;
 

@@ -2,7 +2,7 @@
 //! SCHED_FIFO at its priority, locks its memory and optionally pins itself to a CPU, and says
 //! in one line what it got.
 
-use crate::config::{GraphSection, RtRole};
+use scl_config::{GraphSection, RtRole};
 
 /// Applies the real-time settings of `role` from the `[graph]` table; logs the outcome and
 /// returns it as one line (empty when real-time is off).

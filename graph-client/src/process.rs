@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use ipc_types::{NodeRole, NodeStatus};
 use recording::{LogWriter, RecordError};
-use scl_node::config::GraphConfig;
+use scl_config::GraphConfig;
 
 /// A process seen for the first time, with what `/proc` said about it.
 #[derive(Debug, Clone)]

@@ -9,8 +9,8 @@ use ipc_types::Prefix;
 use ipc_types::signals;
 use learning::train::TrainConfig;
 use mapper::model::ModelKind;
-use scl_node::config::GraphConfig;
-use services::SclError;
+use scl::SclError;
+use scl_config::GraphConfig;
 
 /// Teleoperate a 6-joint arm with a 2-axis joystick through a learned action map.
 ///
@@ -118,7 +118,7 @@ enum Cmd {
     /// settings, shared memory and leftovers, joysticks, the configuration (`--config`), its
     /// model and, with `[bridge] robot = "kortex"`, the arm itself through a read-only session.
     /// Prints ok / warn / fail with what to do; exit code 1 on any fail.
-    Doctor(scl_doctor::DoctorArgs),
+    Doctor(scl::doctor::DoctorArgs),
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
     Status {
         /// Print JSON instead of a table.
@@ -574,18 +574,17 @@ fn init_logging() {
 fn run(cli: Cli) -> Result<ExitCode, SclError> {
     // The doctor reports a bad configuration as one of its findings.
     if let Cmd::Doctor(args) = &cli.cmd {
-        let code = scl_doctor::run(cli.config.as_deref(), args)?;
+        let code = scl::doctor::run(cli.config.as_deref(), args)?;
         return Ok(ExitCode::from(code as u8));
     }
     let mut cfg = GraphConfig::load(cli.config.as_deref())?;
     if let Some(p) = &cli.prefix {
         cfg.graph.prefix = p.clone();
     }
-    let prefix =
-        Prefix::new(&cfg.graph.prefix).map_err(|e| scl_node::config::ConfigError::Value {
-            key: "prefix".into(),
-            reason: e.to_string(),
-        })?;
+    let prefix = Prefix::new(&cfg.graph.prefix).map_err(|e| scl_config::ConfigError::Value {
+        key: "prefix".into(),
+        reason: e.to_string(),
+    })?;
     let period_s = cfg.period_s();
     match cli.cmd {
         Cmd::Up {
@@ -606,6 +605,10 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             if let Some(s) = joystick {
                 cfg.joystick.source = s;
             }
+            // `[joystick]` and its files are the joystick crate's to check: refused here,
+            // before the supervisor starts anything (after the checks of the whole file).
+            cfg.validate()?;
+            scl_joystick::validate(&cfg.joystick)?;
             let opts = scl_supervisor::up::UpOptions {
                 prefix,
                 config_path: cli.config.clone(),
@@ -650,7 +653,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             cfg.safety.scene.box_names(),
         )?),
         Cmd::Swap { model, timeout } => {
-            let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
+            let r = graph_client::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
                 println!(
                     "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed",
@@ -672,7 +675,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             } else {
                 (ipc_types::control::estop_action::RESET, "e-stop reset")
             };
-            match scl_supervisor::control::estop(
+            match graph_client::control::estop(
                 &prefix,
                 cfg.graph.transport,
                 action,
@@ -777,7 +780,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             }
         },
         Cmd::Status { json } => {
-            let st = scl_supervisor::control::status(
+            let st = graph_client::control::status(
                 &prefix,
                 cfg.graph.transport,
                 Duration::from_millis(300),
@@ -794,7 +797,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
                     .map_err(|e| SclError::Other(format!("cannot encode the status: {e}")))?;
                 println!("{text}");
             } else {
-                print!("{}", scl_supervisor::control::render(&st));
+                print!("{}", graph_client::control::render(&st));
             }
             Ok(ExitCode::SUCCESS)
         }

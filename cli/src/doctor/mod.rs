@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use checks::{Finding, IdleState, InputDevice, KortexAnswer, Limit, ShmGraph};
-use scl_node::config::GraphConfig;
+use scl_config::GraphConfig;
 
 /// How long the Kortex probe may wait to connect and for each reply.
 pub const KORTEX_TIMEOUT: Duration = Duration::from_millis(800);
@@ -85,10 +85,10 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
         .unwrap_or_default();
     let realtime = cfg.is_none_or(|c| c.graph.realtime);
     let priority = match cfg {
-        Some(c) => c.graph.rt_priority_of(scl_node::config::RtRole::Bridge),
+        Some(c) => c.graph.rt_priority_of(scl_config::RtRole::Bridge),
         None => GraphConfig::default()
             .graph
-            .rt_priority_of(scl_node::config::RtRole::Bridge),
+            .rt_priority_of(scl_config::RtRole::Bridge),
     };
     let mut out = vec![
         checks::realtime_scheduling(priority, rtprio_limit(), caps),
@@ -129,7 +129,7 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     out.push(checks::model(
         &cfg.mapper.model,
         &cfg.graph.robot,
-        scl_mapper_node::load_step(&cfg.mapper.model, cfg.mapper.id, robot, cfg.period_s())
+        mapper::step::MapperStep::load(&cfg.mapper.model, cfg.mapper.id, robot, cfg.period_s())
             .map(|_| ())
             .map_err(|e| e.to_string()),
     ));

@@ -1,16 +1,20 @@
 //! The `scl` command: parses the command line and dispatches to the crate of each process or
 //! tool. The processes live beside this crate, one crate each: `scl-joystick`,
 //! `scl-mapper-node`, `scl-safety-node`, `scl-bridge-node` (with the fake Kortex robot),
-//! `scl-supervisor` (`up`, `swap`, `status`, `estop`), the observers `scl-recorder`,
-//! `scl-live` and `scl-dashboard`, and `scl-bench`; `scl-node` holds what they share (the graph TOML,
-//! real-time set-up). The offline commands are the `learning` crate's.
+//! `scl-supervisor` (`up`), the observers `scl-recorder`,
+//! `scl-live` and `scl-dashboard`, and `scl-bench`; `scl doctor` is here ([`doctor`]). What
+//! they share lives in libraries below them: the graph TOML (`scl-config`), real-time set-up
+//! (`node-rt`), the commands that talk to a running graph (`graph-client`). The offline
+//! commands are the `learning` crate's.
+
+pub mod doctor;
 
 /// Why `scl` failed: the error of whichever process or tool ran, with the message a user sees.
 #[derive(Debug, thiserror::Error)]
 pub enum SclError {
     /// The graph configuration is unusable.
     #[error(transparent)]
-    Config(#[from] scl_node::ConfigError),
+    Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] ipc_types::IpcError),
@@ -29,9 +33,12 @@ pub enum SclError {
     /// The bridge process or the fake Kortex robot.
     #[error(transparent)]
     BridgeNode(#[from] scl_bridge_node::BridgeNodeError),
-    /// The supervisor or a control request (`up`, `swap`, `status`, `estop`, `reset`).
+    /// The supervisor (`up`).
     #[error(transparent)]
     Supervisor(#[from] scl_supervisor::SupervisorError),
+    /// A control request to a running graph (`swap`, `status`, `estop`, `reset`).
+    #[error(transparent)]
+    Control(#[from] graph_client::ControlError),
     /// The recorder.
     #[error(transparent)]
     Recorder(#[from] scl_recorder::RecorderError),
@@ -49,7 +56,7 @@ pub enum SclError {
     Top(#[from] scl_dashboard::TopError),
     /// `scl doctor` could not write its report.
     #[error(transparent)]
-    Doctor(#[from] scl_doctor::DoctorError),
+    Doctor(#[from] crate::doctor::DoctorError),
     /// `scl study`.
     #[error(transparent)]
     Study(#[from] scl_study::StudyRunError),

@@ -7,8 +7,8 @@ use std::net::TcpListener;
 use std::time::{Duration, Instant};
 
 use hw_bridge::kortex::{Credentials, FakeConfig, FakeKortex, Function, KortexConfig};
-use scl_doctor::checks::{self, Level};
-use scl_node::config::GraphConfig;
+use scl::doctor::checks::{self, Level};
+use scl_config::GraphConfig;
 
 fn config_for(addr: std::net::SocketAddr) -> GraphConfig {
     let mut cfg = GraphConfig::default();
@@ -26,7 +26,7 @@ fn probe(cfg: &GraphConfig, user: &str, password: &str) -> (checks::Finding, Dur
     let answer = hw_bridge::kortex::KortexArm::probe(
         &cfg.bridge.kortex,
         &Credentials::new(user, password),
-        scl_doctor::KORTEX_TIMEOUT,
+        scl::doctor::KORTEX_TIMEOUT,
     )
     .map(|info| checks::KortexAnswer {
         addr: info.addr.to_string(),
@@ -127,7 +127,7 @@ fn a_robot_that_never_replies_fails_after_the_reply_timeout() {
     let (f, took) = probe(&config_for(addr), "admin", "admin");
     assert_eq!(f.level, Level::Fail, "{f:?}");
     assert!(f.detail.contains("no reply"), "{}", f.detail);
-    assert!(took >= scl_doctor::KORTEX_TIMEOUT, "took {took:?}");
+    assert!(took >= scl::doctor::KORTEX_TIMEOUT, "took {took:?}");
     assert!(took < NEVER_LONGER, "took {took:?}");
     drop(holder.join());
 }

@@ -9,7 +9,7 @@ use ipc_types::control::{ControlRequest, ControlResponse, Text, request_kind};
 use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
 use serde::Serialize;
 
-use crate::SupervisorError;
+use crate::ControlError;
 
 /// Asks the supervisor of graph `prefix` to swap the active mapper for one serving `model`
 /// (a path, made absolute here since the supervisor's working directory may differ, or
@@ -18,20 +18,22 @@ pub fn swap(
     prefix: &Prefix,
     model: &str,
     timeout: Duration,
-) -> Result<ControlResponse, SupervisorError> {
+) -> Result<ControlResponse, ControlError> {
     let spec = if mapper::model::is_builtin(model) {
         model.to_owned()
     } else {
         let p = Path::new(model);
-        let abs = std::fs::canonicalize(p)
-            .map_err(|e| SupervisorError::Graph(format!("model file {model}: {e}")))?;
+        let abs = std::fs::canonicalize(p).map_err(|source| ControlError::ModelFile {
+            model: model.to_owned(),
+            source,
+        })?;
         abs.display().to_string()
     };
     if spec.len() > ipc_types::control::TEXT_CAP {
-        return Err(SupervisorError::Graph(format!(
-            "model path {spec} is longer than {} bytes",
-            ipc_types::control::TEXT_CAP
-        )));
+        return Err(ControlError::ModelPathTooLong {
+            spec,
+            cap: ipc_types::control::TEXT_CAP,
+        });
     }
     let graph = Graph::join(prefix, &format!("swap-{}", std::process::id()))?;
     let req = ControlRequest {
@@ -51,7 +53,7 @@ pub fn estop(
     transport: ipc_types::Transport,
     action: u32,
     timeout: Duration,
-) -> Result<Option<u32>, SupervisorError> {
+) -> Result<Option<u32>, ControlError> {
     use ipc_types::control::{EstopCommand, estop_action};
     let graph = Graph::join_with(prefix, &format!("estop-{}", std::process::id()), transport)?;
     let status = graph.status_subscriber()?;
@@ -62,7 +64,7 @@ pub fn estop(
             action,
             source_pid: std::process::id(),
         })
-        .map_err(|e| SupervisorError::Graph(format!("cannot send the e-stop command: {e}")))?;
+        .map_err(ControlError::SendEstop)?;
     let want = action == estop_action::ESTOP;
     let sent = now_ns();
     let t0 = Instant::now();
@@ -190,7 +192,7 @@ pub fn status(
     transport: ipc_types::Transport,
     listen: Duration,
     box_names: &[String],
-) -> Result<GraphStatus, SupervisorError> {
+) -> Result<GraphStatus, ControlError> {
     let me = format!("status-{}", std::process::id());
     let graph = Graph::join_with(prefix, &me, transport)?;
     let sub = graph.status_subscriber()?;

@@ -1,0 +1,35 @@
+//! Talking to a running graph from outside it, for the commands and observers that are not
+//! its control path: [`control`] (`scl swap`, `scl status`, `scl estop` / `scl reset`, and
+//! the dashboard's keys) and [`process`] (what each process of the graph runs, read from
+//! `/proc` and written into a recording by `scl record` and `scl live`).
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod control;
+pub mod process;
+
+/// Why a control request to a running graph failed, with the message a user sees.
+#[derive(Debug, thiserror::Error)]
+pub enum ControlError {
+    /// Shared-memory transport failure.
+    #[error(transparent)]
+    Ipc(#[from] ipc_types::IpcError),
+    /// The model file of a swap cannot be found.
+    #[error("model file {model}: {source}")]
+    ModelFile {
+        /// The model as given.
+        model: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The model path of a swap does not fit a control request.
+    #[error("model path {spec} is longer than {cap} bytes")]
+    ModelPathTooLong {
+        /// The absolute path.
+        spec: String,
+        /// The request's text capacity.
+        cap: usize,
+    },
+    /// The e-stop command could not be sent.
+    #[error("cannot send the e-stop command: {0}")]
+    SendEstop(#[source] iceoryx2::port::SendError),
+}

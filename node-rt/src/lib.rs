@@ -1,0 +1,8 @@
+//! What a process of an SCL graph does about time: its real-time set-up along the control
+//! path ([`rt`]: SCHED_FIFO, memory locking, CPU pinning, CPU DMA latency, from the graph
+//! TOML's `[graph]` table) and the latency percentiles the supervisor, the benchmark and the
+//! dashboard report ([`stats`]). The stop flag every loop polls is `transport::signals`.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
+
+pub mod rt;
+pub mod stats;

@@ -1,0 +1,246 @@
+//! The workspace's dependency rules, read from `cargo metadata` (in the spirit of
+//! rust-analyzer's tidy tests): a forbidden edge fails this test, naming it.
+//!
+//! The crates fall in four groups, by where their manifest lies:
+//!
+//! * **the command line**: `cli/` (package `scl`, the `scl` binary): the top. It may depend
+//!   on every crate.
+//! * **services**: the crates under `services/`, one per process or tool of the `scl`
+//!   command (`scl-joystick`, `scl-mapper-node`, `scl-safety-node`, `scl-bridge-node`,
+//!   `scl-supervisor`, `scl-recorder`, `scl-live`, `scl-dashboard`, `scl-bench`,
+//!   `scl-study`).
+//! * **the whole-graph tests**: `tests/` (package `scl-tests`): beside the top; it runs the
+//!   `scl` binary and links libraries only.
+//! * **libraries**: every other crate (`ipc-types`, `transport`, `scl-config`, `node-rt`,
+//!   `graph-client`, `kinematics`, `mapper`, `safety`, `hw-bridge`, `recording`, `replay`,
+//!   `viz`, `learning`, `study`, `test-support`).
+//!
+//! The rules (every kind of dependency counts: normal, build and dev):
+//!
+//! 1. No crate depends on the command line, and none on the whole-graph tests.
+//! 2. No service depends on another service: what two services share moves down into a
+//!    library.
+//! 3. No library depends on a service (nor the whole-graph tests on one).
+//! 4. `ipc-types` (the messages) depends on no other crate of the workspace except
+//!    `test-support` for its tests, and not on `iceoryx2`: the messages are apart from the
+//!    transport.
+//! 5. `ipc-types`, `recording` and `viz` do not link `iceoryx2`: no crate they depend on
+//!    (directly or not, normal dependencies) depends on it or on `transport`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Where a crate sits in the workspace.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Group {
+    Cli,
+    Service,
+    Tests,
+    Library,
+}
+
+/// One workspace crate and its dependencies on crates of the workspace or `iceoryx2`.
+#[derive(Debug)]
+struct Krate {
+    group: Group,
+    /// (dependency, kind: "normal", "dev" or "build").
+    deps: Vec<(String, String)>,
+}
+
+/// The crates that must not link iceoryx2.
+const NO_ICEORYX2: &[&str] = &["ipc-types", "recording", "viz"];
+
+fn workspace() -> BTreeMap<String, Krate> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
+        .current_dir(&root)
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("metadata is JSON");
+    let root = PathBuf::from(meta["workspace_root"].as_str().expect("workspace_root"));
+    let packages = meta["packages"].as_array().expect("packages");
+    let names: BTreeSet<&str> = packages.iter().filter_map(|p| p["name"].as_str()).collect();
+    let mut crates = BTreeMap::new();
+    for p in packages {
+        let name = p["name"].as_str().expect("name").to_owned();
+        let manifest = PathBuf::from(p["manifest_path"].as_str().expect("manifest_path"));
+        let dir = manifest
+            .parent()
+            .and_then(|d| d.strip_prefix(&root).ok())
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        let group = if dir == Path::new("cli") {
+            Group::Cli
+        } else if dir == Path::new("tests") {
+            Group::Tests
+        } else if dir.starts_with("services") {
+            Group::Service
+        } else {
+            Group::Library
+        };
+        let deps = p["dependencies"]
+            .as_array()
+            .expect("dependencies")
+            .iter()
+            .filter_map(|d| {
+                let dep = d["name"].as_str()?;
+                (names.contains(dep) || dep == "iceoryx2").then(|| {
+                    let kind = d["kind"].as_str().unwrap_or("normal").to_owned();
+                    (dep.to_owned(), kind)
+                })
+            })
+            .collect();
+        crates.insert(name, Krate { group, deps });
+    }
+    crates
+}
+
+/// Every edge that breaks rules 1 to 4.
+fn forbidden_edges(crates: &BTreeMap<String, Krate>) -> Vec<String> {
+    let mut bad = Vec::new();
+    for (name, k) in crates {
+        for (dep, kind) in &k.deps {
+            let edge = format!("{name} -> {dep} ({kind})");
+            if dep == "iceoryx2" {
+                if name == "ipc-types" {
+                    bad.push(format!(
+                        "{edge}: the messages do not depend on the transport"
+                    ));
+                }
+                continue;
+            }
+            let to = crates[dep].group;
+            match (k.group, to) {
+                (_, Group::Cli) => bad.push(format!("{edge}: nothing depends on the command line")),
+                (_, Group::Tests) => bad.push(format!("{edge}: nothing depends on the tests")),
+                (Group::Service, Group::Service) => bad.push(format!(
+                    "{edge}: a service depends on no other service; move what they share into a library"
+                )),
+                (Group::Library | Group::Tests, Group::Service) => {
+                    bad.push(format!("{edge}: a library depends on no service"));
+                }
+                _ => {}
+            }
+            if name == "ipc-types" && dep != "test-support" {
+                bad.push(format!(
+                    "{edge}: the messages depend on no other crate of the workspace"
+                ));
+            }
+        }
+    }
+    bad
+}
+
+/// The crates `name` links (normal dependencies, transitively), `name` included.
+fn links(crates: &BTreeMap<String, Krate>, name: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![name.to_owned()];
+    while let Some(n) = stack.pop() {
+        if !seen.insert(n.clone()) {
+            continue;
+        }
+        if let Some(k) = crates.get(&n) {
+            stack.extend(
+                k.deps
+                    .iter()
+                    .filter(|(_, kind)| kind == "normal")
+                    .map(|(d, _)| d.clone()),
+            );
+        }
+    }
+    seen
+}
+
+#[test]
+fn dependencies_point_down() {
+    let crates = workspace();
+    assert!(
+        crates
+            .values()
+            .filter(|k| k.group == Group::Service)
+            .count()
+            >= 8,
+        "the services were not found under services/: {:?}",
+        crates.keys().collect::<Vec<_>>()
+    );
+    assert_eq!(
+        crates.values().filter(|k| k.group == Group::Cli).count(),
+        1,
+        "the command line crate was not found at cli/"
+    );
+    let bad = forbidden_edges(&crates);
+    assert!(
+        bad.is_empty(),
+        "forbidden dependencies:\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn messages_recording_and_viz_do_not_link_iceoryx2() {
+    let crates = workspace();
+    for name in NO_ICEORYX2 {
+        assert!(crates.contains_key(*name), "no crate {name}");
+        let linked = links(&crates, name);
+        assert!(
+            !linked.contains("iceoryx2") && !linked.contains("transport"),
+            "{name} links iceoryx2 (through {:?})",
+            linked
+                .iter()
+                .filter(|c| crates
+                    .get(*c)
+                    .is_some_and(|k| k.deps.iter().any(|(d, _)| d == "iceoryx2")))
+                .collect::<Vec<_>>()
+        );
+    }
+}
+
+#[test]
+fn the_rules_catch_a_forbidden_edge() {
+    let k = |group, deps: &[&str]| Krate {
+        group,
+        deps: deps
+            .iter()
+            .map(|d| ((*d).to_owned(), "normal".to_owned()))
+            .collect(),
+    };
+    let mut crates = BTreeMap::new();
+    crates.insert("scl".to_owned(), k(Group::Cli, &["a", "lib"]));
+    crates.insert("a".to_owned(), k(Group::Service, &["b", "lib"]));
+    crates.insert("b".to_owned(), k(Group::Service, &[]));
+    crates.insert("lib".to_owned(), k(Group::Library, &["b", "scl"]));
+    crates.insert(
+        "ipc-types".to_owned(),
+        k(Group::Library, &["iceoryx2", "lib"]),
+    );
+    let bad = forbidden_edges(&crates);
+    assert_eq!(bad.len(), 5, "{bad:#?}");
+    for edge in [
+        "a -> b",
+        "lib -> b",
+        "lib -> scl",
+        "ipc-types -> iceoryx2",
+        "ipc-types -> lib",
+    ] {
+        assert!(
+            bad.iter().any(|e| e.starts_with(edge)),
+            "{edge} not caught: {bad:#?}"
+        );
+    }
+    assert!(links(&crates, "ipc-types").contains("iceoryx2"));
+    assert!(!links(&crates, "b").contains("iceoryx2"));
+}
