@@ -6,11 +6,11 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use ipc_types::Prefix;
-use ipc_types::signals;
 use learning::train::TrainConfig;
 use mapper::model::ModelKind;
 use scl::SclError;
 use scl_config::GraphConfig;
+use transport::signals;
 
 /// Teleoperate a 6-joint arm with a 2-axis joystick through a learned action map.
 ///

@@ -6,8 +6,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ipc_types::control::{ControlRequest, ControlResponse, Text, request_kind};
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
+use ipc_types::{NodeRole, NodeStatus, Prefix, SafeCommand, phase, time::now_ns};
 use serde::Serialize;
+use transport::Graph;
 
 use crate::ControlError;
 

@@ -12,7 +12,7 @@ pub mod process;
 pub enum ControlError {
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The model file of a swap cannot be found.
     #[error("model file {model}: {source}")]
     ModelFile {

@@ -5,16 +5,16 @@
 //!   limits, with a first-order gripper, and injectable command latency and drops.
 //! * [`kortex`]: the Kortex client for the Gen3 lite ([`kortex::KortexArm`]) and a fake robot
 //!   speaking the same protocol on loopback ([`kortex::FakeKortex`]).
-//! * [`core::BridgeCore`]: the pure tick logic: publish the state of tick k, execute only the
+//! * [`tick::BridgeCore`]: the pure tick logic: publish the state of tick k, execute only the
 //!   command for tick k, count a miss and start a controlled stop otherwise.
 //! * [`clock`]: the graph's only clock, an absolute-deadline timer, and the real-time settings
 //!   (SCHED_FIFO, mlockall) the bridge asks for.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod clock;
-pub mod core;
 pub mod kortex;
 pub mod mock;
+pub mod tick;
 
 /// What a robot reports at the start of a tick.
 #[derive(Debug, Clone, Copy, PartialEq)]

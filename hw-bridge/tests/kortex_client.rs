@@ -11,12 +11,12 @@ use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::time::{Duration, Instant};
 
-use hw_bridge::core::BridgeCore;
 use hw_bridge::kortex::wire::{Decoded, Frame, FrameDecoder, FrameType, RobotFault};
 use hw_bridge::kortex::{
     Credentials, FakeConfig, FakeKortex, Fault, Function, KortexArm, KortexConfig, KortexError,
     gripper_position_msg, joint_speeds_msg, msg,
 };
+use hw_bridge::tick::BridgeCore;
 use hw_bridge::{Robot, RobotError};
 use ipc_types::{MAX_JOINTS, NO_TICK, SafeCommand, state_flags};
 use kinematics::gen3_lite;

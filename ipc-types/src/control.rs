@@ -1,17 +1,13 @@
-//! The graph's control plane: requests to the supervisor (`scl swap`) over an iceoryx2
-//! request-response service, and the active-mapper switch that the supervisor sends to safety.
+//! The graph's control plane's messages: requests to the supervisor (`scl swap`, carried by
+//! an iceoryx2 request-response service that `transport::control` opens), the e-stop
+//! commands, and the active-mapper switch that the supervisor sends to safety.
 //!
 //! Messages are fixed-size like every other message; text (a model path, a refusal reason)
 //! travels in fixed byte arrays with an explicit length.
 
-use core::time::Duration;
-
-use iceoryx2::port::client::Client;
-use iceoryx2::port::server::Server;
-use iceoryx2::prelude::*;
+use iceoryx2_bb_derive_macros::ZeroCopySend;
+use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
-
-use crate::graph::{Graph, Ipc, IpcError, TopicSubscriber};
 
 /// Capacity of the text fields of control messages (bytes).
 pub const TEXT_CAP: usize = 512;
@@ -84,6 +80,15 @@ pub mod estop_action {
     pub const ESTOP: u32 = 1;
     /// Release a latched e-stop.
     pub const RESET: u32 = 2;
+
+    /// The codes for an `x-value-names` annotation of the JSON schema.
+    #[cfg(feature = "json")]
+    pub fn names() -> std::collections::BTreeMap<String, String> {
+        [(ESTOP, "estop"), (RESET, "reset")]
+            .into_iter()
+            .map(|(v, n)| (v.to_string(), n.to_owned()))
+            .collect()
+    }
 }
 
 /// `scl estop` / `scl reset`: latches or releases safety's e-stop. The supervisor relays the
@@ -100,7 +105,7 @@ pub struct EstopCommand {
     /// When it was sent (monotonic ns).
     pub t_ns: u64,
     /// [`estop_action`] value.
-    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::estop_action_names())))]
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = estop_action::names())))]
     pub action: u32,
     /// Process id of the sender.
     pub source_pid: u32,
@@ -110,7 +115,7 @@ pub struct EstopCommand {
 pub const ESTOP: &str = "estop";
 
 /// Settings of the [`EstopCommand`] topic.
-pub const ESTOP_TOPIC: crate::graph::TopicSettings = crate::graph::TopicSettings {
+pub const ESTOP_TOPIC: crate::topics::TopicSettings = crate::topics::TopicSettings {
     name: ESTOP,
     history: 1,
     buffer: 8,
@@ -180,7 +185,7 @@ impl ControlResponse {
 pub const SAFETY_CONTROL: &str = "safety_control";
 
 /// Settings of the [`SafetyControl`] topic: the newest switch kept for a restarted safety.
-pub const SAFETY_CONTROL_TOPIC: crate::graph::TopicSettings = crate::graph::TopicSettings {
+pub const SAFETY_CONTROL_TOPIC: crate::topics::TopicSettings = crate::topics::TopicSettings {
     name: SAFETY_CONTROL,
     history: 1,
     buffer: 8,
@@ -189,200 +194,6 @@ pub const SAFETY_CONTROL_TOPIC: crate::graph::TopicSettings = crate::graph::Topi
 };
 /// Service name of the supervisor's request-response service.
 pub const SUPERVISOR: &str = "supervisor";
-
-type ControlFactory = iceoryx2::service::port_factory::request_response::PortFactory<
-    Ipc,
-    ControlRequest,
-    (),
-    ControlResponse,
-    (),
->;
-
-/// The supervisor's end of the control service.
-pub type ControlServer = Server<Ipc, ControlRequest, (), ControlResponse, ()>;
-/// A client's end of the control service.
-pub type ControlClient = Client<Ipc, ControlRequest, (), ControlResponse, ()>;
-/// A request the server holds until it answers it (`send_copy` the response).
-pub type ActiveControlRequest =
-    iceoryx2::active_request::ActiveRequest<Ipc, ControlRequest, (), ControlResponse, ()>;
-/// A publisher of e-stop commands.
-pub type EstopPublisher = iceoryx2::port::publisher::Publisher<Ipc, EstopCommand, ()>;
-/// Safety's subscriber of e-stop commands.
-pub type EstopSubscriber = iceoryx2::port::subscriber::Subscriber<Ipc, EstopCommand, ()>;
-/// The supervisor's publisher of active-mapper switches.
-pub type SafetyControlPublisher = iceoryx2::port::publisher::Publisher<Ipc, SafetyControl, ()>;
-
-impl Graph {
-    fn safety_control_service(
-        &self,
-    ) -> Result<
-        (
-            String,
-            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, SafetyControl, ()>,
-        ),
-        IpcError,
-    > {
-        self.pubsub(&SAFETY_CONTROL_TOPIC)
-    }
-
-    /// Publisher of active-mapper switches (the supervisor).
-    pub fn safety_control_publisher(&self) -> Result<SafetyControlPublisher, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "publisher",
-            reason: e.to_string(),
-        })
-    }
-
-    /// Subscriber of active-mapper switches (safety); receives the newest switch at once.
-    pub fn safety_control_subscriber(
-        &self,
-    ) -> Result<iceoryx2::port::subscriber::Subscriber<Ipc, SafetyControl, ()>, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        f.subscriber_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "subscriber",
-            reason: e.to_string(),
-        })
-    }
-
-    /// A read-only observer of the active-mapper switches (recorder, dashboard): the same
-    /// topic as [`Graph::safety_control_subscriber`], drained like any other topic.
-    pub fn safety_control_observer(&self) -> Result<TopicSubscriber<SafetyControl>, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        let sub = f
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::Port {
-                service: service.clone(),
-                port: "subscriber",
-                reason: e.to_string(),
-            })?;
-        Ok(TopicSubscriber::without_listener(service, sub))
-    }
-
-    fn estop_service(
-        &self,
-    ) -> Result<
-        (
-            String,
-            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, EstopCommand, ()>,
-        ),
-        IpcError,
-    > {
-        self.pubsub(&ESTOP_TOPIC)
-    }
-
-    /// A publisher of e-stop commands. Keep it alive until the command took effect: a sample
-    /// of a publisher that is gone is not delivered.
-    pub fn estop_publisher(&self) -> Result<EstopPublisher, IpcError> {
-        let (service, f) = self.estop_service()?;
-        f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "publisher",
-            reason: e.to_string(),
-        })
-    }
-
-    /// Subscriber of e-stop commands (safety); receives the newest at once.
-    pub fn estop_subscriber(&self) -> Result<EstopSubscriber, IpcError> {
-        let (service, f) = self.estop_service()?;
-        f.subscriber_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "subscriber",
-            reason: e.to_string(),
-        })
-    }
-
-    /// A read-only observer of e-stop commands (recorder).
-    pub fn estop_observer(&self) -> Result<TopicSubscriber<EstopCommand>, IpcError> {
-        let (service, f) = self.estop_service()?;
-        let sub = f
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::Port {
-                service: service.clone(),
-                port: "subscriber",
-                reason: e.to_string(),
-            })?;
-        Ok(TopicSubscriber::without_listener(service, sub))
-    }
-
-    fn control_service(&self) -> Result<(String, ControlFactory), IpcError> {
-        let full = self.prefix().service(SUPERVISOR);
-        let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
-            service: full.clone(),
-            reason: format!("{e:?}"),
-        })?;
-        let f = self
-            .node()
-            .service_builder(&name)
-            .request_response::<ControlRequest, ControlResponse>()
-            .max_servers(1)
-            .max_clients(8)
-            .max_active_requests_per_client(1)
-            .max_response_buffer_size(2)
-            .open_or_create()
-            .map_err(|e| IpcError::Open {
-                service: full.clone(),
-                reason: e.to_string(),
-            })?;
-        Ok((full, f))
-    }
-
-    /// The supervisor's server; there is one per graph.
-    pub fn control_server(&self) -> Result<ControlServer, IpcError> {
-        let (service, f) = self.control_service()?;
-        f.server_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "server",
-            reason: e.to_string(),
-        })
-    }
-
-    /// Sends `req` to the graph's supervisor and waits up to `timeout` for the answer.
-    pub fn request(
-        &self,
-        req: ControlRequest,
-        timeout: Duration,
-    ) -> Result<ControlResponse, IpcError> {
-        let (service, f) = self.control_service()?;
-        let io = |op: &'static str, reason: String| IpcError::Io {
-            service: service.clone(),
-            op,
-            reason,
-        };
-        if f.dynamic_config().number_of_servers() == 0 {
-            return Err(io(
-                "request",
-                "no supervisor is serving this graph (is `scl up` running with this prefix?)"
-                    .into(),
-            ));
-        }
-        let client: ControlClient = f.client_builder().create().map_err(|e| IpcError::Port {
-            service: service.clone(),
-            port: "client",
-            reason: e.to_string(),
-        })?;
-        let pending = client
-            .send_copy(req)
-            .map_err(|e| io("send", e.to_string()))?;
-        let t0 = std::time::Instant::now();
-        loop {
-            if let Some(r) = pending
-                .receive()
-                .map_err(|e| io("receive", e.to_string()))?
-            {
-                return Ok(*r.payload());
-            }
-            if t0.elapsed() > timeout {
-                return Err(io("request", format!("no answer within {timeout:?}")));
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    }
-}
 
 #[cfg(test)]
 mod tests {

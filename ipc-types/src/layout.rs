@@ -18,12 +18,12 @@ use crate::control::{
     ControlRequest, ControlResponse, ESTOP_TOPIC, EstopCommand, SAFETY_CONTROL_TOPIC, SUPERVISOR,
     SafetyControl, TEXT_CAP, Text,
 };
-use crate::graph::{
-    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
-};
 use crate::msg::{
     ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState,
     SafeCommand, TickReport, buttons, mapper_flags, safe_flags, safety_state, state_flags,
+};
+use crate::topics::{
+    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
 };
 
 /// The type of a message field as bindings spell it: `u64`, `f32`, `[f64; 8]`, or the name
@@ -155,7 +155,7 @@ macro_rules! layout {
         TypeLayout {
             name: stringify!($t),
             // SAFETY: `type_name` only returns the string given to the derive.
-            type_name: unsafe { <$t as iceoryx2::prelude::ZeroCopySend>::type_name() },
+            type_name: unsafe { <$t as iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend>::type_name() },
             size: size_of::<$t>(),
             align: align_of::<$t>(),
             fields: vec![$(field(stringify!($f), core::mem::offset_of!($t, $f), |v: &$t| &v.$f)),*],

@@ -2,7 +2,7 @@
 //!
 //! Every message is fixed-size, `Copy`, `#[repr(C)]`, free of pointers and of padding (a gap
 //! is an explicit `reserved` field, always 0; the `zerocopy` derives refuse a message with
-//! padding or with invalid bit patterns at compile time, so [`crate::uds`] can send its
+//! padding or with invalid bit patterns at compile time, so `transport::uds` can send its
 //! bytes), and carries
 //! * the tick it belongs to (the bridge's clock is the only clock; see [`RobotState::tick`]),
 //! * `t_ns`, the monotonic time at which it was produced ([`crate::time::now_ns`]),
@@ -12,7 +12,11 @@
 //! its own. Type names are stable strings (`scl::RobotState`), so separately built binaries
 //! connect. Joint arrays are sized by [`MAX_JOINTS`] with an explicit count.
 
-use iceoryx2::prelude::ZeroCopySend;
+#[cfg(feature = "json")]
+pub mod json;
+
+use iceoryx2_bb_derive_macros::ZeroCopySend;
+use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
 /// Capacity of every joint array. The Gen3 lite uses 6.
@@ -56,8 +60,8 @@ pub struct JoystickInput {
     /// ([`NO_TICK`] before the first; `null` in JSON).
     #[cfg_attr(
         feature = "json",
-        serde(with = "crate::json::tick"),
-        schemars(with = "crate::json::tick::Schema")
+        serde(with = "crate::msg::json::tick"),
+        schemars(with = "crate::msg::json::tick::Schema")
     )]
     pub tick: u64,
     /// When the device was read (monotonic ns).
@@ -131,8 +135,8 @@ pub struct RobotState {
     /// [`NO_TICK`] (`null` in JSON) if the bridge executed a stop instead.
     #[cfg_attr(
         feature = "json",
-        serde(with = "crate::json::tick"),
-        schemars(with = "crate::json::tick::Schema")
+        serde(with = "crate::msg::json::tick"),
+        schemars(with = "crate::msg::json::tick::Schema")
     )]
     pub applied_tick: u64,
     /// Ticks missed since the bridge started (cumulative).
@@ -521,8 +525,8 @@ pub struct NodeStatus {
     /// Newest tick the node handled ([`NO_TICK`] before the first; `null` in JSON).
     #[cfg_attr(
         feature = "json",
-        serde(with = "crate::json::tick"),
-        schemars(with = "crate::json::tick::Schema")
+        serde(with = "crate::msg::json::tick"),
+        schemars(with = "crate::msg::json::tick::Schema")
     )]
     pub tick: u64,
     /// Ticks handled since the node started.
@@ -538,10 +542,10 @@ pub struct NodeStatus {
     /// Process id.
     pub pid: u32,
     /// [`NodeRole`] as u32.
-    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::role_names())))]
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::msg::json::role_names())))]
     pub role: u32,
     /// [`phase`] value.
-    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::json::phase_names())))]
+    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = crate::msg::json::phase_names())))]
     pub phase: u32,
     /// Mapper id (mappers: their own; safety and bridge: the active / last executed one).
     pub mapper_id: u32,
@@ -590,7 +594,6 @@ impl NodeStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use iceoryx2::prelude::ZeroCopySend;
 
     #[test]
     fn type_names_are_stable() {

@@ -15,7 +15,7 @@ use mapper::model::{self, EncoderKind, ModelKind, ObsInputs};
 use mapper::rng::Rng;
 
 use crate::ToolError;
-use ipc_types::signals;
+use transport::signals;
 
 /// Why writing a training artefact failed.
 #[derive(Debug, thiserror::Error)]

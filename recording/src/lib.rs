@@ -150,11 +150,11 @@ impl Topic {
     /// The topic's service name below the graph prefix (`robot_state`).
     pub fn name(self) -> &'static str {
         match self {
-            Topic::Joystick => ipc_types::graph::JOYSTICK.name,
-            Topic::RobotState => ipc_types::graph::ROBOT_STATE.name,
-            Topic::MapperCommand => ipc_types::graph::MAPPER_COMMAND.name,
-            Topic::SafeCommand => ipc_types::graph::SAFE_COMMAND.name,
-            Topic::Status => ipc_types::graph::STATUS.name,
+            Topic::Joystick => ipc_types::topics::JOYSTICK.name,
+            Topic::RobotState => ipc_types::topics::ROBOT_STATE.name,
+            Topic::MapperCommand => ipc_types::topics::MAPPER_COMMAND.name,
+            Topic::SafeCommand => ipc_types::topics::SAFE_COMMAND.name,
+            Topic::Status => ipc_types::topics::STATUS.name,
             Topic::SafetyControl => ipc_types::control::SAFETY_CONTROL,
             Topic::Estop => ipc_types::control::ESTOP,
         }

@@ -8,11 +8,9 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-use ipc_types::{
-    Graph, JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand,
-    TopicSubscriber,
-};
+use ipc_types::{JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand};
 pub use nix::sys::signal::Signal;
+use transport::{Graph, TopicSubscriber};
 
 /// Path of the `scl` binary of this build, built once per test process. `cargo test` does
 /// not build other packages' binaries for a test crate, so this asks cargo (a no-op when the
@@ -74,7 +72,7 @@ pub fn leftovers(prefix: &Prefix) -> Vec<String> {
 pub fn wait_clean(prefix: &Prefix, timeout: Duration) -> Vec<String> {
     let t0 = Instant::now();
     loop {
-        let _ = ipc_types::graph::release_domain(prefix);
+        let _ = transport::graph::release_domain(prefix);
         let left = leftovers(prefix);
         if left.is_empty() || t0.elapsed() > timeout {
             return left;
@@ -220,7 +218,7 @@ pub struct DomainGuard(pub Prefix);
 
 impl Drop for DomainGuard {
     fn drop(&mut self) {
-        let _ = ipc_types::graph::release_domain(&self.0);
+        let _ = transport::graph::release_domain(&self.0);
     }
 }
 

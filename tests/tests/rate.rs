@@ -8,8 +8,9 @@
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use ipc_types::{Graph, TickReport, state_flags};
+use ipc_types::{TickReport, state_flags};
 use scl_tests::{ChildGuard, DomainGuard, Recorder, scl_binary, serial, unique_prefix, wait_clean};
+use transport::Graph;
 
 const RATE_HZ: f64 = 500.0;
 const PERIOD_NS: u64 = 2_000_000;

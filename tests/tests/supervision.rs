@@ -645,7 +645,7 @@ fn ctrl_c_stops_the_bridge_first_and_leaves_nothing_behind() {
     assert!(summary["failure"].is_null(), "{summary}");
     assert!(summary["ticks"].as_u64().unwrap() > 40, "{summary}");
     // `scl up` left no dead process's resources behind; only the observer is still there.
-    assert_eq!(ipc_types::graph::cleanup_dead_nodes(&prefix).unwrap(), 0);
+    assert_eq!(transport::graph::cleanup_dead_nodes(&prefix).unwrap(), 0);
     drop(rec);
     assert_eq!(
         wait_clean(&prefix, Duration::from_secs(5)),

@@ -259,7 +259,7 @@ fn shm_finding() -> Finding {
     for g in &mut graphs {
         g.alive = ipc_types::Prefix::new(&g.prefix)
             .ok()
-            .and_then(|p| ipc_types::graph::census(&p).ok())
+            .and_then(|p| transport::graph::census(&p).ok())
             .map_or(0, |(alive, _)| alive);
     }
     graphs.sort_by(|a, b| a.prefix.cmp(&b.prefix));

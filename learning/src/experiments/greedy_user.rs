@@ -44,7 +44,7 @@ use super::reversibility::Check;
 use super::stats::{self, RankTests};
 use super::{CommonArgs, ExperimentError, Run, Variant};
 use crate::ToolError;
-use ipc_types::signals;
+use transport::signals;
 
 /// The paper's epochs for this experiment.
 pub const DEFAULT_EPOCHS: usize = 1000;

@@ -35,7 +35,7 @@ use crate::train::{self, Progress, TrainConfig};
 use mapper::model::{EncoderKind, ModelHeader, ModelKind};
 
 use crate::ToolError;
-use ipc_types::signals;
+use transport::signals;
 
 /// Why an experiment could not run.
 #[derive(Debug, thiserror::Error)]

@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use ipc_types::Transport;
-use ipc_types::signals;
 use serde::Serialize;
+use transport::signals;
 
 use crate::{BenchError, Dist, LatencyOptions, Machine, RtSettings, run_one};
 

@@ -23,7 +23,7 @@ pub enum BenchError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The graph or the process failed (a child died, a thread did not start, ...).
     #[error("{0}")]
     Graph(String),
@@ -33,13 +33,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use ipc_types::{Graph, Prefix, TickReport, Transport};
+use ipc_types::{Prefix, TickReport, Transport};
 use serde::Serialize;
+use transport::Graph;
 
-use ipc_types::signals;
 use ipc_types::stats::quantile;
 use node_rt::stats::sorted_us;
 use scl_config::GraphConfig;
+use transport::signals;
 
 pub mod headroom;
 pub mod proc_cpu;
@@ -561,8 +562,8 @@ pub(crate) fn run_one(
     drop(heartbeats);
     drop(reports);
     drop(graph);
-    let _ = ipc_types::graph::release_domain(&prefix);
-    ipc_types::uds::remove_graph(prefix.as_str());
+    let _ = transport::graph::release_domain(&prefix);
+    transport::uds::remove_graph(prefix.as_str());
     let realtime = std::fs::read_to_string(&log_path)
         .unwrap_or_default()
         .lines()

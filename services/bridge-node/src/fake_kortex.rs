@@ -13,7 +13,7 @@ use std::time::Duration;
 use hw_bridge::kortex::{CyclicMisread, FakeConfig, FakeKortex};
 
 use crate::BridgeNodeError;
-use ipc_types::signals;
+use transport::signals;
 
 /// Runs the fake robot on `127.0.0.1:port` (0: a free port) until SIGINT / SIGTERM, reading
 /// the cyclic command wrongly if `misread` says how. The first line on stdout is

@@ -21,7 +21,7 @@ pub enum BridgeNodeError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The robot failed (Kortex: connection, session, an error from the robot).
     #[error(transparent)]
     Robot(#[from] hw_bridge::RobotError),
@@ -40,17 +40,16 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use hw_bridge::clock::{Clock, Wake};
-use hw_bridge::core::{BridgeCore, MissReason, Outcome};
 use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
+use hw_bridge::tick::{BridgeCore, MissReason, Outcome};
 use hw_bridge::{Robot, RobotError};
-use ipc_types::{
-    Graph, NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns,
-};
+use ipc_types::{NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns};
 use serde::Deserialize;
+use transport::Graph;
 
-use ipc_types::signals;
 use scl_config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
+use transport::signals;
 
 /// Environment variable with the Kortex user name (`scl bridge --user`).
 pub const USER_ENV: &str = "SCL_KORTEX_USER";

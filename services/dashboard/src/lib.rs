@@ -18,8 +18,8 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use ipc_types::{
-    Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, buttons,
-    phase, safe_flags, safety_state, time::now_ns,
+    JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, buttons, phase,
+    safe_flags, safety_state, time::now_ns,
 };
 use kinematics::{ArmLimits, RobotProfile};
 use ratatui::Frame;
@@ -29,6 +29,7 @@ use ratatui::symbols::Marker;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::canvas::{Canvas, Circle};
 use ratatui::widgets::{Block, Borders, Paragraph};
+use transport::Graph;
 
 use node_rt::stats::{Percentiles, percentiles_us};
 
@@ -71,7 +72,7 @@ pub enum TopError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// An e-stop or reset request failed.
     #[error(transparent)]
     Control(#[from] graph_client::ControlError),
@@ -848,10 +849,10 @@ pub fn render_text(v: &View, width: u16, height: u16) -> Result<Vec<String>, Top
 
 /// The dashboard's read-only subscriptions.
 struct Feed {
-    status: ipc_types::TopicSubscriber<NodeStatus>,
-    states: ipc_types::TopicSubscriber<RobotState>,
-    joystick: ipc_types::TopicSubscriber<JoystickInput>,
-    safe: ipc_types::TopicSubscriber<SafeCommand>,
+    status: transport::TopicSubscriber<NodeStatus>,
+    states: transport::TopicSubscriber<RobotState>,
+    joystick: transport::TopicSubscriber<JoystickInput>,
+    safe: transport::TopicSubscriber<SafeCommand>,
     graph: Graph,
 }
 
@@ -949,7 +950,7 @@ fn run_terminal(
     let mut pending: Vec<std::sync::mpsc::Receiver<String>> = Vec::new();
     let mut last_alive = Instant::now() - Duration::from_secs(10);
     let result = (|| -> Result<(), TopError> {
-        while !ipc_types::signals::stop_requested() {
+        while !transport::signals::stop_requested() {
             feed.poll(&mut model)?;
             if last_alive.elapsed() >= Duration::from_secs(1) {
                 model.set_alive(feed.alive());

@@ -41,13 +41,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::Receiver;
-use ipc_types::graph::Wakeable;
 use ipc_types::{
-    Graph, JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, phase, time::now_ns,
+    JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, phase, time::now_ns,
 };
+use transport::Graph;
+use transport::graph::Wakeable;
 
-use ipc_types::signals;
 use scl_config::{ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole};
+use transport::signals;
 
 pub use script::Script;
 
@@ -86,7 +87,7 @@ pub enum JoystickError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// A file could not be read or written.
     #[error("{action} {path}: {source}")]
     File {
@@ -146,7 +147,7 @@ pub enum JoystickError {
 }
 
 /// An eventfd the source threads ring after handing something over; the loop waits on it
-/// beside the robot state's event ([`ipc_types::wait_any`]).
+/// beside the robot state's event ([`transport::wait_any`]).
 #[derive(Debug)]
 pub struct Waker {
     fd: EventFd,
@@ -578,10 +579,10 @@ pub fn run(
                     source_pid: std::process::id(),
                 })
                 .map_err(|e| {
-                    JoystickError::Ipc(ipc_types::IpcError::Io {
+                    JoystickError::Ipc(transport::IpcError::Io {
                         service: prefix.service(ipc_types::control::ESTOP),
                         op: "send",
-                        reason: e.to_string(),
+                        source: e.into(),
                     })
                 })?;
         }
@@ -619,7 +620,7 @@ pub fn run(
         match source.waker() {
             Some(w) => {
                 let wakes: [&dyn Wakeable; 2] = [&states, w];
-                ipc_types::wait_any(&wakes, timeout);
+                transport::wait_any(&wakes, timeout);
             }
             None => {
                 states.wait(timeout)?;
@@ -1036,12 +1037,12 @@ Event: time 1700000000.400000, -------------- SYN_REPORT ------------
     #[test]
     fn the_waker_wakes_a_wait() {
         let w = Waker::new().unwrap();
-        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_millis(1)), 0);
+        assert_eq!(transport::wait_any(&[&w], Duration::from_millis(1)), 0);
         w.notify();
         w.notify();
-        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_secs(5)), 1);
+        assert_eq!(transport::wait_any(&[&w], Duration::from_secs(5)), 1);
         // Consumed: quiet again.
-        assert_eq!(ipc_types::wait_any(&[&w], Duration::from_millis(1)), 0);
+        assert_eq!(transport::wait_any(&[&w], Duration::from_millis(1)), 0);
     }
 
     #[test]

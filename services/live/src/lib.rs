@@ -27,9 +27,10 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
 use graph_client::process::{self, ProcessSeen};
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, TopicSubscriber, signals};
+use ipc_types::{NodeRole, NodeStatus, Prefix};
 use recording::{Payload, SchemaInfo, Topic};
 use scl_config::GraphConfig;
+use transport::{Graph, TopicSubscriber, signals};
 use viz::{Viz, VizMessage, VizTopic};
 
 /// The address `scl live` and `scl up --live` listen on by default.
@@ -47,7 +48,7 @@ pub enum LiveError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The 3D view could not be set up.
     #[error(transparent)]
     Viz(#[from] viz::VizError),
@@ -363,7 +364,7 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let _ = view.join();
     drop(subs);
     drop(graph);
-    let _ = ipc_types::graph::release_domain(prefix);
+    let _ = transport::graph::release_domain(prefix);
     let _ = server.stop();
     rt.shutdown_timeout(Duration::from_secs(1));
     result?;

@@ -10,7 +10,7 @@ pub enum MapperNodeError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The model file is unusable.
     #[error(transparent)]
     Model(#[from] mapper::ModelError),
@@ -18,11 +18,12 @@ pub enum MapperNodeError {
 
 use std::time::Duration;
 
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::{NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use mapper::step::MapperStep;
+use transport::Graph;
 
-use ipc_types::signals;
 use scl_config::{FaultConfig, GraphSection, RtRole};
+use transport::signals;
 
 /// Runs the mapper process until a shutdown is requested.
 pub fn run(
@@ -58,7 +59,7 @@ pub fn run(
     // joystick publishes on change), the map runs on each robot state.
     let mut joy = None;
     let mut joy_rx_ns = 0;
-    let wakes: [&dyn ipc_types::graph::Wakeable; 2] = [&states, &joystick];
+    let wakes: [&dyn transport::graph::Wakeable; 2] = [&states, &joystick];
     // `rt_prewarm_us`: wake that long before the next state (the last one's time plus a
     // period) and warm the map once; a state or sample arriving meanwhile is handled as usual.
     let prewarm_ns = u64::from(graph_cfg.rt_prewarm_us) * 1000;
@@ -79,7 +80,7 @@ pub fn run(
             let at = l.t_ns + period_ns - prewarm_ns;
             let now = now_ns();
             if now < at {
-                let w = ipc_types::wait_any(&wakes, Duration::from_nanos(at - now));
+                let w = transport::wait_any(&wakes, Duration::from_nanos(at - now));
                 if w == 0 {
                     let n = (l.n_joints as usize).min(ipc_types::MAX_JOINTS);
                     step.warm(l, &mut warm_out[..n]);
@@ -91,7 +92,7 @@ pub fn run(
         }
         let woke = match woke_pre {
             Some(w) => w,
-            None => ipc_types::wait_any(&wakes, Duration::from_millis(100)),
+            None => transport::wait_any(&wakes, Duration::from_millis(100)),
         };
         let rx_ns = now_ns();
         if let Some(j) = joystick.latest()? {

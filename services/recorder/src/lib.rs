@@ -26,7 +26,7 @@ pub enum RecorderError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// A recording could not be written, read or recovered.
     #[error(transparent)]
     Record(#[from] recording::RecordError),
@@ -48,13 +48,12 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
-use ipc_types::{
-    Graph, NO_TICK, NodeRole, NodeStatus, Prefix, TopicSubscriber, phase, time::now_ns,
-};
+use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use serde::Serialize;
+use transport::{Graph, TopicSubscriber};
 
-use ipc_types::signals;
 use recording::{self, LogWriter, Payload, RecordError, Topic};
+use transport::signals;
 
 /// How often the writer closes a chunk: the most a crash of the recorder loses.
 pub const FLUSH_EVERY: Duration = Duration::from_secs(1);
@@ -647,7 +646,7 @@ fn start_metadata(prefix: &Prefix, topics: &[Topic]) -> BTreeMap<String, String>
 /// The recorder, set up and listening.
 struct Running {
     subs: Subscriptions,
-    heartbeat: ipc_types::TopicPublisher<NodeStatus>,
+    heartbeat: transport::TopicPublisher<NodeStatus>,
     producer: Producer,
     tally: Arc<Tally>,
     writer: JoinHandle<WriterOutcome>,
@@ -763,7 +762,7 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
     });
     drop((subs, heartbeat, graph));
     // If this was the last process of the graph, leave nothing in shared memory.
-    let _ = ipc_types::graph::release_domain(prefix);
+    let _ = transport::graph::release_domain(prefix);
     loop_result?;
     let topics = tally.counts(&opts.topics);
     Ok(RecordReport {

@@ -11,7 +11,7 @@ pub enum SafetyNodeError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The graph or the process failed (a child died, a thread did not start, ...).
     #[error("{0}")]
     Graph(String),
@@ -19,11 +19,12 @@ pub enum SafetyNodeError {
 
 use std::time::Duration;
 
-use ipc_types::{Graph, NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use safety::{SafetyConfig, SafetyFilter};
+use transport::Graph;
 
-use ipc_types::signals;
 use scl_config::{FaultConfig, GraphSection, RtRole};
+use transport::signals;
 
 /// Without a command for this long (ns) the graph has stopped sending them: the arm will
 /// wait for neutral input when they resume (safety's own gap check says so too, at the next
@@ -81,10 +82,10 @@ pub fn run(
     let mut estop_seq = 0;
     let mut apply_control = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
         while let Some(c) = control.receive().map_err(|e| {
-            SafetyNodeError::Ipc(ipc_types::IpcError::Io {
+            SafetyNodeError::Ipc(transport::IpcError::Io {
                 service: prefix.service(ipc_types::control::SAFETY_CONTROL),
                 op: "receive",
-                reason: e.to_string(),
+                source: e.into(),
             })
         })? {
             tracing::info!(
@@ -109,10 +110,10 @@ pub fn run(
     };
     let apply_estop = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
         while let Some(e) = estops.receive().map_err(|e| {
-            SafetyNodeError::Ipc(ipc_types::IpcError::Io {
+            SafetyNodeError::Ipc(transport::IpcError::Io {
                 service: prefix.service(ipc_types::control::ESTOP),
                 op: "receive",
-                reason: e.to_string(),
+                source: e.into(),
             })
         })? {
             match e.action {

@@ -26,9 +26,10 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender};
-use ipc_types::{Graph, NodeRole, NodeStatus, Prefix, RobotState, TopicSubscriber};
+use ipc_types::{NodeRole, NodeStatus, Prefix, RobotState};
 use study::data::{self, AnswerRow, Appender, Outcome, Progress, TrialRow};
 use study::plan::{Participant, Question, Study};
+use transport::{Graph, TopicSubscriber};
 
 pub mod simlive;
 
@@ -40,7 +41,7 @@ pub enum StudyRunError {
     Study(#[from] study::StudyError),
     /// The graph's shared memory.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// A swap or the graph refused.
     #[error(transparent)]
     Control(#[from] graph_client::ControlError),
@@ -448,7 +449,7 @@ impl Protocol<'_> {
     /// it for the prompt that does.
     fn peek(&mut self) -> Result<Option<Key>, StudyRunError> {
         self.live.poll()?;
-        if ipc_types::signals::stop_requested() {
+        if transport::signals::stop_requested() {
             return Ok(Some(Key::Abort));
         }
         if self.front.is_some() {
@@ -1265,7 +1266,7 @@ pub fn simulate(
                             dir,
                             only,
                             &|| bar.inc(1),
-                            &ipc_types::signals::stop_requested,
+                            &transport::signals::stop_requested,
                             &|setup, _| study::simulate::run_attempt(setup),
                         )
                     })
@@ -1285,7 +1286,7 @@ pub fn simulate(
                     dir,
                     only,
                     &|| bar.inc(1),
-                    &ipc_types::signals::stop_requested,
+                    &transport::signals::stop_requested,
                     &|setup, info| runner.attempt(setup, info),
                 );
                 let failed = r.is_err();

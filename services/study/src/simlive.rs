@@ -10,12 +10,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use ipc_types::graph::Graph;
 use ipc_types::time::now_ns;
-use ipc_types::{NodeRole, Prefix, signals};
+use ipc_types::{NodeRole, Prefix};
 use scl_config::GraphConfig;
 use study::data::Outcome;
 use study::simulate::{Answer, AttemptDriver, AttemptInfo, AttemptResult, AttemptSetup, SimError};
+use transport::graph::Graph;
+use transport::signals;
 
 /// What disturbed one live attempt, counted in the graph's messages: the in-process path and
 /// the live one agree tick for tick only while all of these stay 0. A row of
@@ -85,7 +86,7 @@ impl LiveSim {
     /// prefix runs already.
     pub fn new(base: &GraphConfig, prefix: &Prefix, dir: &Path) -> Result<Self, SimError> {
         let prefix = live_prefix(prefix)?;
-        let (alive, _) = ipc_types::graph::census(&prefix)
+        let (alive, _) = transport::graph::census(&prefix)
             .map_err(|e| SimError::Live(format!("graph `{prefix}`: {e}")))?;
         if alive > 0 {
             return Err(SimError::Live(format!(
@@ -267,8 +268,8 @@ impl LiveSim {
         let result = run();
         let stopped = up.stop();
         drop((states, status, commands, joystick, graph));
-        let _ = ipc_types::graph::release_domain(&self.prefix);
-        ipc_types::uds::remove_graph(self.prefix.as_str());
+        let _ = transport::graph::release_domain(&self.prefix);
+        transport::uds::remove_graph(self.prefix.as_str());
         let r = result?;
         stopped?;
         let (b0, b1) = bridge_at_start.unwrap_or_default();

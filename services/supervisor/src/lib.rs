@@ -15,7 +15,7 @@ pub enum SupervisorError {
     Config(#[from] scl_config::ConfigError),
     /// Shared-memory transport failure.
     #[error(transparent)]
-    Ipc(#[from] ipc_types::IpcError),
+    Ipc(#[from] transport::IpcError),
     /// The model file is unusable.
     #[error(transparent)]
     Model(#[from] mapper::ModelError),

@@ -26,23 +26,22 @@ use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
 
-use ipc_types::control::{
-    ActiveControlRequest, ControlResponse, SafetyControl, SafetyControlPublisher, Text,
-    request_kind,
-};
+use ipc_types::control::{ControlResponse, SafetyControl, Text, request_kind};
 use ipc_types::{
-    Graph, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags,
-    phase, time::now_ns,
+    MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags, phase,
+    time::now_ns,
 };
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use serde::Serialize;
+use transport::Graph;
+use transport::control::{ActiveControlRequest, SafetyControlPublisher};
 
 use crate::SupervisorError;
-use ipc_types::signals;
 use mapper::step::MapperStep;
 use node_rt::stats::{Percentiles, percentiles_us};
 use scl_config::{GraphConfig, RestartPolicy, SupervisorConfig};
+use transport::signals;
 
 /// What `scl up` was asked to do.
 #[derive(Debug, Clone)]
@@ -876,7 +875,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }
-    let cleaned = ipc_types::graph::cleanup_dead_nodes(&opts.prefix)?;
+    let cleaned = transport::graph::cleanup_dead_nodes(&opts.prefix)?;
     if cleaned > 0 {
         tracing::info!(
             cleaned,
@@ -929,7 +928,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         // No joystick process: the operator publishes from outside (nothing to hold for).
         tracing::info!(
             "joystick source `external`: the input comes from whoever publishes on `{}`",
-            opts.prefix.service(ipc_types::graph::JOYSTICK.name)
+            opts.prefix.service(ipc_types::topics::JOYSTICK.name)
         );
     } else {
         plan.push((NodeRole::Joystick, 0, {
@@ -1115,9 +1114,9 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     drop(sv);
     // Last one out: remove what killed children left and the domain itself, unless an
     // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
-    ipc_types::graph::release_domain(&opts.prefix)?;
+    transport::graph::release_domain(&opts.prefix)?;
     if cfg.graph.transport == ipc_types::Transport::Uds {
-        ipc_types::uds::remove_graph(opts.prefix.as_str());
+        transport::uds::remove_graph(opts.prefix.as_str());
     }
     if let Some(f) = &summary.failure {
         tracing::error!("{f}; the graph was stopped (bridge first)");

@@ -12,154 +12,171 @@
 use core::time::Duration;
 
 use iceoryx2::config::Config;
-use iceoryx2::node::{NodeState, NodeView};
-use iceoryx2::port::listener::{Listener, ListenerWaitError};
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::node::{NodeCreationFailure, NodeState, NodeView};
+use iceoryx2::port::client::RequestSendError;
+use iceoryx2::port::listener::{Listener, ListenerCreateError, ListenerWaitError};
+use iceoryx2::port::notifier::{Notifier, NotifierCreateError, NotifierNotifyError};
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
+use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::EventOpenOrCreateError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
+use iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateError;
+use iceoryx2::service::port_factory::client::ClientCreateError;
+use iceoryx2::service::port_factory::server::ServerCreateError;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
+use iceoryx2_cal::named_concept::NamedConceptRemoveError;
+use ipc_types::topics::{
+    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
+};
+use ipc_types::{
+    JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand, TickReport,
+    Transport,
+};
 
-use crate::msg::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, TickReport};
-use crate::prefix::Prefix;
 use crate::uds::Datagram;
 
 /// The iceoryx2 service variant of every graph: inter-process.
 pub type Ipc = iceoryx2::service::ipc::Service;
 
-/// Errors of opening or using the graph's shared-memory services.
+/// Errors of opening or using the graph's shared-memory services. Each keeps the error of
+/// iceoryx2 (or of the socket transport) as its typed source, so a caller can tell the cases
+/// apart (a second publisher refused: [`IpcError::Port`] with
+/// [`PortError::Publisher`]`(`[`PublisherCreateError::ExceedsMaxSupportedPublishers`]`)`).
 #[derive(Debug, thiserror::Error)]
 pub enum IpcError {
     /// The iceoryx2 node of this process could not be created.
-    #[error("cannot create the iceoryx2 node `{node}`: {reason}")]
+    #[error("cannot create the iceoryx2 node `{node}`: {source}")]
     Node {
         /// Node name.
         node: String,
         /// What iceoryx2 said.
-        reason: String,
+        source: NodeError,
     },
     /// A service could not be opened or created, e.g. because another graph opened it with
     /// other message types or settings.
-    #[error("cannot open service `{service}`: {reason}")]
+    #[error("cannot open service `{service}`: {source}")]
     Open {
         /// Full service name.
         service: String,
         /// What iceoryx2 said.
-        reason: String,
+        source: OpenError,
     },
     /// A publisher, subscriber, notifier or listener could not be created. For the
     /// `safe_command` publisher this is how a second safety process is refused.
-    #[error("cannot create a {port} on `{service}`: {reason}")]
+    #[error("cannot create a {port} on `{service}`: {source}")]
     Port {
         /// Full service name.
         service: String,
         /// Which port.
         port: &'static str,
-        /// What iceoryx2 said.
-        reason: String,
+        /// What iceoryx2 or the socket transport said.
+        source: PortError,
     },
     /// Sending, receiving or notifying failed.
-    #[error("{op} failed on `{service}`: {reason}")]
+    #[error("{op} failed on `{service}`: {source}")]
     Io {
         /// Full service name.
         service: String,
         /// The operation.
         op: &'static str,
-        /// What iceoryx2 said.
-        reason: String,
+        /// What went wrong.
+        source: IoError,
     },
 }
 
-/// Quality-of-service settings of one topic.
-#[derive(Debug, Clone, Copy)]
-pub struct TopicSettings {
-    /// Topic name below the prefix.
-    pub name: &'static str,
-    /// Samples a late-joining subscriber receives at once.
-    pub history: usize,
-    /// Samples a subscriber buffers; the oldest is overwritten (safe overflow), so a slow
-    /// reader never blocks a writer. Control-path readers take the newest sample; the depth
-    /// (64 ticks = 1.6 s) is for observers (recorder, tests) that want every sample.
-    pub buffer: usize,
-    /// Publishers the service admits.
-    pub max_publishers: usize,
-    /// Subscribers the service admits.
-    pub max_subscribers: usize,
+/// Why this process's iceoryx2 node could not be created ([`IpcError::Node`]).
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// The graph prefix is not a valid file name.
+    #[error("prefix is not a valid file name: {0:?}")]
+    Prefix(#[source] SemanticStringError),
+    /// The node name is not valid.
+    #[error("{0:?}")]
+    Name(#[source] SemanticStringError),
+    /// iceoryx2 refused the node.
+    #[error(transparent)]
+    Create(#[from] NodeCreationFailure),
 }
 
-/// Joystick samples: newest wins; a late mapper gets the last sample at once. One publisher
-/// at a time: the joystick process, or with `[joystick] source = "external"` whoever
-/// publishes first (a second is refused with [`IpcError::Port`]).
-pub const JOYSTICK: TopicSettings = TopicSettings {
-    name: "joystick",
-    history: 1,
-    buffer: 64,
-    max_publishers: 1,
-    max_subscribers: 16,
-};
-/// Robot state, one per tick, from the bridge.
-pub const ROBOT_STATE: TopicSettings = TopicSettings {
-    name: "robot_state",
-    history: 1,
-    buffer: 64,
-    max_publishers: 1,
-    max_subscribers: 16,
-};
-/// Mapper commands; several mappers may publish at once during a live swap.
-pub const MAPPER_COMMAND: TopicSettings = TopicSettings {
-    name: "mapper_command",
-    history: 0,
-    buffer: 64,
-    max_publishers: 4,
-    max_subscribers: 8,
-};
-/// The command the arm executes. Exactly one publisher: the safety process.
-pub const SAFE_COMMAND: TopicSettings = TopicSettings {
-    name: "safe_command",
-    history: 0,
-    buffer: 64,
-    max_publishers: 1,
-    max_subscribers: 8,
-};
-/// Heartbeats of every node; buffered deep enough for a reader that polls a few times a second.
-pub const STATUS: TopicSettings = TopicSettings {
-    name: "status",
-    history: 0,
-    buffer: 512,
-    max_publishers: 16,
-    max_subscribers: 8,
-};
-
-/// How the data-plane topics travel. The control plane (swaps, e-stop, safety control)
-/// always uses iceoryx2.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Transport {
-    /// iceoryx2 zero-copy shared memory with event wake-ups (the product).
-    #[default]
-    Iceoryx2,
-    /// Unix-domain datagram sockets (for latency comparisons; see [`crate::uds`]).
-    Uds,
+/// Why a service could not be opened or created ([`IpcError::Open`]).
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// The service name is not valid.
+    #[error("{0:?}")]
+    Name(#[source] SemanticStringError),
+    /// A publish-subscribe service.
+    #[error(transparent)]
+    PublishSubscribe(#[from] PublishSubscribeOpenOrCreateError),
+    /// An event service.
+    #[error(transparent)]
+    Event(#[from] EventOpenOrCreateError),
+    /// A request-response service.
+    #[error(transparent)]
+    RequestResponse(#[from] RequestResponseOpenOrCreateError),
 }
 
-impl std::fmt::Display for Transport {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Self::Iceoryx2 => "iceoryx2",
-            Self::Uds => "uds",
-        })
-    }
+/// Why a port could not be created ([`IpcError::Port`]).
+#[derive(Debug, thiserror::Error)]
+pub enum PortError {
+    /// A publisher (`ExceedsMaxSupportedPublishers`: the topic's publishers are all taken).
+    #[error(transparent)]
+    Publisher(#[from] PublisherCreateError),
+    /// A subscriber.
+    #[error(transparent)]
+    Subscriber(#[from] SubscriberCreateError),
+    /// A notifier.
+    #[error(transparent)]
+    Notifier(#[from] NotifierCreateError),
+    /// A listener.
+    #[error(transparent)]
+    Listener(#[from] ListenerCreateError),
+    /// A request-response server.
+    #[error(transparent)]
+    Server(#[from] ServerCreateError),
+    /// A request-response client.
+    #[error(transparent)]
+    Client(#[from] ClientCreateError),
+    /// A socket of the socket transport.
+    #[error(transparent)]
+    Socket(#[from] crate::uds::UdsError),
 }
 
-/// The bridge's timing report of every tick; deep enough for a reader that polls a few
-/// times a second.
-pub const TICK_REPORT: TopicSettings = TopicSettings {
-    name: "tick_report",
-    history: 0,
-    buffer: 256,
-    max_publishers: 2,
-    max_subscribers: 8,
-};
+/// Why sending, receiving, notifying or waiting failed ([`IpcError::Io`]).
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// A sample could not be loaned.
+    #[error(transparent)]
+    Loan(#[from] LoanError),
+    /// A sample could not be sent.
+    #[error(transparent)]
+    Send(#[from] SendError),
+    /// A sample could not be received.
+    #[error(transparent)]
+    Receive(#[from] ReceiveError),
+    /// The listeners could not be notified.
+    #[error(transparent)]
+    Notify(#[from] NotifierNotifyError),
+    /// Waiting for the topic's event failed.
+    #[error(transparent)]
+    Wait(#[from] ListenerWaitError),
+    /// A request could not be sent.
+    #[error(transparent)]
+    Request(#[from] RequestSendError),
+    /// The socket transport failed.
+    #[error(transparent)]
+    Socket(#[from] crate::uds::UdsError),
+    /// The domain's management segment could not be removed.
+    #[error("{0:?}")]
+    Release(#[source] NamedConceptRemoveError),
+    /// No supervisor serves the graph.
+    #[error("no supervisor is serving this graph (is `scl up` running with this prefix?)")]
+    NoServer,
+    /// The supervisor did not answer in time.
+    #[error("no answer within {0:?}")]
+    NoAnswer(Duration),
+}
 
 /// A process's membership in one graph: its iceoryx2 node, the graph prefix and the
 /// transport of its data-plane topics.
@@ -185,7 +202,7 @@ pub fn config_for(prefix: &Prefix) -> Result<Config, IpcError> {
     config.global.prefix =
         FileName::new(prefix.file_prefix().as_bytes()).map_err(|e| IpcError::Node {
             node: prefix.to_string(),
-            reason: format!("prefix is not a valid file name: {e:?}"),
+            source: NodeError::Prefix(e),
         })?;
     Ok(config)
 }
@@ -201,17 +218,17 @@ impl Graph {
     /// Joins the graph with the data-plane topics on `transport`.
     pub fn join_with(prefix: &Prefix, name: &str, transport: Transport) -> Result<Self, IpcError> {
         let config = config_for(prefix)?;
-        let node_err = |reason: String| IpcError::Node {
+        let node_err = |source: NodeError| IpcError::Node {
             node: name.to_owned(),
-            reason,
+            source,
         };
-        let node_name = NodeName::new(name).map_err(|e| node_err(format!("{e:?}")))?;
+        let node_name = NodeName::new(name).map_err(|e| node_err(NodeError::Name(e)))?;
         let node = NodeBuilder::new()
             .config(&config)
             .name(&node_name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
-            .map_err(|e| node_err(e.to_string()))?;
+            .map_err(|e| node_err(e.into()))?;
         Ok(Self {
             node,
             prefix: prefix.clone(),
@@ -233,7 +250,7 @@ impl Graph {
         IpcError::Port {
             service: self.prefix.service(s.name),
             port,
-            reason: e.to_string(),
+            source: e.into(),
         }
     }
 
@@ -254,7 +271,7 @@ impl Graph {
         let full = self.prefix.service(s.name);
         let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
             service: full.clone(),
-            reason: format!("{e:?}"),
+            source: OpenError::Name(e),
         })?;
         let factory = self
             .node
@@ -268,7 +285,7 @@ impl Graph {
             .open_or_create()
             .map_err(|e| IpcError::Open {
                 service: full.clone(),
-                reason: e.to_string(),
+                source: e.into(),
             })?;
         Ok((full, factory))
     }
@@ -277,7 +294,7 @@ impl Graph {
         let full = format!("{}/event", self.prefix.service(s.name));
         let name = ServiceName::new(&full).map_err(|e| IpcError::Open {
             service: full.clone(),
-            reason: format!("{e:?}"),
+            source: OpenError::Name(e),
         })?;
         let factory = self
             .node
@@ -288,7 +305,7 @@ impl Graph {
             .open_or_create()
             .map_err(|e| IpcError::Open {
                 service: full.clone(),
-                reason: e.to_string(),
+                source: e.into(),
             })?;
         Ok((full, factory))
     }
@@ -312,13 +329,13 @@ impl Graph {
             .map_err(|e| IpcError::Port {
                 service: service.clone(),
                 port: "publisher",
-                reason: e.to_string(),
+                source: e.into(),
             })?;
         let (_, ev) = self.event(s)?;
         let notifier = ev.notifier_builder().create().map_err(|e| IpcError::Port {
             service: service.clone(),
             port: "notifier",
-            reason: e.to_string(),
+            source: e.into(),
         })?;
         Ok(TopicPublisher {
             service,
@@ -349,14 +366,14 @@ impl Graph {
             .map_err(|e| IpcError::Port {
                 service: service.clone(),
                 port: "subscriber",
-                reason: e.to_string(),
+                source: e.into(),
             })?;
         let listener = if wake {
             let (_, ev) = self.event(s)?;
             Some(ev.listener_builder().create().map_err(|e| IpcError::Port {
                 service: service.clone(),
                 port: "listener",
-                reason: e.to_string(),
+                source: e.into(),
             })?)
         } else {
             None
@@ -510,7 +527,7 @@ pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
         IpcError::Io {
             service: prefix.to_string(),
             op: "release domain",
-            reason: format!("{e:?}"),
+            source: IoError::Release(e),
         }
     })
 }
@@ -536,24 +553,22 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> 
     /// Sends `msg` (iceoryx2: loan, write, send through shared memory, then notify) and
     /// returns the number of subscribers that received it.
     pub fn send(&self, msg: T) -> Result<usize, IpcError> {
-        let io = |op: &'static str, reason: String| IpcError::Io {
+        let io = |op: &'static str, source: IoError| IpcError::Io {
             service: self.service.clone(),
             op,
-            reason,
+            source,
         };
         match &self.inner {
             PubInner::Iox {
                 publisher,
                 notifier,
             } => {
-                let sample = publisher
-                    .loan_uninit()
-                    .map_err(|e| io("loan", e.to_string()))?;
+                let sample = publisher.loan_uninit().map_err(|e| io("loan", e.into()))?;
                 let n = sample
                     .write_payload(msg)
                     .send()
-                    .map_err(|e| io("send", e.to_string()))?;
-                notifier.notify().map_err(|e| io("notify", e.to_string()))?;
+                    .map_err(|e| io("send", e.into()))?;
+                notifier.notify().map_err(|e| io("notify", e.into()))?;
                 Ok(n)
             }
             PubInner::Uds(p) => Ok(p.borrow_mut().send(&msg)),
@@ -598,10 +613,10 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T>
 
     /// Calls `f` with every buffered message, oldest first.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
-        let err = |reason: String| IpcError::Io {
+        let err = |source: IoError| IpcError::Io {
             service: self.service.clone(),
             op: "receive",
-            reason,
+            source,
         };
         match &self.inner {
             SubInner::Iox { subscriber, .. } => {
@@ -613,11 +628,11 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T>
                             f(sample.payload());
                         }
                         Ok(None) => return Ok(n),
-                        Err(e) => return Err(err(e.to_string())),
+                        Err(e) => return Err(err(e.into())),
                     }
                 }
             }
-            SubInner::Uds(sub) => sub.drain(f).map_err(|e| err(e.to_string())),
+            SubInner::Uds(sub) => sub.drain(f).map_err(|e| err(e.into())),
         }
     }
 
@@ -642,7 +657,7 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T>
                 Err(e) => Err(IpcError::Io {
                     service: self.service.clone(),
                     op: "wait",
-                    reason: e.to_string(),
+                    source: e.into(),
                 }),
             },
             SubInner::Iox { listener: None, .. } => {
@@ -727,8 +742,7 @@ pub fn wait_any(subs: &[&dyn Wakeable], timeout: Duration) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msg::*;
-    use crate::time::now_ns;
+    use ipc_types::time::now_ns;
 
     fn unique_prefix(tag: &str) -> Prefix {
         Prefix::new(&format!("ut{}{}", tag, std::process::id())).unwrap()
@@ -779,6 +793,36 @@ mod tests {
         drop(first);
         let again = g.joystick_publisher().unwrap();
         drop((again, g));
+        assert!(release_domain(&p).unwrap());
+        assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
+    }
+
+    #[test]
+    fn a_second_joystick_publisher_is_refused_by_iceoryx2_as_one_too_many() {
+        let p = unique_prefix("d");
+        let g = Graph::join(&p, "unit").unwrap();
+        let first = g.joystick_publisher().unwrap();
+        let second = g.joystick_publisher();
+        assert!(
+            matches!(
+                &second,
+                Err(IpcError::Port {
+                    port: "publisher",
+                    source: PortError::Publisher(
+                        PublisherCreateError::ExceedsMaxSupportedPublishers
+                    ),
+                    ..
+                })
+            ),
+            "{second:?}"
+        );
+        // The message still names the service and what iceoryx2 said.
+        let text = second.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(
+            text.contains("joystick") && text.contains("ExceedsMaxSupportedPublishers"),
+            "{text}"
+        );
+        drop((first, g));
         assert!(release_domain(&p).unwrap());
         assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
     }

@@ -2,12 +2,13 @@
 //! send, notify; uds: one datagram per subscriber) and receive, for a `RobotState` (176
 //! bytes). The cross-process figures come from `scl bench latency`.
 //!
-//! Run: `cargo bench -p ipc-types --bench transport`.
+//! Run: `cargo bench -p transport --bench transport`.
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ipc_types::{Graph, Prefix, RobotState, Transport};
+use ipc_types::{Prefix, RobotState, Transport};
 use std::hint::black_box;
+use transport::Graph;
 
 fn bench(c: &mut Criterion) {
     for transport in [Transport::Iceoryx2, Transport::Uds] {
@@ -24,8 +25,8 @@ fn bench(c: &mut Criterion) {
             })
         });
         drop((sub, publ, g));
-        let _ = ipc_types::graph::release_domain(&prefix);
-        ipc_types::uds::remove_graph(prefix.as_str());
+        let _ = transport::graph::release_domain(&prefix);
+        transport::uds::remove_graph(prefix.as_str());
     }
 }
 

@@ -82,7 +82,7 @@ impl<T: IntoBytes + FromBytes + Immutable + Copy> Datagram for T {}
 /// A publisher of `T` on one topic.
 ///
 /// ```no_run
-/// use ipc_types::uds::{UdsPublisher, topic_dir};
+/// use transport::uds::{UdsPublisher, topic_dir};
 ///
 /// #[derive(Clone, Copy, zerocopy::IntoBytes, zerocopy::FromBytes, zerocopy::Immutable)]
 /// #[repr(C)]
@@ -99,7 +99,7 @@ impl<T: IntoBytes + FromBytes + Immutable + Copy> Datagram for T {}
 /// `IntoBytes`, so it is not a [`Datagram`]:
 ///
 /// ```compile_fail
-/// use ipc_types::uds::{UdsPublisher, topic_dir};
+/// use transport::uds::{UdsPublisher, topic_dir};
 ///
 /// #[derive(Clone, Copy, zerocopy::IntoBytes, zerocopy::FromBytes, zerocopy::Immutable)]
 /// #[repr(C)]
@@ -115,7 +115,7 @@ impl<T: IntoBytes + FromBytes + Immutable + Copy> Datagram for T {}
 /// and being `Copy` (the bound before `Datagram`) is not enough:
 ///
 /// ```compile_fail
-/// use ipc_types::uds::{UdsPublisher, topic_dir};
+/// use transport::uds::{UdsPublisher, topic_dir};
 ///
 /// #[derive(Clone, Copy)]
 /// #[repr(C)]
@@ -199,7 +199,7 @@ static NEXT: AtomicU32 = AtomicU32::new(0);
 /// A subscriber of `T` on one topic: a bound socket, removed when dropped.
 ///
 /// ```no_run
-/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+/// use transport::uds::{UdsSubscriber, topic_dir};
 ///
 /// let s = UdsSubscriber::<ipc_types::RobotState>::new(&topic_dir("doc", "robot_state")).unwrap();
 /// s.drain(|state| println!("tick {}", state.tick)).unwrap();
@@ -209,7 +209,7 @@ static NEXT: AtomicU32 = AtomicU32::new(0);
 /// from another process: not a `bool` (only 0 and 1 are valid),
 ///
 /// ```compile_fail
-/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+/// use transport::uds::{UdsSubscriber, topic_dir};
 ///
 /// let s = UdsSubscriber::<bool>::new(&topic_dir("doc", "flags")).unwrap();
 /// s.drain(|flag| println!("{flag}")).unwrap();
@@ -218,7 +218,7 @@ static NEXT: AtomicU32 = AtomicU32::new(0);
 /// nor a reference (an address from another process):
 ///
 /// ```compile_fail
-/// use ipc_types::uds::{UdsSubscriber, topic_dir};
+/// use transport::uds::{UdsSubscriber, topic_dir};
 ///
 /// let s = UdsSubscriber::<&'static u64>::new(&topic_dir("doc", "refs")).unwrap();
 /// s.drain(|r| println!("{r}")).unwrap();
@@ -227,7 +227,7 @@ static NEXT: AtomicU32 = AtomicU32::new(0);
 /// and neither can be sent:
 ///
 /// ```compile_fail
-/// use ipc_types::uds::{UdsPublisher, topic_dir};
+/// use transport::uds::{UdsPublisher, topic_dir};
 ///
 /// let mut p = UdsPublisher::<bool>::new(&topic_dir("doc", "flags")).unwrap();
 /// p.send(&true);
@@ -361,9 +361,10 @@ mod tests {
     #[test]
     fn a_message_arrives_as_it_was_sent() {
         let dir = topic_dir(&format!("uw{}", std::process::id()), "status");
-        let s = UdsSubscriber::<crate::NodeStatus>::new(&dir).unwrap();
-        let mut p = UdsPublisher::<crate::NodeStatus>::new(&dir).unwrap();
-        let mut sent = crate::NodeStatus::new(crate::NodeRole::Safety, crate::phase::RUNNING, 7);
+        let s = UdsSubscriber::<ipc_types::NodeStatus>::new(&dir).unwrap();
+        let mut p = UdsPublisher::<ipc_types::NodeStatus>::new(&dir).unwrap();
+        let mut sent =
+            ipc_types::NodeStatus::new(ipc_types::NodeRole::Safety, ipc_types::phase::RUNNING, 7);
         sent.rule_counts[3] = 42;
         sent.joint_travel_rad = 1.5;
         assert_eq!(p.send(&sent), 1);
