@@ -26,6 +26,7 @@ use iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateErr
 use iceoryx2::service::port_factory::client::ClientCreateError;
 use iceoryx2::service::port_factory::server::ServerCreateError;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
+use iceoryx2::service::service_name::ServiceNameError;
 use iceoryx2_cal::named_concept::NamedConceptRemoveError;
 use ipc_types::topics::{
     JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
@@ -105,7 +106,7 @@ pub enum NodeError {
 pub enum OpenError {
     /// The service name is not valid.
     #[error("{0:?}")]
-    Name(#[source] SemanticStringError),
+    Name(#[source] ServiceNameError),
     /// A publish-subscribe service.
     #[error(transparent)]
     PublishSubscribe(#[from] PublishSubscribeOpenOrCreateError),
@@ -814,7 +815,8 @@ mod tests {
                     ..
                 })
             ),
-            "{second:?}"
+            "{:?}",
+            second.as_ref().err()
         );
         // The message still names the service and what iceoryx2 said.
         let text = second.err().map(|e| e.to_string()).unwrap_or_default();

@@ -710,10 +710,10 @@ impl<'a> Supervisor<'a> {
         let model = req.path.as_string();
         let new_id = self.next_mapper_id;
         let loaded = self.opts.config.profile().map_or_else(
-            |e| Err(e.into()),
+            |e| Err(SupervisorError::from(e)),
             |robot| {
                 let period_s = self.opts.config.period_s();
-                MapperStep::load(&model, new_id, robot, period_s)
+                Ok(MapperStep::load(&model, new_id, robot, period_s)?)
             },
         );
         if let Err(e) = loaded {
