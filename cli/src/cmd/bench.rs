@@ -1,0 +1,204 @@
+//! `scl bench`: the latency and headroom benchmarks.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Subcommand;
+use scl::SclError;
+use scl_config::GraphConfig;
+
+use super::parse_duration;
+
+#[derive(Subcommand, Debug)]
+pub(crate) enum BenchCmd {
+    /// Run the full graph and report per-hop, end-to-end, sample-age, tick-lateness and
+    /// compute figures (p50 / p90 / p99 / p99.9 / max), on iceoryx2, on Unix-domain datagram
+    /// sockets, or both one after the other with the ratio of each figure.
+    Latency {
+        /// How long each transport runs.
+        #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = parse_duration)]
+        duration: Duration,
+        #[command(flatten)]
+        rt: RtArgs,
+        /// Busy processes to run beside the graph.
+        #[arg(long, default_value_t = 0)]
+        load: usize,
+        /// `iceoryx2`, `uds` or `both`.
+        #[arg(long, default_value = "iceoryx2")]
+        transport: String,
+        /// The graph's tick rate (Hz, up to 1000); default: `[graph] rate_hz` of the config.
+        #[arg(long, value_name = "HZ")]
+        rate_hz: Option<f64>,
+        /// Print the report as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Run the graph with `scl up --live` (a free loopback port) and a Foxglove WebSocket
+        /// client subscribed to every channel for the whole run; compare with a run without.
+        #[arg(long)]
+        live: bool,
+        /// Keep the report (report.json), the runs' configs and logs in DIR.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// Run the graph at rising rates (40, 100, 250, 500, 1000 Hz unless `--rates`) and report
+    /// per rate the missed ticks (and how many the machine took), end to end p50 / p99 / max,
+    /// the tick lateness, and each process's CPU time per tick; a table (or `--json`), and
+    /// with `--out` report.json and headroom.png.
+    Headroom {
+        /// How long each rate runs on each transport.
+        #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
+        secs: f64,
+        /// The rates (Hz, comma-separated, each up to 1000).
+        #[arg(long, value_delimiter = ',', default_values_t = scl_bench::headroom::DEFAULT_RATES)]
+        rates: Vec<f64>,
+        #[command(flatten)]
+        rt: RtArgs,
+        /// Busy processes to run beside the graph.
+        #[arg(long, default_value_t = 0)]
+        load: usize,
+        /// `iceoryx2`, `uds` or `both` (each rate on each transport).
+        #[arg(long, default_value = "iceoryx2")]
+        transport: String,
+        /// Print the report as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Keep the report (report.json), the plot (headroom.png), the runs' configs and logs
+        /// in DIR.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// A busy loop (the load processes of `--load`).
+    #[command(hide = true)]
+    Burn,
+}
+
+/// The real-time settings of a benchmark's graph.
+#[derive(clap::Args, Debug, Clone)]
+pub(crate) struct RtArgs {
+    /// Ask for the standard real-time tuning on the control path: SCHED_FIFO priorities,
+    /// mlockall, pinning to the last CPU, and `/dev/cpu_dma_latency` held at 0 while the
+    /// graph runs (the report says what each process got and what the machine refused).
+    #[arg(long, conflicts_with = "rt_only")]
+    pub(crate) rt: bool,
+    /// Ask for one real-time setting alone, to measure its effect: `fifo`, `mlock`, `pin` or
+    /// `dma-latency`.
+    #[arg(long, value_name = "SETTING")]
+    pub(crate) rt_only: Option<String>,
+}
+
+impl RtArgs {
+    fn settings(&self) -> Result<scl_bench::RtSettings, SclError> {
+        match (&self.rt_only, self.rt) {
+            (Some(name), _) => scl_bench::RtSettings::only(name)
+                .map_err(|e| SclError::Other(format!("--rt-only {e}"))),
+            (None, true) => Ok(scl_bench::RtSettings::ALL),
+            (None, false) => Ok(scl_bench::RtSettings::NONE),
+        }
+    }
+}
+
+/// The transports of `--transport`.
+fn parse_transports(t: &str) -> Result<Vec<ipc_types::Transport>, SclError> {
+    match t {
+        "iceoryx2" => Ok(vec![ipc_types::Transport::Iceoryx2]),
+        "uds" => Ok(vec![ipc_types::Transport::Uds]),
+        "both" => Ok(vec![
+            ipc_types::Transport::Iceoryx2,
+            ipc_types::Transport::Uds,
+        ]),
+        other => Err(SclError::Other(format!(
+            "--transport {other}: use iceoryx2, uds or both"
+        ))),
+    }
+}
+
+/// `scl bench WHAT` on the graph configured by `cfg`.
+pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclError> {
+    match what {
+        BenchCmd::Burn => scl_bench::burn(),
+        BenchCmd::Latency {
+            duration,
+            rt,
+            load,
+            transport,
+            rate_hz,
+            json,
+            live,
+            out,
+        } => {
+            let transports = parse_transports(&transport)?;
+            if let Some(r) = rate_hz {
+                cfg.set_rate_hz(r);
+            }
+            cfg.validate()?;
+            let opts = scl_bench::LatencyOptions {
+                duration,
+                rt: rt.settings()?,
+                load,
+                transports,
+                config: cfg,
+                out: out.clone(),
+                live,
+            };
+            let report = scl_bench::latency(&opts)?;
+            let text = serde_json::to_string_pretty(&report)
+                .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+            if let Some(dir) = &out {
+                let p = dir.join("report.json");
+                std::fs::write(&p, &text)
+                    .map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+            }
+            if json {
+                println!("{text}");
+            } else {
+                print!("{}", scl_bench::render(&report));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCmd::Headroom {
+            secs,
+            rates,
+            rt,
+            load,
+            transport,
+            json,
+            out,
+        } => {
+            if !(secs.is_finite() && secs > 0.0) {
+                return Err(SclError::Other(format!(
+                    "--secs {secs}: must be a positive number of seconds"
+                )));
+            }
+            for r in &rates {
+                let mut c = cfg.clone();
+                c.set_rate_hz(*r);
+                c.validate()
+                    .map_err(|e| SclError::Other(format!("--rates {r}: {e}")))?;
+            }
+            let opts = scl_bench::headroom::HeadroomOptions {
+                rates,
+                duration: Duration::from_secs_f64(secs),
+                rt: rt.settings()?,
+                load,
+                transports: parse_transports(&transport)?,
+                config: cfg,
+                out: out.clone(),
+            };
+            let report = scl_bench::headroom::headroom(&opts)?;
+            let text = serde_json::to_string_pretty(&report)
+                .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+            if let Some(dir) = &out {
+                let p = dir.join("report.json");
+                std::fs::write(&p, &text)
+                    .map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+            }
+            if json {
+                println!("{text}");
+            } else {
+                print!("{}", scl_bench::headroom::render(&report));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
