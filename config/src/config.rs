@@ -727,7 +727,7 @@ mod tests {
     fn example_file_is_the_defaults() {
         let path = Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../examples/graph.toml"
+            "/../examples/graph.toml"
         ));
         let cfg = GraphConfig::load(Some(path)).unwrap();
         assert_eq!(cfg, GraphConfig::default());
@@ -812,7 +812,7 @@ mod tests {
     fn kortex_example_is_valid_and_points_at_loopback() {
         let path = Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../examples/kortex-fake.toml"
+            "/../examples/kortex-fake.toml"
         ));
         let cfg = GraphConfig::load(Some(path)).unwrap();
         cfg.validate().unwrap();
