@@ -2,7 +2,7 @@
 
 A :class:`Graph` is an iceoryx2 node in the graph's domain (every shared-memory file named
 ``scl_<prefix>_*``). It opens each topic with the same settings as the Rust processes
-(``ipc_types::graph``), so it reads the same samples and wakes on the same events.
+(``transport::graph``), so it reads the same samples and wakes on the same events.
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ class NotConfirmed(SclError):
 
 @dataclass(frozen=True)
 class TopicSettings:
-    """A topic's quality-of-service settings, as ``ipc_types::graph::TopicSettings``."""
+    """A topic's quality-of-service settings, as ``ipc_types::topics::TopicSettings``."""
 
     name: str
     message: Type[Message]
