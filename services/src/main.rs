@@ -159,6 +159,10 @@ enum Cmd {
         /// Mock arm: start with this gripper state (0 open .. 1 closed).
         #[arg(long, default_value_t = 0.0)]
         resume_gripper: f64,
+        /// When the predecessor published its last state (monotonic ns; given by `scl up`):
+        /// the periods until this bridge's first state are counted as missed.
+        #[arg(long, value_name = "NS")]
+        resume_t_ns: Option<u64>,
         /// Kortex: the robot's IP address (instead of bridge.kortex.address).
         #[arg(long, value_name = "IP")]
         address: Option<String>,
@@ -175,6 +179,24 @@ enum Cmd {
     },
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
+    ///
+    /// Serves over TCP: Session.CreateSession, CloseSession, KeepAlive; Base.Stop,
+    /// ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
+    /// GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
+    /// SendJointSpeedsCommand, SendGripperCommand (position, finger 1), GetProductConfiguration
+    /// (an empty CompleteProductConfiguration); BaseCyclic.RefreshFeedback;
+    /// ControlConfig.GetKinematicHardLimits; DeviceConfig.GetFirmwareVersion; over UDP the
+    /// cyclic channel (CreateSession, CloseSession, BaseCyclic.Refresh, RefreshFeedback).
+    ///
+    /// Up to 8 sessions at once, one per connection: the bridge's, and observing ones beside
+    /// it (read-only calls only: their connection timeout and CloseSession leave the arm
+    /// alone). A session that made any other call controls: its connection inactivity timeout
+    /// stops the motion it started.
+    ///
+    /// Not served (an error frame naming the function): everything else, among them
+    /// notifications (OnNotification...Topic), actions and trajectories, Cartesian and twist
+    /// commands, poses, DeviceManager.ReadAllDevices, actuator and interconnect configuration,
+    /// user profiles, and bypass servoing.
     FakeKortex {
         /// TCP port on 127.0.0.1 (0: a free one; the first line on stdout names it); the
         /// low-level cyclic channel listens on UDP with the same number.
@@ -828,6 +850,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             start_tick,
             resume_q,
             resume_gripper,
+            resume_t_ns,
             address,
             port,
             user,
@@ -846,6 +869,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
             let resume = scl_bridge_node::Resume {
                 start_tick,
                 pose: resume_q.map(|q| (q, resume_gripper)),
+                last_state_t_ns: resume_t_ns,
             };
             let creds = scl_bridge_node::CredentialArgs {
                 user: user.map(scl_bridge_node::Secret::into_inner),
