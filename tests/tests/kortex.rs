@@ -833,22 +833,38 @@ fn a_restarted_bridge_that_finds_the_arm_moving_stops_it_first_then_waits_for_ne
         "the arm was not moving when the new bridge connected (the robot's timeout is 2 s): \
          {first:?}"
     );
+    // Item 5: the periods lost while no bridge ran are counted as missed.
+    let lost = lost_periods(last_before.t_ns, first.t_ns, 25_000_000);
+    assert!(lost >= 3, "a restart within {lost} periods? {first:?}");
+    assert!(
+        first.missed >= lost,
+        "{lost} periods lost, the new bridge counts {}",
+        first.missed
+    );
+    let missed = summary["missed"].as_u64().unwrap();
+    assert!(
+        missed >= lost,
+        "{lost} periods lost, scl up reports missed {missed}: {summary}"
+    );
+
     let speed =
         |s: &ipc_types::RobotState| s.qdot_rad_s[..6].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let rest = new
-        .iter()
-        .position(|s| speed(s) <= 0.01)
-        .expect("the arm never came to rest");
     // Stops only until the arm is at rest: no state up to the first at rest reports an executed
     // command, and each is flagged stopping.
-    for s in &new[..=rest] {
+    let mut rest = None;
+    for (i, s) in new.iter().enumerate() {
         assert_eq!(
             s.applied_tick,
             ipc_types::NO_TICK,
             "the new bridge executed a command before the arm was at rest: {s:?}"
         );
         assert!(s.flags & state_flags::STOPPING != 0, "{s:?}");
+        if speed(s) <= 0.01 {
+            rest = Some(i);
+            break;
+        }
     }
+    let rest = rest.expect("the arm never came to rest");
     // The robot's view: the new session's first motion request was a Stop.
     let requests = fake.request_log();
     let opened = requests
@@ -899,20 +915,6 @@ fn a_restarted_bridge_that_finds_the_arm_moving_stops_it_first_then_waits_for_ne
          requirement"
     );
     let rest_tick = new[rest].tick;
-
-    // Item 5: the periods lost while no bridge ran are counted as missed.
-    let lost = lost_periods(last_before.t_ns, first.t_ns, 25_000_000);
-    assert!(lost >= 3, "a restart within {lost} periods? {first:?}");
-    assert!(
-        first.missed >= lost,
-        "{lost} periods lost, the new bridge counts {}",
-        first.missed
-    );
-    let missed = summary["missed"].as_u64().unwrap();
-    assert!(
-        missed >= lost,
-        "{lost} periods lost, scl up reports missed {missed}: {summary}"
-    );
 
     let travel = (new[rest].q_rad[0] - last_before.q_rad[0]).abs();
     let stop_ms = (new[rest].t_ns - last_before.t_ns) as f64 * 1e-6;
