@@ -366,7 +366,8 @@ struct Session {
     timed_out: bool,
     /// It made a call that is not read-only ([`read_only`]).
     controls: bool,
-    /// Its connection is closed: the session goes once its connection timeout has fired.
+    /// Its connection is closed: the session lives on until its session timeout, or until a
+    /// new session needs its place once its connection timeout has fired.
     closed: bool,
 }
 
@@ -697,9 +698,6 @@ fn watchdog_step(st: &mut State, now: Instant) -> Option<Instant> {
             );
         }
     }
-    // A session whose connection is gone can do nothing more once its watchdog has acted.
-    st.sessions
-        .retain(|s| !(s.closed && (s.timed_out || s.connection_timeout.is_none())));
     let before = st.sessions.len();
     st.sessions.retain(|s| {
         let gap = now.duration_since(s.last_frame);
@@ -1004,6 +1002,13 @@ fn execute(
         }
         // A second CreateSession on one connection replaces that connection's session.
         st.sessions.retain(|s| s.conn != conn);
+        if st.sessions.len() >= MAX_SESSIONS {
+            // The table is full: the oldest session whose connection is gone makes room (its
+            // watchdog first, if it has not fired yet).
+            if let Some(i) = st.sessions.iter().position(|s| s.closed && s.timed_out) {
+                st.sessions.remove(i);
+            }
+        }
         if st.sessions.len() >= MAX_SESSIONS {
             return Err((
                 1,
