@@ -96,6 +96,24 @@ enum Cmd {
     Bridge(cmd::nodes::BridgeArgs),
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
+    ///
+    /// Serves over TCP: Session.CreateSession, CloseSession, KeepAlive; Base.Stop,
+    /// ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
+    /// GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
+    /// SendJointSpeedsCommand, SendGripperCommand (position, finger 1), GetProductConfiguration
+    /// (an empty CompleteProductConfiguration); BaseCyclic.RefreshFeedback;
+    /// ControlConfig.GetKinematicHardLimits; DeviceConfig.GetFirmwareVersion; over UDP the
+    /// cyclic channel (CreateSession, CloseSession, BaseCyclic.Refresh, RefreshFeedback).
+    ///
+    /// Up to 8 sessions at once, one per connection: the bridge's, and observing ones beside
+    /// it (read-only calls only: their connection timeout and CloseSession leave the arm
+    /// alone). A session that made any other call controls: its connection inactivity timeout
+    /// stops the motion it started.
+    ///
+    /// Not served (an error frame naming the function): everything else, among them
+    /// notifications (OnNotification...Topic), actions and trajectories, Cartesian and twist
+    /// commands, poses, DeviceManager.ReadAllDevices, actuator and interconnect configuration,
+    /// user profiles, and bypass servoing.
     FakeKortex(cmd::nodes::FakeKortexArgs),
     /// Generate demonstrations as CSV trajectories.
     Demos(cmd::learn::DemosArgs),

@@ -10,6 +10,16 @@
 //! A robot error ([`RobotError`]) is passed up to the process loop, which ends the run with
 //! [`BridgeCore::shutdown`]: the arm is stopped as far as the robot can still be reached (and
 //! a Kortex robot stops by itself when its connection inactivity timeout passes).
+//!
+//! Start from a stop ([`StartGate`]): a bridge that finds the arm moving at its first reading
+//! (a restarted bridge whose predecessor died with a motion in force: the robot keeps it until
+//! its own connection timeout) executes no command until the arm is at rest; every tick until
+//! then sends a stop ([`Robot::stop`]: Kortex `Base.Stop`, the arm braking within its own
+//! limits) and publishes a state flagged [`state_flags::STOPPING`] with no applied tick. The
+//! safety filter sees every such tick as an interruption (its command was not executed) and
+//! demands the operator's input to pass through neutral before it lets motion through again
+//! (restart prevention): so the arm moves again only once it has stopped and the input was
+//! neutral.
 
 use ipc_types::{MAX_JOINTS, NO_TICK, RobotState, SafeCommand, safe_flags, state_flags};
 
@@ -22,6 +32,9 @@ pub enum Outcome {
     Executed,
     /// No usable command: counted, controlled stop.
     Missed(MissReason),
+    /// A usable command, not executed: the arm was found moving at start and is not at rest
+    /// yet ([`StartGate`]); a stop went out instead. Not a miss.
+    StoppingAtStart,
 }
 
 /// Why a tick counted as missed.
@@ -51,6 +64,105 @@ pub fn controlled_stop_step(v: &mut [f64], accel: &[f64], dt: f64) {
     v.iter_mut().for_each(|x| *x *= keep);
 }
 
+/// Every measured joint speed at or below this (rad/s, about 0.57°/s) is "at rest" for the
+/// [`StartGate`]: the bound low-level mode is entered within
+/// ([`crate::kortex::cyclic::REST_SPEED_RAD_S`]).
+pub const AT_REST_RAD_S: f64 = crate::kortex::cyclic::REST_SPEED_RAD_S;
+
+/// Whether every speed is finite and at most `rest_rad_s` in size.
+pub fn at_rest(qdot_rad_s: &[f64], rest_rad_s: f64) -> bool {
+    qdot_rad_s.iter().all(|v| v.abs() <= rest_rad_s)
+}
+
+/// Start from a stop: the gate a bridge's commands pass only once the arm has been seen at
+/// rest. Fed each tick's measured joint speeds ([`StartGate::observe`]); the first reading
+/// decides: at rest, the gate opens at once (the usual start); moving, it stays closed (only
+/// stops go out) until a reading at rest. Once open it stays open for the process's life.
+/// A non-finite speed is not rest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StartGate {
+    /// No reading yet.
+    #[default]
+    Unknown,
+    /// The arm was found moving: only stops until it is at rest.
+    Stopping {
+        /// Readings seen moving so far.
+        ticks: u32,
+    },
+    /// The arm was seen at rest: commands execute.
+    Open,
+}
+
+/// What a reading changed at the [`StartGate`], for the log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GateChange {
+    /// The first reading showed the arm moving: `joint` at `speed_rad_s`, the fastest.
+    FoundMoving {
+        /// The fastest joint (0-based).
+        joint: usize,
+        /// Its speed (rad/s; NaN if not finite).
+        speed_rad_s: f64,
+    },
+    /// The arm came to rest after `ticks` readings moving: commands execute from now on.
+    CameToRest {
+        /// Readings it was seen moving.
+        ticks: u32,
+    },
+}
+
+/// The fastest joint and its speed's size; the first non-finite one (NaN) wins.
+fn fastest(qdot_rad_s: &[f64]) -> (usize, f64) {
+    let mut best = (0, 0.0);
+    for (j, v) in qdot_rad_s.iter().enumerate() {
+        if !v.is_finite() {
+            return (j, f64::NAN);
+        }
+        if v.abs() > best.1 {
+            best = (j, v.abs());
+        }
+    }
+    best
+}
+
+impl StartGate {
+    /// Takes one tick's measured joint speeds; returns what changed, if anything.
+    pub fn observe(&mut self, qdot_rad_s: &[f64], rest_rad_s: f64) -> Option<GateChange> {
+        let rest = at_rest(qdot_rad_s, rest_rad_s);
+        match *self {
+            Self::Open => None,
+            Self::Unknown if rest => {
+                *self = Self::Open;
+                None
+            }
+            Self::Unknown => {
+                *self = Self::Stopping { ticks: 1 };
+                let (joint, speed_rad_s) = fastest(qdot_rad_s);
+                Some(GateChange::FoundMoving { joint, speed_rad_s })
+            }
+            Self::Stopping { ticks } if rest => {
+                *self = Self::Open;
+                Some(GateChange::CameToRest { ticks })
+            }
+            Self::Stopping { ticks } => {
+                *self = Self::Stopping {
+                    ticks: ticks.saturating_add(1),
+                };
+                None
+            }
+        }
+    }
+
+    /// Whether commands may execute.
+    pub fn is_open(&self) -> bool {
+        *self == Self::Open
+    }
+
+    /// Whether the arm was found moving and is not at rest yet (only stops go out).
+    pub fn is_stopping(&self) -> bool {
+        matches!(self, Self::Stopping { .. })
+    }
+}
+
 /// The reading of a robot that never gave one (all zero).
 const FALLBACK_READING: Reading = Reading {
     q_rad: [0.0; MAX_JOINTS],
@@ -74,6 +186,8 @@ pub struct BridgeCore<R: Robot> {
     travel: f64,
     last_q: Option<[f64; MAX_JOINTS]>,
     last_reading: Option<Reading>,
+    gate: StartGate,
+    gate_change: Option<GateChange>,
 }
 
 impl<R: Robot> BridgeCore<R> {
@@ -93,6 +207,8 @@ impl<R: Robot> BridgeCore<R> {
             travel: 0.0,
             last_q: None,
             last_reading: None,
+            gate: StartGate::Unknown,
+            gate_change: None,
         }
     }
 
@@ -138,12 +254,28 @@ impl<R: Robot> BridgeCore<R> {
         self.stopping
     }
 
+    /// Where the start-from-a-stop gate is ([`StartGate`]).
+    pub fn start_gate(&self) -> StartGate {
+        self.gate
+    }
+
+    /// What the last [`BridgeCore::begin_tick`] changed at the start gate, once.
+    pub fn take_gate_change(&mut self) -> Option<GateChange> {
+        self.gate_change.take()
+    }
+
     /// Starts the next tick: lets one period of the command in force pass and returns the
     /// state to publish, stamped `now_ns`.
     pub fn begin_tick(&mut self, now_ns: u64) -> Result<RobotState, RobotError> {
         self.tick = self.tick.wrapping_add(1);
         let r = self.robot.advance(self.dt)?;
         self.last_reading = Some(r);
+        let n = self.robot.n_joints();
+        self.gate_change = self.gate.observe(&r.qdot_rad_s[..n], AT_REST_RAD_S);
+        if self.gate.is_stopping() {
+            self.stopping = true;
+            self.safety_stop = false;
+        }
         Ok(self.state_from(r, now_ns, 0))
     }
 
@@ -199,6 +331,15 @@ impl<R: Robot> BridgeCore<R> {
             Some(c) => Ok(c),
         };
         match verdict {
+            Ok(_) if !self.gate.is_open() => {
+                // Found moving at start: a stop until the arm is at rest, whatever comes.
+                self.in_force = [0.0; MAX_JOINTS];
+                self.applied_tick = NO_TICK;
+                self.stopping = true;
+                self.safety_stop = false;
+                self.robot.stop()?;
+                Ok(Outcome::StoppingAtStart)
+            }
             Ok(c) => {
                 self.in_force = [0.0; MAX_JOINTS];
                 self.in_force[..n].copy_from_slice(&c.qdot_rad_s[..n]);
@@ -345,6 +486,116 @@ mod tests {
         assert!(s2.flags & state_flags::STOPPING != 0);
         assert!(s2.flags & state_flags::MOCK != 0);
         assert!(s2.qdot_rad_s[0] < 0.2, "decelerating, not executing 0.4");
+    }
+
+    #[test]
+    fn the_start_gate_opens_at_once_on_an_arm_at_rest() {
+        let mut g = StartGate::default();
+        assert!(!g.is_open() && !g.is_stopping());
+        assert_eq!(
+            g.observe(&[0.0, 0.005, -0.01, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            None
+        );
+        assert!(g.is_open());
+        // Open for good: later motion is the graph's own.
+        assert_eq!(g.observe(&[0.4; 6], AT_REST_RAD_S), None);
+        assert!(g.is_open());
+    }
+
+    #[test]
+    fn the_start_gate_holds_a_moving_arm_until_it_is_at_rest() {
+        let mut g = StartGate::default();
+        assert_eq!(
+            g.observe(&[0.1, -0.406, 0.0, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            Some(GateChange::FoundMoving {
+                joint: 1,
+                speed_rad_s: 0.406
+            })
+        );
+        assert!(g.is_stopping() && !g.is_open());
+        assert_eq!(
+            g.observe(&[0.0, -0.2, 0.0, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            None
+        );
+        // Just above the bound is still moving; a non-finite speed is never rest.
+        assert_eq!(
+            g.observe(&[0.0, 0.0101, 0.0, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            None
+        );
+        assert_eq!(
+            g.observe(&[f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            None
+        );
+        assert_eq!(g, StartGate::Stopping { ticks: 4 });
+        assert_eq!(
+            g.observe(&[0.0, 0.009, 0.0, 0.0, 0.0, 0.0], AT_REST_RAD_S),
+            Some(GateChange::CameToRest { ticks: 4 })
+        );
+        assert!(g.is_open());
+        let mut g = StartGate::default();
+        let change = g.observe(&[0.0, 1.0, f64::INFINITY, 0.0], AT_REST_RAD_S);
+        assert!(
+            matches!(change, Some(GateChange::FoundMoving { joint: 2, speed_rad_s }) if speed_rad_s.is_nan()),
+            "{change:?}"
+        );
+    }
+
+    /// A restarted bridge that finds the arm moving (its predecessor's motion still in force on
+    /// the robot): it executes no command, only stops, until the arm is at rest, and says so in
+    /// its states (STOPPING, no applied tick: safety's restart prevention sees an
+    /// interruption); not counted as misses. Then commands execute again.
+    #[test]
+    fn a_bridge_that_finds_the_arm_moving_stops_it_before_executing_anything() {
+        let mut b = core();
+        b.start_at(700);
+        b.robot_mut()
+            .set_command(&[0.4, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0);
+        let s = b.begin_tick(0).unwrap();
+        assert!((s.qdot_rad_s[0] - 0.4).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.applied_tick, NO_TICK);
+        assert!(s.flags & state_flags::STOPPING != 0);
+        assert!(matches!(
+            b.take_gate_change(),
+            Some(GateChange::FoundMoving { joint: 0, .. })
+        ));
+        assert_eq!(b.take_gate_change(), None);
+        // Safety's command for this very tick is not executed: a stop goes out.
+        assert_eq!(
+            b.finish_tick(Some(&cmd(700, 0.39))).unwrap(),
+            Outcome::StoppingAtStart
+        );
+        assert_eq!(b.robot().command_in_force(), &[0.0; 6]);
+        assert_eq!(b.missed(), 0);
+        // At rest now: the gate opens at the next reading, whose state still shows the stop.
+        let s = b.begin_tick(0).unwrap();
+        assert_eq!(s.applied_tick, NO_TICK);
+        assert!(s.qdot_rad_s.iter().all(|v| *v == 0.0));
+        assert_eq!(
+            b.take_gate_change(),
+            Some(GateChange::CameToRest { ticks: 1 })
+        );
+        assert_eq!(
+            b.finish_tick(Some(&cmd(701, 0.1))).unwrap(),
+            Outcome::Executed
+        );
+        let s = b.begin_tick(0).unwrap();
+        assert_eq!(s.applied_tick, 701);
+        assert!(s.flags & state_flags::STOPPING == 0);
+    }
+
+    /// A miss while the gate holds is still a miss (counted), and the arm gets a stop.
+    #[test]
+    fn a_miss_during_the_start_stop_is_counted() {
+        let mut b = core();
+        b.robot_mut()
+            .set_command(&[0.0, 0.3, 0.0, 0.0, 0.0, 0.0], 0.0);
+        b.begin_tick(0).unwrap();
+        assert_eq!(
+            b.finish_tick(None).unwrap(),
+            Outcome::Missed(MissReason::NoCommand)
+        );
+        assert_eq!(b.missed(), 1);
+        assert_eq!(b.robot().command_in_force(), &[0.0; 6]);
     }
 
     #[test]

@@ -280,17 +280,30 @@ fn raw_call(
     function: Function,
     payload: Vec<u8>,
 ) -> Frame {
-    let mut out = Vec::new();
-    Frame::new(
-        FrameType::Request,
+    raw_call_uid(
+        stream,
+        decoder,
         session,
         message_id,
         function.uid(),
         payload,
     )
-    .unwrap()
-    .encode_tcp(&mut out)
-    .unwrap();
+}
+
+/// [`raw_call`] of any function UID.
+fn raw_call_uid(
+    stream: &mut TcpStream,
+    decoder: &mut FrameDecoder,
+    session: u16,
+    message_id: u16,
+    uid: u32,
+    payload: Vec<u8>,
+) -> Frame {
+    let mut out = Vec::new();
+    Frame::new(FrameType::Request, session, message_id, uid, payload)
+        .unwrap()
+        .encode_tcp(&mut out)
+        .unwrap();
     stream.write_all(&out).unwrap();
     let mut buf = [0u8; 4096];
     loop {
@@ -797,4 +810,109 @@ fn the_bridge_core_drives_the_robot_and_a_miss_ends_in_a_stop() {
     let s = fake.snapshot();
     assert!(!s.commanded_to_move());
     assert_eq!(s.stats.sessions_closed, 1);
+}
+
+/// What Kinova's own tools do beside a running bridge: a second, observing session on another
+/// connection reads the arm (GetServoingMode, GetArmState, GetActuatorCount,
+/// GetMeasuredJointAngles, RefreshFeedback, GetProductConfiguration, the hard limits) while
+/// the bridge drives it; the observer's silence past its connection timeout and its
+/// CloseSession leave the bridge's motion alone; a call the fake does not serve is an error
+/// frame naming it.
+#[test]
+fn an_observing_session_reads_the_arm_beside_the_bridge_without_stopping_it() {
+    let fake = start_fake(FakeConfig::default());
+    // The bridge's own connection timeout is long here: any timeout the fake counts below is
+    // the observer's (the machine may starve the test thread for 200 ms).
+    let cfg = KortexConfig {
+        connection_timeout_ms: 10_000,
+        ..client_cfg(&fake)
+    };
+    let mut arm = KortexArm::connect(&cfg, &admin()).unwrap();
+    moving(&fake, &mut arm);
+
+    let mut stream = TcpStream::connect(fake.addr()).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut dec = FrameDecoder::new();
+    let info = msg::CreateSessionInfo {
+        username: "admin".into(),
+        session_inactivity_timeout: 60_000,
+        password: "admin".into(),
+        connection_inactivity_timeout: 50,
+    };
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        0,
+        1,
+        Function::CreateSession,
+        info.encode_to_vec(),
+    );
+    assert_eq!(reply.error(), None);
+    let session = reply.header().session_id();
+    assert_ne!(session, arm.session_id());
+    assert_eq!(fake.snapshot().open_sessions, 2);
+    let mut id = 1;
+    let mut call = |function: Function| {
+        id += 1;
+        let reply = raw_call(&mut stream, &mut dec, session, id, function, Vec::new());
+        assert_eq!(reply.error(), None, "{}", function.name());
+        reply
+    };
+    let mode: msg::ServoingModeInformation =
+        msg::ServoingModeInformation::decode(call(Function::GetServoingMode).payload.as_slice())
+            .unwrap();
+    assert_eq!(mode.servoing_mode, msg::servoing_mode::SINGLE_LEVEL);
+    let state =
+        msg::ArmStateInformation::decode(call(Function::GetArmState).payload.as_slice()).unwrap();
+    assert_eq!(state.active_state, msg::arm_state::SERVOING_READY);
+    let count =
+        msg::ActuatorInformation::decode(call(Function::GetActuatorCount).payload.as_slice())
+            .unwrap();
+    assert_eq!(count.count, 6);
+    let q = msg::JointAngles::decode(call(Function::GetMeasuredJointAngles).payload.as_slice())
+        .unwrap();
+    assert_eq!(q.joint_angles.len(), 6);
+    let fb = msg::Feedback::decode(call(Function::RefreshFeedback).payload.as_slice()).unwrap();
+    assert_eq!(fb.actuators.len(), 6);
+    call(Function::GetProductConfiguration);
+    call(Function::GetKinematicHardLimits);
+    // A call the fake does not serve (Base.GetMeasuredCartesianPose, 0x20073): named.
+    id += 1;
+    let reply = raw_call_uid(&mut stream, &mut dec, session, id, 0x2_0073, Vec::new());
+    let e = reply.error().expect("an unserved call is an error");
+    assert_eq!(e.code, 1);
+    assert!(
+        e.detail.contains("0x20073") && e.detail.contains("not served"),
+        "{e:?}"
+    );
+
+    // The observer goes silent past its 50 ms connection timeout while the bridge ticks: the
+    // arm moves on, and the bridge's session works.
+    let timeouts = connection_timeouts(&fake);
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(300) {
+        tick(&mut arm, &MOVE, 0.0).unwrap();
+    }
+    let s = fake.snapshot();
+    assert_eq!(s.stats.connection_timeouts, timeouts, "{s:?}");
+    assert!(s.commanded_to_move(), "{s:?}");
+    // Its CloseSession leaves the arm moving too.
+    id += 1;
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        session,
+        id,
+        Function::CloseSession,
+        Vec::new(),
+    );
+    assert_eq!(reply.error(), None);
+    let s = fake.snapshot();
+    assert!(s.commanded_to_move() && s.open_sessions == 1, "{s:?}");
+    tick(&mut arm, &MOVE, 0.0).unwrap();
+    arm.shutdown().unwrap();
+    let s = fake.snapshot();
+    assert!(!s.commanded_to_move() && !s.session_open, "{s:?}");
 }

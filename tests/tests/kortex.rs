@@ -726,3 +726,213 @@ fn a_robot_that_misreads_the_cyclic_command_fails_the_entry_check_and_ends_the_g
         Vec::<String>::new()
     );
 }
+
+/// The periods lost between two states `t0_ns` and `t1_ns` (monotonic ns) of a graph ticking
+/// every `period_ns`: whole periods to the nearest, less the one between consecutive states.
+fn lost_periods(t0_ns: u64, t1_ns: u64, period_ns: u64) -> u64 {
+    ((t1_ns.saturating_sub(t0_ns) + period_ns / 2) / period_ns).saturating_sub(1)
+}
+
+/// The states of the bridge that followed the one killed after `last_before`: those after
+/// the first gap of more than three periods (the restart takes at least the supervisor's
+/// backoff, 100 ms); with the last state of the killed bridge.
+fn after_restart(
+    states: &[ipc_types::RobotState],
+    last_before: &ipc_types::RobotState,
+) -> Option<(ipc_types::RobotState, Vec<ipc_types::RobotState>)> {
+    let k = states.iter().position(|s| s.tick == last_before.tick)?;
+    let split =
+        (k + 1..states.len()).find(|&i| states[i].t_ns - states[i - 1].t_ns > 75_000_000)?;
+    Some((states[split - 1], states[split..].to_vec()))
+}
+
+/// Issue 29, items 1 and 5: the bridge is killed while the drill map moves joint 0 at
+/// 0.4 rad/s, and restarted (`on-failure`) before the robot's own connection timeout (2 s
+/// here, Kinova's example value) stops the arm: the arm is still moving when the new bridge
+/// connects. The new bridge must start from a stop: none of its states reports an executed
+/// command until the measured speed is ~0 (and the robot's first motion request from the new
+/// session is a Stop, not joint speeds); motion resumes only after the operator's input was
+/// neutral (the stick is held deflected across the restart). The periods lost while no bridge
+/// ran (from the timestamps of the last state before and the first after) are counted in
+/// `scl up --json` `missed` and in the new bridge's states.
+#[test]
+fn a_restarted_bridge_that_finds_the_arm_moving_stops_it_first_then_waits_for_neutral() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("moving");
+    // Stick: at rest 0.5 s (the first motion needs neutral), then deflected for 6 s with
+    // 0.6 s at rest between; the drill map ignores it, so the arm moves all along.
+    scl_tests::write_replay(
+        &dir.0.join("input.csv"),
+        &scl_tests::pulses([0.8, 0.0], 6.0, 0.6, 120.0),
+    );
+    let config = write_config(
+        &dir.0,
+        &fake,
+        false,
+        "connection_timeout_ms = 2000\n\n[supervisor.restart]\nbridge = \"on-failure\"\n\n\
+         [mapper]\nmodel = \"constant:qdot=0.4,0,0,0,0,0\"\n\n\
+         [joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n",
+    );
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxmoving");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up(&prefix, &config, &log, true);
+    let deflected = |r: &Recorder| {
+        r.joystick_samples
+            .last()
+            .is_some_and(|j| j.axes[0].abs() > 0.5)
+    };
+    // Kill early in a deflected stretch, with the arm moving at 0.4 rad/s: the stick stays
+    // deflected for seconds after the restart.
+    let ready = rec.poll_until(Duration::from_secs(60), |r| {
+        let states = running_states(r);
+        states.len() >= 40
+            && states
+                .last()
+                .is_some_and(|s| (s.qdot_rad_s[0] - 0.4).abs() < 0.01)
+            && deflected(r)
+    });
+    assert!(
+        ready,
+        "the arm never moved at 0.4 rad/s with the stick deflected: {}",
+        std::fs::read_to_string(&log).unwrap()
+    );
+    let last_before = *running_states(&rec).last().unwrap();
+    let sessions_before = fake.snapshot().stats.sessions_opened;
+    let pid = rec.pid_of(NodeRole::Bridge).unwrap();
+    scl_tests::send_signal(pid, Signal::SIGKILL);
+
+    // The new bridge: wait until it executes a moving command again.
+    let moved_again = rec.poll_until(Duration::from_secs(40), |r| {
+        let Some((_, new)) = after_restart(&running_states(r), &last_before) else {
+            return false;
+        };
+        new.iter().any(|s| {
+            s.applied_tick != ipc_types::NO_TICK
+                && r.safe_commands
+                    .iter()
+                    .any(|c| c.tick == s.applied_tick && c.qdot_rad_s[0].abs() > 1e-3)
+        })
+    });
+    scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(moved_again, "the arm never moved again: {log_text}");
+    assert!(out.status.success(), "{log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["restarts"], 1, "{summary}");
+
+    // What the graph published before the kill and after the restart.
+    let (last_before, new) = after_restart(&running_states(&rec), &last_before).unwrap();
+    let first = new[0];
+    assert_eq!(first.tick, last_before.tick + 1, "the tick count goes on");
+    assert!(
+        first.qdot_rad_s[0] > 0.3,
+        "the arm was not moving when the new bridge connected (the robot's timeout is 2 s): \
+         {first:?}"
+    );
+    // Item 5: the periods lost while no bridge ran are counted as missed.
+    let lost = lost_periods(last_before.t_ns, first.t_ns, 25_000_000);
+    assert!(lost >= 3, "a restart within {lost} periods? {first:?}");
+    assert!(
+        first.missed >= lost,
+        "{lost} periods lost, the new bridge counts {}",
+        first.missed
+    );
+    let missed = summary["missed"].as_u64().unwrap();
+    assert!(
+        missed >= lost,
+        "{lost} periods lost, scl up reports missed {missed}: {summary}"
+    );
+
+    let speed =
+        |s: &ipc_types::RobotState| s.qdot_rad_s[..6].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    // Stops only until the arm is at rest: no state up to the first at rest reports an executed
+    // command, and each is flagged stopping.
+    let mut rest = None;
+    for (i, s) in new.iter().enumerate() {
+        assert_eq!(
+            s.applied_tick,
+            ipc_types::NO_TICK,
+            "the new bridge executed a command before the arm was at rest: {s:?}"
+        );
+        assert!(s.flags & state_flags::STOPPING != 0, "{s:?}");
+        if speed(s) <= 0.01 {
+            rest = Some(i);
+            break;
+        }
+    }
+    let rest = rest.expect("the arm never came to rest");
+    // The robot's view: the new session's first motion request was a Stop.
+    let requests = fake.request_log();
+    let opened = requests
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.function() == Some(Function::CreateSession))
+        .map(|(i, _)| i)
+        .nth(usize::try_from(sessions_before).unwrap())
+        .expect("no new session");
+    let first_motion = requests[opened..]
+        .iter()
+        .filter_map(|r| r.function())
+        .find(|f| matches!(f, Function::Stop | Function::SendJointSpeedsCommand));
+    assert_eq!(first_motion, Some(Function::Stop), "{requests:?}");
+
+    // Motion resumes only after neutral input: the first moving command executed by the new
+    // bridge answers a tick at or after a mapper command whose stick was at rest, and the stick
+    // was still deflected after the restart (the neutral requirement was exercised).
+    let executed_moving = new
+        .iter()
+        .filter(|s| s.applied_tick != ipc_types::NO_TICK)
+        .filter_map(|s| {
+            rec.safe_commands
+                .iter()
+                .find(|c| c.tick == s.applied_tick && c.qdot_rad_s[0].abs() > 1e-3)
+        })
+        .map(|c| c.tick)
+        .min()
+        .unwrap();
+    let new_mapper: Vec<&ipc_types::MapperCommand> = rec
+        .mapper_commands
+        .iter()
+        .filter(|m| m.tick >= first.tick && m.tick <= executed_moving)
+        .collect();
+    let norm = |m: &ipc_types::MapperCommand| f64::from(m.action[0]).hypot(f64::from(m.action[1]));
+    let neutral_at = new_mapper
+        .iter()
+        .find(|m| norm(m) <= 0.05)
+        .map(|m| m.tick)
+        .unwrap_or_else(|| {
+            panic!("motion resumed at tick {executed_moving} without neutral input")
+        });
+    assert!(
+        new_mapper
+            .iter()
+            .any(|m| m.tick < neutral_at && norm(m) > 0.5),
+        "the stick was not deflected after the restart: the test did not exercise the neutral \
+         requirement"
+    );
+    let rest_tick = new[rest].tick;
+
+    let travel = (new[rest].q_rad[0] - last_before.q_rad[0]).abs();
+    let stop_ms = (new[rest].t_ns - last_before.t_ns) as f64 * 1e-6;
+    eprintln!(
+        "kortex restart while moving: {lost} periods lost ({:.0} ms down), first state at \
+         {:.3} rad/s, at rest {} ticks later ({stop_ms:.0} ms, {travel:.3} rad from the last \
+         state before the kill), moving again {} ticks after rest (neutral at tick +{}); \
+         missed {missed}",
+        (first.t_ns - last_before.t_ns) as f64 * 1e-6,
+        first.qdot_rad_s[0],
+        rest,
+        executed_moving - rest_tick,
+        neutral_at - first.tick,
+    );
+    assert_no_credentials(&log_text);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}

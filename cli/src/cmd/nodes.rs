@@ -35,6 +35,10 @@ pub(crate) struct BridgeArgs {
     /// Mock arm: start with this gripper state (0 open .. 1 closed).
     #[arg(long, default_value_t = 0.0)]
     pub(crate) resume_gripper: f64,
+    /// When the predecessor published its last state (monotonic ns; given by `scl up`):
+    /// the periods until this bridge's first state are counted as missed.
+    #[arg(long, value_name = "NS")]
+    pub(crate) resume_t_ns: Option<u64>,
     /// Kortex: the robot's IP address (instead of bridge.kortex.address).
     #[arg(long, value_name = "IP")]
     pub(crate) address: Option<String>,
@@ -111,6 +115,7 @@ pub(crate) fn bridge(
         start_tick,
         resume_q,
         resume_gripper,
+        resume_t_ns,
         address,
         port,
         user,
@@ -129,6 +134,7 @@ pub(crate) fn bridge(
     let resume = scl_bridge_node::Resume {
         start_tick,
         pose: resume_q.map(|q| (q, resume_gripper)),
+        last_state_t_ns: resume_t_ns,
     };
     let creds = scl_bridge_node::CredentialArgs {
         user: user.map(scl_bridge_node::Secret::into_inner),

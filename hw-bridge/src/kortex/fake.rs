@@ -11,6 +11,26 @@
 //! timeout: it still stops the motion the old session started, unless the new session has
 //! commanded since. The session itself ends after the session inactivity timeout.
 //!
+//! Several sessions may be open at once, each on its own connection (at most
+//! [`MAX_SESSIONS`]): the bridge's, and observing ones beside it (Kinova's Web App or Python
+//! tools reading the arm's state). A session that only made read-only calls (the `Get...`
+//! calls, RefreshFeedback, KeepAlive) observes: its connection timeout and its CloseSession
+//! leave the arm alone. A session that made any other call (servoing mode, faults, a motion
+//! command, a stop) controls: its connection timeout stops the motion it started (not one a
+//! session that commanded since started) and its CloseSession stops the arm.
+//!
+//! Served over TCP: Session.CreateSession / CloseSession / KeepAlive; Base.Stop,
+//! ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
+//! GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
+//! SendJointSpeedsCommand, SendGripperCommand (position mode, finger 1),
+//! GetProductConfiguration (an empty CompleteProductConfiguration: every field at its
+//! default); BaseCyclic.RefreshFeedback; ControlConfig.GetKinematicHardLimits;
+//! DeviceConfig.GetFirmwareVersion. Not served (answered with a protocol-server error naming
+//! the function): every other call, among them notifications (`OnNotification...Topic`),
+//! actions and trajectories, Cartesian commands and poses, twist commands, the device
+//! manager (`DeviceManager.ReadAllDevices`), actuator and interconnect configuration, user
+//! profiles, and servoing mode bypass.
+//!
 //! Like a robot left in another servoing mode by a previous client, the fake starts in no
 //! servoing mode a client may rely on: it refuses joint speed and gripper commands with a device
 //! error until a session sets single-level servoing (`Base.SetServoingMode`). It records every
@@ -60,6 +80,9 @@ use super::wire::{Decoded, ErrorPayload, Frame, FrameDecoder, FrameType, Header,
 use super::{Credentials, Function, angle_rad_to_wire_deg, msg};
 use crate::Reading;
 use crate::mock::{MockArm, MockConfig, MockConfigError};
+
+/// Sessions open at once, at most (a further CreateSession is refused).
+pub const MAX_SESSIONS: usize = 8;
 
 /// The longest the watchdog sleeps (so that shutting down is prompt).
 const WATCHDOG_MAX_SLEEP: Duration = Duration::from_millis(50);
@@ -280,11 +303,13 @@ pub struct FakeSnapshot {
     pub command_in_force: [f64; gen3_lite::N_JOINTS],
     /// A session exists.
     pub session_open: bool,
+    /// Sessions open now (the bridge's and observing ones).
+    pub open_sessions: usize,
     /// The counters.
     pub stats: FakeStats,
     /// At the last connection timeout: how long it had been since the last frame.
     pub last_timeout_gap: Option<Duration>,
-    /// Time since the last frame of the session's connection.
+    /// Time since the last frame of the newest session's connection.
     pub since_last_frame: Option<Duration>,
     /// The connection inactivity timeout (ms) the last session opened was created with, as the
     /// client sent it (0: none); `None` before any session. Kept after the session ends.
@@ -339,16 +364,19 @@ struct Session {
     session_timeout: Option<Duration>,
     last_frame: Instant,
     timed_out: bool,
+    /// It made a call that is not read-only ([`read_only`]).
+    controls: bool,
+    /// Its connection is closed: the session lives on until its session timeout, or until a
+    /// new session needs its place once its connection timeout has fired.
+    closed: bool,
 }
 
 struct State {
     arm: MockArm,
     reading: Reading,
     last_step: Instant,
-    session: Option<Session>,
-    /// A session replaced by a newer one (another connection) before its connection timeout
-    /// fired: its watchdog still stops the motion it started, as the robot's does.
-    orphan: Option<Session>,
+    /// The open sessions, oldest first.
+    sessions: Vec<Session>,
     /// The session whose joint speeds are in force.
     command_from: Option<u16>,
     next_session_id: u16,
@@ -458,8 +486,7 @@ impl FakeKortex {
                 arm,
                 reading,
                 last_step: Instant::now(),
-                session: None,
-                orphan: None,
+                sessions: Vec::new(),
                 command_from: None,
                 next_session_id: 0x1234,
                 faults: VecDeque::new(),
@@ -559,10 +586,11 @@ impl FakeKortex {
             gripper: st.reading.gripper,
             gripper_target: st.arm.gripper_target(),
             command_in_force: [0.0; gen3_lite::N_JOINTS],
-            session_open: st.session.is_some(),
+            session_open: !st.sessions.is_empty(),
+            open_sessions: st.sessions.len(),
             stats: st.stats,
             last_timeout_gap: st.last_timeout_gap,
-            since_last_frame: st.session.as_ref().map(|s| s.last_frame.elapsed()),
+            since_last_frame: st.sessions.last().map(|s| s.last_frame.elapsed()),
             connection_timeout_ms: st.created_timeouts_ms.map(|(c, _)| c),
             session_timeout_ms: st.created_timeouts_ms.map(|(_, s)| s),
             single_level_servoing: st.single_level_servoing,
@@ -626,74 +654,85 @@ fn watchdog_loop(sh: Arc<Shared>) {
     while !sh.stop.load(Ordering::SeqCst) {
         let sleep = {
             let mut st = sh.state();
-            let now = Instant::now();
-            let mut next: Option<Instant> = None;
-            if let Some(s) = st.session.as_mut() {
-                let gap = now.duration_since(s.last_frame);
-                if let Some(t) = s.connection_timeout.filter(|_| !s.timed_out) {
-                    if gap > t {
-                        s.timed_out = true;
-                        st.arm.halt();
-                        st.stats.connection_timeouts += 1;
-                        st.last_timeout_gap = Some(gap);
-                        tracing::warn!(
-                            "fake Kortex: no frame for {} ms: connection inactivity timeout, \
-                             arm stopped",
-                            gap.as_millis()
-                        );
-                    } else {
-                        next = Some(s.last_frame + t);
-                    }
-                }
-            }
-            // A replaced session's watchdog: stops the arm if what moves it is still that
-            // session's command (a new session that commanded since has taken over).
-            if let Some((id, last_frame, t)) = st
-                .orphan
-                .as_ref()
-                .and_then(|o| o.connection_timeout.map(|t| (o.id, o.last_frame, t)))
-            {
-                let gap = now.duration_since(last_frame);
-                if gap > t {
-                    st.orphan = None;
-                    if st.command_from == Some(id) {
-                        st.arm.halt();
-                        st.stats.connection_timeouts += 1;
-                        st.last_timeout_gap = Some(gap);
-                        tracing::warn!(
-                            "fake Kortex: no frame for {} ms on a replaced session: \
-                             connection inactivity timeout, arm stopped",
-                            gap.as_millis()
-                        );
-                    }
-                } else {
-                    let due = last_frame + t;
-                    next = Some(next.map_or(due, |n| n.min(due)));
-                }
-            }
-            if let Some(s) = st.session.as_ref() {
-                let gap = now.duration_since(s.last_frame);
-                match s.session_timeout {
-                    Some(t) if gap > t => {
-                        st.session = None;
-                        st.stats.sessions_expired += 1;
-                        tracing::warn!("fake Kortex: no frame for {gap:?}: session timed out");
-                    }
-                    Some(t) => {
-                        let due = s.last_frame + t;
-                        next = Some(next.map_or(due, |n| n.min(due)));
-                    }
-                    None => {}
-                }
-            }
-            next.map_or(WATCHDOG_MAX_SLEEP, |n| {
+            watchdog_step(&mut st, Instant::now()).map_or(WATCHDOG_MAX_SLEEP, |due| {
                 // Just past the deadline, so that the gap is over the timeout when it wakes.
-                (n.saturating_duration_since(now) + Duration::from_micros(200))
+                (due.saturating_duration_since(Instant::now()) + Duration::from_micros(200))
                     .min(WATCHDOG_MAX_SLEEP)
             })
         };
         std::thread::sleep(sleep);
     }
+}
+
+/// The robot's watchdogs at `now`: each session's connection inactivity timeout (it stops the
+/// motion the session started, if it controls and no other open session has commanded
+/// since), then each session's inactivity timeout (the session ends). Returns the next
+/// deadline.
+fn watchdog_step(st: &mut State, now: Instant) -> Option<Instant> {
+    let mut next: Option<Instant> = None;
+    let mut soonest = |due: Instant| next = Some(next.map_or(due, |n: Instant| n.min(due)));
+    for i in 0..st.sessions.len() {
+        let s = &st.sessions[i];
+        let Some(t) = s.connection_timeout.filter(|_| !s.timed_out) else {
+            continue;
+        };
+        let gap = now.duration_since(s.last_frame);
+        if gap <= t {
+            soonest(s.last_frame + t);
+            continue;
+        }
+        let (id, controls) = (s.id, s.controls);
+        st.sessions[i].timed_out = true;
+        // Another open session that commanded since has taken the arm over.
+        let taken_over = st
+            .command_from
+            .is_some_and(|c| c != id && st.sessions.iter().any(|o| o.id == c));
+        if controls && !taken_over {
+            st.arm.halt();
+            st.stats.connection_timeouts += 1;
+            st.last_timeout_gap = Some(gap);
+            tracing::warn!(
+                session = format_args!("{id:#06x}"),
+                "fake Kortex: no frame for {} ms: connection inactivity timeout, arm stopped",
+                gap.as_millis()
+            );
+        }
+    }
+    let before = st.sessions.len();
+    st.sessions.retain(|s| {
+        let gap = now.duration_since(s.last_frame);
+        match s.session_timeout {
+            Some(t) if gap > t => {
+                tracing::warn!("fake Kortex: no frame for {gap:?}: session timed out");
+                false
+            }
+            Some(t) => {
+                soonest(s.last_frame + t);
+                true
+            }
+            None => true,
+        }
+    });
+    st.stats.sessions_expired += (before - st.sessions.len()) as u64;
+    next
+}
+
+/// Whether a call only reads (an observing session's calls).
+fn read_only(function: Function) -> bool {
+    matches!(
+        function,
+        Function::CreateSession
+            | Function::CloseSession
+            | Function::KeepAlive
+            | Function::GetMeasuredJointAngles
+            | Function::GetActuatorCount
+            | Function::GetArmState
+            | Function::GetServoingMode
+            | Function::GetProductConfiguration
+            | Function::GetKinematicHardLimits
+            | Function::GetFirmwareVersion
+            | Function::RefreshFeedback
+    )
 }
 
 fn accept_loop(sh: Arc<Shared>, listener: TcpListener) {
@@ -754,6 +793,9 @@ fn serve_connection(sh: Arc<Shared>, stream: TcpStream, conn: u64) {
     let _ = stream.set_nodelay(true);
     serve(&sh, stream, conn);
     sh.conns().retain(|(c, _)| *c != conn);
+    for s in sh.state().sessions.iter_mut().filter(|s| s.conn == conn) {
+        s.closed = true;
+    }
     tracing::info!(conn, "fake Kortex: connection closed");
 }
 
@@ -823,9 +865,7 @@ fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
     let now = Instant::now();
     let mut st = sh.state();
     st.stats.frames += 1;
-    if let Some(s) = st.session.as_mut()
-        && s.conn == conn
-    {
+    if let Some(s) = st.sessions.iter_mut().find(|s| s.conn == conn) {
         s.last_frame = now;
         // A frame re-arms the watchdog: the next silence stops the arm again.
         s.timed_out = false;
@@ -861,9 +901,9 @@ fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
         _ => execute(&sh.cfg, &mut st, conn, function, h.function_uid(), frame),
     };
     let session_id = st
-        .session
-        .as_ref()
-        .filter(|s| s.conn == conn)
+        .sessions
+        .iter()
+        .find(|s| s.conn == conn)
         .map_or(h.session_id(), |s| s.id);
     let message_id = match fault {
         Some(Fault::WrongMessageId) => h.message_id().wrapping_add(0x7000),
@@ -960,23 +1000,34 @@ fn execute(
         {
             return Err((1, 15, "wrong user name or password".into()));
         }
+        // A second CreateSession on one connection replaces that connection's session.
+        st.sessions.retain(|s| s.conn != conn);
+        if st.sessions.len() >= MAX_SESSIONS {
+            // The table is full: the oldest session whose connection is gone makes room (its
+            // watchdog first, if it has not fired yet).
+            if let Some(i) = st.sessions.iter().position(|s| s.closed && s.timed_out) {
+                st.sessions.remove(i);
+            }
+        }
+        if st.sessions.len() >= MAX_SESSIONS {
+            return Err((
+                1,
+                0,
+                format!("this fake robot holds at most {MAX_SESSIONS} sessions at once"),
+            ));
+        }
         let id = st.next_session_id;
         st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
         let ms = |v: u32| (v > 0).then(|| Duration::from_millis(u64::from(v)));
-        if let Some(old) = st.session.take()
-            && old.conn != conn
-            && !old.timed_out
-            && old.connection_timeout.is_some()
-        {
-            st.orphan = Some(old);
-        }
-        st.session = Some(Session {
+        st.sessions.push(Session {
             id,
             conn,
             connection_timeout: ms(info.connection_inactivity_timeout),
             session_timeout: ms(info.session_inactivity_timeout),
             last_frame: Instant::now(),
             timed_out: false,
+            controls: false,
+            closed: false,
         });
         st.stats.sessions_opened += 1;
         st.created_timeouts_ms = Some((
@@ -991,8 +1042,11 @@ fn execute(
         );
         return Ok(Vec::new());
     }
-    if st.session.as_ref().is_none_or(|s| s.conn != conn) {
+    let Some(si) = st.sessions.iter().position(|s| s.conn == conn) else {
         return Err((1, 12, "no session on this connection".into()));
+    };
+    if !read_only(function) {
+        st.sessions[si].controls = true;
     }
     let n = gen3_lite::N_JOINTS;
     match function {
@@ -1003,8 +1057,10 @@ fn execute(
         }
         Function::Refresh => refresh(cfg, st, frame),
         Function::CloseSession => {
-            st.arm.halt();
-            st.session = None;
+            // An observing session's end leaves the arm alone.
+            if st.sessions.remove(si).controls {
+                st.arm.halt();
+            }
             st.stats.sessions_closed += 1;
             tracing::info!("fake Kortex: session closed");
             Ok(Vec::new())
@@ -1052,6 +1108,18 @@ fn execute(
             firmware_version: cfg.firmware_version,
         }
         .encode_to_vec()),
+        Function::GetServoingMode => Ok(msg::ServoingModeInformation {
+            // Unspecified (0) until a session sets one, as the fake starts.
+            servoing_mode: if st.low_level_servoing {
+                msg::servoing_mode::LOW_LEVEL
+            } else if st.single_level_servoing {
+                msg::servoing_mode::SINGLE_LEVEL
+            } else {
+                0
+            },
+        }
+        .encode_to_vec()),
+        Function::GetProductConfiguration => Ok(Vec::new()),
         Function::GetArmState => Ok(msg::ArmStateInformation {
             active_state: msg::arm_state::SERVOING_READY,
         }
@@ -1116,7 +1184,7 @@ fn execute(
                 return Err((3, 0, "joint speed commands must name every joint".into()));
             }
             st.arm.set_command(&v[..n], 0.0);
-            st.command_from = st.session.as_ref().map(|s| s.id);
+            st.command_from = Some(st.sessions[si].id);
             st.stats.joint_speed_commands += 1;
             let mut entry = [0.0; gen3_lite::N_JOINTS];
             entry.copy_from_slice(&v[..n]);

@@ -93,11 +93,19 @@ pub enum Function {
     GetKinematicHardLimits,
     /// `DeviceConfig.GetFirmwareVersion` (read by `scl doctor` only).
     GetFirmwareVersion,
+    /// `Base.GetServoingMode` (never sent by the bridge; served by the fake robot, which
+    /// Kinova's own tools ask on connect). Not in the protocol reference: the UID follows
+    /// SetServoingMode's in Kinova's published client sources (BaseClientRpc.h, KortexAPI 2.x).
+    GetServoingMode,
+    /// `Base.GetProductConfiguration` (never sent by the bridge; the fake robot answers it
+    /// with an empty `CompleteProductConfiguration`). UID from Kinova's published client
+    /// sources (BaseClientRpc.h, KortexAPI 2.x), not the protocol reference.
+    GetProductConfiguration,
 }
 
 impl Function {
     /// Every function, for look-ups.
-    pub const ALL: [Function; 16] = [
+    pub const ALL: [Function; 18] = [
         Self::CreateSession,
         Self::CloseSession,
         Self::KeepAlive,
@@ -114,6 +122,8 @@ impl Function {
         Self::Refresh,
         Self::GetKinematicHardLimits,
         Self::GetFirmwareVersion,
+        Self::GetServoingMode,
+        Self::GetProductConfiguration,
     ];
 
     /// Function UID: `(service id << 16) | function id`.
@@ -138,6 +148,8 @@ impl Function {
             Self::Refresh => 0x3_0001,
             Self::GetKinematicHardLimits => 0x10_0012,
             Self::GetFirmwareVersion => 0x9_0004,
+            Self::GetServoingMode => 0x2_0099,
+            Self::GetProductConfiguration => 0x2_00C6,
         }
     }
 
@@ -160,6 +172,8 @@ impl Function {
             Self::Refresh => "BaseCyclic.Refresh",
             Self::GetKinematicHardLimits => "ControlConfig.GetKinematicHardLimits",
             Self::GetFirmwareVersion => "DeviceConfig.GetFirmwareVersion",
+            Self::GetServoingMode => "Base.GetServoingMode",
+            Self::GetProductConfiguration => "Base.GetProductConfiguration",
         }
     }
 

@@ -6,6 +6,10 @@
 //! `cyclic_port` = that port), and faults the arm when no cyclic command arrives in time. With
 //! a misread (`--misread-cyclic`) it reads the cyclic command wrongly, for trying the bridge's
 //! low-level entry check.
+//!
+//! Several sessions may be open at once (the bridge's and observing ones, such as Kinova's own
+//! tools reading the arm); what it serves and what it does not is listed in
+//! [`hw_bridge::kortex::fake`] and in `scl fake-kortex --help`.
 
 use std::io::Write;
 use std::time::Duration;
@@ -33,6 +37,11 @@ pub fn run(port: u16, misread: Option<CyclicMisread>) -> Result<(), BridgeNodeEr
          --address 127.0.0.1 --port {port}",
         addr = fake.addr(),
         port = fake.addr().port()
+    );
+    eprintln!(
+        "scl fake-kortex: up to {} sessions at once (observing ones beside the bridge's); \
+         calls it does not serve are answered with an error naming them (see --help)",
+        hw_bridge::kortex::fake::MAX_SESSIONS
     );
     eprintln!(
         "scl fake-kortex: low-level cyclic channel on udp {} ([bridge.kortex] mode = \"low-level\", \

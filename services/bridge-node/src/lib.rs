@@ -8,6 +8,13 @@
 //! The robot is the mock (`robot = "mock"`) or a Gen3 lite over Kortex (`robot = "kortex"`,
 //! [`hw_bridge::kortex::KortexArm`]). A robot error ends the run the same way as a shutdown
 //! (stop, last state) and the process exits with the error's message.
+//!
+//! Start from a stop: a bridge that finds the arm moving at its first reading (a restarted
+//! bridge whose predecessor died with a motion in force) executes no command until the arm is
+//! at rest, only stops ([`hw_bridge::core::StartGate`]); safety sees those ticks as an
+//! interruption and waits for neutral input. A restarted bridge counts the periods lost while
+//! no bridge ran ([`downtime_periods`], from the predecessor's last state, `--resume-t-ns`) as
+//! missed, in its states, heartbeat and tick reports.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod fake_kortex;
@@ -42,7 +49,7 @@ use std::time::Duration;
 use hw_bridge::clock::{Clock, Wake};
 use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
-use hw_bridge::tick::{BridgeCore, MissReason, Outcome};
+use hw_bridge::tick::{BridgeCore, GateChange, MissReason, Outcome};
 use hw_bridge::{Robot, RobotError};
 use ipc_types::{NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns};
 use serde::Deserialize;
@@ -174,6 +181,10 @@ pub struct Resume {
     pub start_tick: Option<u64>,
     /// The mock arm's pose and gripper state to start from (a real arm keeps its own).
     pub pose: Option<(Vec<f64>, f64)>,
+    /// When the predecessor published its last state (monotonic ns): the periods from then to
+    /// this bridge's first state, less one, were lost while no bridge ran and are counted as
+    /// missed ([`downtime_periods`]).
+    pub last_state_t_ns: Option<u64>,
 }
 
 enum Backend {
@@ -269,6 +280,36 @@ pub fn ticks_lost(skipped: u64, lateness_ns: u64, wait_ns: u64, missed: bool) ->
     skipped + u64::from(missed && lateness_ns >= wait_ns)
 }
 
+/// The periods lost while no bridge ran: from the predecessor's last state at `last_t_ns` to
+/// this bridge's first at `first_t_ns`, whole periods of `period_ns` (rounded to the nearest),
+/// less the one between two consecutive states. 0 if the first state is not later.
+pub fn downtime_periods(last_t_ns: u64, first_t_ns: u64, period_ns: u64) -> u64 {
+    if period_ns == 0 {
+        return 0;
+    }
+    let gap = first_t_ns.saturating_sub(last_t_ns);
+    (gap.saturating_add(period_ns / 2) / period_ns).saturating_sub(1)
+}
+
+/// Says what the start gate changed ([`hw_bridge::core::StartGate`]).
+fn say_gate(change: GateChange, tick: u64) {
+    match change {
+        GateChange::FoundMoving { joint, speed_rad_s } => tracing::warn!(
+            tick,
+            joint,
+            speed_rad_s,
+            "the arm is moving at start (left moving by a bridge before this one): only stops \
+             go out until it is at rest; then motion needs the operator's input at neutral"
+        ),
+        GateChange::CameToRest { ticks } => tracing::info!(
+            tick,
+            stop_ticks = ticks,
+            "the arm is at rest: the graph's commands execute again (safety waits for neutral \
+             input first)"
+        ),
+    }
+}
+
 struct Ctx<'a> {
     graph: &'a Graph,
     /// The tick period (`[graph] rate_hz`).
@@ -305,6 +346,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
     commands.drain(|_| {})?;
     let mut failure: Option<RobotError> = None;
     let mut late = late::LateCommands::default();
+    let mut first_tick = true;
     while !signals::stop_requested() {
         let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
             Wake::Interrupted => continue,
@@ -322,13 +364,32 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         // are lost, and so is this tick if it starts past its command deadline and misses
         // (its state goes out, but no command can come back in time: the bridge brakes).
         core.add_skipped(skipped);
-        let state = match core.begin_tick(now_ns()) {
+        let begin_ns = now_ns();
+        if std::mem::take(&mut first_tick)
+            && let Some(last) = ctx.resume.last_state_t_ns
+        {
+            // The periods no bridge ran through: the graph's loss, counted as missed.
+            let lost = downtime_periods(last, begin_ns, period_ns);
+            if lost > 0 {
+                core.add_skipped(lost);
+                tracing::warn!(
+                    ticks_lost = lost,
+                    down_ms = begin_ns.saturating_sub(last) as f64 * 1e-6,
+                    "missed ticks: no bridge ran between the last state before the restart and \
+                     this bridge's first"
+                );
+            }
+        }
+        let state = match core.begin_tick(begin_ns) {
             Ok(s) => s,
             Err(e) => {
                 failure = Some(e);
                 break;
             }
         };
+        if let Some(change) = core.take_gate_change() {
+            say_gate(change, state.tick);
+        }
         let stop_after = faults.bridge_states_stop_after_ticks;
         if stop_after == 0 || st.handled < stop_after {
             states.send(state)?;
@@ -386,6 +447,8 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         }
         st.latency_ns = match outcome {
             Outcome::Executed => received_ns - state.t_ns,
+            // The arm found moving at start: a stop, not a miss (said by say_gate).
+            Outcome::StoppingAtStart => 0,
             Outcome::Missed(reason) => {
                 // A tick begun past its deadline is the bridge's own hold-up, counted above.
                 if matches!(reason, MissReason::NoCommand | MissReason::WrongTick)
@@ -495,6 +558,24 @@ mod tests {
         assert_eq!(ticks_lost(3, 100_000, wait_1k, true), 3);
         // Begun past its deadline with its command already there: executed, not lost.
         assert_eq!(ticks_lost(0, 700_000, wait_1k, false), 0);
+    }
+
+    /// The periods lost while no bridge ran, at 40 Hz and at 1 kHz: consecutive states lose
+    /// none (also a little late or early), a 187 ms gap at 40 Hz loses 6.
+    #[test]
+    fn downtime_is_the_periods_between_the_states_less_one() {
+        let p40 = 25_000_000;
+        assert_eq!(downtime_periods(1_000, 1_000 + p40, p40), 0);
+        assert_eq!(downtime_periods(1_000, 1_000 + p40 * 3 / 2 - 1, p40), 0);
+        assert_eq!(downtime_periods(1_000, 1_000 + 187_000_000, p40), 6);
+        assert_eq!(downtime_periods(1_000, 1_000 + 2 * p40, p40), 1);
+        assert_eq!(
+            downtime_periods(1_000_000, 1_000_000 + 187_000_000, 1_000_000),
+            186
+        );
+        // Clock oddities lose nothing.
+        assert_eq!(downtime_periods(5_000, 1_000, p40), 0);
+        assert_eq!(downtime_periods(0, u64::MAX, 0), 0);
     }
 
     #[test]

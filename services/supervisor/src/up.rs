@@ -526,6 +526,8 @@ impl<'a> Supervisor<'a> {
             args.push(format!("--start-tick={}", s.tick + 1));
             args.push(format!("--resume-q={}", q.join(",")));
             args.push(format!("--resume-gripper={:.9}", s.gripper));
+            // The periods until the new bridge's first state are counted as missed.
+            args.push(format!("--resume-t-ns={}", s.t_ns));
         }
         let p = &mut self.procs[i];
         let child = spawn(&args).map_err(|e| {
