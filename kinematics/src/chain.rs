@@ -225,6 +225,21 @@ impl Chain {
         Ok(c)
     }
 
+    /// Gives the joints whose position is unlimited in the description (URDF `continuous`)
+    /// the software limits `[-limit_rad, limit_rad]`, so that every joint of the chain has a
+    /// finite range; returns which joints were unlimited. Limited joints are left as they are.
+    pub(crate) fn limit_unlimited(&mut self, limit_rad: f64) -> [bool; MAX_DOF] {
+        let mut unlimited = [false; MAX_DOF];
+        for j in 0..self.n {
+            if !(self.lower[j].is_finite() && self.upper[j].is_finite()) {
+                self.lower[j] = -limit_rad;
+                self.upper[j] = limit_rad;
+                unlimited[j] = true;
+            }
+        }
+        unlimited
+    }
+
     /// The file the chain was read from.
     pub fn file(&self) -> &str {
         &self.file
