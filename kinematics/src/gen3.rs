@@ -44,6 +44,11 @@
 //!   ([`crate::RobotProfile::wrap_for_maps`]): the same arm pose always gives the same input,
 //!   and the working region around home has no jump. Limited joints pass unchanged.
 
+use std::sync::OnceLock;
+
+use crate::collision::{CollisionError, CollisionModel, ModelArm};
+use crate::robot::RobotModel;
+
 /// Number of arm joints.
 pub const N_JOINTS: usize = 7;
 
@@ -121,6 +126,40 @@ pub const CONTROL_RATE_HZ: f64 = 40.0;
 /// Gripper: time constant of the first-order lag used by the mock (s).
 pub const GRIPPER_TIME_CONSTANT_S: f64 = 0.25;
 
+/// The collision model, `robots/gen3_collision.toml`, embedded at build time.
+pub const COLLISION_TOML: &str = include_str!("../../robots/gen3_collision.toml");
+
+/// How the embedded collision model is named in messages.
+pub const COLLISION_TOML_NAME: &str = "robots/gen3_collision.toml";
+
+/// The arm as the collision model's loader checks it. The 2F-85's fingers are one envelope
+/// on `gripper_base_link`, so no finger link hangs from the gripper joint.
+pub const COLLISION_ARM: ModelArm<'static> = ModelArm {
+    name: "the Gen3",
+    joint_names: &JOINT_NAMES,
+    gripper_joint: Some(GRIPPER_JOINT),
+};
+
+/// Loads the embedded collision model on the embedded URDF.
+pub fn load_collision_model() -> Result<CollisionModel, CollisionError> {
+    let robot = RobotModel::from_urdf_str(URDF, URDF_NAME)?;
+    CollisionModel::for_arm(COLLISION_TOML, COLLISION_TOML_NAME, &robot, &COLLISION_ARM)
+}
+
+/// The embedded collision model, loaded once per process.
+///
+/// # Panics
+///
+/// If the embedded `robots/gen3_collision.toml` does not load, a build defect that the
+/// crate's tests catch (`the_collision_model_loads`).
+pub fn collision_model() -> &'static CollisionModel {
+    static MODEL: OnceLock<CollisionModel> = OnceLock::new();
+    MODEL.get_or_init(|| match load_collision_model() {
+        Ok(m) => m,
+        Err(e) => panic!("the embedded Gen3 collision model is broken: {e}"),
+    })
+}
+
 /// A named pose by name (`zero`, `home`, `retract`).
 pub fn named_pose(name: &str) -> Option<[f64; N_JOINTS]> {
     match name {
@@ -153,6 +192,35 @@ mod tests {
         assert_eq!(g.joint(), GRIPPER_JOINT);
         assert_eq!((g.open_rad(), g.closed_rad()), (0.0, 0.8));
         assert!((g.angle(0.5) - 0.4).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_collision_model_loads() {
+        use crate::collision::{Clearance, CollisionLink, Scene};
+        let m = load_collision_model().unwrap();
+        assert_eq!(m.n_joints(), N_JOINTS);
+        assert_eq!(m.links().len(), 9);
+        assert!(m.has_link(CollisionLink::Bracelet) && !m.has_link(CollisionLink::Arm));
+        assert_eq!(m.capsule_refs().len(), 10);
+        assert_eq!(m.exclusions().len(), 25);
+        // 36 link pairs less 25 excluded: 11, the gripper's with two capsules: 14.
+        assert_eq!(m.self_pairs().len(), 14);
+        assert!(m.link_capsules(CollisionLink::Arm).is_empty());
+        assert_eq!(m.gripper_range(), (0.0, 0.8));
+        let p = RobotProfile::by_name("gen3").unwrap();
+        assert!(std::ptr::eq(p.collision_model().unwrap(), collision_model()));
+        // Kinova's poses are free of self-collision, and clear of a table at z = 0 but for
+        // the base and shoulder, which stand on it.
+        let mut out = Clearance::default();
+        for name in ["home", "retract", "zero"] {
+            let q = named_pose(name).unwrap();
+            m.clearance(&q, &Scene::default(), &mut out).unwrap();
+            let c = out.closest().unwrap();
+            assert!(c.distance_m > 0.0, "{name}: {} at {} m", c.pair, c.distance_m);
+            assert_eq!(out.n_joints(), N_JOINTS);
+            assert!(out.rate_row_all(c).is_some() || c.normal.is_none());
+            assert!(out.rate_row(c).is_none(), "six-joint rows are refused for seven joints");
+        }
     }
 
     #[test]

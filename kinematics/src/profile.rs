@@ -210,7 +210,7 @@ fn gen3() -> ProfileSpec<'static> {
         poses: POSES,
         control_rate_hz: g::CONTROL_RATE_HZ,
         gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
-        collision: None,
+        collision: Some(g::collision_model),
         continuous_limit_rad: Some(g::CONTINUOUS_LIMIT_RAD),
         gripper: Some(GripperSpec {
             joint: g::GRIPPER_JOINT,
