@@ -55,11 +55,11 @@ fn outline(a: Vector2<f64>, b: Vector2<f64>, r: f64) -> Vec<(f64, f64)> {
     };
     let v = Vector2::new(-u.y, u.x);
     let mut pts = Vec::with_capacity(66);
-    for (centre, from) in [(b, -v), (a, v)] {
+    // Half a turn about each end, from `from` through the outward direction `out` (given per
+    // end: a segment seen end-on projects both ends onto one point).
+    for (centre, from, out) in [(b, -v, u), (a, v, -u)] {
         for k in 0..=32 {
             let t = std::f64::consts::PI * f64::from(k) / 32.0;
-            // Half a turn from `from` through the outward direction.
-            let out = if centre == b { u } else { -u };
             let p = centre + (from * t.cos() + out * t.sin()) * r;
             pts.push((p.x, p.y));
         }
@@ -218,19 +218,15 @@ fn main() {
     let model: &CollisionModel = robot.collision_model().unwrap();
     let scene = Scene::default();
     let poses = if robot_name == "gen3" {
-        // The wrist folded back over the shoulder: the closest pair is a checked one.
-        let mut near = gen3::HOME.to_vec();
-        near[1] = -0.6;
-        near[3] = -2.5;
-        near[5] = -1.9;
+        // Kinova's two poses; retract folds the gripper down beside the shoulder.
         [
             Pose {
                 name: "home",
                 q: gen3::HOME.to_vec(),
             },
             Pose {
-                name: "q = (0, -0.6, π, -2.5, 0, -1.9, π/2)",
-                q: near,
+                name: "retract",
+                q: gen3::RETRACT.to_vec(),
             },
         ]
     } else {

@@ -203,8 +203,8 @@ mod tests {
         assert!(m.has_link(CollisionLink::Bracelet) && !m.has_link(CollisionLink::Arm));
         assert_eq!(m.capsule_refs().len(), 10);
         assert_eq!(m.exclusions().len(), 25);
-        // 36 link pairs less 25 excluded: 11, the gripper's with two capsules: 14.
-        assert_eq!(m.self_pairs().len(), 14);
+        // 36 link pairs less 25 excluded: 11; four of them have the gripper's two capsules.
+        assert_eq!(m.self_pairs().len(), 15);
         assert!(m.link_capsules(CollisionLink::Arm).is_empty());
         assert_eq!(m.gripper_range(), (0.0, 0.8));
         let p = RobotProfile::by_name("gen3").unwrap();

@@ -117,7 +117,8 @@ fn the_flange_is_where_the_dh_table_puts_it() {
     }
     println!("URDF vs DH: flange position {worst_p:.2e} m, orientation {worst_r:.2e} rad");
     assert!(worst_p < 1e-3, "flange position differs by {worst_p} m");
-    assert!(worst_r < 1e-9, "flange orientation differs by {worst_r} rad");
+    // angle_to goes through acos: about 1e-8 rad of rounding near zero.
+    assert!(worst_r < 1e-6, "flange orientation differs by {worst_r} rad");
 }
 
 /// The zero pose, by hand from the table: the arm straight up, the flange at the sum of the
@@ -192,7 +193,9 @@ fn gen3_matches_the_k_crate() {
                 worst = worst.max((jac.get(r, c) - theirs[(r, c)]).abs());
             }
         }
-        worst = worst.max((pose.translation.vector - end.translation.vector).norm());
+        let theirs = end.translation.vector;
+        let theirs = Vector3::new(theirs[0], theirs[1], theirs[2]);
+        worst = worst.max((pose.translation.vector - theirs).norm());
     }
     assert!(worst < 1e-12, "differs from k by {worst}");
 }
