@@ -206,9 +206,7 @@ fn main() {
         format!("collision-model-{robot_name}.png")
     };
     let path = args.first().map_or_else(
-        || {
-            PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/")).join(&default_png)
-        },
+        || PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/")).join(&default_png),
         PathBuf::from,
     );
     let font: &'static [u8] = Box::leak(std::fs::read(FONT).unwrap().into_boxed_slice());

@@ -208,7 +208,10 @@ mod tests {
         assert!(m.link_capsules(CollisionLink::Arm).is_empty());
         assert_eq!(m.gripper_range(), (0.0, 0.8));
         let p = RobotProfile::by_name("gen3").unwrap();
-        assert!(std::ptr::eq(p.collision_model().unwrap(), collision_model()));
+        assert!(std::ptr::eq(
+            p.collision_model().unwrap(),
+            collision_model()
+        ));
         // Kinova's poses are free of self-collision, and clear of a table at z = 0 but for
         // the base and shoulder, which stand on it.
         let mut out = Clearance::default();
@@ -216,10 +219,18 @@ mod tests {
             let q = named_pose(name).unwrap();
             m.clearance(&q, &Scene::default(), &mut out).unwrap();
             let c = out.closest().unwrap();
-            assert!(c.distance_m > 0.0, "{name}: {} at {} m", c.pair, c.distance_m);
+            assert!(
+                c.distance_m > 0.0,
+                "{name}: {} at {} m",
+                c.pair,
+                c.distance_m
+            );
             assert_eq!(out.n_joints(), N_JOINTS);
             assert!(out.rate_row_all(c).is_some() || c.normal.is_none());
-            assert!(out.rate_row(c).is_none(), "six-joint rows are refused for seven joints");
+            assert!(
+                out.rate_row(c).is_none(),
+                "six-joint rows are refused for seven joints"
+            );
         }
     }
 

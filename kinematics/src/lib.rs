@@ -17,8 +17,8 @@
 //! * [`profile`]: [`RobotProfile`], the robot the graph drives, chosen by name
 //!   (`RobotProfile::by_name`): description, arm chain, limits, named poses, rates.
 //! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
-//! * [`collision`]: the Gen3 lite's capsule model (`robots/gen3_lite_collision.toml`,
-//!   embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
+//! * [`collision`]: capsule models of the arms (`robots/gen3_lite_collision.toml` and
+//!   `robots/gen3_collision.toml`, embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
 //!   distances with closest points and the rate of change of a distance, allocation-free.
 //!
 //! ```

@@ -103,10 +103,7 @@ fn poses() -> Vec<[f64; 7]> {
 #[test]
 fn the_flange_is_where_the_dh_table_puts_it() {
     let p = RobotProfile::by_name("gen3").unwrap();
-    let flange = p
-        .model()
-        .chain(gen3::BASE_LINK, gen3::FLANGE_LINK)
-        .unwrap();
+    let flange = p.model().chain(gen3::BASE_LINK, gen3::FLANGE_LINK).unwrap();
     let (mut worst_p, mut worst_r): (f64, f64) = (0.0, 0.0);
     for q in poses() {
         let want = dh_flange(&q);
@@ -118,7 +115,10 @@ fn the_flange_is_where_the_dh_table_puts_it() {
     println!("URDF vs DH: flange position {worst_p:.2e} m, orientation {worst_r:.2e} rad");
     assert!(worst_p < 1e-3, "flange position differs by {worst_p} m");
     // angle_to goes through acos: about 1e-8 rad of rounding near zero.
-    assert!(worst_r < 1e-6, "flange orientation differs by {worst_r} rad");
+    assert!(
+        worst_r < 1e-6,
+        "flange orientation differs by {worst_r} rad"
+    );
 }
 
 /// The zero pose, by hand from the table: the arm straight up, the flange at the sum of the

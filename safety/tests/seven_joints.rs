@@ -246,7 +246,10 @@ fn whole_arm_holds(robot: &'static RobotProfile) {
                     );
                     let v = out.qdot_rad_s[..n].to_vec();
                     let (lin, ang) = tool_twist(robot, &q, &v);
-                    prop_assert!(lin <= lin_cap * (1.0 + 1e-9), "tick {tick}: tool at {lin} m/s");
+                    prop_assert!(
+                        lin <= lin_cap * (1.0 + 1e-9),
+                        "tick {tick}: tool at {lin} m/s"
+                    );
                     prop_assert!(
                         ang <= ang_cap * (1.0 + 1e-9),
                         "tick {tick}: tool turning at {ang} rad/s"

@@ -1,5 +1,8 @@
-//! The Gen3 lite's collision model: capsules on every link, the pairs that can touch, a scene
-//! (table and boxes), and the clearance of a joint state with the rate at which it changes.
+//! Collision models: capsules on every link, the pairs that can touch, a scene (table and
+//! boxes), and the clearance of a joint state with the rate at which it changes. The Gen3
+//! lite's is [`CollisionModel::get`]; the Gen3's is [`crate::gen3::collision_model`]; a
+//! profile gives its arm's ([`crate::RobotProfile::collision_model`]). Another arm's model is
+//! read with [`CollisionModel::for_arm`] (its links must be [`CollisionLink`]s).
 //!
 //! * The geometry is data: `robots/gen3_lite_collision.toml` (embedded, [`COLLISION_TOML`]),
 //!   one or two capsules per link in the link's own frame, each with the reference fit it
@@ -197,8 +200,6 @@ impl CollisionLink {
         let n = self.name();
         n.strip_suffix("_link").unwrap_or(n)
     }
-
-
 }
 
 impl fmt::Display for CollisionLink {
