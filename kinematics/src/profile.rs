@@ -572,6 +572,77 @@ mod tests {
         assert_eq!(e, "`ur5` is not a known robot; known: gen3_lite, gen3");
     }
 
+    /// The Gen3's spec with its continuous joints and gripper, and what the checks refuse.
+    #[test]
+    fn continuous_joints_and_grippers_are_checked() {
+        let spec = gen3();
+        let p = RobotProfile::new(&spec).unwrap();
+        assert_eq!(p.continuous_joints().iter().filter(|c| **c).count(), 4);
+        let e = RobotProfile::new(&ProfileSpec {
+            continuous_limit_rad: None,
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the joints [\"joint_1\", \"joint_3\", \"joint_5\", \"joint_7\"] have no position limits in robots/gen3.urdf; give continuous_limit_rad"
+        );
+        for w in [3.0, f64::NAN, f64::INFINITY] {
+            let e = RobotProfile::new(&ProfileSpec {
+                continuous_limit_rad: Some(w),
+                ..spec.clone()
+            })
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("continuous_limit_rad is"), "{e}");
+        }
+        let e = RobotProfile::new(&ProfileSpec {
+            gripper: Some(GripperSpec {
+                joint: "thumb",
+                open_rad: 0.0,
+                closed_rad: 0.8,
+            }),
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the gripper joint `thumb` is not a joint of robots/gen3.urdf"
+        );
+        let e = RobotProfile::new(&ProfileSpec {
+            gripper: Some(GripperSpec {
+                joint: "finger_joint",
+                open_rad: 0.0,
+                closed_rad: 0.9,
+            }),
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the gripper's closed_rad 0.9 is outside the joint `finger_joint`'s range [0, 0.8]"
+        );
+        // An arm without a gripper is a profile too.
+        let bare = RobotProfile::new(&ProfileSpec {
+            gripper: None,
+            ..spec
+        })
+        .unwrap();
+        assert!(bare.gripper().is_none());
+        // The Gen3 lite: no continuous joint, nothing wrapped; its gripper opens at 0.96.
+        let lite = RobotProfile::by_name("gen3_lite").unwrap();
+        assert!(lite.continuous_joints().iter().all(|c| !c));
+        let mut q = [9.0, -9.0, 1.0, 2.0, 3.0, 4.0];
+        lite.wrap_for_maps(&mut q);
+        assert_eq!(q, [9.0, -9.0, 1.0, 2.0, 3.0, 4.0]);
+        let g = lite.gripper().unwrap();
+        assert_eq!((g.angle(0.0), g.angle(1.0)), (0.96, -0.09));
+        assert_eq!(g.angle(f64::NAN), 0.96);
+    }
+
     /// Another arm is another spec: the planar reaching arm as a profile.
     #[test]
     fn a_profile_from_another_description_and_its_checks() {

@@ -45,7 +45,7 @@ fn cmd(tick: u64, qdot: &[f64]) -> MapperCommand {
 /// (`executed`) or the robot's own measurement.
 fn state(tick: u64, q: &[f64], qdot: &[f64], executed: bool) -> RobotState {
     let n = q.len();
-    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, n);
+    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, n as u32);
     s.q_rad[..n].copy_from_slice(q);
     s.qdot_rad_s[..n].copy_from_slice(qdot);
     s.applied_tick = if executed { tick - 1 } else { NO_TICK };
