@@ -106,7 +106,8 @@ impl Gripper {
     /// The joint's value for the gripper state `c` (0 open .. 1 closed; clamped).
     pub fn angle(&self, c: f64) -> f64 {
         let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
-        self.open_rad + c * (self.closed_rad - self.open_rad)
+        // Exact at both ends.
+        self.open_rad * (1.0 - c) + self.closed_rad * c
     }
 }
 
