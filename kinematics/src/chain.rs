@@ -230,11 +230,18 @@ impl Chain {
     /// finite range; returns which joints were unlimited. Limited joints are left as they are.
     pub(crate) fn limit_unlimited(&mut self, limit_rad: f64) -> [bool; MAX_DOF] {
         let mut unlimited = [false; MAX_DOF];
-        for j in 0..self.n {
-            if !(self.lower[j].is_finite() && self.upper[j].is_finite()) {
-                self.lower[j] = -limit_rad;
-                self.upper[j] = limit_rad;
-                unlimited[j] = true;
+        let n = self.n;
+        for ((lo, hi), u) in self
+            .lower
+            .iter_mut()
+            .zip(self.upper.iter_mut())
+            .zip(unlimited.iter_mut())
+            .take(n)
+        {
+            if !(lo.is_finite() && hi.is_finite()) {
+                *lo = -limit_rad;
+                *hi = limit_rad;
+                *u = true;
             }
         }
         unlimited

@@ -48,7 +48,7 @@ pub enum CollisionError {
     #[error("{file}: {field}: `{name}` is not a link of {arm} with geometry (links: {known})")]
     UnknownLink {
         /// The arm (`the Gen3 lite`).
-        arm: String,
+        arm: Box<str>,
         /// The file.
         file: String,
         /// Where the name is (`link[3].name`, `exclude[2].links`).
@@ -282,7 +282,7 @@ impl CollisionModel {
         for (i, l) in parsed.link.iter().enumerate() {
             let Some(link) = find(&l.name) else {
                 return Err(CollisionError::UnknownLink {
-                    arm: arm.name.to_owned(),
+                    arm: arm.name.into(),
                     file: file.to_owned(),
                     field: format!("link[{i}].name"),
                     name: l.name.clone(),
@@ -359,7 +359,7 @@ impl CollisionModel {
             let mut pair = [CollisionLink::Base; 2];
             for (slot, name) in pair.iter_mut().zip(&e.links) {
                 *slot = find(name).ok_or_else(|| CollisionError::UnknownLink {
-                    arm: arm.name.to_owned(),
+                    arm: arm.name.into(),
                     file: file.to_owned(),
                     field: format!("exclude[{index}].links"),
                     name: name.clone(),
