@@ -12,7 +12,9 @@
 //! * Named poses: the Gen3 user guide, "Home and retract positions" (7 DoF), as the arm
 //!   reports them (degrees in [0, 360)): home (0, 15, 180, 230, 0, 55, 90), retract
 //!   (0, 340, 180, 214, 0, 310, 90); zero is every actuator at 0 (the arm straight up, a
-//!   singular pose). Here in radians, each angle brought into (-π, π].
+//!   singular pose). Here in radians, each angle brought into (-π, π]. Kinova's MoveIt
+//!   configuration of the Gen3 7 DoF (ros2_kortex, `kinova_gen3_7dof_robotiq_2f_85_moveit_config/
+//!   config/gen3.srdf`, states `Home`, `Retract`, `Vertical`) has the same values to 0.01 rad.
 //! * Control rate: 40 Hz, the Kortex high-level API's rate (the same base controller as the
 //!   Gen3 lite's, shared/reference/gen3-lite.md).
 //! * Gripper: the Robotiq 2F-85 as Kinova describes it on the Gen3 (`finger_joint`, 0 open ..
