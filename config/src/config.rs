@@ -763,7 +763,7 @@ mod tests {
         let e = cfg.validate().unwrap_err().to_string();
         assert_eq!(
             e,
-            "config: graph.robot: `ur5` is not a known robot; known: gen3_lite"
+            "config: graph.robot: `ur5` is not a known robot; known: gen3_lite, gen3"
         );
     }
 

@@ -1,8 +1,10 @@
-//! Draws the Gen3 lite's collision model over its kinematic skeleton at two poses, from the
-//! side (x-z) and from above (x-y), into `docs/collision-model.png`.
+//! Draws a robot profile's collision model over its kinematic skeleton at two poses, from the
+//! side (x-z) and from above (x-y): the Gen3 lite's into `docs/collision-model.png`, the
+//! Gen3's into `docs/collision-model-gen3.png`.
 //!
-//! Regenerate: `cargo run -p kinematics --example draw_collision` (or give another output
-//! path as the one argument).
+//! Regenerate: `cargo run -p kinematics --example draw_collision` (the Gen3 lite) and
+//! `cargo run -p kinematics --example draw_collision -- --robot gen3`; another output path
+//! may follow as the last argument.
 //!
 //! Each capsule is drawn as its exact outline in the view (a capsule seen along an axis is
 //! the 2-D capsule of the projected segment, same radius), tinted by link, margin included;
@@ -14,7 +16,7 @@
 use std::path::PathBuf;
 
 use kinematics::collision::{Clearance, CollisionLink, CollisionModel, Scene};
-use kinematics::{Gen3Lite, gen3_lite};
+use kinematics::{RobotProfile, gen3, gen3_lite};
 use nalgebra::{Point3, Vector2};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -34,6 +36,11 @@ const COLOURS: [RGBColor; CollisionLink::COUNT] = [
     RGBColor(227, 119, 194), // right finger dist
     RGBColor(188, 189, 34),  // left finger prox
     RGBColor(127, 127, 127), // left finger dist
+    RGBColor(44, 160, 44),   // half arm 1
+    RGBColor(255, 127, 14),  // half arm 2
+    RGBColor(148, 103, 189), // spherical wrist 1
+    RGBColor(23, 190, 207),  // spherical wrist 2
+    RGBColor(188, 189, 34),  // bracelet
 ];
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
@@ -48,11 +55,11 @@ fn outline(a: Vector2<f64>, b: Vector2<f64>, r: f64) -> Vec<(f64, f64)> {
     };
     let v = Vector2::new(-u.y, u.x);
     let mut pts = Vec::with_capacity(66);
-    for (centre, from) in [(b, -v), (a, v)] {
+    // Half a turn about each end, from `from` through the outward direction `out` (given per
+    // end: a segment seen end-on projects both ends onto one point).
+    for (centre, from, out) in [(b, -v, u), (a, v, -u)] {
         for k in 0..=32 {
             let t = std::f64::consts::PI * f64::from(k) / 32.0;
-            // Half a turn from `from` through the outward direction.
-            let out = if centre == b { u } else { -u };
             let p = centre + (from * t.cos() + out * t.sin()) * r;
             pts.push((p.x, p.y));
         }
@@ -65,19 +72,16 @@ struct Pose {
     q: Vec<f64>,
 }
 
-fn skeleton(q: &[f64]) -> Vec<Point3<f64>> {
-    let g = Gen3Lite::get();
-    let arm = g.arm();
-    let mut pts: Vec<Point3<f64>> = ["base_link", "shoulder_link", "arm_link", "forearm_link"]
-        .into_iter()
-        .chain(["lower_wrist_link", "upper_wrist_link", "end_effector_link"])
+/// The joint origins along the arm chain, base to TCP.
+fn skeleton(robot: &RobotProfile, q: &[f64]) -> Vec<Point3<f64>> {
+    let arm = robot.arm();
+    let n = arm.n_joints();
+    arm.link_names()
         .map(|l| {
-            let t = arm.link_pose(&q[..6], arm.link_id(l).unwrap()).unwrap();
+            let t = arm.link_pose(&q[..n], arm.link_id(l).unwrap()).unwrap();
             Point3::from(t.translation.vector)
         })
-        .collect();
-    pts.push(Point3::from(g.tcp(&q[..6]).unwrap().translation.vector));
-    pts
+        .collect()
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -186,33 +190,57 @@ fn ranges(
 }
 
 fn main() {
-    let path = std::env::args().nth(1).map_or_else(
-        || {
-            PathBuf::from(concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/../docs/collision-model.png"
-            ))
-        },
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let robot_name = match args.iter().position(|a| a == "--robot") {
+        Some(k) if k + 1 < args.len() => {
+            let name = args.remove(k + 1);
+            args.remove(k);
+            name
+        }
+        _ => "gen3_lite".to_owned(),
+    };
+    let robot = RobotProfile::by_name(&robot_name).unwrap();
+    let default_png = if robot_name == "gen3_lite" {
+        "collision-model.png".to_owned()
+    } else {
+        format!("collision-model-{robot_name}.png")
+    };
+    let path = args.first().map_or_else(
+        || PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/")).join(&default_png),
         PathBuf::from,
     );
     let font: &'static [u8] = Box::leak(std::fs::read(FONT).unwrap().into_boxed_slice());
     plotters::style::register_font("sans-serif", FontStyle::Normal, font)
         .map_err(|_| "not a font")
         .unwrap();
-    let model = CollisionModel::get();
+    let model: &CollisionModel = robot.collision_model().unwrap();
     let scene = Scene::default();
-    let mut near = vec![0.0, 2.2, 0.5, 0.0, 0.0, 0.0];
-    near.push(0.4);
-    let poses = [
-        Pose {
-            name: "home, gripper open",
-            q: gen3_lite::HOME.to_vec(),
-        },
-        Pose {
-            name: "q = (0, 2.2, 0.5, 0, 0, 0), gripper 0.4",
-            q: near,
-        },
-    ];
+    let poses = if robot_name == "gen3" {
+        // Kinova's two poses; retract folds the gripper down beside the shoulder.
+        [
+            Pose {
+                name: "home",
+                q: gen3::HOME.to_vec(),
+            },
+            Pose {
+                name: "retract",
+                q: gen3::RETRACT.to_vec(),
+            },
+        ]
+    } else {
+        let mut near = vec![0.0, 2.2, 0.5, 0.0, 0.0, 0.0];
+        near.push(0.4);
+        [
+            Pose {
+                name: "home, gripper open",
+                q: gen3_lite::HOME.to_vec(),
+            },
+            Pose {
+                name: "q = (0, 2.2, 0.5, 0, 0, 0), gripper 0.4",
+                q: near,
+            },
+        ]
+    };
     let outs: Vec<Clearance> = poses
         .iter()
         .map(|p| {
@@ -229,7 +257,8 @@ fn main() {
         let body = root
             .titled(
                 &format!(
-                    "Gen3 lite collision model: {} capsules (margin {} mm included), {} self pairs, table at z = 0; red: the closest pair",
+                    "{} collision model: {} capsules (margin {} mm included), {} self pairs, table at z = 0; red: the closest pair",
+                    robot.description(),
                     model.capsule_refs().len(),
                     model.margin_m() * 1e3,
                     model.self_pairs().len()
@@ -243,7 +272,7 @@ fn main() {
         let top = ranges(&outs, (0, 1), panel);
         for (k, (pose, out)) in poses.iter().zip(&outs).enumerate() {
             let c = out.closest().unwrap();
-            let skel = skeleton(&pose.q);
+            let skel = skeleton(robot, &pose.q);
             let caption = format!(
                 "{} (side): closest {}, {:.0} mm",
                 pose.name,

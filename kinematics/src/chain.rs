@@ -225,6 +225,28 @@ impl Chain {
         Ok(c)
     }
 
+    /// Gives the joints whose position is unlimited in the description (URDF `continuous`)
+    /// the software limits `[-limit_rad, limit_rad]`, so that every joint of the chain has a
+    /// finite range; returns which joints were unlimited. Limited joints are left as they are.
+    pub(crate) fn limit_unlimited(&mut self, limit_rad: f64) -> [bool; MAX_DOF] {
+        let mut unlimited = [false; MAX_DOF];
+        let n = self.n;
+        for ((lo, hi), u) in self
+            .lower
+            .iter_mut()
+            .zip(self.upper.iter_mut())
+            .zip(unlimited.iter_mut())
+            .take(n)
+        {
+            if !(lo.is_finite() && hi.is_finite()) {
+                *lo = -limit_rad;
+                *hi = limit_rad;
+                *u = true;
+            }
+        }
+        unlimited
+    }
+
     /// The file the chain was read from.
     pub fn file(&self) -> &str {
         &self.file

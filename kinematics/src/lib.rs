@@ -10,12 +10,15 @@
 //! * [`gen3_lite`]: the Kinova Gen3 lite (`robots/gen3_lite.urdf`, embedded): [`Gen3Lite`],
 //!   its teleoperation limits ([`ArmLimits`], position limits read from the URDF), named
 //!   poses, rates.
+//! * [`gen3`]: the Kinova Gen3, 7 DoF, with a Robotiq 2F-85 (`robots/gen3.urdf`, embedded):
+//!   its named poses, rates, teleoperation defaults and how its continuous joints are
+//!   treated (software limits, wrapping for the maps).
 //! * [`planar5`]: the paper's 5-DOF planar reaching arm (`robots/planar5.urdf`).
 //! * [`profile`]: [`RobotProfile`], the robot the graph drives, chosen by name
 //!   (`RobotProfile::by_name`): description, arm chain, limits, named poses, rates.
 //! * [`cartesian`]: TCP poses in `glam` f32 types for the Cartesian side.
-//! * [`collision`]: the Gen3 lite's capsule model (`robots/gen3_lite_collision.toml`,
-//!   embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
+//! * [`collision`]: capsule models of the arms (`robots/gen3_lite_collision.toml` and
+//!   `robots/gen3_collision.toml`, embedded), the pairs that can touch, a table and boxes ([`collision::Scene`]), exact
 //!   distances with closest points and the rate of change of a distance, allocation-free.
 //!
 //! ```
@@ -31,6 +34,7 @@ pub mod cartesian;
 pub mod chain;
 pub mod collision;
 pub mod dls;
+pub mod gen3;
 pub mod gen3_lite;
 pub mod planar5;
 pub mod profile;
@@ -41,7 +45,7 @@ pub use chain::{Chain, Jacobian, JointAxis, JointKind, KinError, LinkId, MAX_DOF
 pub use collision::{Clearance, CollisionError, CollisionLink, CollisionModel, Scene};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
-pub use profile::{ProfileError, ProfileSpec, RobotProfile};
+pub use profile::{Gripper, GripperSpec, ProfileError, ProfileSpec, RobotProfile};
 pub use robot::{JointSpec, JointType, Mimic, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.

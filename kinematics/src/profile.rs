@@ -59,6 +59,56 @@ pub struct ProfileSpec<'a> {
     /// The arm's collision model (capsules per link), if it has one: the safety filter's
     /// whole-arm rules need it.
     pub collision: Option<fn() -> &'static CollisionModel>,
+    /// Software position limit (rad) for the joints the URDF leaves unlimited (`continuous`):
+    /// they get `[-limit, limit]`. Required when the arm chain has such a joint; at least π,
+    /// so that a whole turn fits.
+    pub continuous_limit_rad: Option<f64>,
+    /// The gripper, if the arm carries one.
+    pub gripper: Option<GripperSpec<'a>>,
+}
+
+/// A gripper the stack drives as one scalar `c` in `[0, 1]` (0 open, 1 closed): the joint of
+/// the URDF that `c` sets, and its values at both ends.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GripperSpec<'a> {
+    /// The actuated gripper joint (the URDF's other finger joints mimic it).
+    pub joint: &'a str,
+    /// The joint's value when open (`c = 0`), rad.
+    pub open_rad: f64,
+    /// The joint's value when closed (`c = 1`), rad.
+    pub closed_rad: f64,
+}
+
+/// A profile's gripper: see [`GripperSpec`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gripper {
+    joint: String,
+    open_rad: f64,
+    closed_rad: f64,
+}
+
+impl Gripper {
+    /// The actuated gripper joint's name.
+    pub fn joint(&self) -> &str {
+        &self.joint
+    }
+
+    /// The joint's value when open (rad).
+    pub fn open_rad(&self) -> f64 {
+        self.open_rad
+    }
+
+    /// The joint's value when closed (rad).
+    pub fn closed_rad(&self) -> f64 {
+        self.closed_rad
+    }
+
+    /// The joint's value for the gripper state `c` (0 open .. 1 closed; clamped).
+    pub fn angle(&self, c: f64) -> f64 {
+        let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
+        // Exact at both ends.
+        self.open_rad * (1.0 - c) + self.closed_rad * c
+    }
 }
 
 /// Why a profile could not be had.
@@ -99,10 +149,12 @@ pub struct RobotProfile {
     control_rate_hz: f64,
     gripper_time_constant_s: f64,
     collision: Option<fn() -> &'static CollisionModel>,
+    continuous: Vec<bool>,
+    gripper: Option<Gripper>,
 }
 
 /// The built-in profiles, the default first. A new arm is a new function here.
-const ROBOTS: [fn() -> ProfileSpec<'static>; 1] = [gen3_lite];
+const ROBOTS: [fn() -> ProfileSpec<'static>; 2] = [gen3_lite, gen3];
 
 /// Each built-in profile, parsed once per process when first asked for.
 static LOADED: [OnceLock<RobotProfile>; ROBOTS.len()] = [const { OnceLock::new() }; ROBOTS.len()];
@@ -129,6 +181,43 @@ fn gen3_lite() -> ProfileSpec<'static> {
         control_rate_hz: g::CONTROL_RATE_HZ,
         gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
         collision: Some(CollisionModel::get),
+        continuous_limit_rad: None,
+        gripper: Some(GripperSpec {
+            joint: g::GRIPPER_JOINT,
+            open_rad: 0.96,
+            closed_rad: -0.09,
+        }),
+    }
+}
+
+/// The Kinova Gen3, 7 DoF, with a Robotiq 2F-85 ([`crate::gen3`]).
+fn gen3() -> ProfileSpec<'static> {
+    use crate::gen3 as g;
+    const POSES: &[(&str, &[f64])] = &[
+        ("home", &g::HOME),
+        ("zero", &g::ZERO),
+        ("retract", &g::RETRACT),
+    ];
+    ProfileSpec {
+        name: "gen3",
+        description: "Gen3",
+        urdf: g::URDF,
+        urdf_name: g::URDF_NAME,
+        base_link: g::BASE_LINK,
+        tcp_link: g::TCP_LINK,
+        joint_names: &g::JOINT_NAMES,
+        teleop_velocity_rad_s: &g::DEFAULT_VELOCITY_RAD_S,
+        teleop_acceleration_rad_s2: &g::DEFAULT_ACCELERATION_RAD_S2,
+        poses: POSES,
+        control_rate_hz: g::CONTROL_RATE_HZ,
+        gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
+        collision: Some(g::collision_model),
+        continuous_limit_rad: Some(g::CONTINUOUS_LIMIT_RAD),
+        gripper: Some(GripperSpec {
+            joint: g::GRIPPER_JOINT,
+            open_rad: g::GRIPPER_OPEN_RAD,
+            closed_rad: g::GRIPPER_CLOSED_RAD,
+        }),
     }
 }
 
@@ -153,6 +242,8 @@ impl ProfileSpec<'static> {
             control_rate_hz: 40.0,
             gripper_time_constant_s: 0.1,
             collision: None,
+            continuous_limit_rad: None,
+            gripper: None,
         }
     }
 }
@@ -207,7 +298,53 @@ impl RobotProfile {
             reason,
         };
         let model = RobotModel::from_urdf_str(spec.urdf, spec.urdf_name)?;
-        let arm = model.chain(spec.base_link, spec.tcp_link)?;
+        let mut arm = model.chain(spec.base_link, spec.tcp_link)?;
+        let unlimited: Vec<&String> = arm
+            .joint_names()
+            .iter()
+            .zip(arm.lower().iter().zip(arm.upper()))
+            .filter(|(_, (lo, hi))| !(lo.is_finite() && hi.is_finite()))
+            .map(|(name, _)| name)
+            .collect();
+        let continuous = match (unlimited.is_empty(), spec.continuous_limit_rad) {
+            (true, _) => vec![false; arm.n_joints()],
+            (false, None) => {
+                return Err(bad(format!(
+                    "the joints {unlimited:?} have no position limits in {}; give continuous_limit_rad",
+                    spec.urdf_name
+                )));
+            }
+            (false, Some(w)) if !(w.is_finite() && w >= std::f64::consts::PI) => {
+                return Err(bad(format!(
+                    "continuous_limit_rad is {w}; it must be a number of at least π"
+                )));
+            }
+            (false, Some(w)) => arm.limit_unlimited(w)[..arm.n_joints()].to_vec(),
+        };
+        let gripper = match &spec.gripper {
+            None => None,
+            Some(g) => {
+                let j = model.joint(g.joint).ok_or_else(|| {
+                    bad(format!(
+                        "the gripper joint `{}` is not a joint of {}",
+                        g.joint, spec.urdf_name
+                    ))
+                })?;
+                for (what, v) in [("open_rad", g.open_rad), ("closed_rad", g.closed_rad)] {
+                    if !(v.is_finite() && v >= j.lower && v <= j.upper) {
+                        return Err(bad(format!(
+                            "the gripper's {what} {v} is outside the joint `{}`'s range [{}, {}]",
+                            g.joint, j.lower, j.upper
+                        )));
+                    }
+                }
+                Some(Gripper {
+                    joint: g.joint.to_owned(),
+                    open_rad: g.open_rad,
+                    closed_rad: g.closed_rad,
+                })
+            }
+        };
         if arm.joint_names() != spec.joint_names {
             return Err(bad(format!(
                 "the chain {} -> {} in {} has the joints {:?}, the profile names {:?}",
@@ -277,6 +414,8 @@ impl RobotProfile {
             control_rate_hz: spec.control_rate_hz,
             gripper_time_constant_s: spec.gripper_time_constant_s,
             collision: spec.collision,
+            continuous,
+            gripper,
         })
     }
 
@@ -349,6 +488,34 @@ impl RobotProfile {
         self.gripper_time_constant_s
     }
 
+    /// Which joints turn without end on the arm (URDF `continuous`): their limits are the
+    /// profile's software limits, and [`RobotProfile::wrap_for_maps`] wraps them.
+    pub fn continuous_joints(&self) -> &[bool] {
+        &self.continuous
+    }
+
+    /// Brings each continuous joint of `q` into the turn centred on the home pose,
+    /// `(home - π, home + π]`, for the inputs of learned maps: the same arm pose always gives
+    /// the same numbers, with no jump near home. Limited joints (and entries beyond the arm's
+    /// joints) are left as they are; the pose the angles describe does not change.
+    pub fn wrap_for_maps(&self, q: &mut [f64]) {
+        use std::f64::consts::{PI, TAU};
+        let home = self.named_pose("home").unwrap_or(&[]);
+        for ((v, cont), h) in q.iter_mut().zip(&self.continuous).zip(home) {
+            if *cont && v.is_finite() {
+                // (h - π, h + π]: shift so the interval is (0, 2π], wrap, shift back.
+                let r = (*v - h + PI).rem_euclid(TAU);
+                let r = if r == 0.0 { TAU } else { r };
+                *v = h - PI + r;
+            }
+        }
+    }
+
+    /// The gripper, if the arm carries one: the joint the scalar state `c` sets.
+    pub fn gripper(&self) -> Option<&Gripper> {
+        self.gripper.as_ref()
+    }
+
     /// The arm's collision model, if the profile has one (the Gen3 lite's is
     /// `robots/gen3_lite_collision.toml`).
     pub fn collision_model(&self) -> Option<&'static CollisionModel> {
@@ -403,7 +570,78 @@ mod tests {
     #[test]
     fn unknown_robots_are_named_with_the_known_ones() {
         let e = RobotProfile::by_name("ur5").unwrap_err().to_string();
-        assert_eq!(e, "`ur5` is not a known robot; known: gen3_lite");
+        assert_eq!(e, "`ur5` is not a known robot; known: gen3_lite, gen3");
+    }
+
+    /// The Gen3's spec with its continuous joints and gripper, and what the checks refuse.
+    #[test]
+    fn continuous_joints_and_grippers_are_checked() {
+        let spec = gen3();
+        let p = RobotProfile::new(&spec).unwrap();
+        assert_eq!(p.continuous_joints().iter().filter(|c| **c).count(), 4);
+        let e = RobotProfile::new(&ProfileSpec {
+            continuous_limit_rad: None,
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the joints [\"joint_1\", \"joint_3\", \"joint_5\", \"joint_7\"] have no position limits in robots/gen3.urdf; give continuous_limit_rad"
+        );
+        for w in [3.0, f64::NAN, f64::INFINITY] {
+            let e = RobotProfile::new(&ProfileSpec {
+                continuous_limit_rad: Some(w),
+                ..spec.clone()
+            })
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("continuous_limit_rad is"), "{e}");
+        }
+        let e = RobotProfile::new(&ProfileSpec {
+            gripper: Some(GripperSpec {
+                joint: "thumb",
+                open_rad: 0.0,
+                closed_rad: 0.8,
+            }),
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the gripper joint `thumb` is not a joint of robots/gen3.urdf"
+        );
+        let e = RobotProfile::new(&ProfileSpec {
+            gripper: Some(GripperSpec {
+                joint: "finger_joint",
+                open_rad: 0.0,
+                closed_rad: 0.9,
+            }),
+            ..spec.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "robot gen3: the gripper's closed_rad 0.9 is outside the joint `finger_joint`'s range [0, 0.8]"
+        );
+        // An arm without a gripper is a profile too.
+        let bare = RobotProfile::new(&ProfileSpec {
+            gripper: None,
+            ..spec
+        })
+        .unwrap();
+        assert!(bare.gripper().is_none());
+        // The Gen3 lite: no continuous joint, nothing wrapped; its gripper opens at 0.96.
+        let lite = RobotProfile::by_name("gen3_lite").unwrap();
+        assert!(lite.continuous_joints().iter().all(|c| !c));
+        let mut q = [9.0, -9.0, 1.0, 2.0, 3.0, 4.0];
+        lite.wrap_for_maps(&mut q);
+        assert_eq!(q, [9.0, -9.0, 1.0, 2.0, 3.0, 4.0]);
+        let g = lite.gripper().unwrap();
+        assert_eq!((g.angle(0.0), g.angle(1.0)), (0.96, -0.09));
+        assert_eq!(g.angle(f64::NAN), 0.96);
     }
 
     /// Another arm is another spec: the planar reaching arm as a profile.

@@ -8,7 +8,9 @@ use super::{
     geometry,
 };
 use crate::chain::{JointAxis, JointKind, MAX_DOF};
-use crate::gen3_lite::N_JOINTS;
+/// The Gen3 lite's six joints: the width of the rows of [`Clearance::rate_row`] and
+/// [`Clearance::point_jacobian`] (the `_all` variants have every joint of the model).
+const N_JOINTS: usize = crate::gen3_lite::N_JOINTS;
 
 /// The clearance of one joint state (see
 /// [`CollisionModel::clearance`](super::CollisionModel::clearance)): fixed arrays on the stack
@@ -25,6 +27,7 @@ pub struct Clearance {
     pub(super) link_poses: [Isometry3<f64>; CollisionLink::COUNT],
     pub(super) link_moved_by: [u8; CollisionLink::COUNT],
     pub(super) axes: [JointAxis; MAX_DOF],
+    pub(super) n_joints: usize,
     pub(super) scene: Scene,
 }
 
@@ -49,6 +52,7 @@ impl Default for Clearance {
             link_poses: [Isometry3::identity(); CollisionLink::COUNT],
             link_moved_by: [0; CollisionLink::COUNT],
             axes: [JointAxis::UNUSED; MAX_DOF],
+            n_joints: 0,
             scene: Scene::empty(),
         }
     }
@@ -131,12 +135,33 @@ impl Clearance {
     /// Exact where the closest points move smoothly; where the closest pair of features
     /// switches (parallel segments, a capsule's axis level with the table) the distance has
     /// one-sided derivatives and this is one of them.
+    ///
+    /// The row has six entries, the joints of a Gen3 lite: `None` for a model of another
+    /// number of joints, whose rows [`Clearance::rate_row_all`] gives.
     pub fn rate_row(&self, contact: &Contact) -> Option<[f64; N_JOINTS]> {
+        if self.n_joints != N_JOINTS {
+            return None;
+        }
+        let all = self.rate_row_all(contact)?;
+        let mut row = [0.0; N_JOINTS];
+        row.copy_from_slice(&all[..N_JOINTS]);
+        Some(row)
+    }
+
+    /// Number of arm joints of the model that computed this state (the used entries of the
+    /// `_all` rows and Jacobians).
+    pub fn n_joints(&self) -> usize {
+        self.n_joints
+    }
+
+    /// [`Clearance::rate_row`] for a model of any number of joints: entries beyond
+    /// [`Clearance::n_joints`] are zero.
+    pub fn rate_row_all(&self, contact: &Contact) -> Option<[f64; MAX_DOF]> {
         let g = contact.gradient?;
         let normal = contact.normal?;
-        let mut row = [0.0; N_JOINTS];
+        let mut row = [0.0; MAX_DOF];
         let mut add = |link: CollisionLink, p: &Point3<f64>, sign: f64| {
-            for (r, col) in row.iter_mut().zip(self.point_jacobian(link, p)) {
+            for (r, col) in row.iter_mut().zip(self.point_jacobian_all(link, p)) {
                 *r += sign * g.dot(&col);
             }
         };
@@ -160,9 +185,24 @@ impl Clearance {
     /// state: column `j` is the point's velocity (m/s) per rad/s of arm joint `j`, zero for
     /// the joints that do not move the link (the gripper held still). `J qdot` is the point's
     /// velocity. Allocation-free.
+    ///
+    /// The first six joints (a Gen3 lite's); [`Clearance::point_jacobian_all`] has them all.
     pub fn point_jacobian(&self, link: CollisionLink, p: &Point3<f64>) -> [Vector3<f64>; N_JOINTS] {
+        let all = self.point_jacobian_all(link, p);
         let mut cols = [Vector3::zeros(); N_JOINTS];
-        let moved = usize::from(self.link_moved_by[link.index()]).min(N_JOINTS);
+        cols.copy_from_slice(&all[..N_JOINTS]);
+        cols
+    }
+
+    /// [`Clearance::point_jacobian`] with a column for every joint of the model (zero
+    /// beyond [`Clearance::n_joints`]).
+    pub fn point_jacobian_all(
+        &self,
+        link: CollisionLink,
+        p: &Point3<f64>,
+    ) -> [Vector3<f64>; MAX_DOF] {
+        let mut cols = [Vector3::zeros(); MAX_DOF];
+        let moved = usize::from(self.link_moved_by[link.index()]).min(self.n_joints);
         for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
             *c = axis.point_velocity(&p.coords);
         }
@@ -172,9 +212,19 @@ impl Clearance {
     /// The angular Jacobian of `link` at this state: column `j` is the link's angular
     /// velocity (rad/s, base frame) per rad/s of arm joint `j` (the axis of a revolute joint
     /// that moves the link, else zero).
+    ///
+    /// The first six joints (a Gen3 lite's); [`Clearance::angular_jacobian_all`] has them all.
     pub fn angular_jacobian(&self, link: CollisionLink) -> [Vector3<f64>; N_JOINTS] {
+        let all = self.angular_jacobian_all(link);
         let mut cols = [Vector3::zeros(); N_JOINTS];
-        let moved = usize::from(self.link_moved_by[link.index()]).min(N_JOINTS);
+        cols.copy_from_slice(&all[..N_JOINTS]);
+        cols
+    }
+
+    /// [`Clearance::angular_jacobian`] with a column for every joint of the model.
+    pub fn angular_jacobian_all(&self, link: CollisionLink) -> [Vector3<f64>; MAX_DOF] {
+        let mut cols = [Vector3::zeros(); MAX_DOF];
+        let moved = usize::from(self.link_moved_by[link.index()]).min(self.n_joints);
         for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
             if axis.kind == JointKind::Revolute {
                 *c = axis.direction;

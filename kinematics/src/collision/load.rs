@@ -14,7 +14,7 @@ use super::{
     Target,
 };
 use crate::chain::Chain;
-use crate::gen3_lite::{self, BASE_LINK, GRIPPER_JOINT, JOINT_NAMES};
+use crate::gen3_lite::{self, BASE_LINK};
 use crate::robot::{JointType, RobotModel, UrdfError};
 
 /// Why a collision model could not be loaded. Every message starts with the file.
@@ -44,11 +44,11 @@ pub enum CollisionError {
         /// The version in the file.
         found: u32,
     },
-    /// A link name that is not one of the Gen3 lite's links with geometry.
-    #[error(
-        "{file}: {field}: `{name}` is not a link of the Gen3 lite with geometry (links: {known})"
-    )]
+    /// A link name that is not one of the arm's links with geometry.
+    #[error("{file}: {field}: `{name}` is not a link of {arm} with geometry (links: {known})")]
     UnknownLink {
+        /// The arm (`the Gen3 lite`).
+        arm: Box<str>,
         /// The file.
         file: String,
         /// Where the name is (`link[3].name`, `exclude[2].links`).
@@ -160,6 +160,27 @@ const MAX_COORDINATE_M: f64 = 2.0;
 
 static MODEL: OnceLock<CollisionModel> = OnceLock::new();
 
+/// The facts of the arm a collision model is read for, beside its robot description.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelArm<'a> {
+    /// How messages name the arm (`the Gen3 lite`).
+    pub name: &'a str,
+    /// The joints of the chain `base_link -> gripper_base_link`, base to tip.
+    pub joint_names: &'a [&'a str],
+    /// The gripper joint that moves the finger links (their joints are it or mimic it), if
+    /// the model has finger links.
+    pub gripper_joint: Option<&'a str>,
+}
+
+impl ModelArm<'static> {
+    /// The Gen3 lite with its 2-finger gripper.
+    pub const GEN3_LITE: ModelArm<'static> = ModelArm {
+        name: "the Gen3 lite",
+        joint_names: &gen3_lite::JOINT_NAMES,
+        gripper_joint: Some(gen3_lite::GRIPPER_JOINT),
+    };
+}
+
 impl CollisionModel {
     /// The embedded model ([`COLLISION_TOML`]) on the embedded URDF.
     pub fn load() -> Result<Self, CollisionError> {
@@ -204,6 +225,25 @@ impl CollisionModel {
         file: &str,
         robot: &RobotModel,
     ) -> Result<Self, CollisionError> {
+        Self::for_arm(text, file, robot, &ModelArm::GEN3_LITE)
+    }
+
+    /// Parses and checks a collision model (`file` names it in errors) for `arm`, whose
+    /// description is `robot`: every link of `robot` that is a [`CollisionLink`] needs
+    /// capsules, and no other link may have any.
+    pub fn for_arm(
+        text: &str,
+        file: &str,
+        robot: &RobotModel,
+        arm: &ModelArm<'_>,
+    ) -> Result<Self, CollisionError> {
+        // The links of this arm that can have geometry.
+        let own: Vec<CollisionLink> = CollisionLink::EVERY
+            .into_iter()
+            .filter(|l| robot.links().iter().any(|n| n == l.name()))
+            .collect();
+        let known = || own.iter().map(|l| l.name()).collect::<Vec<_>>().join(", ");
+        let find = |name: &str| CollisionLink::from_name(name).filter(|l| own.contains(l));
         let parsed: FileToml = toml::from_str(text).map_err(|e| CollisionError::Parse {
             file: file.to_owned(),
             reason: e.to_string().trim_end().to_owned(),
@@ -240,12 +280,13 @@ impl CollisionModel {
         // Links: each known one exactly once, with at least one capsule.
         let mut by_link: [Option<usize>; CollisionLink::COUNT] = [None; CollisionLink::COUNT];
         for (i, l) in parsed.link.iter().enumerate() {
-            let Some(link) = CollisionLink::from_name(&l.name) else {
+            let Some(link) = find(&l.name) else {
                 return Err(CollisionError::UnknownLink {
+                    arm: arm.name.into(),
                     file: file.to_owned(),
                     field: format!("link[{i}].name"),
                     name: l.name.clone(),
-                    known: CollisionLink::known(),
+                    known: known(),
                 });
             };
             if by_link[link.index()].is_some() {
@@ -289,14 +330,14 @@ impl CollisionModel {
             }
             by_link[link.index()] = Some(i);
         }
-        if let Some(missing) = CollisionLink::ALL
-            .into_iter()
-            .find(|l| by_link[l.index()].is_none())
-        {
+        if let Some(missing) = own.iter().find(|l| by_link[l.index()].is_none()) {
             return Err(CollisionError::Link {
                 file: file.to_owned(),
                 link: missing.name().to_owned(),
-                reason: "has no [[link]] entry; every link of the Gen3 lite needs capsules".into(),
+                reason: format!(
+                    "has no [[link]] entry; every link of {} needs capsules",
+                    arm.name
+                ),
             });
         }
         let n_capsules: usize = parsed.link.iter().map(|l| l.capsule.len()).sum();
@@ -317,13 +358,13 @@ impl CollisionModel {
             };
             let mut pair = [CollisionLink::Base; 2];
             for (slot, name) in pair.iter_mut().zip(&e.links) {
-                *slot =
-                    CollisionLink::from_name(name).ok_or_else(|| CollisionError::UnknownLink {
-                        file: file.to_owned(),
-                        field: format!("exclude[{index}].links"),
-                        name: name.clone(),
-                        known: CollisionLink::known(),
-                    })?;
+                *slot = find(name).ok_or_else(|| CollisionError::UnknownLink {
+                    arm: arm.name.into(),
+                    file: file.to_owned(),
+                    field: format!("exclude[{index}].links"),
+                    name: name.clone(),
+                    known: known(),
+                })?;
             }
             let [a, b] = pair;
             if a == b {
@@ -353,10 +394,12 @@ impl CollisionModel {
             file: robot.file().to_owned(),
             reason,
         };
-        if chain.joint_names() != JOINT_NAMES {
+        if chain.joint_names() != arm.joint_names {
             return Err(robot_err(format!(
-                "the chain {BASE_LINK} -> {CHAIN_TIP} has the joints {:?}; a Gen3 lite has {JOINT_NAMES:?}",
-                chain.joint_names()
+                "the chain {BASE_LINK} -> {CHAIN_TIP} has the joints {:?}; {} has {:?}",
+                chain.joint_names(),
+                arm.name,
+                arm.joint_names
             )));
         }
         if chain.n_links() > MAX_CHAIN_LINKS {
@@ -368,10 +411,20 @@ impl CollisionModel {
         let mut links: Vec<LinkGeom> = Vec::with_capacity(CollisionLink::COUNT);
         let mut capsules = Vec::with_capacity(n_capsules);
         let mut refs = Vec::with_capacity(n_capsules);
-        for link in CollisionLink::ALL {
+        for link in CollisionLink::EVERY {
+            let Some(entry) = by_link[link.index()].map(|i| &parsed.link[i]) else {
+                links.push(LinkGeom {
+                    source: Source::Absent,
+                    moved_by: 0,
+                    first: capsules.len(),
+                    end: capsules.len(),
+                    table: false,
+                });
+                continue;
+            };
             let source = match chain.link_id(link.name()) {
                 Some(id) => Source::Chain(chain.link_index(id)),
-                None => hang(robot, &chain, link, &robot_err)?,
+                None => hang(robot, &chain, link, arm.gripper_joint, &robot_err)?,
             };
             let moved_by = match &source {
                 Source::Chain(i) => chain_moved_by(&chain, *i),
@@ -379,8 +432,8 @@ impl CollisionModel {
                     Parent::Chain(i) => chain_moved_by(&chain, *i),
                     Parent::Link(k) => links[*k].moved_by,
                 },
+                Source::Absent => 0,
             };
-            let entry = &parsed.link[by_link[link.index()].unwrap_or_default()];
             let first = capsules.len();
             for (k, c) in entry.capsule.iter().enumerate() {
                 capsules.push(Capsule::new(
@@ -410,8 +463,8 @@ impl CollisionModel {
         };
         let mut self_pairs = Vec::new();
         let mut self_ids = Vec::new();
-        for (i, la) in CollisionLink::ALL.into_iter().enumerate() {
-            for lb in CollisionLink::ALL.into_iter().skip(i + 1) {
+        for (i, la) in own.iter().copied().enumerate() {
+            for lb in own.iter().copied().skip(i + 1) {
                 if excluded(la, lb) {
                     continue;
                 }
@@ -440,8 +493,14 @@ impl CollisionModel {
             .filter(|l| l.table)
             .flat_map(|l| (l.first..l.end).map(|c| c as u16))
             .collect();
+        let gripper_range = arm
+            .gripper_joint
+            .and_then(|g| robot.joint(g))
+            .map_or((0.0, 0.0), |j| (j.lower, j.upper));
         Ok(Self {
             file: file.to_owned(),
+            present: own,
+            gripper_range,
             margin_m: parsed.margin_m,
             gripper_default_rad: parsed.gripper_default_rad,
             chain,
@@ -467,11 +526,12 @@ fn chain_moved_by(chain: &Chain, i: usize) -> usize {
 
 /// The frame of a link off the arm chain: the one URDF joint above it, which must be fixed,
 /// the gripper joint, or a joint mimicking it, and whose parent is on the chain or a link
-/// before it in [`CollisionLink::ALL`].
+/// before it in [`CollisionLink::EVERY`].
 fn hang(
     robot: &RobotModel,
     chain: &Chain,
     link: CollisionLink,
+    gripper: Option<&str>,
     robot_err: &dyn Fn(String) -> CollisionError,
 ) -> Result<Source, CollisionError> {
     let name = link.name();
@@ -495,16 +555,19 @@ fn hang(
     };
     let (multiplier, offset) = match (j.kind, &j.mimic) {
         (JointType::Fixed, _) => (0.0, 0.0),
-        (JointType::Revolute | JointType::Continuous, None) if j.name == GRIPPER_JOINT => {
+        (JointType::Revolute | JointType::Continuous, None) if Some(j.name.as_str()) == gripper => {
             (1.0, 0.0)
         }
-        (JointType::Revolute | JointType::Continuous, Some(m)) if m.joint == GRIPPER_JOINT => {
+        (JointType::Revolute | JointType::Continuous, Some(m))
+            if Some(m.joint.as_str()) == gripper =>
+        {
             (m.multiplier, m.offset)
         }
         _ => {
             return Err(robot_err(format!(
-                "joint `{}` above `{name}` is neither fixed, nor the gripper joint `{GRIPPER_JOINT}`, nor a revolute joint mimicking it",
-                j.name
+                "joint `{}` above `{name}` is neither fixed, nor the gripper joint `{}`, nor a revolute joint mimicking it",
+                j.name,
+                gripper.unwrap_or("(none)")
             )));
         }
     };

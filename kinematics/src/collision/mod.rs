@@ -1,5 +1,8 @@
-//! The Gen3 lite's collision model: capsules on every link, the pairs that can touch, a scene
-//! (table and boxes), and the clearance of a joint state with the rate at which it changes.
+//! Collision models: capsules on every link, the pairs that can touch, a scene (table and
+//! boxes), and the clearance of a joint state with the rate at which it changes. The Gen3
+//! lite's is [`CollisionModel::get`]; the Gen3's is [`crate::gen3::collision_model`]; a
+//! profile gives its arm's ([`crate::RobotProfile::collision_model`]). Another arm's model is
+//! read with [`CollisionModel::for_arm`] (its links must be [`CollisionLink`]s).
 //!
 //! * The geometry is data: `robots/gen3_lite_collision.toml` (embedded, [`COLLISION_TOML`]),
 //!   one or two capsules per link in the link's own frame, each with the reference fit it
@@ -48,7 +51,7 @@ use nalgebra::{Point3, Vector3};
 
 pub use clearance::Clearance;
 pub use geometry::{Aabb, Capsule, Proximity};
-pub use load::CollisionError;
+pub use load::{CollisionError, ModelArm};
 pub use model::CollisionModel;
 pub use scene::{MAX_BOXES, Scene, SceneError};
 
@@ -81,7 +84,9 @@ pub(super) const CHAIN_TIP: &str = "gripper_base_link";
 /// Most links along the arm chain `base_link -> gripper_base_link`.
 pub(super) const MAX_CHAIN_LINKS: usize = 16;
 
-/// A link of the Gen3 lite that has collision geometry, base to fingertips.
+/// A link that has collision geometry: the Gen3 lite's, base to fingertips, then the Gen3's
+/// own (the Gen3 shares `base_link`, `shoulder_link`, `forearm_link` and `gripper_base_link`
+/// with the Gen3 lite). A model has the links its file names ([`CollisionModel::links`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum CollisionLink {
     /// `base_link`: fixed on the table.
@@ -106,10 +111,21 @@ pub enum CollisionLink {
     LeftFingerProx,
     /// `left_finger_dist_link`.
     LeftFingerDist,
+    /// `half_arm_1_link` (Gen3): joint 2.
+    HalfArm1,
+    /// `half_arm_2_link` (Gen3): joint 3.
+    HalfArm2,
+    /// `spherical_wrist_1_link` (Gen3): joint 5.
+    SphericalWrist1,
+    /// `spherical_wrist_2_link` (Gen3): joint 6.
+    SphericalWrist2,
+    /// `bracelet_link` (Gen3): joint 7, the flange's actuator.
+    Bracelet,
 }
 
 impl CollisionLink {
-    /// Every link, parents before children.
+    /// The Gen3 lite's links, parents before children (what a Gen3 lite model has; a model's
+    /// own links are [`CollisionModel::links`]).
     pub const ALL: [CollisionLink; 11] = [
         CollisionLink::Base,
         CollisionLink::Shoulder,
@@ -124,8 +140,28 @@ impl CollisionLink {
         CollisionLink::LeftFingerDist,
     ];
 
-    /// Number of links.
-    pub const COUNT: usize = Self::ALL.len();
+    /// Every link of every arm, in index order (a parent before its children on each arm).
+    pub const EVERY: [CollisionLink; 16] = [
+        CollisionLink::Base,
+        CollisionLink::Shoulder,
+        CollisionLink::Arm,
+        CollisionLink::Forearm,
+        CollisionLink::LowerWrist,
+        CollisionLink::UpperWrist,
+        CollisionLink::GripperBase,
+        CollisionLink::RightFingerProx,
+        CollisionLink::RightFingerDist,
+        CollisionLink::LeftFingerProx,
+        CollisionLink::LeftFingerDist,
+        CollisionLink::HalfArm1,
+        CollisionLink::HalfArm2,
+        CollisionLink::SphericalWrist1,
+        CollisionLink::SphericalWrist2,
+        CollisionLink::Bracelet,
+    ];
+
+    /// Number of links of every arm ([`CollisionLink::EVERY`]).
+    pub const COUNT: usize = Self::EVERY.len();
 
     /// The URDF name.
     pub fn name(self) -> &'static str {
@@ -141,12 +177,17 @@ impl CollisionLink {
             CollisionLink::RightFingerDist => "right_finger_dist_link",
             CollisionLink::LeftFingerProx => "left_finger_prox_link",
             CollisionLink::LeftFingerDist => "left_finger_dist_link",
+            CollisionLink::HalfArm1 => "half_arm_1_link",
+            CollisionLink::HalfArm2 => "half_arm_2_link",
+            CollisionLink::SphericalWrist1 => "spherical_wrist_1_link",
+            CollisionLink::SphericalWrist2 => "spherical_wrist_2_link",
+            CollisionLink::Bracelet => "bracelet_link",
         }
     }
 
     /// The link with this URDF name.
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|l| l.name() == name)
+        Self::EVERY.into_iter().find(|l| l.name() == name)
     }
 
     /// Position in [`CollisionLink::ALL`].
@@ -158,10 +199,6 @@ impl CollisionLink {
     pub fn short_name(self) -> &'static str {
         let n = self.name();
         n.strip_suffix("_link").unwrap_or(n)
-    }
-
-    pub(super) fn known() -> String {
-        Self::ALL.map(CollisionLink::name).join(", ")
     }
 }
 
@@ -199,7 +236,7 @@ impl CapsuleRef {
 
     /// The capsule of a [`CapsuleRef::code`].
     pub fn from_code(code: u16) -> Option<Self> {
-        let link = *CollisionLink::ALL.get(usize::from(code >> 8))?;
+        let link = *CollisionLink::EVERY.get(usize::from(code >> 8))?;
         Some(Self {
             link,
             index: (code & 0xFF) as u8,

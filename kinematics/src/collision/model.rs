@@ -7,11 +7,12 @@ use super::{
     Target, geometry,
 };
 use crate::chain::{Chain, KinError};
-use crate::gen3_lite::N_JOINTS;
 
 /// Where a link's frame comes from.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) enum Source {
+    /// A link the model does not have (no capsules; its pose is the identity).
+    Absent,
     /// A link along the arm chain, by index in [`Chain::link_names`].
     Chain(usize),
     /// A link hung from `parent` by one joint turned by the gripper (the gripper joint itself
@@ -43,16 +44,20 @@ pub(super) struct LinkGeom {
     pub(super) table: bool,
 }
 
-/// The collision model of the Gen3 lite: see the module docs.
+/// The collision model of an arm: see the module docs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CollisionModel {
     pub(super) file: String,
+    /// The links the model has, in [`CollisionLink::EVERY`] order.
+    pub(super) present: Vec<CollisionLink>,
+    /// The gripper joint's range `(lower, upper)` (rad); `(0, 0)` without a gripper joint.
+    pub(super) gripper_range: (f64, f64),
     pub(super) margin_m: f64,
     pub(super) gripper_default_rad: f64,
     pub(super) chain: Chain,
     pub(super) links: Vec<LinkGeom>,
     /// Capsules in their link frames, radius with the margin, link by link in
-    /// [`CollisionLink::ALL`] order.
+    /// [`CollisionLink::EVERY`] order (one entry per link, absent ones empty).
     pub(super) capsules: Vec<Capsule>,
     pub(super) refs: Vec<CapsuleRef>,
     pub(super) self_pairs: Vec<(u16, u16)>,
@@ -78,13 +83,30 @@ impl CollisionModel {
         self.gripper_default_rad
     }
 
-    /// The gripper joint's range (rad): `c = 0` (open) maps to its lower end, `c = 1`
-    /// (closed) to its upper end.
+    /// The gripper joint's range `(lower, upper)` in the robot description (rad); `(0, 0)`
+    /// for a model without a gripper joint. Which end is open is the profile's
+    /// ([`crate::Gripper`]); for the Gen3 lite the upper end is open.
     pub fn gripper_range(&self) -> (f64, f64) {
-        crate::gen3_lite::Gen3Lite::get().gripper_range()
+        self.gripper_range
     }
 
-    /// The capsules of a link in its own frame, margin included.
+    /// The links the model has (with capsules), base to tip.
+    pub fn links(&self) -> &[CollisionLink] {
+        &self.present
+    }
+
+    /// Whether the model has capsules on `link`.
+    pub fn has_link(&self, link: CollisionLink) -> bool {
+        self.present.contains(&link)
+    }
+
+    /// Number of arm joints the model's chain has (the length of `q` without the gripper).
+    pub fn n_joints(&self) -> usize {
+        self.chain.n_joints()
+    }
+
+    /// The capsules of a link in its own frame, margin included (none for a link the model
+    /// does not have).
     pub fn link_capsules(&self, link: CollisionLink) -> &[Capsule] {
         let l = &self.links[link.index()];
         &self.capsules[l.first..l.end]
@@ -124,16 +146,18 @@ impl CollisionModel {
     /// closest pair with its closest points, and what [`Clearance::rate_row`] needs.
     /// Allocation-free.
     ///
-    /// `q` holds the six arm joints (rad), optionally followed by the gripper joint's value
-    /// (`right_finger_bottom_joint`, rad, see [`crate::Gen3Lite::gripper_range`]); without
-    /// it the gripper is at [`CollisionModel::gripper_default_rad`].
+    /// `q` holds the arm joints (rad; [`CollisionModel::n_joints`] of them, six on a Gen3
+    /// lite), optionally followed by the gripper joint's value (rad, see
+    /// [`CollisionModel::gripper_range`]); without it the gripper is at
+    /// [`CollisionModel::gripper_default_rad`].
     pub fn clearance(&self, q: &[f64], scene: &Scene, out: &mut Clearance) -> Result<(), KinError> {
+        let n_joints = self.chain.n_joints();
         let (arm_q, gripper) = match q.len() {
-            N_JOINTS => (q, self.gripper_default_rad),
-            n if n == N_JOINTS + 1 => (&q[..N_JOINTS], q[N_JOINTS]),
+            n if n == n_joints => (q, self.gripper_default_rad),
+            n if n == n_joints + 1 => (&q[..n_joints], q[n_joints]),
             n => {
                 return Err(KinError::Length {
-                    expected: N_JOINTS,
+                    expected: n_joints,
                     found: n,
                 });
             }
@@ -149,6 +173,7 @@ impl CollisionModel {
             .link_poses(arm_q, &mut chain_poses, &mut out.axes)?;
         for (k, l) in self.links.iter().enumerate() {
             let pose = match &l.source {
+                Source::Absent => Isometry3::identity(),
                 Source::Chain(i) => chain_poses[*i],
                 Source::Joint {
                     parent,
@@ -173,6 +198,7 @@ impl CollisionModel {
             }
         }
         out.n_capsules = self.capsules.len();
+        out.n_joints = n_joints;
         out.refs[..self.refs.len()].copy_from_slice(&self.refs);
         out.scene = *scene;
 

@@ -1,0 +1,308 @@
+//! The safety filter's guarantees as properties for every built-in robot profile, so that they
+//! run for the Gen3 lite (6 joints) and the Gen3 (7 joints) alike: in closed loop (the arm
+//! integrates the filter's outputs, `q += qdot · dt`, at the profile's control rate) from
+//! random poses, velocities and commands,
+//!
+//! * every output is finite, within the velocity limits, and never carries a joint past its
+//!   limit less the margin (the Gen3's continuous joints included: their software limits);
+//! * with the whole-arm rules (the profile's collision model): no checked pair comes closer
+//!   than the stop distance within a tick, and neither the tool nor any capsule end moves
+//!   faster than the linear cap, the tool turns no faster than the angular cap.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop)]
+
+use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState};
+use kinematics::RobotProfile;
+use kinematics::collision::{Clearance, CollisionLink, PairId, Scene, Target};
+use proptest::prelude::*;
+use proptest::test_runner::{Config, TestRunner};
+use safety::{SafetyConfig, SafetyFilter};
+
+const NOW: u64 = 1_000_000_000;
+
+fn cmd(tick: u64, qdot: &[f64]) -> MapperCommand {
+    let mut q = [0.0; MAX_JOINTS];
+    q[..qdot.len()].copy_from_slice(qdot);
+    MapperCommand {
+        tick,
+        t_ns: NOW - 500_000,
+        state_t_ns: NOW - 1_000_000,
+        state_rx_ns: 0,
+        joystick_t_ns: NOW - 10_000_000,
+        joystick_rx_ns: 0,
+        joystick_seq: 1,
+        compute_ns: 100,
+        mapper_id: 1,
+        n_joints: qdot.len() as u32,
+        flags: 0,
+        buttons: 0,
+        action: [0.0; 2],
+        qdot_rad_s: q,
+        gripper_rate: 0.0,
+    }
+}
+
+/// The state at `tick`: pose `q`, moving at `qdot`, which was the command of the tick before
+/// (`executed`) or the robot's own measurement.
+fn state(tick: u64, q: &[f64], qdot: &[f64], executed: bool) -> RobotState {
+    let n = q.len();
+    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, n as u32);
+    s.q_rad[..n].copy_from_slice(q);
+    s.qdot_rad_s[..n].copy_from_slice(qdot);
+    s.applied_tick = if executed { tick - 1 } else { NO_TICK };
+    s
+}
+
+/// One random closed-loop run: a start pose (fractions of each joint's range inside the
+/// margins), a start velocity (fractions of the velocity limits) and held commands.
+#[derive(Debug, Clone)]
+struct Run {
+    start: Vec<f64>,
+    moving: Vec<f64>,
+    cmds: Vec<(Vec<f64>, u64, bool)>,
+}
+
+fn runs(n: usize, max_cmds: usize) -> impl Strategy<Value = Run> {
+    (
+        proptest::collection::vec(0.0f64..1.0, n),
+        proptest::collection::vec(-1.0f64..1.0, n),
+        proptest::collection::vec(
+            (
+                proptest::collection::vec(-2.0f64..2.0, n),
+                1u64..15,
+                any::<bool>(),
+            ),
+            1..max_cmds,
+        ),
+    )
+        .prop_map(|(start, moving, cmds)| Run {
+            start,
+            moving,
+            cmds,
+        })
+}
+
+/// The start pose of a run: inside the limits less the margin.
+fn start_pose(robot: &RobotProfile, margin: f64, u: &[f64]) -> Vec<f64> {
+    let l = robot.limits();
+    (0..robot.n_joints())
+        .map(|j| {
+            let (lo, hi) = (l.lower_rad[j] + margin, l.upper_rad[j] - margin);
+            lo + u[j] * (hi - lo)
+        })
+        .collect()
+}
+
+fn period(robot: &RobotProfile) -> f64 {
+    1.0 / robot.control_rate_hz()
+}
+
+/// The joint-limit and velocity guarantees in closed loop, for `robot`.
+fn joint_limits_hold(robot: &'static RobotProfile) {
+    let n = robot.n_joints();
+    let dt = period(robot);
+    let cfg = SafetyConfig::for_robot(robot);
+    let margin = cfg.joint_margin_rad;
+    let vmax = cfg.max_velocity_rad_s.clone();
+    let l = robot.limits().clone();
+    let mut runner = TestRunner::new(Config::with_cases(128));
+    runner
+        .run(&runs(n, 8), |run| {
+            let mut f = SafetyFilter::for_robot(cfg.clone(), robot, dt).unwrap();
+            let mut q = start_pose(robot, margin, &run.start);
+            let mut prev: Vec<f64> = (0..n).map(|j| run.moving[j] * vmax[j]).collect();
+            let mut tick = 0;
+            for (qdot, hold, executed) in &run.cmds {
+                for _ in 0..*hold {
+                    tick += 1;
+                    let out = f.step(
+                        &cmd(tick, qdot),
+                        &state(tick, &q, &prev, *executed && tick > 1),
+                        NOW,
+                    );
+                    for j in 0..n {
+                        let v = out.qdot_rad_s[j];
+                        prop_assert!(v.is_finite(), "joint {j}: {v}");
+                        prop_assert!(v.abs() <= vmax[j] * (1.0 + 1e-12), "joint {j}: {v} rad/s");
+                        let (lo, hi) = (l.lower_rad[j] + margin, l.upper_rad[j] - margin);
+                        let next = q[j] + v * dt;
+                        prop_assert!(
+                            next <= hi + 1e-12 && next >= lo - 1e-12,
+                            "{}: tick {tick}: joint {j} from {} to {next}, past [{lo}, {hi}]",
+                            robot.name(),
+                            q[j]
+                        );
+                        q[j] = next;
+                    }
+                    prop_assert!(out.qdot_rad_s[n..].iter().all(|v| *v == 0.0));
+                    prev = out.qdot_rad_s[..n].to_vec();
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn joint_limits_hold_for_the_gen3_lite() {
+    joint_limits_hold(RobotProfile::by_name("gen3_lite").unwrap());
+}
+
+#[test]
+fn joint_limits_hold_for_the_gen3() {
+    joint_limits_hold(RobotProfile::by_name("gen3").unwrap());
+}
+
+/// Whether the filter checks a pair (the base against the scene never moves: left out).
+fn checked(p: &PairId) -> bool {
+    p.a.link != CollisionLink::Base || matches!(p.b, Target::Capsule(_))
+}
+
+/// Every checked pair's distance at `q` (the model's default gripper), the test's oracle.
+fn distances(robot: &RobotProfile, q: &[f64], scene: &Scene) -> Vec<(PairId, f64)> {
+    let mut c = Clearance::default();
+    robot
+        .collision_model()
+        .unwrap()
+        .clearance(q, scene, &mut c)
+        .unwrap();
+    c.pairs()
+        .iter()
+        .zip(c.distances_m())
+        .filter(|(p, _)| checked(p))
+        .map(|(p, d)| (*p, *d))
+        .collect()
+}
+
+/// The tool's linear and angular speed under `v` at `q`, from the arm chain's geometric
+/// Jacobian (base -> TCP): an oracle independent of the collision model's.
+fn tool_twist(robot: &RobotProfile, q: &[f64], v: &[f64]) -> (f64, f64) {
+    let n = robot.n_joints();
+    let mut jac = kinematics::Jacobian::zeros(n);
+    robot.arm().fk_jacobian(q, &mut jac).unwrap();
+    let row = |i: usize| (0..n).map(|j| jac.get(i, j) * v[j]).sum::<f64>();
+    let lin = (0..3).map(|i| row(i).powi(2)).sum::<f64>().sqrt();
+    let ang = (3..6).map(|i| row(i).powi(2)).sum::<f64>().sqrt();
+    (lin, ang)
+}
+
+/// The fastest capsule end under `v` at `q`, by finite differences of the capsules' ends.
+fn fastest_capsule_end(robot: &RobotProfile, q: &[f64], v: &[f64]) -> f64 {
+    let m = robot.collision_model().unwrap();
+    let scene = Scene::empty();
+    let (mut a, mut b) = (Clearance::default(), Clearance::default());
+    let h = 1e-7;
+    let qh: Vec<f64> = q.iter().zip(v).map(|(q, v)| q + h * v).collect();
+    m.clearance(q, &scene, &mut a).unwrap();
+    m.clearance(&qh, &scene, &mut b).unwrap();
+    a.capsules()
+        .iter()
+        .zip(b.capsules())
+        .flat_map(|(x, y)| [(y.a - x.a).norm() / h, (y.b - x.b).norm() / h])
+        .fold(0.0, f64::max)
+}
+
+/// How much closer a pair already below the stop distance may come in one tick while the
+/// command does not bring it closer to first order (as in `clearance.rs`): 0.5 mm.
+const BELOW_STOP_TOLERANCE_M: f64 = 0.0005;
+
+/// The whole-arm guarantees in closed loop, for `robot` with its collision model.
+fn whole_arm_holds(robot: &'static RobotProfile) {
+    let n = robot.n_joints();
+    let dt = period(robot);
+    let base_cfg = SafetyConfig::for_robot(robot);
+    let margin = base_cfg.joint_margin_rad;
+    let mut runner = TestRunner::new(Config::with_cases(64));
+    runner
+        .run(&(runs(n, 5), any::<bool>()), |(run, with_box)| {
+            let mut cfg = base_cfg.clone();
+            let start = start_pose(robot, margin, &run.start);
+            let tool = robot.arm().fk(&start).unwrap().translation.vector;
+            if with_box {
+                cfg.scene.boxes.push(safety::BoxConfig {
+                    name: "near".into(),
+                    min: [tool.x + 0.05, tool.y - 0.2, tool.z - 0.2],
+                    max: [tool.x + 0.3, tool.y + 0.2, tool.z + 0.2],
+                });
+            }
+            let stop = cfg.stop_distance_m;
+            let (lin_cap, ang_cap) = (cfg.max_tcp_speed_m_s, cfg.max_tcp_angular_speed_rad_s);
+            let vmax = cfg.max_velocity_rad_s.clone();
+            let scene = cfg.scene.scene().unwrap();
+            let mut f = SafetyFilter::for_robot(cfg, robot, dt)
+                .unwrap()
+                .with_whole_arm(robot)
+                .unwrap();
+            let mut q = start;
+            let mut prev: Vec<f64> = (0..n).map(|j| run.moving[j] * vmax[j]).collect();
+            let mut tick = 0;
+            for (qdot, hold, executed) in &run.cmds {
+                for _ in 0..*hold {
+                    tick += 1;
+                    let before = distances(robot, &q, &scene);
+                    let out = f.step(
+                        &cmd(tick, qdot),
+                        &state(tick, &q, &prev, *executed && tick > 1),
+                        NOW,
+                    );
+                    let v = out.qdot_rad_s[..n].to_vec();
+                    let (lin, ang) = tool_twist(robot, &q, &v);
+                    prop_assert!(
+                        lin <= lin_cap * (1.0 + 1e-9),
+                        "tick {tick}: tool at {lin} m/s"
+                    );
+                    prop_assert!(
+                        ang <= ang_cap * (1.0 + 1e-9),
+                        "tick {tick}: tool turning at {ang} rad/s"
+                    );
+                    let end = fastest_capsule_end(robot, &q, &v);
+                    prop_assert!(
+                        end <= lin_cap * (1.0 + 1e-6),
+                        "tick {tick}: a capsule end at {end} m/s"
+                    );
+                    for j in 0..n {
+                        q[j] += v[j] * dt;
+                    }
+                    for ((pair, d0), (_, d1)) in before.iter().zip(distances(robot, &q, &scene)) {
+                        if *d0 >= stop {
+                            prop_assert!(
+                                d1 >= stop - 1e-9,
+                                "{}: tick {tick}: {pair} from {d0} to {d1} m (flags {:#x})",
+                                robot.name(),
+                                out.flags
+                            );
+                        } else {
+                            prop_assert!(
+                                d1 >= d0 - BELOW_STOP_TOLERANCE_M,
+                                "tick {tick}: {pair} below the stop distance from {d0} to {d1} m"
+                            );
+                        }
+                    }
+                    prev = v;
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn no_pair_passes_the_stop_distance_and_no_point_the_speed_cap_on_the_gen3_lite() {
+    whole_arm_holds(RobotProfile::by_name("gen3_lite").unwrap());
+}
+
+/// The same for the Gen3. Blocked outside this test: `safety::clearance::WholeArm` takes a
+/// six-joint arm only (`safety/src/clearance.rs`: `WholeArm::new` returns `None` unless
+/// `robot.n_joints()` is its `N_JOINTS`, 6), so `with_whole_arm` refuses the Gen3's
+/// profile although the profile has its collision model. Remove the `ignore` with that fix.
+#[test]
+#[ignore = "safety::clearance::WholeArm supports 6 joints only (issue 30: to be generalised)"]
+fn no_pair_passes_the_stop_distance_and_no_point_the_speed_cap_on_the_gen3() {
+    whole_arm_holds(RobotProfile::by_name("gen3").unwrap());
+}
+
+/// Every built-in profile is covered by the tests above.
+#[test]
+fn every_builtin_profile_is_covered() {
+    let names: Vec<&str> = RobotProfile::names().collect();
+    assert_eq!(names, ["gen3_lite", "gen3"]);
+}
