@@ -453,7 +453,9 @@ mod tests {
                     .and_then(|v| v.to_str().ok())
                     .map(str::to_owned),
             ),
-            Err(tungstenite::Error::Http(res)) => (res.status().as_u16(), None),
+            Err(tungstenite::HandshakeError::Failure(tungstenite::Error::Http(res))) => {
+                (res.status().as_u16(), None)
+            }
             Err(e) => panic!("{protocol}: {e}"),
         }
     }
