@@ -820,18 +820,16 @@ impl<F: FnMut(Event<'_>) -> Result<(), RecordError>> Walk<F> {
                     },
                 );
             }
-            Record::Channel(c) => {
-                if !self.channels.contains_key(&c.id) {
-                    let info = ChannelInfo {
-                        id: c.id,
-                        topic: c.topic,
-                        message_encoding: c.message_encoding,
-                        metadata: c.metadata,
-                        schema: self.schemas.get(&c.schema_id).cloned(),
-                    };
-                    on(Event::Channel(&info)).map_err(RecordStop::Caller)?;
-                    self.channels.insert(c.id, info);
-                }
+            Record::Channel(c) if !self.channels.contains_key(&c.id) => {
+                let info = ChannelInfo {
+                    id: c.id,
+                    topic: c.topic,
+                    message_encoding: c.message_encoding,
+                    metadata: c.metadata,
+                    schema: self.schemas.get(&c.schema_id).cloned(),
+                };
+                on(Event::Channel(&info)).map_err(RecordStop::Caller)?;
+                self.channels.insert(c.id, info);
             }
             Record::Message { header, data } => {
                 let Some(channel) = self.channels.get(&header.channel_id) else {
