@@ -499,26 +499,13 @@ mod tests {
         assert!(!render(&st).contains("closest"));
         let mut c = SafeCommand {
             tick: 400,
-            t_ns: 0,
-            state_t_ns: 0,
-            state_rx_ns: 0,
-            joystick_t_ns: 0,
-            joystick_rx_ns: 0,
-            mapper_t_ns: 0,
-            mapper_rx_ns: 0,
-            mapper_compute_ns: 0,
-            compute_ns: 0,
             mapper_id: 1,
             n_joints: 6,
-            flags: 0,
-            control: 0,
-            qdot_rad_s: [0.0; 8],
-            gripper_rate: 0.0,
             clearance_m: 0.0431,
             tcp_speed_m_s: 0.12,
             // forearm_link[1] / table
             closest_pair: [0x0301, 0xFF00],
-            reserved_tail: 0,
+            ..SafeCommand::zeroed()
         };
         st.closest = Closest::of(&c, &[]);
         assert!(

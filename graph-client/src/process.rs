@@ -154,7 +154,7 @@ pub fn capture<W: std::io::Write>(
                         m.insert("config_attachment".to_owned(), name);
                         m.insert(
                             "config_sha256".to_owned(),
-                            recording::sha256::hex(text.as_bytes()),
+                            recording::sha256_hex(text.as_bytes()),
                         );
                     }
                     Err(e) => errors.push(format!("cannot write the configuration: {e}")),
@@ -187,7 +187,7 @@ pub fn capture<W: std::io::Write>(
                         let name = format!("model/mapper-{}/{}/{file}", p.mapper_id, p.pid);
                         w.attach(&name, p.t_ns, "application/octet-stream", &b)?;
                         m.insert("model_attachment".to_owned(), name);
-                        m.insert("model_sha256".to_owned(), recording::sha256::hex(&b));
+                        m.insert("model_sha256".to_owned(), recording::sha256_hex(&b));
                         m.insert("model_bytes".to_owned(), b.len().to_string());
                     }
                     Some(Err(e)) => errors.push(e),
@@ -274,7 +274,7 @@ mod tests {
         assert_eq!(meta[0].0, recording::PROCESS_METADATA);
         assert_eq!(
             m["model_sha256"],
-            recording::sha256::hex(mapper::model::BUNDLED)
+            recording::sha256_hex(mapper::model::BUNDLED)
         );
         assert_eq!(m["model_spec"], "bundled");
         assert_eq!(m["robot"], "gen3_lite");

@@ -146,6 +146,19 @@ pub fn request(fifo: Option<i32>, mlock: bool) -> RtReport {
     RtReport { fifo, mlock }
 }
 
+/// Lowers the calling thread's scheduling priority to nice 10: for an observer's threads (the
+/// recorder's writer, the live server's view and runtime), so they yield the CPU to the
+/// control path. Failure is harmless and ignored.
+pub fn lower_priority() {
+    // libc: nix 0.29 has no setpriority.
+    // SAFETY: gettid and setpriority are plain system calls on the calling thread only (its
+    // tid); they take no pointers.
+    unsafe {
+        let tid = libc::gettid();
+        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
+    }
+}
+
 /// The PM QoS request of `/dev/cpu_dma_latency` (what cyclictest holds): while this value is
 /// alive, idle CPUs do not enter sleep states whose exit latency exceeds the request, so a
 /// wake-up between ticks does not pay a deep C-state's exit. Dropping it (closing the file)

@@ -750,25 +750,12 @@ fn safe_command(tick: u64, v: &[f64]) -> SafeCommand {
     q[..v.len()].copy_from_slice(v);
     SafeCommand {
         tick,
-        t_ns: 0,
-        state_t_ns: 0,
-        state_rx_ns: 0,
-        joystick_t_ns: 0,
-        joystick_rx_ns: 0,
-        mapper_t_ns: 0,
-        mapper_rx_ns: 0,
-        mapper_compute_ns: 0,
-        compute_ns: 0,
         mapper_id: 1,
         n_joints: 6,
-        flags: 0,
-        control: 0,
         qdot_rad_s: q,
-        gripper_rate: 0.0,
         clearance_m: f64::INFINITY,
-        tcp_speed_m_s: 0.0,
         closest_pair: [0xFFFF; 2],
-        reserved_tail: 0,
+        ..SafeCommand::zeroed()
     }
 }
 

@@ -405,6 +405,14 @@ pub struct SafeCommand {
     pub reserved_tail: u32,
 }
 
+impl SafeCommand {
+    /// Every field zero (zerocopy's `FromZeros::new_zeroed`): the base of a command built
+    /// field by field, `SafeCommand { tick, qdot_rad_s, ..SafeCommand::zeroed() }`.
+    pub fn zeroed() -> Self {
+        <Self as zerocopy::FromZeros>::new_zeroed()
+    }
+}
+
 /// The bridge's account of one tick: every timestamp the tick's messages carried, for
 /// per-hop latency figures (`scl bench latency`).
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]

@@ -305,7 +305,10 @@ pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertRepor
             tracing::warn!(
                 "{}: the recording is cut ({}); converting its {} readable messages (`scl record --recover` makes a finished copy)",
                 path.display(),
-                summary.stopped.as_deref().unwrap_or("no data-end record"),
+                summary
+                    .stopped
+                    .as_ref()
+                    .map_or_else(|| "no data-end record".to_owned(), ToString::to_string),
                 summary.messages
             );
             truncated.push(path.clone());

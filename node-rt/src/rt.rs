@@ -4,6 +4,8 @@
 
 use scl_config::{GraphSection, RtRole};
 
+pub use hw_bridge::clock::lower_priority;
+
 /// Applies the real-time settings of `role` from the `[graph]` table; logs the outcome and
 /// returns it as one line (empty when real-time is off).
 pub fn elevate(graph: &GraphSection, role: RtRole) -> String {

@@ -9,7 +9,10 @@ dict of arrays per topic, with the ``mcap`` package.
 Each channel (``/robot_state``, ``/safe_command``, ...) holds JSON messages whose fields are
 the message type's (``scl_teleop.msg``): a number becomes a 1-D array over the messages, a
 joint array a 2-D array (messages x entries). A tick of "none" (``null`` in JSON) becomes -1.
-``log_time_ns`` is the graph's monotonic clock (the messages' own ``t_ns``).
+``log_time_ns`` is each message's MCAP log time: the wall-clock time of the run (Unix ns;
+recordings made before 2026-11 have the monotonic clock there). The graph's own monotonic
+clock is each message's ``t_ns`` field. Recordings are in zstd-compressed chunks, which the ``mcap``
+package reads (it depends on ``zstandard``).
 """
 
 from __future__ import annotations

@@ -97,6 +97,11 @@ def test_load_recording_into_numpy(tmp_path: Path) -> None:
     steps = np.diff(rs["tick"])
     assert np.all(steps[:-1] == 1) and steps[-1] in (0, 1), rs["tick"]
     assert np.all(np.diff(rs["log_time_ns"]) > 0)
+    # Log times on the wall clock (after 2020), the messages' own t_ns on the monotonic one.
+    wall_2020_ns = 1_577_836_800 * 10**9
+    assert rs["log_time_ns"][0] > wall_2020_ns, rs["log_time_ns"][0]
+    assert rs["t_ns"][-1] < wall_2020_ns
+    assert np.all(rs["log_time_ns"] - rs["t_ns"] == rs["log_time_ns"][0] - rs["t_ns"][0])
     assert set(data) >= {"joystick", "mapper_command", "safe_command", "status"}
     assert data["joystick"]["axes"].shape[1] == 2
     saved = np.load(npz)

@@ -3,12 +3,15 @@
 //! * One channel per service, named `/<topic>` (`/robot_state`, `/safe_command`, ...), with
 //!   message encoding `json` and a JSON schema (schema encoding `jsonschema`), so a recording
 //!   opens in Foxglove and any MCAP reader with named, typed fields.
-//! * `log_time` and `publish_time` are the message's own `t_ns` (`CLOCK_MONOTONIC`), the one
-//!   clock of the graph; the `scl.recording` metadata record pairs a monotonic and a wall-clock
-//!   reading taken together, so a reader can convert.
-//! * Chunks are uncompressed (zstd / lz4 would build C libraries) and written whole, each with
-//!   its CRC: a file cut anywhere reads back up to its last complete chunk ([`read`] tolerates
-//!   the cut, [`recover`] rewrites the readable prefix as a finished file).
+//! * `publish_time` is the message's own `t_ns` (`CLOCK_MONOTONIC`, the one clock of the graph,
+//!   also in the message itself); `log_time` is the same instant on the wall clock (the
+//!   writer's [`LogClock`]: `t_ns` plus the offset of the two clocks read together when the
+//!   recording started), so Foxglove shows the date of the run. Older recordings have
+//!   `log_time == publish_time`. The `scl.recording` metadata record holds the two readings.
+//! * Chunks are zstd-compressed and written whole, each with its CRC: a file cut anywhere reads
+//!   back up to its last complete chunk ([`read`] tolerates the cut, [`recover`] rewrites the
+//!   readable prefix as a finished file). No length in a file is trusted: a damaged or foreign
+//!   file is an early stop or an error naming the file and the byte offset, never a panic.
 //!
 //! [`Payload`] is a message as it came off shared memory. Its JSON form and the channel's
 //! schema are derived from the message type itself (`serde` and `schemars` derives in
@@ -33,8 +36,17 @@ pub use mcap::records::Metadata;
 use mcap::write::NoSeek;
 use serde_json::Value;
 
-pub mod check;
-pub mod sha256;
+/// The SHA-256 digest of `bytes` in lower-case hex: how a recording names the files it embeds
+/// (models, the graph configuration).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    use std::fmt::Write as _;
+    let mut out = String::with_capacity(64);
+    for b in sha2::Sha256::digest(bytes) {
+        let _ = write!(out, "{b:02x}");
+    }
+    out
+}
 
 /// Metadata record written when a recording starts.
 pub const START_METADATA: &str = "scl.recording";
@@ -329,15 +341,62 @@ pub struct SchemaInfo {
     pub data: Vec<u8>,
 }
 
-/// Writes a recording: channels, JSON messages, metadata, in whole CRC-checked chunks that
-/// are closed by [`LogWriter::flush`] (the recorder flushes once a second) or by
-/// [`LogWriter::finish`]. Generic over the sink so tests write to memory or `/dev/full`.
+/// How a writer turns a message's monotonic `t_ns` into its MCAP `log_time`: plus the offset
+/// of the wall clock from the monotonic clock ([`LogClock::wall_now`]), or unchanged
+/// ([`LogClock::MONOTONIC`], the default, and what recordings made before used).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LogClock {
+    /// Wall-clock time minus monotonic time (ns).
+    offset_ns: i64,
+}
+
+impl LogClock {
+    /// `log_time` is `t_ns`.
+    pub const MONOTONIC: LogClock = LogClock { offset_ns: 0 };
+
+    /// The wall clock (`CLOCK_REALTIME`) and the monotonic clock read now, together; also
+    /// returns the two readings (monotonic ns, Unix ns) for the recording's metadata.
+    pub fn wall_now() -> (Self, u64, u64) {
+        let mono = ipc_types::time::now_ns();
+        let unix = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+        (Self::from_pair(mono, unix), mono, unix)
+    }
+
+    /// The clock that maps monotonic `mono_ns` to `unix_ns`.
+    pub fn from_pair(mono_ns: u64, unix_ns: u64) -> Self {
+        let d = i128::from(unix_ns) - i128::from(mono_ns);
+        Self {
+            offset_ns: i64::try_from(d).unwrap_or(0),
+        }
+    }
+
+    /// The clock a message was written with: its `log_time` against its `publish_time` (its
+    /// monotonic time). For the messages a copy derives from a recorded one.
+    pub fn of_message(log_time: u64, publish_time: u64) -> Self {
+        Self::from_pair(publish_time, log_time)
+    }
+
+    /// The `log_time` of a message of monotonic time `t_ns`.
+    pub fn log_time(self, t_ns: u64) -> u64 {
+        t_ns.saturating_add_signed(self.offset_ns)
+    }
+}
+
+/// Writes a recording: channels, JSON messages, metadata, in whole CRC-checked zstd chunks
+/// that are closed by [`LogWriter::flush`] (the recorder flushes once a second), at
+/// [`CHUNK_BYTES`], or by [`LogWriter::finish`]. Generic over the sink so tests write to
+/// memory or `/dev/full`.
 pub struct LogWriter<W: Write> {
     mcap: mcap::Writer<NoSeek<W>>,
     topics: [Option<u16>; Topic::COUNT],
     sequence: [u32; Topic::COUNT],
     json: Vec<u8>,
     path: PathBuf,
+    clock: LogClock,
+    /// Channel ids of a source recording -> their copies' ([`LogWriter::copy_event`]).
+    copied: BTreeMap<u16, u16>,
 }
 
 impl<W: Write> std::fmt::Debug for LogWriter<W> {
@@ -361,11 +420,16 @@ impl<W: Write> LogWriter<W> {
     /// metadata. Channels are added with [`LogWriter::add_topic`] or [`LogWriter::add_channel`].
     pub fn new(sink: W, path: &Path, start: Option<Metadata>) -> Result<Self, RecordError> {
         let opts = mcap::WriteOptions::new()
-            .compression(None)
+            .compression(Some(mcap::Compression::Zstd))
+            // One thread: the writer's own (compression runs in the recorder's writer thread,
+            // at low priority, never beside the loop).
+            .compression_threads(0)
             .profile("")
             .library(format!("scl-teleop {}", env!("CARGO_PKG_VERSION")))
-            // Chunks close when the recorder flushes, so a chunk on disk is always whole.
-            .chunk_size(None)
+            // A chunk is buffered and written whole: when the recorder flushes (once a second)
+            // or at CHUNK_BYTES, so a chunk on disk is always whole and never larger than a
+            // reader accepts (MAX_CHUNK_BYTES).
+            .chunk_size(Some(CHUNK_BYTES))
             .disable_seeking(true);
         let werr = |e: mcap::McapError| RecordError::Write {
             path: path.to_owned(),
@@ -381,7 +445,65 @@ impl<W: Write> LogWriter<W> {
             sequence: [0; Topic::COUNT],
             json: Vec::with_capacity(1024),
             path: path.to_owned(),
+            clock: LogClock::MONOTONIC,
+            copied: BTreeMap::new(),
         })
+    }
+
+    /// Sets how [`LogWriter::write`] stamps `log_time` (from now on).
+    pub fn set_clock(&mut self, clock: LogClock) {
+        self.clock = clock;
+    }
+
+    /// How [`LogWriter::write`] stamps `log_time`.
+    pub fn clock(&self) -> LogClock {
+        self.clock
+    }
+
+    /// Copies one event of a recording being read ([`read`]) as it is: a channel (with its
+    /// schema and metadata), a message (on the copy of its channel, with its times), a metadata
+    /// record, an attachment. Returns the id of the copy of a channel (for a channel event).
+    pub fn copy_event(&mut self, ev: &Event<'_>) -> Result<Option<u16>, RecordError> {
+        match *ev {
+            Event::Channel(c) => {
+                let id = self.add_channel(
+                    &c.topic,
+                    c.schema.as_ref(),
+                    &c.message_encoding,
+                    &c.metadata,
+                )?;
+                self.copied.insert(c.id, id);
+                return Ok(Some(id));
+            }
+            Event::Message {
+                channel,
+                sequence,
+                log_time,
+                publish_time,
+                data,
+            } => {
+                let Some(id) = self.copied.get(&channel.id).copied() else {
+                    return Err(RecordError::Write {
+                        path: self.path.clone(),
+                        reason: format!(
+                            "channel {} ({}) was not copied",
+                            channel.id, channel.topic
+                        ),
+                    });
+                };
+                self.write_raw(id, sequence, log_time, publish_time, data)?;
+            }
+            Event::Metadata { name, entries } => {
+                self.write_metadata(&metadata(name, entries.clone()))?;
+            }
+            Event::Attachment {
+                name,
+                log_time,
+                media_type,
+                data,
+            } => self.attach(name, log_time, media_type, data)?,
+        }
+        Ok(None)
     }
 
     fn werr(&self, e: mcap::McapError) -> RecordError {
@@ -451,7 +573,8 @@ impl<W: Write> LogWriter<W> {
     }
 
     /// Writes a message of the graph as JSON on its topic's channel (added with
-    /// [`LogWriter::add_topic`]); returns the bytes of JSON written.
+    /// [`LogWriter::add_topic`]), `publish_time` its `t_ns` and `log_time` that on the
+    /// writer's [`LogClock`]; returns the bytes of JSON written.
     pub fn write(&mut self, p: &Payload) -> Result<usize, RecordError> {
         let topic = p.topic();
         let Some(channel_id) = self.topics[topic.index()] else {
@@ -471,7 +594,7 @@ impl<W: Write> LogWriter<W> {
         let header = MessageHeader {
             channel_id,
             sequence: *seq,
-            log_time: p.t_ns(),
+            log_time: self.clock.log_time(p.t_ns()),
             publish_time: p.t_ns(),
         };
         let n = self.json.len();
@@ -566,6 +689,52 @@ pub enum Event<'a> {
     },
 }
 
+/// Where and why reading stopped before a recording's data-end record.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Stopped {
+    /// Byte offset in the file of the record that could not be read (or of the end of the
+    /// file, for [`StopCause::NoDataEnd`]).
+    pub offset: u64,
+    /// Why.
+    pub cause: StopCause,
+}
+
+/// Why reading stopped early: see [`Stopped`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StopCause {
+    /// The file ends inside a record: cut while that record was being written (a crash), or a
+    /// record's length field is damaged and points past the end of the file.
+    Cut {
+        /// The record's length as its header gives it (with its 9-byte header).
+        length: u64,
+        /// The bytes the file has from the record's start.
+        left: u64,
+    },
+    /// The file ends after a whole record but without the data-end record (the recorder did
+    /// not finish it).
+    NoDataEnd,
+    /// A record that does not read: a chunk whose CRC does not match, a length or field out of
+    /// bounds, a message on a channel never defined. The text is the MCAP reader's.
+    Damaged(String),
+}
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let at = self.offset;
+        match &self.cause {
+            StopCause::Cut { length, left } => write!(
+                f,
+                "the file ends inside the record at byte {at} ({length} bytes long, {left} in the file: cut off by a crash, or a damaged length)"
+            ),
+            StopCause::NoDataEnd => write!(
+                f,
+                "the file ends at byte {at} without its data-end record (not finished)"
+            ),
+            StopCause::Damaged(why) => write!(f, "damaged record at byte {at}: {why}"),
+        }
+    }
+}
+
 /// How far a recording could be read.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct ReadSummary {
@@ -574,152 +743,286 @@ pub struct ReadSummary {
     /// Whether the data section ended properly (a clean stop). A recording cut by a crash is
     /// read up to its last complete chunk and is not complete.
     pub complete: bool,
-    /// Why reading stopped before the end of the data, for an incomplete recording.
-    pub stopped: Option<String>,
+    /// Where and why reading stopped before the end of the data, for an incomplete recording.
+    pub stopped: Option<Stopped>,
+}
+
+/// The largest a compressed chunk may say it expands to. The writer closes a chunk at
+/// [`CHUNK_BYTES`] (plus one message), so a chunk claiming more is damaged; the reader never
+/// allocates more than this for one chunk, whatever its header says.
+pub const MAX_CHUNK_BYTES: u64 = 64 << 20;
+
+/// The uncompressed size at which [`LogWriter`] closes a chunk (it also closes one at every
+/// [`LogWriter::flush`]).
+pub const CHUNK_BYTES: u64 = 4 << 20;
+
+/// The MCAP magic that starts (and ends) a file.
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// A source of bytes that counts where it is, and reads a record only as far as the file
+/// really goes: a length field is never trusted for an allocation.
+struct Source<'p, R> {
+    inner: R,
+    offset: u64,
+    path: &'p Path,
+}
+
+impl<R: Read> Source<'_, R> {
+    /// Up to `n` bytes (fewer at the end of the file); the buffer grows with the bytes read,
+    /// not with `n`.
+    fn take(&mut self, n: u64, into: &mut Vec<u8>) -> Result<(), RecordError> {
+        into.clear();
+        (&mut self.inner)
+            .take(n)
+            .read_to_end(into)
+            .map_err(|source| RecordError::Io {
+                path: self.path.to_owned(),
+                source,
+            })?;
+        self.offset += into.len() as u64;
+        Ok(())
+    }
+}
+
+/// What [`read`] keeps while walking a file: the schemas and channels so far, and the caller.
+struct Walk<F> {
+    schemas: BTreeMap<u16, SchemaInfo>,
+    channels: BTreeMap<u16, ChannelInfo>,
+    summary: ReadSummary,
+    on: F,
+}
+
+/// A record [`Walk::record`] could not take: damage in the file (reading stops there), or
+/// the caller's error (returned as it is).
+enum RecordStop {
+    Damaged(String),
+    Caller(RecordError),
+}
+
+impl<F: FnMut(Event<'_>) -> Result<(), RecordError>> Walk<F> {
+    /// One record (top level or from a chunk); `Ok(true)` at the data-end record.
+    fn record(&mut self, opcode: u8, body: &[u8]) -> Result<bool, RecordStop> {
+        use mcap::records::{Record, op};
+        if opcode == op::CHUNK {
+            return self.chunk(body).map(|()| false);
+        }
+        let record =
+            mcap::parse_record(opcode, body).map_err(|e| RecordStop::Damaged(e.to_string()))?;
+        let on = &mut self.on;
+        match record {
+            Record::Schema { header, data } => {
+                self.schemas.insert(
+                    header.id,
+                    SchemaInfo {
+                        name: header.name,
+                        encoding: header.encoding,
+                        data: data.into_owned(),
+                    },
+                );
+            }
+            Record::Channel(c) if !self.channels.contains_key(&c.id) => {
+                let info = ChannelInfo {
+                    id: c.id,
+                    topic: c.topic,
+                    message_encoding: c.message_encoding,
+                    metadata: c.metadata,
+                    schema: self.schemas.get(&c.schema_id).cloned(),
+                };
+                on(Event::Channel(&info)).map_err(RecordStop::Caller)?;
+                self.channels.insert(c.id, info);
+            }
+            Record::Message { header, data } => {
+                let Some(channel) = self.channels.get(&header.channel_id) else {
+                    return Err(RecordStop::Damaged(format!(
+                        "message {} names channel {}, which was not defined",
+                        header.sequence, header.channel_id
+                    )));
+                };
+                self.summary.messages += 1;
+                on(Event::Message {
+                    channel,
+                    sequence: header.sequence,
+                    log_time: header.log_time,
+                    publish_time: header.publish_time,
+                    data: &data,
+                })
+                .map_err(RecordStop::Caller)?;
+            }
+            Record::Metadata(m) => on(Event::Metadata {
+                name: &m.name,
+                entries: &m.metadata,
+            })
+            .map_err(RecordStop::Caller)?,
+            Record::Attachment { header, data, .. } => on(Event::Attachment {
+                name: &header.name,
+                log_time: header.log_time,
+                media_type: &header.media_type,
+                data: &data,
+            })
+            .map_err(RecordStop::Caller)?,
+            Record::DataEnd(_) => return Ok(true),
+            _ => {}
+        }
+        Ok(false)
+    }
+
+    /// The records of a chunk (its body in memory), once its sizes are checked against the
+    /// body and [`MAX_CHUNK_BYTES`] and its CRC against its contents (the mcap crate's linear
+    /// reader decompresses and checks it, under a record length limit of the chunk's size).
+    fn chunk(&mut self, body: &[u8]) -> Result<(), RecordStop> {
+        use mcap::records::{Record, op};
+        use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+        let damaged = |why: String| RecordStop::Damaged(why);
+        let header = match mcap::parse_record(op::CHUNK, body) {
+            Ok(Record::Chunk { header, .. }) => header,
+            Ok(_) => return Err(damaged("not a chunk".into())),
+            Err(e) => return Err(damaged(e.to_string())),
+        };
+        let limit = if header.compression.is_empty() {
+            if header.uncompressed_size != header.compressed_size {
+                return Err(damaged(format!(
+                    "an uncompressed chunk of {} bytes says it holds {}",
+                    header.compressed_size, header.uncompressed_size
+                )));
+            }
+            header.compressed_size
+        } else {
+            if header.uncompressed_size > MAX_CHUNK_BYTES {
+                return Err(damaged(format!(
+                    "a chunk says it expands to {} bytes (at most {MAX_CHUNK_BYTES})",
+                    header.uncompressed_size
+                )));
+            }
+            header.uncompressed_size.max(header.compressed_size)
+        };
+        let limit = usize::try_from(limit).map_err(|_| damaged("chunk too large".into()))?;
+        let mut reader = LinearReader::new_with_options(
+            LinearReaderOptions::default()
+                .with_skip_start_magic(true)
+                .with_skip_end_magic(true)
+                .with_emit_chunks(false)
+                // A chunk yields its records only once its whole body checked out.
+                .with_prevalidate_chunk_crcs(true)
+                .with_record_length_limit(limit.max(64)),
+        );
+        // The record as it is in the file: opcode, length, body.
+        let len = (body.len() as u64).to_le_bytes();
+        let mut parts = [&[op::CHUNK][..], &len[..], body];
+        while let Some(event) = reader.next_event() {
+            match event.map_err(|e| damaged(e.to_string()))? {
+                LinearReadEvent::ReadRequest(need) => {
+                    let part = parts.iter_mut().find(|p| !p.is_empty());
+                    let n = match part {
+                        Some(p) => {
+                            let n = need.min(p.len());
+                            reader.insert(n).copy_from_slice(&p[..n]);
+                            *p = &p[n..];
+                            n
+                        }
+                        None => 0,
+                    };
+                    reader.notify_read(n);
+                }
+                LinearReadEvent::Record { opcode, data } => {
+                    if opcode == op::CHUNK || opcode == op::DATA_END {
+                        return Err(damaged(format!("record {opcode:#04x} inside a chunk")));
+                    }
+                    self.record(opcode, data)?;
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Reads the recording from `src` (named `path` in errors) in file order, calling `on` for
 /// every channel, message and metadata record. Tolerates a cut or damaged tail: whole chunks
-/// before it are read, the summary tells where it stopped. Fails only if the source is not an
-/// MCAP file, cannot be read from the start, or `on` fails.
+/// before it are read, the summary tells where and why it stopped ([`Stopped`]). No length in
+/// the file is trusted: a record is read only as far as the file goes, a chunk expands to at
+/// most [`MAX_CHUNK_BYTES`], so a corrupt file is never more than an early stop or an error.
+/// Fails only if the source is not an MCAP file, cannot be read from the start, or `on`
+/// fails.
 pub fn read<R: Read>(
-    mut src: R,
+    src: R,
     path: &Path,
-    mut on: impl FnMut(Event<'_>) -> Result<(), RecordError>,
+    on: impl FnMut(Event<'_>) -> Result<(), RecordError>,
 ) -> Result<ReadSummary, RecordError> {
-    use mcap::records::Record;
-    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_emit_chunks(false)
-            // A chunk yields its records only once its whole body checked out.
-            .with_prevalidate_chunk_crcs(true),
-    );
-    let mut schemas: BTreeMap<u16, SchemaInfo> = BTreeMap::new();
-    let mut channels: BTreeMap<u16, ChannelInfo> = BTreeMap::new();
-    let mut summary = ReadSummary::default();
-    let mut started = false;
-    let stop = |summary: &mut ReadSummary, why: String, started: bool| {
-        if started {
-            summary.stopped = Some(why);
-            Ok(())
-        } else {
-            Err(RecordError::NotMcap {
-                path: path.to_owned(),
-                reason: why,
-            })
-        }
+    const HEADER: u64 = 9; // opcode and length
+    let mut src = Source {
+        inner: src,
+        offset: 0,
+        path,
     };
-    while let Some(event) = reader.next_event() {
-        let event = match event {
-            Ok(e) => e,
-            Err(e) => {
-                let why = match e {
-                    mcap::McapError::UnexpectedEof => {
-                        "the file ends inside a record (cut off by a crash?)".to_owned()
-                    }
-                    other => other.to_string(),
-                };
-                stop(&mut summary, why, started)?;
+    let not_mcap = |reason: String| RecordError::NotMcap {
+        path: path.to_owned(),
+        reason,
+    };
+    let mut buf = Vec::new();
+    src.take(MAGIC.len() as u64, &mut buf)?;
+    if buf != MAGIC {
+        return Err(not_mcap("it does not start with the MCAP magic".into()));
+    }
+    let mut walk = Walk {
+        schemas: BTreeMap::new(),
+        channels: BTreeMap::new(),
+        summary: ReadSummary::default(),
+        on,
+    };
+    let mut started = false;
+    let mut head = Vec::with_capacity(HEADER as usize);
+    loop {
+        let offset = src.offset;
+        let stop = |cause: StopCause| Stopped { offset, cause };
+        src.take(HEADER, &mut head)?;
+        let left = head.len() as u64;
+        if left < HEADER {
+            walk.summary.stopped = Some(stop(if left == 0 {
+                StopCause::NoDataEnd
+            } else {
+                StopCause::Cut {
+                    length: HEADER,
+                    left,
+                }
+            }));
+            break;
+        }
+        let opcode = head[0];
+        let mut len = [0; 8];
+        len.copy_from_slice(&head[1..]);
+        let len = u64::from_le_bytes(len);
+        src.take(len, &mut buf)?;
+        if (buf.len() as u64) < len {
+            walk.summary.stopped = Some(stop(StopCause::Cut {
+                length: HEADER.saturating_add(len),
+                left: HEADER + buf.len() as u64,
+            }));
+            break;
+        }
+        if !started && opcode != mcap::records::op::HEADER {
+            return Err(not_mcap(format!(
+                "byte {offset}: record {opcode:#04x} where the header record belongs"
+            )));
+        }
+        match walk.record(opcode, &buf) {
+            Ok(true) => {
+                walk.summary.complete = true;
                 break;
             }
-        };
-        match event {
-            LinearReadEvent::ReadRequest(need) => {
-                let buf = reader.insert(need);
-                let n = loop {
-                    match src.read(buf) {
-                        Ok(n) => break n,
-                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                        Err(source) => {
-                            return Err(RecordError::Io {
-                                path: path.to_owned(),
-                                source,
-                            });
-                        }
-                    }
-                };
-                reader.notify_read(n);
+            Ok(false) => started = true,
+            Err(RecordStop::Caller(e)) => return Err(e),
+            Err(RecordStop::Damaged(why)) if !started => {
+                return Err(not_mcap(format!("byte {offset}: {why}")));
             }
-            LinearReadEvent::Record { opcode, data } => {
-                let record = match mcap::parse_record(opcode, data) {
-                    Ok(r) => r,
-                    Err(e) => {
-                        stop(&mut summary, format!("bad record: {e}"), started)?;
-                        break;
-                    }
-                };
-                started = true;
-                match record {
-                    Record::Schema { header, data } => {
-                        schemas.insert(
-                            header.id,
-                            SchemaInfo {
-                                name: header.name,
-                                encoding: header.encoding,
-                                data: data.into_owned(),
-                            },
-                        );
-                    }
-                    Record::Channel(c) => {
-                        if channels.contains_key(&c.id) {
-                            continue;
-                        }
-                        let info = ChannelInfo {
-                            id: c.id,
-                            topic: c.topic,
-                            message_encoding: c.message_encoding,
-                            metadata: c.metadata,
-                            schema: schemas.get(&c.schema_id).cloned(),
-                        };
-                        on(Event::Channel(&info))?;
-                        channels.insert(c.id, info);
-                    }
-                    Record::Message { header, data } => {
-                        let Some(channel) = channels.get(&header.channel_id) else {
-                            stop(
-                                &mut summary,
-                                format!(
-                                    "message {} names channel {}, which was not defined",
-                                    header.sequence, header.channel_id
-                                ),
-                                started,
-                            )?;
-                            break;
-                        };
-                        summary.messages += 1;
-                        on(Event::Message {
-                            channel,
-                            sequence: header.sequence,
-                            log_time: header.log_time,
-                            publish_time: header.publish_time,
-                            data: &data,
-                        })?;
-                    }
-                    Record::Metadata(m) => on(Event::Metadata {
-                        name: &m.name,
-                        entries: &m.metadata,
-                    })?,
-                    Record::Attachment { header, data, .. } => on(Event::Attachment {
-                        name: &header.name,
-                        log_time: header.log_time,
-                        media_type: &header.media_type,
-                        data: &data,
-                    })?,
-                    Record::DataEnd(_) => {
-                        summary.complete = true;
-                        break;
-                    }
-                    _ => {}
-                }
+            Err(RecordStop::Damaged(why)) => {
+                walk.summary.stopped = Some(stop(StopCause::Damaged(why)));
+                break;
             }
         }
     }
-    if !summary.complete && summary.stopped.is_none() {
-        summary.stopped = Some("the file ends without its data-end record".to_owned());
+    if !started && let Some(s) = &walk.summary.stopped {
+        return Err(not_mcap(s.to_string()));
     }
-    Ok(summary)
+    Ok(walk.summary)
 }
 
 /// Opens `path` and [`read`]s it.
@@ -846,8 +1149,8 @@ pub struct RecoverReport {
     pub channels: usize,
     /// Whether the source was complete already.
     pub source_complete: bool,
-    /// Why reading the source stopped early.
-    pub stopped: Option<String>,
+    /// Where and why reading the source stopped early.
+    pub stopped: Option<Stopped>,
 }
 
 /// Rewrites the readable part of recording `from` (cut by a crash) as a finished recording
@@ -880,44 +1183,10 @@ pub fn recover_into<R: Read, W: Write>(
     to: &Path,
 ) -> Result<(RecoverReport, W), RecordError> {
     let mut w = LogWriter::new(sink, to, None)?;
-    let mut ids: BTreeMap<u16, u16> = BTreeMap::new();
     let mut channels = 0;
     let summary = read(src, from, |ev| {
-        match ev {
-            Event::Channel(c) => {
-                let id = w.add_channel(
-                    &c.topic,
-                    c.schema.as_ref(),
-                    &c.message_encoding,
-                    &c.metadata,
-                )?;
-                ids.insert(c.id, id);
-                channels += 1;
-            }
-            Event::Message {
-                channel,
-                sequence,
-                log_time,
-                publish_time,
-                data,
-            } => {
-                let id = ids.get(&channel.id).copied().unwrap_or_default();
-                w.write_raw(id, sequence, log_time, publish_time, data)?;
-            }
-            Event::Metadata { name, entries } => {
-                w.mcap
-                    .write_metadata(&metadata(name, entries.clone()))
-                    .map_err(|e| RecordError::Write {
-                        path: to.to_owned(),
-                        reason: e.to_string(),
-                    })?;
-            }
-            Event::Attachment {
-                name,
-                log_time,
-                media_type,
-                data,
-            } => w.attach(name, log_time, media_type, data)?,
+        if w.copy_event(&ev)?.is_some() {
+            channels += 1;
         }
         Ok(())
     })?;
@@ -926,7 +1195,7 @@ pub fn recover_into<R: Read, W: Write>(
     entries.insert("messages".to_owned(), summary.messages.to_string());
     entries.insert("source_complete".to_owned(), summary.complete.to_string());
     if let Some(s) = &summary.stopped {
-        entries.insert("source_stopped".to_owned(), s.clone());
+        entries.insert("source_stopped".to_owned(), s.to_string());
     }
     let sink = w.finish(Some(metadata(RECOVERED_METADATA, entries)))?;
     Ok((
@@ -1088,7 +1357,7 @@ mod tests {
                 "{topic:?}"
             );
             let v = json_of(p);
-            let errs = check::validate(&v, &schema);
+            let errs = test_support::json_schema::validate(&v, &schema);
             assert!(errs.is_empty(), "{topic:?}: {errs:#?}\n{v}\n{schema:#}");
             // Every field of the schema is in the data, and required but for the fields added
             // after recordings existed, which read with a default from older files

@@ -2,7 +2,6 @@
 //! replay notices an altered model, and a way to ask what a tweaked model file would have
 //! done on a recorded run (the counterfactual, item by item).
 
-use std::collections::BTreeMap;
 use std::path::Path;
 
 use recording::{Event, LogWriter, RecordError};
@@ -17,46 +16,20 @@ pub fn rewrite_attachments(
 ) -> Result<usize, RecordError> {
     let out = recording::create_new(to)?;
     let mut w = LogWriter::new(std::io::BufWriter::new(out), to, None)?;
-    let mut ids: BTreeMap<u16, u16> = BTreeMap::new();
     let mut altered = 0;
     recording::read_file(from, |ev| {
-        match ev {
-            Event::Channel(c) => {
-                let id = w.add_channel(
-                    &c.topic,
-                    c.schema.as_ref(),
-                    &c.message_encoding,
-                    &c.metadata,
-                )?;
-                ids.insert(c.id, id);
-            }
-            Event::Message {
-                channel,
-                sequence,
-                log_time,
-                publish_time,
-                data,
-            } => {
-                let id = ids.get(&channel.id).copied().unwrap_or_default();
-                w.write_raw(id, sequence, log_time, publish_time, data)?;
-            }
-            Event::Metadata { name, entries } => {
-                w.write_metadata(&recording::metadata(name, entries.clone()))?;
-            }
-            Event::Attachment {
-                name,
-                log_time,
-                media_type,
-                data,
-            } => match change(name, data) {
-                Some(new) => {
-                    altered += 1;
-                    w.attach(name, log_time, media_type, &new)?;
-                }
-                None => w.attach(name, log_time, media_type, data)?,
-            },
+        if let Event::Attachment {
+            name,
+            log_time,
+            media_type,
+            data,
+        } = ev
+            && let Some(new) = change(name, data)
+        {
+            altered += 1;
+            return w.attach(name, log_time, media_type, &new);
         }
-        Ok(())
+        w.copy_event(&ev).map(|_| ())
     })?;
     w.finish(None)?;
     Ok(altered)

@@ -80,6 +80,16 @@ pub enum ReplayError {
         /// What is missing.
         reason: String,
     },
+    /// The recording is cut or damaged and `--partial` was not given.
+    #[error(
+        "{path}: the recording is incomplete: {stopped}; `--partial` replays what can be read (`scl record --recover` makes a finished copy of it)"
+    )]
+    Incomplete {
+        /// The recording.
+        path: PathBuf,
+        /// Where and why reading stopped.
+        stopped: recording::Stopped,
+    },
     /// `--tick K` names a tick the recording has no command for.
     #[error(
         "{path}: no safety command for tick {tick} (the recording has ticks {first} to {last})"
@@ -125,8 +135,8 @@ pub struct Recording {
     pub processes: HashMap<u32, ProcessRecord>,
     /// Attachments by name.
     pub attachments: HashMap<String, Vec<u8>>,
-    /// Whether the file ended properly; if not, why reading stopped.
-    pub stopped: Option<String>,
+    /// Whether the file ended properly; if not, where and why reading stopped.
+    pub stopped: Option<recording::Stopped>,
     /// Messages left out because they did not decode.
     pub undecodable: u64,
 }
@@ -287,7 +297,7 @@ impl Recording {
             .ok_or_else(|| bad("named by the process record but not in the file".into()))?;
         let text = std::str::from_utf8(bytes).map_err(|e| bad(e.to_string()))?;
         if let Some(want) = p.entries.get("config_sha256")
-            && *want != recording::sha256::hex(bytes)
+            && *want != recording::sha256_hex(bytes)
         {
             notes.push(format!(
                 "the embedded configuration {name} does not match its recorded SHA-256"
@@ -325,7 +335,7 @@ impl Recording {
                 ));
                 return Ok(None);
             };
-            let sha = recording::sha256::hex(bytes);
+            let sha = recording::sha256_hex(bytes);
             let altered = p.entries.get("model_sha256").is_some_and(|w| *w != sha);
             if altered {
                 notes.push(format!(
@@ -1014,6 +1024,10 @@ pub struct ReplayArgs {
     /// gone"); needs --out.
     #[arg(long, requires = "out")]
     pub closed_loop: bool,
+    /// Replay what can be read of a cut or damaged recording (up to its first unreadable
+    /// record) instead of refusing it; the report says where reading stopped.
+    #[arg(long)]
+    pub partial: bool,
     /// Counterfactual: write the recording with the what-if commands beside the recorded
     /// ones (`/whatif/mapper_command`, `/whatif/safe_command`) to this MCAP file (never
     /// overwritten).
@@ -1026,6 +1040,19 @@ pub fn cli(args: &ReplayArgs) -> Result<std::process::ExitCode, ReplayError> {
     let started = std::time::Instant::now();
     let rec = Recording::read(&args.file)?;
     let read_s = started.elapsed().as_secs_f64();
+    if let Some(stopped) = &rec.stopped {
+        if !args.partial {
+            return Err(ReplayError::Incomplete {
+                path: args.file.clone(),
+                stopped: stopped.clone(),
+            });
+        }
+        eprintln!(
+            "scl replay --partial: {}: {stopped}; replaying the {} safety commands before it",
+            args.file.display(),
+            rec.safe.len()
+        );
+    }
     if let Some(out) = &args.out {
         let what = whatif::WhatIf {
             model: args.model.clone(),

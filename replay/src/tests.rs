@@ -92,7 +92,7 @@ fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
             ("pid", "200".into()),
             ("t_ns", "1".into()),
             ("config_attachment", "config/safety/200/graph.toml".into()),
-            ("config_sha256", recording::sha256::hex(toml.as_bytes())),
+            ("config_sha256", recording::sha256_hex(toml.as_bytes())),
         ]))
         .unwrap();
         w.write_metadata(&meta(&[
@@ -104,7 +104,7 @@ fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
             ("model_attachment", "model/mapper-1/100/bundled".into()),
             (
                 "model_sha256",
-                recording::sha256::hex(mapper::model::BUNDLED),
+                recording::sha256_hex(mapper::model::BUNDLED),
             ),
         ]))
         .unwrap();
@@ -172,6 +172,10 @@ fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
             state.qdot_rad_s[j] = safe.qdot_rad_s[j];
         }
         state.applied_tick = k;
+        // A chunk every 40 ticks, as the recorder closes one every second.
+        if (k + 1) % 40 == 0 {
+            w.flush().unwrap();
+        }
     }
     w.finish(None).unwrap();
 }
@@ -357,4 +361,75 @@ fn an_older_recording_replays_what_it_can_and_says_so() {
     // the defaults (what the run used) and the e-stop and hold from the flags.
     assert_eq!((r.mapper_commands, r.skipped), (0, 150));
     assert_eq!((r.ticks, r.identical), (150, 150), "{}", render(&path, &r));
+}
+
+/// The byte offsets of the chunk records of an MCAP file.
+fn chunk_offsets(bytes: &[u8]) -> Vec<usize> {
+    let mut at = 8;
+    let mut out = Vec::new();
+    while at + 9 <= bytes.len() && bytes[at] != 0x0F {
+        if bytes[at] == 0x06 {
+            out.push(at);
+        }
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap());
+        at += 9 + len as usize;
+    }
+    out
+}
+
+fn args(file: &Path, partial: bool) -> ReplayArgs {
+    ReplayArgs {
+        file: file.to_owned(),
+        json: true,
+        tick: None,
+        explain: false,
+        model: None,
+        safety: None,
+        closed_loop: false,
+        out: None,
+        partial,
+    }
+}
+
+#[test]
+fn a_corrupt_chunk_in_the_middle_fails_the_replay_unless_partial() {
+    let path = temp("corrupt-middle.mcap");
+    make(&path, 200, mapper::model::BUNDLED);
+    assert_eq!(
+        cli(&args(&path, false)).unwrap(),
+        std::process::ExitCode::SUCCESS
+    );
+    let mut bytes = std::fs::read(&path).unwrap();
+    let chunks = chunk_offsets(&bytes);
+    assert!(chunks.len() >= 5, "{} chunks", chunks.len());
+    let middle = chunks[chunks.len() / 2];
+    // A byte of the compressed data (past the chunk's header): its CRC no longer matches.
+    bytes[middle + 9 + 80] ^= 0x55;
+    std::fs::write(&path, &bytes).unwrap();
+
+    let e = cli(&args(&path, false)).unwrap_err();
+    assert!(matches!(e, ReplayError::Incomplete { .. }), "{e}");
+    let text = e.to_string();
+    assert!(
+        text.starts_with(&path.display().to_string())
+            && text.contains(&format!("damaged record at byte {middle}"))
+            && text.contains("--partial"),
+        "{text}"
+    );
+    // Asked to, it replays what can be read, and says where reading stopped.
+    assert_eq!(
+        cli(&args(&path, true)).unwrap(),
+        std::process::ExitCode::SUCCESS
+    );
+    let rec = Recording::read(&path).unwrap();
+    let (r, _) = replay(&rec, None).unwrap();
+    assert!(r.ticks > 0 && r.ticks < 200, "{} ticks", r.ticks);
+    assert_eq!(r.diverged, 0);
+    assert!(
+        r.notes
+            .iter()
+            .any(|n| n.contains("incomplete") && n.contains(&format!("byte {middle}"))),
+        "{:?}",
+        r.notes
+    );
 }

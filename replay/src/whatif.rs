@@ -22,7 +22,7 @@ use ipc_types::{
 };
 use mapper::LoadedModel;
 use mapper::step::MapperStep;
-use recording::{Event, LogWriter, Payload, SchemaInfo, Topic};
+use recording::{Event, LogClock, LogWriter, Payload, SchemaInfo, Topic};
 use safety::{SafetyFilter, TcpModel};
 use serde::Serialize;
 
@@ -314,40 +314,20 @@ fn write(
 ) -> Result<(), ReplayError> {
     let file = recording::create_new(out)?;
     let mut w = LogWriter::new(std::io::BufWriter::new(file), out, None)?;
-    let mut ids: BTreeMap<u16, u16> = BTreeMap::new();
+    // The what-if commands are stamped on the recording's clock (its first message's).
+    let mut clock = None;
     recording::read_file(&rec.path, |ev| {
-        match ev {
-            Event::Channel(c) => {
-                let id = w.add_channel(
-                    &c.topic,
-                    c.schema.as_ref(),
-                    &c.message_encoding,
-                    &c.metadata,
-                )?;
-                ids.insert(c.id, id);
-            }
-            Event::Message {
-                channel,
-                sequence,
-                log_time,
-                publish_time,
-                data,
-            } => {
-                let id = ids.get(&channel.id).copied().unwrap_or_default();
-                w.write_raw(id, sequence, log_time, publish_time, data)?;
-            }
-            Event::Metadata { name, entries } => {
-                w.write_metadata(&recording::metadata(name, entries.clone()))?;
-            }
-            Event::Attachment {
-                name,
-                log_time,
-                media_type,
-                data,
-            } => w.attach(name, log_time, media_type, data)?,
+        if let Event::Message {
+            log_time,
+            publish_time,
+            ..
+        } = ev
+        {
+            clock.get_or_insert(LogClock::of_message(log_time, publish_time));
         }
-        Ok(())
+        w.copy_event(&ev).map(|_| ())
     })?;
+    let clock = clock.unwrap_or_default();
     let mut meta = BTreeMap::new();
     meta.insert(
         recording::FORMAT_KEY.to_owned(),
@@ -384,18 +364,18 @@ fn write(
             Payload::RobotState(*st)
                 .write_json(&mut json)
                 .map_err(werr)?;
-            w.write_raw(rc, i as u32 + 1, st.t_ns, st.t_ns, &json)?;
+            w.write_raw(rc, i as u32 + 1, clock.log_time(st.t_ns), st.t_ns, &json)?;
         }
         json.clear();
         Payload::MapperCommand(*m)
             .write_json(&mut json)
             .map_err(werr)?;
-        w.write_raw(mc, i as u32 + 1, m.t_ns, m.t_ns, &json)?;
+        w.write_raw(mc, i as u32 + 1, clock.log_time(m.t_ns), m.t_ns, &json)?;
         json.clear();
         Payload::SafeCommand(*s)
             .write_json(&mut json)
             .map_err(werr)?;
-        w.write_raw(sc, i as u32 + 1, s.t_ns, s.t_ns, &json)?;
+        w.write_raw(sc, i as u32 + 1, clock.log_time(s.t_ns), s.t_ns, &json)?;
     }
     let mut m = BTreeMap::new();
     m.insert("source".to_owned(), rec.path.display().to_string());
@@ -406,7 +386,7 @@ fn write(
     if let Some(spec) = &what.model
         && let Ok(bytes) = std::fs::read(spec)
     {
-        m.insert("model_sha256".to_owned(), recording::sha256::hex(&bytes));
+        m.insert("model_sha256".to_owned(), recording::sha256_hex(&bytes));
     }
     m.insert(
         "safety".to_owned(),

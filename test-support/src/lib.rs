@@ -1,5 +1,6 @@
 //! What the crates' tests share: a global allocator that counts the allocations of each
-//! thread, for the tests that check a control-path call never touches the heap.
+//! thread, for the tests that check a control-path call never touches the heap; and
+//! [`json_schema::validate`], the check that a recording's data and schemas agree.
 //!
 //! A test binary installs it, then counts what a closure allocates on the test's own thread
 //! (other threads, the test harness's included, do not disturb the count):
@@ -19,6 +20,8 @@
 //!
 //! Without the `#[global_allocator]` line nothing is counted (every count is 0), so each test
 //! file should also check that the counter sees one allocation, as above.
+
+pub mod json_schema;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

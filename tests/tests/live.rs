@@ -24,13 +24,41 @@ use scl_tests::{
 };
 use viz::client::Client;
 
-/// One message of a recording: channel topic, schema name, encoding, log time, bytes.
+/// One message of a recording: channel topic, schema name, encoding, log and publish
+/// times, bytes.
 struct Msg {
     topic: String,
     schema: String,
     encoding: String,
     log_time: u64,
+    publish_time: u64,
     data: Vec<u8>,
+}
+
+/// 2020-01-01 in Unix ns: a wall-clock time is after it, a monotonic one (the machine's
+/// uptime) far before.
+const WALL_2020_NS: u64 = 1_577_836_800_000_000_000;
+
+/// The pose of frame `name` in the base frame, composing the transforms of `tf` up its
+/// parents.
+fn in_base(tf: &FrameTransforms, base: &str, name: &str) -> nalgebra::Isometry3<f64> {
+    let mut pose = nalgebra::Isometry3::identity();
+    let mut at = name.to_owned();
+    while at != base {
+        let t = tf
+            .transforms
+            .iter()
+            .find(|t| t.child_frame_id == at)
+            .unwrap_or_else(|| panic!("no frame {at}"));
+        let p = t.translation.unwrap();
+        let iso = nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::new(p.x, p.y, p.z),
+            unit(&t.rotation.unwrap()),
+        );
+        pose = iso * pose;
+        at = t.parent_frame_id.clone();
+    }
+    pose
 }
 
 /// Every message of `path`, read with the `mcap` crate (not the project's reader).
@@ -49,6 +77,7 @@ fn read_mcap(path: &Path) -> Vec<Msg> {
                     .map_or(String::new(), |s| s.name.clone()),
                 encoding: m.channel.message_encoding.clone(),
                 log_time: m.log_time,
+                publish_time: m.publish_time,
                 data: m.data.into_owned(),
             }
         })
@@ -84,18 +113,43 @@ fn check_view(path: &Path) -> usize {
             (schema, "protobuf")
         );
     }
-    let states: Vec<RobotState> = msgs
+    // Every message: log time on the wall clock, publish time the monotonic one.
+    for m in &msgs {
+        assert!(
+            m.log_time > WALL_2020_NS,
+            "{}: log time {}",
+            m.topic,
+            m.log_time
+        );
+        assert!(m.publish_time < WALL_2020_NS, "{}", m.topic);
+    }
+    // What the processes said, on `/scl/log`.
+    let log: Vec<foxglove::messages::Log> = msgs
+        .iter()
+        .filter(|m| m.topic == "/scl/log")
+        .map(|m| {
+            assert_eq!(m.schema, "foxglove.Log");
+            foxglove::messages::Log::decode(m.data.as_slice()).unwrap()
+        })
+        .collect();
+    assert!(
+        log.iter()
+            .any(|l| l.name == "safety" && l.message.contains("is running")),
+        "{:?}",
+        log.iter().map(|l| &l.message).collect::<Vec<_>>()
+    );
+    let states: Vec<(u64, RobotState)> = msgs
         .iter()
         .filter(|m| m.topic == "/robot_state")
-        .map(|m| serde_json::from_slice(&m.data).unwrap())
+        .map(|m| (m.log_time, serde_json::from_slice(&m.data).unwrap()))
         .collect();
     let mut jac = kinematics::Jacobian::zeros(6);
     let mut with_arrows = 0;
-    for (k, st) in states.iter().enumerate() {
+    for (k, (log_time, st)) in states.iter().enumerate() {
         let q = st.q();
         // Frames of every link and the tool, at the state's time.
         let tf = by_time
-            .get(&("/tf".to_owned(), st.t_ns))
+            .get(&("/tf".to_owned(), *log_time))
             .unwrap_or_else(|| panic!("no /tf for tick {}", st.tick));
         let tf = FrameTransforms::decode(tf.data.as_slice()).unwrap();
         for name in &links {
@@ -105,20 +159,15 @@ fn check_view(path: &Path) -> usize {
                 .find(|t| t.child_frame_id == *name)
                 .unwrap_or_else(|| panic!("tick {}: no frame {name}", st.tick));
             let want = chain.link_pose(q, chain.link_id(name).unwrap()).unwrap();
-            let p = t.translation.unwrap();
-            assert!((Vector3::new(p.x, p.y, p.z) - want.translation.vector).norm() < 1e-9);
-            assert!(unit(&t.rotation.unwrap()).angle_to(&want.rotation) < 1e-9);
+            let got = in_base(&tf, chain.base(), &t.child_frame_id);
+            assert!((got.translation.vector - want.translation.vector).norm() < 1e-9);
+            assert!(got.rotation.angle_to(&want.rotation) < 1e-9);
         }
-        let tool = tf
-            .transforms
-            .iter()
-            .find(|t| t.child_frame_id == "tool")
-            .unwrap();
         let want = chain.fk_jacobian(q, &mut jac).unwrap();
-        let p = tool.translation.unwrap();
-        assert!((Vector3::new(p.x, p.y, p.z) - want.translation.vector).norm() < 1e-9);
+        let got = in_base(&tf, chain.base(), "tool");
+        assert!((got.translation.vector - want.translation.vector).norm() < 1e-9);
         // The map's arrows: J·s·H·e_i, linear part 1 m per m/s (LINEAR_ARROW_S), from the tool.
-        let map = by_time.get(&("/scl/map".to_owned(), st.t_ns)).unwrap();
+        let map = by_time.get(&("/scl/map".to_owned(), *log_time)).unwrap();
         let map = SceneUpdate::decode(map.data.as_slice()).unwrap();
         let axes: Vec<_> = map
             .entities
@@ -319,6 +368,7 @@ fn a_live_client_gets_the_frames_at_40_hz_and_never_disturbs_the_graph() {
             "/scl/map",
             "/scl/world",
             "/scl/tick",
+            "/scl/log",
             "/robot_state",
             "/safe_command",
         ] {
@@ -329,11 +379,15 @@ fn a_live_client_gets_the_frames_at_40_hz_and_never_disturbs_the_graph() {
         }
         let tf = c.channel("/tf").unwrap();
         assert_eq!(c.channels[&tf].schema_name, "foxglove.FrameTransforms");
+        let log = c.channel("/scl/log").unwrap();
+        assert_eq!(c.channels[&log].schema_name, "foxglove.Log");
         c.subscribe(&[tf]).unwrap();
         // Wait for the first frame (the bridge starts after the server), then count 4 s.
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_secs(20) {
-            if c.next_frame().unwrap().is_some() {
+            if let Some(f) = c.next_frame().unwrap() {
+                // Stamped on the wall clock (Foxglove shows the date of the run).
+                assert!(f.t_ns > WALL_2020_NS, "log time {}", f.t_ns);
                 break;
             }
         }

@@ -60,7 +60,7 @@ fn contents(path: &Path) -> Contents {
                     return Ok(());
                 }
                 let value: serde_json::Value = serde_json::from_slice(data).unwrap();
-                for e in recording::check::validate(&value, &schemas[&channel.topic]) {
+                for e in test_support::json_schema::validate(&value, &schemas[&channel.topic]) {
                     c.disagreements
                         .push(format!("{} #{sequence}: {e}", channel.topic));
                 }
@@ -147,19 +147,21 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
     assert!(ticks >= 120, "only {ticks} ticks");
 
     // The file: finished, every topic a JSON channel with a JSON schema (the 3D view's
-    // Foxglove channels protobuf, /scl/tick JSON), and the robot
+    // Foxglove channels and /scl/log protobuf, /scl/tick JSON), and the robot
     // states exactly those the graph published, the bridge's last (shutdown) state included:
     // the recorder started before the bridge and stopped after it.
     let c = contents(&file);
     assert!(c.summary.complete, "{:?}", c.summary);
     assert_eq!(
         c.channels.len(),
-        recording::Topic::COUNT + 5,
+        recording::Topic::COUNT + 6,
         "{:?}",
         c.channels
     );
     for (topic, (enc, schema)) in &c.channels {
-        let want = if ["/tf", "/scl/arm", "/scl/map", "/scl/world"].contains(&topic.as_str()) {
+        let want = if ["/tf", "/scl/arm", "/scl/map", "/scl/world", "/scl/log"]
+            .contains(&topic.as_str())
+        {
             ("protobuf", "protobuf")
         } else {
             ("json", "jsonschema")
@@ -537,7 +539,15 @@ fn top_and_a_standalone_recorder_attach_to_a_running_graph() {
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["dropped"], 0, "{report}");
-    assert_eq!(report["written"], report["received"], "{report}");
+    // Written: every message in the file, the graph's (all received, none dropped) and the
+    // 3D view's.
+    let view_written = report["view_written"].as_u64().unwrap();
+    assert!(view_written > 0, "{report}");
+    assert_eq!(
+        report["written"].as_u64().unwrap(),
+        report["received"].as_u64().unwrap() + view_written,
+        "{report}"
+    );
     let topics: Vec<&str> = report["topics"]
         .as_array()
         .unwrap()
@@ -554,21 +564,21 @@ fn top_and_a_standalone_recorder_attach_to_a_running_graph() {
             "/robot_state",
             "/safe_command",
             "/scl/arm",
+            "/scl/log",
             "/scl/map",
             "/scl/tick",
             "/scl/world",
             "/tf"
         ]
     );
+    // The reported total is the number of messages in the file.
+    let in_file: u64 = c.counts.values().sum();
+    assert_eq!(in_file, report["written"].as_u64().unwrap(), "{report}");
     let graph_messages: u64 = ["/robot_state", "/safe_command"]
         .iter()
         .map(|t| c.counts.get(*t).copied().unwrap_or(0))
         .sum();
-    assert_eq!(
-        graph_messages,
-        report["written"].as_u64().unwrap(),
-        "{report}"
-    );
+    assert_eq!(graph_messages + view_written, in_file, "{report}");
     assert_eq!(
         report["topics"][0]["written"].as_u64().unwrap(),
         c.states.len() as u64

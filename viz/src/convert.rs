@@ -12,7 +12,7 @@ use ipc_types::{
     control::{EstopCommand, SafetyControl},
 };
 use mapper::LoadedModel;
-use recording::{Event, LogWriter, Payload, RecordError, Topic};
+use recording::{Event, LogClock, LogWriter, Payload, RecordError, Topic};
 use scl_config::GraphConfig;
 
 use crate::{Viz, VizError, VizMessage, VizTopic};
@@ -162,7 +162,6 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
         viz_ids.insert(t, id);
     }
     let mut seq: BTreeMap<VizTopic, u32> = BTreeMap::new();
-    let mut ids: BTreeMap<u16, u16> = BTreeMap::new();
     let mut attachments: HashMap<String, Vec<u8>> = HashMap::new();
     let mut report = ConvertReport {
         copied: 0,
@@ -173,26 +172,20 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
     let mut undecodable = 0u64;
     let mut produced: Vec<VizMessage> = Vec::new();
     let summary = recording::read(src, from, |ev| {
+        if let Event::Channel(c) = ev
+            && VizTopic::from_topic(&c.topic).is_some()
+        {
+            return Err(RecordError::Write {
+                path: to.to_owned(),
+                reason: format!(
+                    "{} has the 3D channels already ({}): nothing to convert",
+                    from.display(),
+                    c.topic
+                ),
+            });
+        }
+        w.copy_event(&ev)?;
         match ev {
-            Event::Channel(c) => {
-                if VizTopic::from_topic(&c.topic).is_some() {
-                    return Err(RecordError::Write {
-                        path: to.to_owned(),
-                        reason: format!(
-                            "{} has the 3D channels already ({}): nothing to convert",
-                            from.display(),
-                            c.topic
-                        ),
-                    });
-                }
-                let id = w.add_channel(
-                    &c.topic,
-                    c.schema.as_ref(),
-                    &c.message_encoding,
-                    &c.metadata,
-                )?;
-                ids.insert(c.id, id);
-            }
             Event::Message {
                 channel,
                 sequence,
@@ -200,9 +193,9 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
                 publish_time,
                 data,
             } => {
-                let id = ids.get(&channel.id).copied().unwrap_or_default();
-                w.write_raw(id, sequence, log_time, publish_time, data)?;
                 report.copied += 1;
+                // The view's messages on the clock of the message they come from.
+                let clock = LogClock::of_message(log_time, publish_time);
                 match payload(from, channel, sequence, data) {
                     Some(Ok(p)) => {
                         if matches!(p, Payload::RobotState(_)) {
@@ -219,7 +212,7 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
                             let s = seq.entry(m.topic).or_default();
                             *s = s.wrapping_add(1);
                             let id = viz_ids.get(&m.topic).copied().unwrap_or_default();
-                            w.write_raw(id, *s, m.t_ns, m.t_ns, &m.data)?;
+                            w.write_raw(id, *s, clock.log_time(m.t_ns), m.t_ns, &m.data)?;
                             report.added += 1;
                         }
                     }
@@ -231,17 +224,11 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
                 if name == recording::PROCESS_METADATA {
                     apply_process_record(&mut viz, entries, &attachments, &mut report.notes);
                 }
-                w.write_metadata(&recording::metadata(name, entries.clone()))?;
             }
-            Event::Attachment {
-                name,
-                log_time,
-                media_type,
-                data,
-            } => {
+            Event::Attachment { name, data, .. } => {
                 attachments.insert(name.to_owned(), data.to_vec());
-                w.attach(name, log_time, media_type, data)?;
             }
+            Event::Channel(_) => {}
         }
         Ok(())
     })?;

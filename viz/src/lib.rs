@@ -25,6 +25,7 @@
 
 pub mod client;
 pub mod convert;
+pub mod log;
 pub mod scene;
 
 use std::collections::BTreeMap;
@@ -82,16 +83,19 @@ pub enum VizTopic {
     World,
     /// `/scl/tick`: JSON, the plottable numbers of a tick ([`TickView`]).
     Tick,
+    /// `/scl/log`: `foxglove.Log`, what the processes and the safety filter say ([`log`]).
+    Log,
 }
 
 impl VizTopic {
     /// Every channel, in a fixed order.
-    pub const ALL: [VizTopic; 5] = [
+    pub const ALL: [VizTopic; 6] = [
         VizTopic::Tf,
         VizTopic::Arm,
         VizTopic::Map,
         VizTopic::World,
         VizTopic::Tick,
+        VizTopic::Log,
     ];
 
     /// The channel's topic.
@@ -102,6 +106,7 @@ impl VizTopic {
             VizTopic::Map => "/scl/map",
             VizTopic::World => "/scl/world",
             VizTopic::Tick => "/scl/tick",
+            VizTopic::Log => "/scl/log",
         }
     }
 
@@ -125,6 +130,7 @@ impl VizTopic {
             VizTopic::Arm | VizTopic::Map | VizTopic::World => {
                 foxglove::messages::SceneUpdate::get_schema()
             }
+            VizTopic::Log => foxglove::messages::Log::get_schema(),
             VizTopic::Tick => None,
         };
         match fg {
@@ -218,6 +224,8 @@ pub struct Viz {
     /// Each capsule's clearance colour step as last sent ([`scene::clearance_step`]).
     steps: Vec<Option<u8>>,
     last_arm_ns: Option<u64>,
+    log: log::LogView,
+    log_lines: Vec<foxglove::messages::Log>,
 }
 
 impl std::fmt::Debug for Viz {
@@ -266,6 +274,8 @@ impl Viz {
             last_world_ns: None,
             steps: Vec::new(),
             last_arm_ns: None,
+            log: log::LogView::default(),
+            log_lines: Vec::new(),
         };
         v.configure(cfg)?;
         Ok(v)
@@ -345,9 +355,19 @@ impl Viz {
         self.mappers.contains_key(&mapper_id)
     }
 
-    /// Takes one message of the graph; appends what it produces to `out` (messages only for
-    /// robot states; commands and heartbeats update what the next state shows).
+    /// Takes one message of the graph; appends what it produces to `out`: the 3D view for a
+    /// robot state (commands and heartbeats update what the next state shows), and the
+    /// `/scl/log` lines of any message that changes what a process or the filter says.
     pub fn observe(&mut self, p: &Payload, out: &mut Vec<VizMessage>) -> Result<(), VizError> {
+        self.log_lines.clear();
+        self.log.observe(p, &mut self.log_lines);
+        for l in &self.log_lines {
+            out.push(VizMessage {
+                topic: VizTopic::Log,
+                t_ns: p.t_ns(),
+                data: encode(VizTopic::Log, l)?,
+            });
+        }
         match p {
             Payload::RobotState(s) => self.state(s, out)?,
             Payload::SafeCommand(c) => {
@@ -420,15 +440,14 @@ impl Viz {
                 cm.gripper_default_rad()
             };
             if n == 6 && cm.clearance(&q7, &self.scene, &mut self.clearance).is_ok() {
-                // The collision model's links the chain does not have (the gripper's).
+                // The collision model's links the chain does not have (the gripper's), hung
+                // from the chain's tip link.
                 for link in kinematics::CollisionLink::ALL {
                     if chain.link_id(link.name()).is_none() {
-                        tf.transforms.push(scene::transform(
-                            t,
-                            &frame,
-                            link.name(),
-                            self.clearance.link_pose(link),
-                        ));
+                        let rel = scene::from_tip(chain, s.q(), self.clearance.link_pose(link))
+                            .map_err(|e| VizError::Config(format!("forward kinematics: {e}")))?;
+                        tf.transforms
+                            .push(scene::transform(t, chain.tip(), link.name(), &rel));
                     }
                 }
                 let full = due(self.last_arm_ns, t);

@@ -72,22 +72,42 @@ pub fn transform(t_ns: u64, parent: &str, child: &str, iso: &Isometry3<f64>) -> 
     }
 }
 
-/// Every link of `chain` at `q` (forward kinematics, [`Chain::link_poses`]) in the base
-/// frame, then the tool frame ([`TOOL_FRAME`], [`Chain::fk`]); the base itself is the root
-/// and has no transform.
+/// Every link of `chain` at `q` (forward kinematics, [`Chain::link_poses`]), each in its
+/// parent link's frame (the link before it along the chain), then the tool frame
+/// ([`TOOL_FRAME`], [`Chain::fk`]) in the tip link's; the base itself is the root and has no
+/// transform. Foxglove's transform tree is then the arm's own.
 pub fn frame_transforms(chain: &Chain, q: &[f64], t_ns: u64) -> Result<FrameTransforms, KinError> {
     let mut poses = vec![Isometry3::identity(); chain.n_links()];
     let mut axes = [kinematics::JointAxis::UNUSED; kinematics::MAX_DOF];
     chain.link_poses(q, &mut poses, &mut axes)?;
-    let base = root_frame(chain);
-    let mut transforms: Vec<FrameTransform> = chain
-        .link_names()
-        .zip(&poses)
-        .filter(|(name, _)| *name != base)
-        .map(|(name, iso)| transform(t_ns, base, name, iso))
+    let names: Vec<&str> = chain.link_names().collect();
+    let mut transforms: Vec<FrameTransform> = (1..names.len())
+        .map(|i| {
+            let rel = poses[i - 1].inverse() * poses[i];
+            transform(t_ns, names[i - 1], names[i], &rel)
+        })
         .collect();
-    transforms.push(transform(t_ns, base, TOOL_FRAME, &chain.fk(q)?));
+    let tip = names.len() - 1;
+    transforms.push(transform(
+        t_ns,
+        names[tip],
+        TOOL_FRAME,
+        &(poses[tip].inverse() * chain.fk(q)?),
+    ));
     Ok(FrameTransforms { transforms })
+}
+
+/// The pose of a frame hung from the tip link, given its pose in the base frame: how the
+/// gripper's links (from the collision model) join the tree.
+pub fn from_tip(
+    chain: &Chain,
+    q: &[f64],
+    in_base: &Isometry3<f64>,
+) -> Result<Isometry3<f64>, KinError> {
+    let tip = chain
+        .link_id(chain.tip())
+        .map_or_else(|| chain.fk(q), |id| chain.link_pose(q, id))?;
+    Ok(tip.inverse() * in_base)
 }
 
 /// The colour of a clearance: green at [`CLEAR_M`] and above, through yellow, to red at 0.

@@ -61,8 +61,38 @@ fn frames_of_every_link_and_the_tool_agree_with_the_kinematics() {
             "{name}"
         );
     }
+    // Each link hangs from the link before it along the chain, the tool and the gripper's
+    // links from the tip; composed down from the base, each frame is where the kinematics
+    // put it.
+    let chain_names: Vec<&str> = chain.link_names().collect();
+    let by_child: std::collections::BTreeMap<&str, &foxglove::messages::FrameTransform> = tf
+        .transforms
+        .iter()
+        .map(|t| (t.child_frame_id.as_str(), t))
+        .collect();
+    let in_base = |name: &str| {
+        let mut pose = nalgebra::Isometry3::identity();
+        let mut at = name;
+        while at != chain.base() {
+            let t = by_child[at];
+            let tr = t.translation.unwrap();
+            let r = t.rotation.unwrap();
+            let iso = nalgebra::Isometry3::from_parts(
+                nalgebra::Translation3::new(tr.x, tr.y, tr.z),
+                UnitQuaternion::from_quaternion(NQ::new(r.w, r.x, r.y, r.z)),
+            );
+            pose = iso * pose;
+            at = t.parent_frame_id.as_str();
+        }
+        pose
+    };
     for t in &tf.transforms {
-        assert_eq!(t.parent_frame_id, chain.base());
+        let parent = if let Some(i) = chain_names.iter().position(|n| *n == t.child_frame_id) {
+            chain_names[i - 1]
+        } else {
+            chain.tip()
+        };
+        assert_eq!(t.parent_frame_id, parent, "{}", t.child_frame_id);
         let want = if t.child_frame_id == TOOL_FRAME {
             chain.fk(&Q).unwrap()
         } else if let Some(id) = chain.link_id(&t.child_frame_id) {
@@ -70,11 +100,17 @@ fn frames_of_every_link_and_the_tool_agree_with_the_kinematics() {
         } else {
             *cl.link_pose(kinematics::CollisionLink::from_name(&t.child_frame_id).unwrap())
         };
-        let tr = t.translation.unwrap();
-        assert!((Vector3::new(tr.x, tr.y, tr.z) - want.translation.vector).norm() < 1e-9);
-        let r = t.rotation.unwrap();
-        let got = UnitQuaternion::from_quaternion(NQ::new(r.w, r.x, r.y, r.z));
-        assert!(got.angle_to(&want.rotation) < 1e-9, "{}", t.child_frame_id);
+        let got = in_base(&t.child_frame_id);
+        assert!(
+            (got.translation.vector - want.translation.vector).norm() < 1e-9,
+            "{}",
+            t.child_frame_id
+        );
+        assert!(
+            got.rotation.angle_to(&want.rotation) < 1e-9,
+            "{}",
+            t.child_frame_id
+        );
     }
 }
 

@@ -11,7 +11,7 @@
 //!
 //! Start from a stop: a bridge that finds the arm moving at its first reading (a restarted
 //! bridge whose predecessor died with a motion in force) executes no command until the arm is
-//! at rest, only stops ([`hw_bridge::core::StartGate`]); safety sees those ticks as an
+//! at rest, only stops ([`hw_bridge::tick::StartGate`]); safety sees those ticks as an
 //! interruption and waits for neutral input. A restarted bridge counts the periods lost while
 //! no bridge ran ([`downtime_periods`], from the predecessor's last state, `--resume-t-ns`) as
 //! missed, in its states, heartbeat and tick reports.
@@ -291,7 +291,7 @@ pub fn downtime_periods(last_t_ns: u64, first_t_ns: u64, period_ns: u64) -> u64 
     (gap.saturating_add(period_ns / 2) / period_ns).saturating_sub(1)
 }
 
-/// Says what the start gate changed ([`hw_bridge::core::StartGate`]).
+/// Says what the start gate changed ([`hw_bridge::tick::StartGate`]).
 fn say_gate(change: GateChange, tick: u64) {
     match change {
         GateChange::FoundMoving { joint, speed_rad_s } => tracing::warn!(

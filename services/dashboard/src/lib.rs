@@ -1523,26 +1523,14 @@ mod tests {
         assert!(row_with(&lines, "closest: -").starts_with("closest: -"));
         let mut c = SafeCommand {
             tick: 7,
-            t_ns: 0,
-            state_t_ns: 0,
-            state_rx_ns: 0,
-            joystick_t_ns: 0,
-            joystick_rx_ns: 0,
-            mapper_t_ns: 0,
-            mapper_rx_ns: 0,
-            mapper_compute_ns: 0,
-            compute_ns: 0,
             mapper_id: 1,
             n_joints: 6,
             flags: safe_flags::CLEARANCE_LIMITED,
-            control: 0,
-            qdot_rad_s: [0.0; 8],
-            gripper_rate: 0.0,
             clearance_m: 0.0216,
             tcp_speed_m_s: 0.01,
             // upper_wrist_link[0] against box 1.
             closest_pair: [0x0500, 0xFE01],
-            reserved_tail: 0,
+            ..SafeCommand::zeroed()
         };
         m.take_safe(&c);
         let v = m.view(0);

@@ -28,7 +28,7 @@ use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
 use graph_client::process::{self, ProcessSeen};
 use ipc_types::{NodeRole, NodeStatus, Prefix};
-use recording::{Payload, SchemaInfo, Topic};
+use recording::{LogClock, Payload, SchemaInfo, Topic};
 use scl_config::GraphConfig;
 use transport::{Graph, TopicSubscriber, signals};
 use viz::{Viz, VizMessage, VizTopic};
@@ -165,19 +165,17 @@ impl Channels {
     }
 }
 
-/// Lowers the calling thread's CPU priority (nice 10): the view and the server yield to the
-/// graph's processes.
-fn lower_priority() {
-    // SAFETY: setpriority on the calling thread only (its tid); failure is harmless.
-    unsafe {
-        let tid = libc::gettid();
-        libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
-    }
-}
-
 /// The view thread: 3D view and logging to the server.
-fn view_loop(rx: Receiver<Item>, mut viz: Viz, channels: Channels, counters: Arc<Counters>) {
-    lower_priority();
+/// Every message is logged at the wall-clock time of its monotonic `t_ns` (`clock`), as in a
+/// recording: Foxglove shows the date of the run.
+fn view_loop(
+    rx: Receiver<Item>,
+    mut viz: Viz,
+    channels: Channels,
+    counters: Arc<Counters>,
+    clock: LogClock,
+) {
+    scl_node::rt::lower_priority();
     let mut out: Vec<VizMessage> = Vec::new();
     let mut json = Vec::with_capacity(1024);
     loop {
@@ -201,7 +199,7 @@ fn view_loop(rx: Receiver<Item>, mut viz: Viz, channels: Channels, counters: Arc
                 if p.write_json(&mut json).is_ok()
                     && let Some(c) = channels.topics.get(&p.topic())
                 {
-                    c.log_with_meta(&json, PartialMetadata::with_log_time(t_ns));
+                    c.log_with_meta(&json, PartialMetadata::with_log_time(clock.log_time(t_ns)));
                     counters.logged.fetch_add(1, Ordering::Relaxed);
                 }
                 out.clear();
@@ -212,7 +210,8 @@ fn view_loop(rx: Receiver<Item>, mut viz: Viz, channels: Channels, counters: Arc
                 }
                 for m in &out {
                     if let Some(c) = channels.view.get(&m.topic) {
-                        c.log_with_meta(&m.data, PartialMetadata::with_log_time(m.t_ns));
+                        let at = PartialMetadata::with_log_time(clock.log_time(m.t_ns));
+                        c.log_with_meta(&m.data, at);
                         counters.logged.fetch_add(1, Ordering::Relaxed);
                     }
                 }
@@ -319,7 +318,7 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .thread_name("foxglove-ws")
-        .on_thread_start(lower_priority)
+        .on_thread_start(scl_node::rt::lower_priority)
         .enable_all()
         .build()
         .map_err(|e| LiveError::Thread(format!("cannot start the server's runtime: {e}")))?;
@@ -343,9 +342,10 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let counters = Arc::new(Counters::default());
     let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
     let c2 = counters.clone();
+    let (clock, _, _) = LogClock::wall_now();
     let view = std::thread::Builder::new()
         .name("live-view".into())
-        .spawn(move || view_loop(rx, viz, channels, c2))
+        .spawn(move || view_loop(rx, viz, channels, c2, clock))
         .map_err(|e| LiveError::Thread(format!("cannot start the view thread: {e}")))?;
     let mut producer = Producer {
         tx,
@@ -430,5 +430,59 @@ mod tests {
         assert!(!parse_listen("0.0.0.0:8765").unwrap().1);
         let e = parse_listen("localhost").unwrap_err().to_string();
         assert!(e.contains("--listen localhost: expected ADDR:PORT"), "{e}");
+    }
+
+    /// The WebSocket handshake of a client offering `protocol`: the HTTP status and the
+    /// subprotocol the server chose.
+    fn handshake(port: u16, protocol: &str) -> (u16, Option<String>) {
+        use tungstenite::client::IntoClientRequest;
+        let stream = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        let mut req = format!("ws://127.0.0.1:{port}/")
+            .into_client_request()
+            .unwrap();
+        req.headers_mut().insert(
+            "Sec-WebSocket-Protocol",
+            tungstenite::http::HeaderValue::from_str(protocol).unwrap(),
+        );
+        match tungstenite::client(req, stream) {
+            Ok((_, res)) => (
+                res.status().as_u16(),
+                res.headers()
+                    .get("sec-websocket-protocol")
+                    .and_then(|v| v.to_str().ok())
+                    .map(str::to_owned),
+            ),
+            Err(tungstenite::HandshakeError::Failure(tungstenite::Error::Http(res))) => {
+                (res.status().as_u16(), None)
+            }
+            Err(e) => panic!("{protocol}: {e}"),
+        }
+    }
+
+    /// What docs/foxglove.md says of the subprotocols: `foxglove.sdk.v1` (what our client
+    /// offers) is accepted; a client offering only the older `foxglove.websocket.v1` gets an
+    /// HTTP 400.
+    #[test]
+    fn the_server_speaks_foxglove_sdk_v1_and_refuses_the_older_protocol() {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .unwrap();
+        let ctx = Context::new();
+        let server = ctx
+            .websocket_server()
+            .bind("127.0.0.1", 0)
+            .tokio_runtime(rt.handle())
+            .start_blocking()
+            .unwrap();
+        let port = server.port();
+        assert_eq!(
+            handshake(port, client::SUBPROTOCOL),
+            (101, Some("foxglove.sdk.v1".to_owned()))
+        );
+        assert_eq!(handshake(port, "foxglove.websocket.v1"), (400, None));
+        let _ = server.stop();
+        rt.shutdown_timeout(Duration::from_secs(1));
     }
 }

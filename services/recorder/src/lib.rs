@@ -52,7 +52,7 @@ use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use serde::Serialize;
 use transport::{Graph, TopicSubscriber};
 
-use recording::{self, LogWriter, Payload, RecordError, Topic};
+use recording::{self, LogClock, LogWriter, Payload, RecordError, Topic};
 use transport::signals;
 
 /// How often the writer closes a chunk: the most a crash of the recorder loses.
@@ -133,6 +133,8 @@ pub struct Tally {
     write_dropped: [AtomicU64; Topic::COUNT],
     json_bytes: AtomicU64,
     state_gaps: AtomicU64,
+    /// Messages of the 3D channels in the file ([`View`]).
+    view_written: AtomicU64,
 }
 
 fn load(a: &[AtomicU64; Topic::COUNT]) -> [u64; Topic::COUNT] {
@@ -173,10 +175,22 @@ impl Tally {
             .collect()
     }
 
+    /// Messages of the 3D channels in the file.
+    pub fn view_written(&self) -> u64 {
+        self.view_written.load(Ordering::SeqCst)
+    }
+
+    /// Every message in the file: the graph's `topics` and the 3D channels (what the report
+    /// calls written).
+    pub fn written(&self, topics: &[Topic]) -> u64 {
+        self.counts(topics).iter().map(|c| c.written).sum::<u64>() + self.view_written()
+    }
+
     fn end_metadata(
         &self,
         topics: &[Topic],
         pending: &[u64; Topic::COUNT],
+        pending_view: u64,
     ) -> BTreeMap<String, String> {
         let mut m = BTreeMap::new();
         let mut dropped = 0;
@@ -190,6 +204,10 @@ impl Tally {
             dropped += c.dropped;
         }
         m.insert("dropped_total".into(), dropped.to_string());
+        m.insert(
+            "written.3d".into(),
+            (self.view_written() + pending_view).to_string(),
+        );
         m.insert(
             "robot_state_gaps".into(),
             self.state_gaps.load(Ordering::SeqCst).to_string(),
@@ -223,8 +241,10 @@ pub struct RecordReport {
     pub topics: Vec<TopicCounts>,
     /// Messages received.
     pub received: u64,
-    /// Messages written.
+    /// Messages written: the graph's topics and the 3D channels, every message in the file.
     pub written: u64,
+    /// Of those, the messages of the 3D channels (`/tf`, `/scl/*`).
+    pub view_written: u64,
     /// Messages dropped.
     pub dropped: u64,
     /// Robot states missing between consecutive ticks received (lost before the recorder saw
@@ -337,8 +357,12 @@ impl View {
         })
     }
 
-    /// Writes what `p` adds to the view; returns the bytes written.
-    fn write<W: Write>(&mut self, w: &mut LogWriter<W>, p: &Payload) -> Result<usize, RecordError> {
+    /// Writes what `p` adds to the view; returns the messages and bytes written.
+    fn write<W: Write>(
+        &mut self,
+        w: &mut LogWriter<W>,
+        p: &Payload,
+    ) -> Result<(u64, usize), RecordError> {
         self.out.clear();
         if let Err(e) = self.viz.observe(p, &mut self.out) {
             self.errors += 1;
@@ -347,14 +371,15 @@ impl View {
             }
         }
         let mut n = 0;
+        let clock = w.clock();
         for m in &self.out {
             let s = self.seq.entry(m.topic).or_default();
             *s = s.wrapping_add(1);
             let id = self.ids.get(&m.topic).copied().unwrap_or_default();
-            w.write_raw(id, *s, m.t_ns, m.t_ns, &m.data)?;
+            w.write_raw(id, *s, clock.log_time(m.t_ns), m.t_ns, &m.data)?;
             n += m.data.len();
         }
-        Ok(n)
+        Ok((self.out.len() as u64, n))
     }
 
     /// Takes what a newly seen mapper or safety process runs.
@@ -387,7 +412,9 @@ pub fn start_pipeline<W: Write + Send + 'static>(
     let handle = std::thread::Builder::new()
         .name("mcap-writer".into())
         .spawn(move || {
-            lower_priority();
+            // The writer thread yields the CPU to everything else in the process and on the
+            // machine.
+            scl_node::rt::lower_priority();
             let side = SideChannels {
                 procs: procs_rx,
                 metas: metas_rx,
@@ -408,16 +435,6 @@ pub fn start_pipeline<W: Write + Send + 'static>(
     ))
 }
 
-/// The writer thread yields the CPU to everything else in the process and on the machine.
-fn lower_priority() {
-    let tid = nix::unistd::gettid();
-    // libc: nix 0.29 has no setpriority.
-    // SAFETY: setpriority on the calling thread only; failure is harmless.
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, tid.as_raw() as libc::id_t, 10);
-    }
-}
-
 /// The writer thread's rare inputs beside the messages.
 struct SideChannels {
     procs: Receiver<process::ProcessSeen>,
@@ -435,6 +452,8 @@ fn write_loop<W: Write>(
 ) -> WriterOutcome {
     // Messages in the open chunk: written once the chunk reaches the sink.
     let mut pending = [0u64; Topic::COUNT];
+    // Messages of the 3D channels in the open chunk.
+    let mut pending_view = 0u64;
     let mut pending_bytes = 0usize;
     let mut error: Option<String> = None;
     let mut last_flush = Instant::now();
@@ -459,12 +478,13 @@ fn write_loop<W: Write>(
                     tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
                 } else {
                     let written = w.write(&p).and_then(|n| match view.as_mut() {
-                        Some(v) => v.write(&mut w, &p).map(|m| n + m),
-                        None => Ok(n),
+                        Some(v) => v.write(&mut w, &p).map(|(k, m)| (k, n + m)),
+                        None => Ok((0, n)),
                     });
                     match written {
-                        Ok(n) => {
+                        Ok((k, n)) => {
                             pending[i] += 1;
+                            pending_view += k;
                             pending_bytes += n;
                             tally.json_bytes.fetch_add(n as u64, Ordering::SeqCst);
                         }
@@ -503,9 +523,11 @@ fn write_loop<W: Write>(
                         tally.written[i].fetch_add(*n, Ordering::SeqCst);
                         *n = 0;
                     }
+                    tally.view_written.fetch_add(pending_view, Ordering::SeqCst);
                 }
                 Err(e) => fail(&mut error, &mut pending, e),
             }
+            pending_view = 0;
             pending_bytes = 0;
             last_flush = Instant::now();
         }
@@ -518,12 +540,13 @@ fn write_loop<W: Write>(
         }
     }
     if error.is_none() {
-        let end = tally.end_metadata(topics, &pending);
+        let end = tally.end_metadata(topics, &pending, pending_view);
         match w.finish(Some(recording::metadata(recording::END_METADATA, end))) {
             Ok(_) => {
                 for (i, n) in pending.iter_mut().enumerate() {
                     tally.written[i].fetch_add(*n, Ordering::SeqCst);
                 }
+                tally.view_written.fetch_add(pending_view, Ordering::SeqCst);
             }
             Err(e) => fail(&mut error, &mut pending, e),
         }
@@ -616,11 +639,13 @@ impl Subscriptions {
     }
 }
 
-fn start_metadata(prefix: &Prefix, topics: &[Topic]) -> BTreeMap<String, String> {
-    let mono = now_ns();
-    let wall = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
+/// The start record; `mono` and `wall` are the clocks read together ([`LogClock::wall_now`]).
+fn start_metadata(
+    prefix: &Prefix,
+    topics: &[Topic],
+    mono: u64,
+    wall: u64,
+) -> BTreeMap<String, String> {
     let mut m = BTreeMap::new();
     m.insert("prefix".into(), prefix.to_string());
     m.insert(
@@ -633,7 +658,7 @@ fn start_metadata(prefix: &Prefix, topics: &[Topic]) -> BTreeMap<String, String>
     );
     m.insert(
         "clock".into(),
-        "CLOCK_MONOTONIC ns (log_time = publish_time = the message's t_ns)".into(),
+        "publish_time = the message's t_ns (CLOCK_MONOTONIC ns); log_time = the same instant on the wall clock (Unix ns: t_ns - started_monotonic_ns + started_unix_ns)".into(),
     );
     // Taken together: unix_ns(t) = t - started_monotonic_ns + started_unix_ns.
     m.insert("started_monotonic_ns".into(), mono.to_string());
@@ -658,14 +683,16 @@ struct Running {
 /// writer thread.
 fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError> {
     let file = recording::create_new(&opts.out)?;
+    let (clock, mono, wall) = LogClock::wall_now();
     let mut w = LogWriter::new(
         std::io::BufWriter::new(file),
         &opts.out,
         Some(recording::metadata(
             recording::START_METADATA,
-            start_metadata(prefix, &opts.topics),
+            start_metadata(prefix, &opts.topics, mono, wall),
         )),
     )?;
+    w.set_clock(clock);
     if !opts.trial.is_empty() {
         w.write_metadata(&recording::metadata(TRIAL_METADATA, opts.trial.clone()))?;
     }
@@ -765,11 +792,13 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
     let _ = transport::graph::release_domain(prefix);
     loop_result?;
     let topics = tally.counts(&opts.topics);
+    let view_written = tally.view_written();
     Ok(RecordReport {
         file: opts.out.display().to_string(),
         duration_s: started.elapsed().as_secs_f64(),
         received: topics.iter().map(|c| c.received).sum(),
-        written: topics.iter().map(|c| c.written).sum(),
+        written: tally.written(&opts.topics),
+        view_written,
         dropped: topics.iter().map(|c| c.dropped).sum(),
         topics,
         robot_state_gaps: tally.state_gaps.load(Ordering::SeqCst),
@@ -803,7 +832,7 @@ pub fn render_report(r: &RecordReport) -> String {
         r.dropped,
         r.robot_state_gaps
     );
-    let _ = writeln!(s, "  {}", per.join(", "));
+    let _ = writeln!(s, "  {}, 3D channels {}", per.join(", "), r.view_written);
     if let Some(e) = &r.write_error {
         let _ = writeln!(s, "  write error: {e}");
     }
@@ -817,10 +846,10 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
         let how = if r.source_complete {
             "the source was complete".to_owned()
         } else {
-            format!(
-                "the source stopped: {}",
-                r.stopped.as_deref().unwrap_or("unknown")
-            )
+            match &r.stopped {
+                Some(s) => format!("the source stopped: {s}"),
+                None => "the source stopped".to_owned(),
+            }
         };
         println!(
             "recovered {} messages on {} channels from {} into {} ({how})",
@@ -1002,6 +1031,61 @@ mod tests {
         assert_eq!(end["received.robot_state"], "2000");
     }
 
+    /// The report's total counts every message in the file, the 3D channels' too (it left
+    /// them out: 3,620 reported, 4,862 in the file).
+    #[test]
+    fn the_written_total_is_every_message_in_the_file() {
+        let sink = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let mut w = LogWriter::new(
+            Slow {
+                bytes: sink.clone(),
+                delay: Duration::ZERO,
+            },
+            Path::new("all.mcap"),
+            None,
+        )
+        .unwrap();
+        for t in Topic::ALL {
+            w.add_topic(t, &BTreeMap::new()).unwrap();
+        }
+        let view = View::add_to(&mut w, &BTreeMap::new()).unwrap();
+        let (mut p, tally, h) = start_pipeline(
+            w,
+            Topic::ALL.to_vec(),
+            100_000,
+            Duration::from_millis(5),
+            Some(view),
+        )
+        .unwrap();
+        let mut st = NodeStatus::new(NodeRole::Safety, phase::RUNNING, 1);
+        st.pid = 77;
+        for k in 0..300u64 {
+            let mut s = RobotState::at_rest(k, 1_000_000_000 + k * 25_000_000, 6);
+            s.q_rad[1] = 0.3;
+            assert!(p.offer(Payload::RobotState(s)));
+            st.t_ns = s.t_ns;
+            assert!(p.offer(Payload::Status(st)));
+        }
+        drop(p);
+        assert_eq!(h.join().unwrap().error, None);
+        let mut in_file = 0u64;
+        let mut end = None;
+        recording::read(&sink.lock().unwrap()[..], Path::new("all.mcap"), |ev| {
+            match ev {
+                recording::Event::Message { .. } => in_file += 1,
+                recording::Event::Metadata { name, entries } if name == recording::END_METADATA => {
+                    end = Some(entries.clone());
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert!(tally.view_written() > 300, "{}", tally.view_written());
+        assert_eq!(tally.written(&Topic::ALL), in_file);
+        assert_eq!(end.unwrap()["written.3d"], tally.view_written().to_string());
+    }
+
     #[test]
     fn gaps_in_robot_ticks_are_counted() {
         let (w, _bytes) = slow_writer(Duration::ZERO);
@@ -1067,6 +1151,7 @@ mod tests {
             }],
             received: 2400,
             written: 2398,
+            view_written: 0,
             dropped: 2,
             robot_state_gaps: 0,
             file_bytes: 1_500_000,

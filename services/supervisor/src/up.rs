@@ -1409,25 +1409,11 @@ mod tests {
         let mut t = Telemetry::default();
         let c = |clearance_m: f64, tcp_speed_m_s: f64| SafeCommand {
             tick: 1,
-            t_ns: 0,
-            state_t_ns: 0,
-            state_rx_ns: 0,
-            joystick_t_ns: 0,
-            joystick_rx_ns: 0,
-            mapper_t_ns: 0,
-            mapper_rx_ns: 0,
-            mapper_compute_ns: 0,
-            compute_ns: 0,
             mapper_id: 1,
             n_joints: 6,
-            flags: 0,
-            control: 0,
-            qdot_rad_s: [0.0; 8],
-            gripper_rate: 0.0,
             clearance_m,
             tcp_speed_m_s,
-            closest_pair: [0; 2],
-            reserved_tail: 0,
+            ..SafeCommand::zeroed()
         };
         t.take_safe(&c(f64::INFINITY, 0.0));
         assert_eq!((t.min_clearance_m, t.max_tcp_speed_m_s), (None, None));
