@@ -38,7 +38,9 @@ enum Cmd {
         /// Stop after this long (e.g. `60s`, `2m`, `500ms`); default: until Ctrl-C.
         #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration)]
         duration: Option<Duration>,
-        /// Print one JSON summary object on stdout at the end.
+        /// Print one JSON summary object on stdout at the end. Its `joint_travel_rad` is the
+        /// arm's joint-space path length: the Euclidean norm of each tick's change of the
+        /// joint angles, summed (not the sum of every joint's absolute change).
         #[arg(long)]
         json: bool,
         /// Serve this model file (or `bundled`, `modeswitch[:key=value,...]` for Cartesian
@@ -652,14 +654,7 @@ fn run(cli: Cli) -> Result<ExitCode, SclError> {
         Cmd::Swap { model, timeout } => {
             let r = scl_supervisor::control::swap(&prefix, &model, timeout)?;
             if r.ok == 1 {
-                println!(
-                    "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed",
-                    r.old_mapper,
-                    r.new_mapper,
-                    r.switch_tick,
-                    r.elapsed_ns as f64 / 1e6,
-                    r.missed_during
-                );
+                println!("{}", scl_supervisor::control::swap_line(&r));
                 Ok(ExitCode::SUCCESS)
             } else {
                 eprintln!("scl swap: refused: {}", r.message.as_string());
