@@ -424,7 +424,9 @@ mod tests {
             missed_during: 2,
             ..r
         };
-        assert!(swap_line(&r).ends_with("2 ticks missed (2 held up by the machine, 0 the graph's own)"));
+        assert!(
+            swap_line(&r).ends_with("2 ticks missed (2 held up by the machine, 0 the graph's own)")
+        );
     }
 
     fn hb(role: NodeRole, pid: u32, mapper_id: u32, t_ms: u64) -> NodeStatus {
