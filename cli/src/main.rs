@@ -62,7 +62,10 @@ enum Cmd {
     /// The supervisor starts a new mapper process beside the old one, waits until it has
     /// produced valid commands for `swap_valid_ticks` consecutive ticks, has safety switch to
     /// it at a tick boundary, then stops the old one. A model that does not load is refused
-    /// and the old mapper keeps running.
+    /// and the old mapper keeps running. The reply counts the ticks the bridge missed
+    /// meanwhile and how many of them the machine took (held up, as `scl up --json` counts
+    /// `held_up`): without real-time scheduling, a loaded machine can hold the graph up
+    /// during a swap, whose start-up work competes with it.
     Swap(cmd::control::SwapArgs),
     /// Latch the running graph's e-stop: safety commands zero at once and keeps doing so
     /// until `scl reset`.

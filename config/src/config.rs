@@ -18,6 +18,11 @@ use serde::{Deserialize, Serialize};
 /// The highest `[graph] rate_hz` (Hz): the Gen3 lite's low-level servo rate.
 pub const MAX_RATE_HZ: f64 = 1000.0;
 
+/// The longest wait a key in seconds may ask for (`[graph] start_timeout_s`, `[supervisor]
+/// stable_after_s`, `swap_timeout_s`): an hour. A longer one is a slip of units (ms written
+/// for s) and, far enough, a duration the clock cannot hold.
+pub const MAX_WAIT_S: f64 = 3600.0;
+
 /// The whole graph configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -122,12 +127,14 @@ pub struct SupervisorConfig {
     pub backoff_initial_ms: u64,
     /// Longest restart delay (ms).
     pub backoff_max_ms: u64,
-    /// A process that ran this long before failing starts its backoff afresh (s).
+    /// A process that ran this long before failing starts its backoff afresh (s, in `(0,
+    /// MAX_WAIT_S]`).
     pub stable_after_s: f64,
     /// A new mapper must produce valid commands for this many consecutive ticks before
     /// safety switches to it.
     pub swap_valid_ticks: u32,
-    /// A swap that has not switched over by then is refused and undone (s).
+    /// A swap that has not switched over by then is refused and undone (s, in `(0,
+    /// MAX_WAIT_S]`).
     pub swap_timeout_s: f64,
     /// `[supervisor.restart]`: restart policy per process.
     pub restart: RestartPolicies,
@@ -155,7 +162,7 @@ pub struct GraphSection {
     /// The robot profile the graph drives ([`RobotProfile::by_name`]): its joint limits,
     /// kinematics, named poses and rate; the arm-dependent keys default to its values.
     pub robot: String,
-    /// How long `scl up` waits for each child to report ready (s).
+    /// How long `scl up` waits for each child to report ready (s, in `(0, MAX_WAIT_S]`).
     pub start_timeout_s: f64,
     /// The control-path processes (bridge, safety, mappers, joystick) ask for SCHED_FIFO and
     /// mlockall once initialised; each says in one line what it was refused.
@@ -169,11 +176,12 @@ pub struct GraphSection {
     pub rt_fifo: bool,
     /// With `realtime`: the control-path processes lock their memory (`mlockall`).
     pub rt_mlock: bool,
-    /// CPU the control-path processes are pinned to when real-time is on (`-1`: not pinned).
+    /// CPU the control-path processes are pinned to when real-time is on (`-1`: not pinned;
+    /// below -1 is refused).
     pub rt_cpu: i32,
     /// With `realtime`: `scl up` holds `/dev/cpu_dma_latency` at this many µs while the graph
     /// runs (the PM QoS request cyclictest makes: idle CPUs stay out of deep sleep states
-    /// between ticks); `-1`: no request.
+    /// between ticks); `-1`: no request (below -1 is refused).
     pub rt_cpu_dma_latency_us: i32,
     /// The mapper wakes this long (µs) before each expected robot state and evaluates its map
     /// once without changing it (`MapperStep::warm`), so the tick's own evaluation finds the
@@ -276,7 +284,9 @@ pub struct JoystickConfig {
     pub step_hold_s: f64,
     /// Step: rest at zero between holds (s).
     pub step_rest_s: f64,
-    /// Constant: the axes held (scaled by `amplitude`).
+    /// Constant: the axes held (scaled by `amplitude`): a point of the stick's disc, finite
+    /// with `|a| <= 1` (the mapper clamps every action radially to that disc, so a point
+    /// outside it would not be held as written).
     pub constant_axes: [f64; 2],
     /// evdev: the device: a path (`/dev/input/event5`), part of its name (`xbox`), or empty
     /// for the first joystick or gamepad that has the mapping's axes.
@@ -602,11 +612,26 @@ impl GraphConfig {
         ipc_types::Prefix::new(&self.graph.prefix)
             .map_err(|e| err("graph.prefix", e.to_string()))?;
         let robot = self.profile()?;
-        if !(self.graph.start_timeout_s.is_finite() && self.graph.start_timeout_s > 0.0) {
+        let t = self.graph.start_timeout_s;
+        if !(t.is_finite() && t > 0.0 && t <= MAX_WAIT_S) {
             return Err(err(
                 "graph.start_timeout_s",
-                "must be a positive number".into(),
+                format!("is {t}; it must be a finite number of seconds in (0, {MAX_WAIT_S}]"),
             ));
+        }
+        for (key, v) in [
+            ("graph.rt_cpu", self.graph.rt_cpu),
+            (
+                "graph.rt_cpu_dma_latency_us",
+                self.graph.rt_cpu_dma_latency_us,
+            ),
+        ] {
+            if v < -1 {
+                return Err(err(
+                    key,
+                    format!("is {v}; it must be -1 (off) or 0 or more"),
+                ));
+            }
         }
         if !(5..=99).contains(&self.graph.rt_priority) {
             return Err(err(
@@ -700,8 +725,11 @@ impl GraphConfig {
             ("supervisor.stable_after_s", sv.stable_after_s),
             ("supervisor.swap_timeout_s", sv.swap_timeout_s),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(err(key, format!("{v} must be a positive number")));
+            if !(v.is_finite() && v > 0.0 && v <= MAX_WAIT_S) {
+                return Err(err(
+                    key,
+                    format!("is {v}; it must be a finite number of seconds in (0, {MAX_WAIT_S}]"),
+                ));
             }
         }
         if sv.swap_valid_ticks == 0 {
@@ -806,6 +834,105 @@ mod tests {
         cfg.bridge.rate_hz = Some(100.0);
         let e = cfg.validate().unwrap_err().to_string();
         assert!(e.contains("bridge.rate_hz"), "{e}");
+    }
+
+    /// Every numeric key of the graph's own tables (and the `[safety]` ones it passes on) is
+    /// checked for finiteness and range where it is read: each bad value is refused naming
+    /// the key and saying what it must be.
+    #[test]
+    fn out_of_range_and_non_finite_numbers_are_refused_naming_the_key() {
+        let cases = [
+            (
+                "[graph]\nstart_timeout_s = nan",
+                "graph.start_timeout_s",
+                "finite",
+            ),
+            (
+                "[graph]\nstart_timeout_s = inf",
+                "graph.start_timeout_s",
+                "finite",
+            ),
+            (
+                "[graph]\nstart_timeout_s = 1e300",
+                "graph.start_timeout_s",
+                "3600",
+            ),
+            (
+                "[graph]\nstart_timeout_s = 0",
+                "graph.start_timeout_s",
+                "(0, 3600]",
+            ),
+            ("[graph]\nrate_hz = nan", "graph.rate_hz", "(0, 1000]"),
+            ("[graph]\nrt_cpu = -2", "graph.rt_cpu", "-1 (off)"),
+            (
+                "[graph]\nrt_cpu_dma_latency_us = -5",
+                "graph.rt_cpu_dma_latency_us",
+                "-1 (off)",
+            ),
+            (
+                "[bridge]\ncommand_deadline = nan",
+                "bridge.command_deadline",
+                "(0, 1)",
+            ),
+            (
+                "[supervisor]\nstable_after_s = nan",
+                "supervisor.stable_after_s",
+                "finite",
+            ),
+            (
+                "[supervisor]\nstable_after_s = 1e300",
+                "supervisor.stable_after_s",
+                "3600",
+            ),
+            (
+                "[supervisor]\nswap_timeout_s = inf",
+                "supervisor.swap_timeout_s",
+                "finite",
+            ),
+            (
+                "[supervisor]\nswap_timeout_s = 1e300",
+                "supervisor.swap_timeout_s",
+                "3600",
+            ),
+            (
+                "[safety.scene]\ntable_z_m = nan",
+                "safety.scene.table_z_m",
+                "finite",
+            ),
+            (
+                "[safety.workspace]\ntable_z_m = nan",
+                "safety.workspace.table_z_m",
+                "finite",
+            ),
+            (
+                "[safety]\njoint_margin_rad = nan",
+                "safety.joint_margin_rad",
+                "finite",
+            ),
+            (
+                "[safety]\nspeed_override = nan",
+                "safety.speed_override",
+                "finite",
+            ),
+        ];
+        for (text, key, needle) in cases {
+            let e = GraphConfig::parse(text, Path::new("g.toml"))
+                .unwrap()
+                .validate()
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("{key}:")) && e.contains(needle),
+                "{text}: {e}"
+            );
+        }
+        // The bounds themselves are fine.
+        let ok = "[graph]\nstart_timeout_s = 3600\nrt_cpu = -1\nrt_cpu_dma_latency_us = 0\n\
+                  [supervisor]\nstable_after_s = 3600\nswap_timeout_s = 0.5\n";
+        GraphConfig::parse(ok, Path::new("g.toml"))
+            .unwrap()
+            .validate()
+            .unwrap();
     }
 
     #[test]

@@ -45,6 +45,23 @@ pub fn swap(
     Ok(graph.request(req, timeout)?)
 }
 
+/// The line `scl swap` prints for a swap that succeeded: the mappers, the switch tick, the
+/// time it took, and the ticks missed meanwhile with the machine's share of them
+/// (`held_up_during`, as `scl up --json` reports `held_up`) apart from the graph's own.
+pub fn swap_line(r: &ControlResponse) -> String {
+    let held_up = u64::from(r.held_up_during).min(r.missed_during);
+    format!(
+        "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed \
+         ({held_up} held up by the machine, {} the graph's own)",
+        r.old_mapper,
+        r.new_mapper,
+        r.switch_tick,
+        r.elapsed_ns as f64 / 1e6,
+        r.missed_during,
+        r.missed_during - held_up,
+    )
+}
+
 /// Sends an e-stop or a reset (an `estop_action` value) to graph `prefix` and waits up to
 /// `timeout` for a safety process to confirm the new state in its heartbeat. Returns the
 /// confirming process's pid, or `None` if none did. The publisher stays alive until then: a
@@ -385,6 +402,35 @@ pub fn render(st: &GraphStatus) -> String {
 mod tests {
     use super::*;
     use ipc_types::safe_flags;
+
+    #[test]
+    fn the_swap_line_counts_the_machines_misses_apart() {
+        let r = ControlResponse {
+            ok: 1,
+            new_mapper: 3,
+            old_mapper: 2,
+            held_up_during: 9,
+            switch_tick: 1200,
+            elapsed_ns: 412_300_000,
+            missed_during: 10,
+            message: Text::new("switched"),
+        };
+        assert_eq!(
+            swap_line(&r),
+            "swapped: mapper 2 -> 3 at tick 1200, 412.3 ms after the request, 10 ticks missed \
+             (9 held up by the machine, 1 the graph's own)"
+        );
+        // The machine's share is never more than the misses (a late command's verdict comes
+        // a tick after its miss).
+        let r = ControlResponse {
+            held_up_during: 4,
+            missed_during: 2,
+            ..r
+        };
+        assert!(
+            swap_line(&r).ends_with("2 ticks missed (2 held up by the machine, 0 the graph's own)")
+        );
+    }
 
     fn hb(role: NodeRole, pid: u32, mapper_id: u32, t_ms: u64) -> NodeStatus {
         let mut s = NodeStatus::new(role, phase::RUNNING, t_ms * 1_000_000);

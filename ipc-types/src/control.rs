@@ -153,8 +153,11 @@ pub struct ControlResponse {
     pub new_mapper: u32,
     /// The mapper it replaced (swap).
     pub old_mapper: u32,
-    /// Padding, always 0.
-    pub reserved: u32,
+    /// How many of `missed_during` the machine took (swap): periods the bridge was not run
+    /// through and commands that came late although the mapper's and safety's work fitted
+    /// the deadline (`NodeStatus::held_up`, as `scl up --json` reports `held_up`). The
+    /// graph's own misses are `missed_during - held_up_during`.
+    pub held_up_during: u32,
     /// The first tick executed from the new mapper (swap).
     pub switch_tick: u64,
     /// From the request's arrival to the switch-over (ns).
@@ -172,7 +175,7 @@ impl ControlResponse {
             ok: 0,
             new_mapper: 0,
             old_mapper: 0,
-            reserved: 0,
+            held_up_during: 0,
             switch_tick: 0,
             elapsed_ns: 0,
             missed_during: 0,

@@ -296,7 +296,7 @@ pub fn describe() -> Layout {
             ok,
             new_mapper,
             old_mapper,
-            reserved,
+            held_up_during,
             switch_tick,
             elapsed_ns,
             missed_during,

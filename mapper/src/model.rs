@@ -213,7 +213,9 @@ pub struct ModelHeader {
     /// Joint names, in output order.
     pub joint_names: Vec<String>,
     /// Speed scale `s` (rad/s): `qdot = s * map(o, a)`, so a full deflection of an
-    /// orthonormal map moves the joints at `s` in norm.
+    /// orthonormal map moves the joints at `s` in norm. Finite, above 0 and at most
+    /// [`max_speed_scale_rad_s`] of the robot served.
+    #[serde(deserialize_with = "speed_scale")]
     pub speed_scale_rad_s: f64,
     /// Lipschitz bound of the decoder network with respect to the raw observation, where one
     /// was enforced (certified from the exact spectral norms after training).
@@ -225,6 +227,17 @@ pub struct ModelHeader {
     /// Provenance.
     #[serde(default)]
     pub training: TrainingInfo,
+}
+
+/// Reads `speed_scale_rad_s`, naming it when it is `null` (how JSON writers store a NaN or an
+/// infinity), where serde's own message would name only the type.
+fn speed_scale<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Option::<f64>::deserialize(d)?.ok_or_else(|| {
+        serde::de::Error::custom(
+            "speed_scale_rad_s is null (a NaN or an infinity when written); expected a finite \
+             number above 0",
+        )
+    })
 }
 
 /// Why a model file was refused.
@@ -413,6 +426,7 @@ impl LoadedModel {
             reason: e.to_string(),
         })?;
         let header = read_header(bytes, path)?;
+        check_speed_scale(&header, robot, path)?;
         let map: Box<dyn ActionMap> = match header.kind {
             ModelKind::Pca => Box::new(PcaMap::from_tensors(&st, &header, path)?),
             ModelKind::Scl | ModelKind::Cae => {
@@ -517,7 +531,7 @@ pub fn read_header(bytes: &[u8], path: &Path) -> Result<ModelHeader, ModelError>
     }
     if !(header.speed_scale_rad_s.is_finite() && header.speed_scale_rad_s > 0.0) {
         return Err(bad(format!(
-            "speed_scale_rad_s is {}, expected a positive number",
+            "speed_scale_rad_s is {}, expected a finite number above 0",
             header.speed_scale_rad_s
         )));
     }
@@ -547,6 +561,45 @@ pub fn read_header(bytes: &[u8], path: &Path) -> Result<ModelHeader, ModelError>
         )));
     }
     Ok(header)
+}
+
+/// The largest speed scale a model may have to drive `robot` (rad/s): the norm of its URDF
+/// velocity limits, the joint-space speed of every joint at its limit at once.
+///
+/// A full deflection of an orthonormal map (PCA, SCL with Gram-Schmidt) moves the joints at
+/// the speed scale in norm, so a larger scale asks, in every direction of the map, for more
+/// than the arm can do: the header is wrong (a value in deg/s: 0.6 rad/s is 34 deg/s, beyond
+/// the Gen3 lite's 4.8 rad/s; or a corrupt one: `1e300`), and is refused rather than left to
+/// safety's limits. A trained model's default scale, the 95th percentile of the demonstrated
+/// speed norm, is below it by construction.
+pub fn max_speed_scale_rad_s(robot: &kinematics::RobotProfile) -> f64 {
+    robot
+        .urdf_velocity_rad_s()
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Refuses a header whose `speed_scale_rad_s` is above [`max_speed_scale_rad_s`] of `robot`
+/// ([`read_header`] has already refused a non-finite, zero or negative one).
+pub fn check_speed_scale(
+    header: &ModelHeader,
+    robot: &kinematics::RobotProfile,
+    path: &Path,
+) -> Result<(), ModelError> {
+    let (s, max) = (header.speed_scale_rad_s, max_speed_scale_rad_s(robot));
+    if s > max {
+        return Err(ModelError::BadHeader {
+            path: path.to_owned(),
+            reason: format!(
+                "speed_scale_rad_s is {s}, above {max:.3} rad/s: the speed of every joint of \
+                 the {} at its URDF velocity limit at once (a value in deg/s?)",
+                robot.name()
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Reads tensor `name` as f32 values of shape `shape`, checking type, shape and finiteness.
@@ -735,6 +788,43 @@ mod tests {
         let bytes = safetensors::serialize([("basis", view)], None).unwrap();
         let e = LoadedModel::from_bytes(&bytes, Path::new("m"));
         assert!(matches!(e, Err(ModelError::MissingHeader(_))));
+    }
+
+    #[test]
+    fn refuses_speed_scales_out_of_range() {
+        // The Gen3 lite's URDF limits: five joints at 1.6 rad/s and one at 3.2, 4.8 in norm.
+        let robot = kinematics::RobotProfile::default_robot();
+        assert!((max_speed_scale_rad_s(robot) - 4.8).abs() < 1e-12);
+        // (value, what the error says); serde_json writes a non-finite number as `null`.
+        let cases = [
+            (1e300, "above 4.800 rad/s"),
+            (34.4, "deg/s"),
+            (4.81, "above 4.800"),
+            (0.0, "finite number above 0"),
+            (-0.5, "finite number above 0"),
+            (f64::NAN, "speed_scale_rad_s"),
+            (f64::INFINITY, "speed_scale_rad_s"),
+        ];
+        for (v, needle) in cases {
+            let mut h = sample_header();
+            h.speed_scale_rad_s = v;
+            let e = LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("m.st"))
+                .unwrap_err();
+            let text = e.to_string();
+            assert!(matches!(e, ModelError::BadHeader { .. }), "{v}: {text}");
+            assert!(
+                text.contains("m.st")
+                    && text.contains("speed_scale_rad_s")
+                    && text.contains(needle),
+                "{v}: {text}"
+            );
+        }
+        // Up to the bound is accepted.
+        for v in [0.01, 0.6, 4.8] {
+            let mut h = sample_header();
+            h.speed_scale_rad_s = v;
+            LoadedModel::from_bytes(&pca_bytes(&h, identity_basis()), Path::new("m.st")).unwrap();
+        }
     }
 
     #[test]

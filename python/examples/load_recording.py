@@ -68,6 +68,19 @@ def load(path: Path, topics: Optional[List[str]] = None) -> Arrays:
     return out
 
 
+def joint_travel_rad(q: np.ndarray) -> float:
+    """The joint-space path length of the joint angles ``q`` (states x joints, rad): the
+    Euclidean norm of each state-to-state change, summed. The definition ``scl up --json``'s
+    ``joint_travel_rad`` and the bridge's heartbeat (``NodeStatus.joint_travel_rad``) use, so
+    the two agree on one run. It is the arc length of the arm's path in joint space (the
+    speed scale of a map is a speed in the same norm); the sum of every joint's absolute
+    change (the L1 length) is up to ``sqrt(n_joints)`` times larger."""
+    q = np.asarray(q, dtype=np.float64)
+    if len(q) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(q, axis=0), axis=1).sum())
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("recording", type=Path, help="an MCAP file written by scl")
@@ -88,7 +101,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         span = (rs["log_time_ns"][-1] - rs["log_time_ns"][0]) / 1e9
         print(
             f"robot_state: ticks {rs['tick'][0]}..{rs['tick'][-1]} over {span:.2f} s; "
-            f"joint travel {np.abs(np.diff(q, axis=0)).sum():.3f} rad"
+            f"joint travel {joint_travel_rad(q):.3f} rad"
         )
     if args.npz:
         if args.npz.exists():

@@ -396,7 +396,11 @@ class SwapResult:
     old_mapper: int
     switch_tick: int
     elapsed_s: float
+    #: Ticks the bridge missed between the request and the switch-over.
     missed_during: int
+    #: How many of them the machine took (the bridge or a process held up: the heartbeat's
+    #: ``held_up``); the graph's own misses are ``missed_during - held_up_during``.
+    held_up_during: int
     message: str
 
 
@@ -717,6 +721,7 @@ class Graph:
             switch_tick=resp.switch_tick,
             elapsed_s=resp.elapsed_ns / 1e9,
             missed_during=resp.missed_during,
+            held_up_during=resp.held_up_during,
             message=resp.message.text(),
         )
 

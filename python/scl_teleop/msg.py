@@ -381,7 +381,7 @@ class ControlResponse(Message):
         ("ok", _u32),
         ("new_mapper", _u32),
         ("old_mapper", _u32),
-        ("reserved", _u32),
+        ("held_up_during", _u32),
         ("switch_tick", _u64),
         ("elapsed_ns", _u64),
         ("missed_during", _u64),

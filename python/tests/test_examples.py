@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from .conftest import REPO, RunningGraph, finish, leftovers, scl_bin, start_graph, unique_prefix
 
@@ -72,7 +73,7 @@ def test_load_recording_into_numpy(tmp_path: Path) -> None:
     prefix = unique_prefix("rec")
     rec = tmp_path / "run.mcap"
     up = subprocess.run(
-        [scl_bin(), "up", "--prefix", prefix, "--for", "3s", "--record", str(rec)],
+        [scl_bin(), "up", "--prefix", prefix, "--for", "3s", "--record", str(rec), "--json"],
         capture_output=True,
         text=True,
         env=dict(os.environ, SCL_LOG="warn"),
@@ -85,7 +86,7 @@ def test_load_recording_into_numpy(tmp_path: Path) -> None:
     assert "robot_state:" in out.stdout
     sys.path.insert(0, str(EXAMPLES))
     try:
-        from load_recording import load  # type: ignore[import-not-found]
+        from load_recording import joint_travel_rad, load  # type: ignore[import-not-found]
     finally:
         sys.path.remove(str(EXAMPLES))
     data = load(rec)
@@ -102,6 +103,13 @@ def test_load_recording_into_numpy(tmp_path: Path) -> None:
     assert rs["log_time_ns"][0] > wall_2020_ns, rs["log_time_ns"][0]
     assert rs["t_ns"][-1] < wall_2020_ns
     assert np.all(rs["log_time_ns"] - rs["t_ns"] == rs["log_time_ns"][0] - rs["t_ns"][0])
+    # One definition of joint travel: the example's, from the recorded states, is the
+    # bridge's, which `scl up --json` reports (the shutdown state repeats the last tick's).
+    summary = json.loads(up.stdout)
+    q = rs["q_rad"][: n - 1 if steps[-1] == 0 else n, : int(rs["n_joints"][0])]
+    assert summary["joint_travel_rad"] > 0.1, summary
+    assert joint_travel_rad(q) == pytest.approx(summary["joint_travel_rad"], rel=1e-9), summary
+    assert f"joint travel {summary['joint_travel_rad']:.3f} rad" in out.stdout, out.stdout
     assert set(data) >= {"joystick", "mapper_command", "safe_command", "status"}
     assert data["joystick"]["axes"].shape[1] == 2
     saved = np.load(npz)

@@ -33,23 +33,88 @@ from .conftest import RunningGraph, finish, start_graph
 PUSH = (0.6, 0.3)
 
 
-def drive(g: Graph, axes, ticks: int, btn: int = 0) -> List[RobotState]:
-    """Answers ``ticks`` robot ticks with ``axes``, as a joystick does; returns the states
-    answered. ``drive.last_sent`` is the last sample sent."""
-    states = g.robot_states()
-    op = g.operator()
-    seen = []
-    while len(seen) < ticks:
-        s = states.next_latest(2.0)
-        assert s is not None, "the bridge stopped publishing"
-        drive.last_sent = op.publish(axes, buttons=btn)  # type: ignore[attr-defined]
-        seen.append(s)
-    states.close()
-    return seen
+class Driver:
+    """The test's operator: answers robot ticks as a joystick does, from one subscription kept
+    for the whole test (opening ports between phases takes time in which no sample goes
+    out).
+
+    Like a person, it lets go of the stick for a tick when safety says it waits for neutral
+    input: restart prevention after a fault, which a sample of this Python process that came
+    more than a period late (a scheduling or garbage-collection pause) is. Without that, one
+    late sample in a push left the arm stopped for the rest of the test; the counts the tests
+    check are taken from the messages, so such a pause costs ticks, never the result."""
+
+    def __init__(self, g: Graph) -> None:
+        self.op = g.operator()
+        self.states = g.robot_states()
+        self.safe = g.safe_commands()
+        #: Safety's commands seen, by tick.
+        self.safe_by_tick: Dict[int, SafeCommand] = {}
+        #: Ticks answered with neutral input because safety waited for it.
+        self.rearms = 0
+        #: The last sample sent.
+        self.last_sent = None
+        #: Every robot state answered, by tick.
+        self.states_by_tick: Dict[int, RobotState] = {}
+
+    def _newest_safe(self) -> Optional[SafeCommand]:
+        newest = None
+        for c in self.safe.drain():
+            self.safe_by_tick[c.tick] = c
+            newest = c
+        return newest
+
+    def drive(self, axes, ticks: int, btn: int = 0, until=None, max_ticks: int = 800) -> List[RobotState]:
+        """Answers robot ticks with ``axes`` until ``ticks`` of them were answered so and, if
+        given, ``until(self)`` holds, at most ``max_ticks`` ticks; returns the states answered
+        with ``axes``."""
+        seen: List[RobotState] = []
+        neutral = all(a == 0.0 for a in axes)
+        for _ in range(max_ticks):
+            done = until is None or until(self)  # every tick: `until` may collect messages
+            if len(seen) >= ticks and done:
+                break
+            s = self.states.next_latest(2.0)
+            assert s is not None, "the bridge stopped publishing"
+            self.states_by_tick[s.tick] = s
+            newest = self._newest_safe()
+            if not neutral and newest is not None and newest.flags & safe_flags.AWAITING_NEUTRAL:
+                self.last_sent = self.op.publish((0.0, 0.0))
+                self.rearms += 1
+                continue
+            self.last_sent = self.op.publish(axes, buttons=btn)
+            seen.append(s)
+        assert len(seen) >= ticks and (until is None or until(self)), (
+            f"{len(seen)} of {ticks} ticks answered in {max_ticks}, {self.rearms} re-arms"
+        )
+        return seen
+
+    def free_since(self, tick: int) -> int:
+        """Commands of ticks from ``tick`` on that safety let through moving and unbent (no
+        stop, no acceleration limit)."""
+        self._newest_safe()
+        return sum(
+            1
+            for c in self.safe_by_tick.values()
+            if c.tick >= tick
+            and c.flags & (safe_flags.STOP | safe_flags.ACCEL_LIMITED) == 0
+            and max(abs(v) for v in c.qdot_rad_s) > 0.01
+        )
+
+    def moving_at_the_end(self, n: int) -> bool:
+        """Whether safety's ``n`` newest commands all move the arm."""
+        self._newest_safe()
+        last = sorted(self.safe_by_tick)[-n:]
+        return len(last) == n and all(
+            self.safe_by_tick[t].flags & safe_flags.STOP == 0
+            and max(abs(v) for v in self.safe_by_tick[t].qdot_rad_s) > 0.01
+            for t in last
+        )
 
 
-def commands_by_tick(items) -> Dict[int, object]:
-    return {c.tick: c for c in items}
+def same_axes(a, b) -> bool:
+    """Whether the axes ``a`` (f32, as carried) are ``b``."""
+    return all(abs(x - y) < 1e-6 for x, y in zip(a, b))
 
 
 def test_reads_every_state_at_the_bridges_rate(graph: RunningGraph) -> None:
@@ -76,20 +141,37 @@ def test_publishing_moves_the_arm_as_the_served_map_says(graph: RunningGraph) ->
     arm's next state moves with safety's command."""
     g = graph.join()
     mapper = g.mapper_commands()
-    safe = g.safe_commands()
-    drive(g, (0.0, 0.0), 8)  # restart prevention: the stick passes through neutral first
-    states = drive(g, PUSH, 40)
-    by_state = commands_by_tick(states)
-    m_cmds = commands_by_tick(c for c in mapper.drain() if c.flags & mapper_flags.NO_INPUT == 0)
-    s_cmds = commands_by_tick(safe.drain())
-    pushed = [c for c in m_cmds.values() if list(c.action) == pytest.approx(list(PUSH))]
-    assert len(pushed) >= 30, f"only {len(pushed)} mapper commands carried the published axes"
+    d = Driver(g)
+    d.drive((0.0, 0.0), 8)  # restart prevention: the stick passes through neutral first
+    m_pushed: Dict[int, MapperCommand] = {}
+
+    def pushed() -> List[MapperCommand]:
+        """The mapper's commands that carried the push (collected as they come: cheap, it
+        runs between the ticks the driver answers)."""
+        for c in mapper.drain():
+            if c.flags & mapper_flags.NO_INPUT == 0 and same_axes(c.action, PUSH):
+                m_pushed[c.tick] = c
+        return list(m_pushed.values())
+
+    def moved_freely() -> List[tuple]:
+        """(mapper command, safety's, the next state) of the pushed ticks that safety let
+        through unbent and the bridge executed (its miss count, carried in the states,
+        unchanged: a tick the machine held up is counted there, not checked here)."""
+        d.free_since(0)  # collects safety's newest commands
+        out = []
+        for mc in pushed():
+            sc = d.safe_by_tick.get(mc.tick)
+            now, nxt = d.states_by_tick.get(mc.tick), d.states_by_tick.get(mc.tick + 1)
+            if sc is None or now is None or nxt is None or nxt.missed != now.missed:
+                continue
+            if sc.flags & (safe_flags.STOP | safe_flags.ACCEL_LIMITED) == 0:
+                out.append((mc, sc, nxt))
+        return out
+
+    states = d.drive(PUSH, 40, until=lambda d: len(moved_freely()) >= 10)
+    assert len(pushed()) >= 30, f"only {len(pushed())} mapper commands carried the published axes"
     checked = 0
-    for mc in pushed:
-        sc: Optional[SafeCommand] = s_cmds.get(mc.tick)
-        nxt: Optional[RobotState] = by_state.get(mc.tick + 1)
-        if sc is None or nxt is None or sc.flags & (safe_flags.STOP | safe_flags.ACCEL_LIMITED):
-            continue
+    for mc, sc, nxt in moved_freely():
         m = list(mc.qdot_rad_s)[:6]
         s = list(sc.qdot_rad_s)[:6]
         scale = sum(a * b for a, b in zip(m, s)) / sum(a * a for a in m)
@@ -103,11 +185,16 @@ def test_publishing_moves_the_arm_as_the_served_map_says(graph: RunningGraph) ->
     travel = [abs(a - b) for a, b in zip(states[-1].q(), states[0].q())]
     assert max(travel) > 0.01, travel
     # The opposite push drives the other way (the maps are linear in the action).
-    first = pushed[-1]
-    drive(g, (0.0, 0.0), 4)
-    drive(g, (-PUSH[0], -PUSH[1]), 4)
-    back = [c for c in mapper.drain() if list(c.action) == pytest.approx([-PUSH[0], -PUSH[1]])]
-    assert back, "no mapper command carried the opposite push"
+    first = pushed()[-1]
+    d.drive((0.0, 0.0), 4)
+    mapper.drain()
+    back: List[MapperCommand] = []
+
+    def pulled(d: Driver) -> bool:
+        back.extend(c for c in mapper.drain() if same_axes(c.action, (-PUSH[0], -PUSH[1])))
+        return bool(back)
+
+    d.drive((-PUSH[0], -PUSH[1]), 4, until=pulled)
     dot = sum(a * b for a, b in zip(first.qdot_rad_s, back[-1].qdot_rad_s))
     assert dot < 0, (list(first.qdot_rad_s), list(back[-1].qdot_rad_s))
 
@@ -116,19 +203,18 @@ def test_input_that_stops_stops_the_arm_within_two_ticks(graph: RunningGraph) ->
     """When the operator stops publishing, safety commands a stop at the second tick after
     the last sample's at the latest, and keeps the arm stopped."""
     g = graph.join()
-    safe = g.safe_commands()
-    drive(g, (0.0, 0.0), 8)
-    drive(g, PUSH, 30)
-    last = drive.last_sent.tick  # type: ignore[attr-defined]  # the tick it answered
-    moving = [c for c in safe.drain() if c.tick <= last]
-    assert any(max(abs(v) for v in c.qdot_rad_s) > 0.01 for c in moving[-5:]), "not moving"
+    d = Driver(g)
+    d.drive((0.0, 0.0), 8)
+    d.drive(PUSH, 30, until=lambda d: d.moving_at_the_end(5))
+    last = d.last_sent.tick  # the tick the last sample answered
     states = g.robot_states()
     while True:
         s = states.next(2.0)
         assert s is not None
         if s.tick >= last + 20:
             break
-    after = sorted((c for c in safe.drain() if c.tick > last), key=lambda c: c.tick)
+    d.free_since(0)  # collects safety's newest commands
+    after = sorted((c for c in d.safe_by_tick.values() if c.tick > last), key=lambda c: c.tick)
     assert after and after[0].tick <= last + 2
     stopped = [c for c in after if c.tick >= last + 2]
     assert stopped, "no command after the second tick"
@@ -144,12 +230,13 @@ def test_estop_from_python(graph: RunningGraph) -> None:
     ``Graph.reset``; the joystick sample's e-stop button latches it too."""
     g = graph.join()
     safe = g.safe_commands()
-    drive(g, (0.0, 0.0), 8)
-    drive(g, PUSH, 12)
+    d = Driver(g)
+    d.drive((0.0, 0.0), 8)
+    d.drive(PUSH, 12)
     pid = g.estop()
     assert pid > 0
     safe.drain()
-    drive(g, PUSH, 6)
+    d.drive(PUSH, 6)
     latched = safe.drain()
     assert latched
     for c in latched:
@@ -159,17 +246,15 @@ def test_estop_from_python(graph: RunningGraph) -> None:
     g.reset()
     assert "e-stop" not in g.status().safety_state
     # Moving again after the reset (through neutral: restart prevention).
-    drive(g, (0.0, 0.0), 6)
-    safe.drain()
-    drive(g, PUSH, 10)
-    assert any(max(abs(v) for v in c.qdot_rad_s) > 0 for c in safe.drain())
+    d.drive((0.0, 0.0), 6)
+    d.drive(PUSH, 10, until=lambda d: d.moving_at_the_end(1))
     # The e-stop button of the operator's own samples.
-    drive(g, PUSH, 2, btn=buttons.ESTOP)
-    drive(g, (0.0, 0.0), 4)
+    d.drive(PUSH, 2, btn=buttons.ESTOP)
+    d.drive((0.0, 0.0), 4)
     st = g.status()
     assert "e-stop" in st.safety_state, st
     safe.drain()
-    drive(g, PUSH, 4)
+    d.drive(PUSH, 4)
     assert all(c.flags & safe_flags.ESTOP for c in safe.drain())
     g.reset()
 
@@ -192,7 +277,9 @@ def test_status_active_mapper_and_swap(graph: RunningGraph) -> None:
     assert g.active_mapper() == 1
     r = g.swap("modeswitch")
     assert (r.old_mapper, r.new_mapper) == (1, 2)
-    assert r.missed_during == 0
+    # The switch-over itself misses no tick: every miss meanwhile is one the machine took
+    # (the bridge or a process held up), which the reply counts apart.
+    assert r.missed_during - r.held_up_during == 0, r
     assert g.active_mapper() == 2
     modes = [n.mode for n in g.status().nodes if n.role == "mapper" and n.alive]
     assert modes == [1], modes  # mode switching serves x-y first

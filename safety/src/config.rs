@@ -146,7 +146,10 @@ pub(crate) fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err(err(key, format!("is {v}; it must be a positive number")))
+        Err(err(
+            key,
+            format!("is {v}; it must be a finite number above 0"),
+        ))
     }
 }
 
@@ -189,7 +192,7 @@ impl SafetyConfig {
                 if !(v.is_finite() && *v > 0.0) {
                     return Err(err(
                         key,
-                        format!("entry {i} is {v}; every limit must be a positive number"),
+                        format!("entry {i} is {v}; every limit must be a finite number above 0"),
                     ));
                 }
             }
@@ -223,7 +226,7 @@ impl SafetyConfig {
         if !(m.is_finite() && m >= 0.0) {
             return Err(err(
                 "joint_margin_rad",
-                format!("is {m}; it must be 0 or more"),
+                format!("is {m}; it must be a finite number, 0 or more"),
             ));
         }
         for j in 0..n_joints {
@@ -241,16 +244,28 @@ impl SafetyConfig {
         if !(self.speed_override > 0.0 && self.speed_override <= 1.0) {
             return Err(err(
                 "speed_override",
-                format!("is {}; it must be in (0, 1]", self.speed_override),
+                format!(
+                    "is {}; it must be a finite number in (0, 1]",
+                    self.speed_override
+                ),
             ));
         }
         positive("max_gripper_rate", self.max_gripper_rate)?;
         let w = &self.workspace;
         positive("workspace.deceleration_m_s2", w.deceleration_m_s2)?;
+        for (key, corner) in [
+            ("workspace.box_min_m", &w.box_min_m),
+            ("workspace.box_max_m", &w.box_max_m),
+        ] {
+            if let Some(a) = corner.iter().position(|v| !v.is_finite()) {
+                return Err(err(
+                    key,
+                    format!("axis {a} is {}; it must be a finite number", corner[a]),
+                ));
+            }
+        }
         for i in 0..3 {
-            if !(w.box_min_m[i].is_finite() && w.box_max_m[i].is_finite())
-                || w.box_min_m[i] >= w.box_max_m[i]
-            {
+            if w.box_min_m[i] >= w.box_max_m[i] {
                 return Err(err(
                     "workspace.box_min_m",
                     format!(
@@ -260,7 +275,13 @@ impl SafetyConfig {
                 ));
             }
         }
-        if !w.table_z_m.is_finite() || w.table_z_m >= w.box_max_m[2] {
+        if !w.table_z_m.is_finite() {
+            return Err(err(
+                "workspace.table_z_m",
+                format!("is {}; it must be a finite number (m)", w.table_z_m),
+            ));
+        }
+        if w.table_z_m >= w.box_max_m[2] {
             return Err(err(
                 "workspace.table_z_m",
                 format!(
@@ -437,6 +458,59 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Every number of `[safety]` and its tables: NaN and the infinities are refused naming
+    /// the key and saying it must be finite.
+    #[test]
+    fn non_finite_numbers_are_refused_naming_the_key() {
+        type Set = fn(&mut SafetyConfig, f64);
+        let keys: [(&str, Set); 16] = [
+            ("max_velocity_rad_s", |c, v| c.max_velocity_rad_s[2] = v),
+            ("max_acceleration_rad_s2", |c, v| {
+                c.max_acceleration_rad_s2[0] = v
+            }),
+            ("joint_margin_rad", |c, v| c.joint_margin_rad = v),
+            ("speed_override", |c, v| c.speed_override = v),
+            ("max_gripper_rate", |c, v| c.max_gripper_rate = v),
+            ("workspace.table_z_m", |c, v| c.workspace.table_z_m = v),
+            ("workspace.box_min_m", |c, v| c.workspace.box_min_m[1] = v),
+            ("workspace.box_max_m", |c, v| c.workspace.box_max_m[2] = v),
+            ("workspace.deceleration_m_s2", |c, v| {
+                c.workspace.deceleration_m_s2 = v
+            }),
+            ("slowdown_distance_m", |c, v| c.slowdown_distance_m = v),
+            ("stop_distance_m", |c, v| c.stop_distance_m = v),
+            ("max_tcp_speed_m_s", |c, v| c.max_tcp_speed_m_s = v),
+            ("max_tcp_angular_speed_rad_s", |c, v| {
+                c.max_tcp_angular_speed_rad_s = v
+            }),
+            ("scene.table_z_m", |c, v| c.scene.table_z_m = v),
+            ("scene.boxes[0].min", |c, v| c.scene.boxes[0].min[0] = v),
+            ("scene.boxes[0].max", |c, v| c.scene.boxes[0].max[2] = v),
+        ];
+        let l = gen3_lite::limits();
+        let mut base = SafetyConfig::default();
+        base.scene.boxes.push(crate::scene::BoxConfig {
+            name: "mount".into(),
+            min: [-0.5, -0.5, -0.3],
+            max: [-0.3, -0.3, -0.01],
+        });
+        base.validate(&l).unwrap();
+        for (key, set) in keys {
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                let mut cfg = base.clone();
+                set(&mut cfg, bad);
+                let e = cfg.validate(&l).unwrap_err();
+                assert_eq!(e.key, key, "{key} = {bad}: {e}");
+                assert!(e.reason.contains("finite"), "{key} = {bad}: {e}");
+            }
+        }
+        // The message for a table at NaN says what is wrong (not "below the box top").
+        let mut cfg = base;
+        cfg.scene.table_z_m = f64::NAN;
+        let e = cfg.validate(&l).unwrap_err().to_string();
+        assert!(e.contains("scene.table_z_m") && e.contains("finite"), "{e}");
     }
 
     /// The Gen3 lite with its wrist's URDF velocity limit lowered from 3.2 to 1 rad/s.

@@ -86,8 +86,8 @@ pub fn validate(cfg: &SafetyConfig) -> Result<(), ConfigError> {
         return Err(err(
             "scene.table_z_m",
             format!(
-                "is {}; the base's foot is at z = 0, so the table top must be a number at or \
-                 below 0 (a pedestal: negative)",
+                "is {}; the table top must be a finite number at or below 0 (m): the base's \
+                 foot is at z = 0 (a pedestal: negative)",
                 s.table_z_m
             ),
         ));
@@ -118,7 +118,7 @@ pub fn validate(cfg: &SafetyConfig) -> Result<(), ConfigError> {
             if let Some(a) = corner.iter().position(|v| !v.is_finite()) {
                 return Err(err(
                     &format!("scene.boxes[{i}].{key}"),
-                    format!("axis {a} is {}; it must be a number", corner[a]),
+                    format!("axis {a} is {}; it must be a finite number", corner[a]),
                 ));
             }
         }

@@ -36,14 +36,7 @@ pub(crate) fn swap(prefix: &Prefix, args: SwapArgs) -> Result<ExitCode, SclError
     let SwapArgs { model, timeout } = args;
     let r = graph_client::control::swap(prefix, &model, timeout)?;
     if r.ok == 1 {
-        println!(
-            "swapped: mapper {} -> {} at tick {}, {:.1} ms after the request, {} ticks missed",
-            r.old_mapper,
-            r.new_mapper,
-            r.switch_tick,
-            r.elapsed_ns as f64 / 1e6,
-            r.missed_during
-        );
+        println!("{}", graph_client::control::swap_line(&r));
         Ok(ExitCode::SUCCESS)
     } else {
         eprintln!("scl swap: refused: {}", r.message.as_string());

@@ -16,7 +16,9 @@ pub(crate) struct UpArgs {
     /// Stop after this long (e.g. `60s`, `2m`, `500ms`); default: until Ctrl-C.
     #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration)]
     pub(crate) duration: Option<Duration>,
-    /// Print one JSON summary object on stdout at the end.
+    /// Print one JSON summary object on stdout at the end. Its `joint_travel_rad` is the
+    /// arm's joint-space path length: the Euclidean norm of each tick's change of the
+    /// joint angles, summed (not the sum of every joint's absolute change).
     #[arg(long)]
     pub(crate) json: bool,
     /// Serve this model file (or `bundled`, `modeswitch[:key=value,...]` for Cartesian

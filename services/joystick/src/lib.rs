@@ -705,17 +705,27 @@ pub fn validate(j: &JoystickConfig) -> Result<(), ConfigError> {
             format!("{} is outside (0, 1]", j.amplitude),
         ));
     }
+    script::check_constant_axes(j.constant_axes).map_err(|reason| err("constant_axes", reason))?;
     for (key, v) in [
         ("circle_period_s", j.circle_period_s),
         ("step_hold_s", j.step_hold_s),
         ("keyboard_ramp_s", j.keyboard_ramp_s),
     ] {
         if !(v.is_finite() && v > 0.0) {
-            return Err(err(key, format!("{v} must be a positive number")));
+            return Err(err(
+                key,
+                format!("is {v}; it must be a finite number above 0"),
+            ));
         }
     }
     if !(j.step_rest_s.is_finite() && j.step_rest_s >= 0.0) {
-        return Err(err("step_rest_s", "must be zero or positive".into()));
+        return Err(err(
+            "step_rest_s",
+            format!(
+                "is {}; it must be a finite number, 0 or more",
+                j.step_rest_s
+            ),
+        ));
     }
     for (key, v, lo) in [
         ("reconnect_interval_ms", j.reconnect_interval_ms, 10),

@@ -331,6 +331,18 @@ mod tests {
                 "axes.x.scale",
             ),
             (
+                "deadzone = nan\n[axes]\nx = { code = \"ABS_X\" }\ny = { code = \"ABS_Y\" }",
+                "deadzone: NaN",
+            ),
+            (
+                "[axes]\nx = { code = \"ABS_X\", scale = inf }\ny = { code = \"ABS_Y\" }",
+                "axes.x.scale: inf",
+            ),
+            (
+                "[axes]\nx = { code = \"ABS_X\" }\ny = { code = \"ABS_Y\", scale = nan }",
+                "axes.y.scale: NaN",
+            ),
+            (
                 "[axes]\nx = { code = \"ABS_X\", min = 5 }\ny = { code = \"ABS_Y\" }",
                 "min and max",
             ),

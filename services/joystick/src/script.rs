@@ -37,6 +37,26 @@ pub enum Script {
     },
 }
 
+/// Checks `[joystick] constant_axes`: two finite numbers within the stick's disc (`|a| <= 1`,
+/// the range the mapper takes: it clamps every action radially to the disc, so `[1e9, 0]`
+/// would be held as `[1, 0]`, not as written). The error says what is wrong with the pair.
+pub fn check_constant_axes(axes: [f64; 2]) -> Result<(), String> {
+    if let Some(i) = axes.iter().position(|v| !v.is_finite()) {
+        return Err(format!(
+            "[{}, {}]: entry {i} is {}; both must be finite numbers",
+            axes[0], axes[1], axes[i]
+        ));
+    }
+    let norm = axes[0].hypot(axes[1]);
+    if norm > 1.0 {
+        return Err(format!(
+            "[{}, {}] has length {norm}; it must be within the stick's disc (|a| <= 1)",
+            axes[0], axes[1]
+        ));
+    }
+    Ok(())
+}
+
 impl Script {
     /// The script named in the config, or `None` for an unknown name.
     pub fn from_config(c: &JoystickConfig) -> Option<Self> {
@@ -149,6 +169,72 @@ mod tests {
         assert_eq!(s.axes(5.1), [-0.8, 0.0]);
         assert_eq!(s.axes(7.6), [0.0, -0.8]);
         assert_eq!(s.axes(10.1), [0.8, 0.0]);
+    }
+
+    /// Every number of `[joystick]`: non-finite and out-of-range values are refused by
+    /// `validate` naming the key; the constant script's axes must lie in the stick's disc.
+    #[test]
+    fn numbers_out_of_range_are_refused_naming_the_key() {
+        type Set = fn(&mut JoystickConfig);
+        let cases: [(&str, Set, &str); 12] = [
+            (
+                "constant_axes",
+                |j| j.constant_axes = [f64::NAN, 0.0],
+                "finite",
+            ),
+            (
+                "constant_axes",
+                |j| j.constant_axes = [0.0, f64::INFINITY],
+                "finite",
+            ),
+            ("constant_axes", |j| j.constant_axes = [1e9, 0.0], "disc"),
+            ("constant_axes", |j| j.constant_axes = [0.8, 0.8], "disc"),
+            ("amplitude", |j| j.amplitude = f64::NAN, "(0, 1]"),
+            ("amplitude", |j| j.amplitude = 1.5, "(0, 1]"),
+            (
+                "circle_period_s",
+                |j| j.circle_period_s = f64::NAN,
+                "finite",
+            ),
+            (
+                "circle_period_s",
+                |j| j.circle_period_s = f64::INFINITY,
+                "finite",
+            ),
+            ("step_hold_s", |j| j.step_hold_s = -1.0, "finite"),
+            ("step_rest_s", |j| j.step_rest_s = f64::NAN, "finite"),
+            ("keyboard_ramp_s", |j| j.keyboard_ramp_s = 0.0, "finite"),
+            (
+                "reconnect_interval_ms",
+                |j| j.reconnect_interval_ms = 0,
+                "below",
+            ),
+        ];
+        for (key, set, needle) in cases {
+            // Whatever the script: a key is checked whether or not its source reads it.
+            for script in ["constant", "circle"] {
+                let mut j = JoystickConfig {
+                    script: script.into(),
+                    ..JoystickConfig::default()
+                };
+                set(&mut j);
+                let e = crate::validate(&j).unwrap_err().to_string();
+                assert!(
+                    e.contains(&format!("joystick.{key}:")) && e.contains(needle),
+                    "{key} ({script}): {e}"
+                );
+            }
+        }
+        // The disc's edge and the defaults are fine.
+        for axes in [[1.0, 0.0], [0.6, -0.8], [0.0, 0.0], [-0.5, 0.5]] {
+            check_constant_axes(axes).unwrap();
+            let j = JoystickConfig {
+                script: "constant".into(),
+                constant_axes: axes,
+                ..JoystickConfig::default()
+            };
+            crate::validate(&j).unwrap();
+        }
     }
 
     #[test]

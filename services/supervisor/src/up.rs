@@ -79,7 +79,10 @@ pub struct Summary {
     pub latency_us: Percentiles,
     /// Lateness of the bridge's clock against the ideal grid, µs.
     pub tick_lateness_us: Percentiles,
-    /// Joint-space path length of the arm (rad).
+    /// Joint-space path length of the arm (rad): the Euclidean norm of each tick's change of
+    /// the joint angles, summed (`NodeStatus::joint_travel_rad`, over every bridge process).
+    /// The sum of every joint's absolute change is up to `sqrt(n_joints)` times larger; the
+    /// Python example `load_recording.py` computes this one from a recording.
     pub joint_travel_rad: f64,
     /// Latency samples behind the percentiles.
     pub latency_samples: usize,
@@ -359,6 +362,8 @@ struct Swap {
     old_id: u32,
     started: Instant,
     missed_at_start: u64,
+    /// `Telemetry::held_up` when the request came.
+    held_up_at_start: u64,
     phase: SwapPhase,
 }
 
@@ -737,6 +742,7 @@ impl<'a> Supervisor<'a> {
             old_id: self.active_mapper,
             started: Instant::now(),
             missed_at_start: self.tel.missed(),
+            held_up_at_start: self.tel.held_up(),
             phase: SwapPhase::Warmup(Warmup::default()),
         });
     }
@@ -800,16 +806,23 @@ impl<'a> Supervisor<'a> {
         }
         let resp = match result {
             Ok(switch_tick) => {
+                // A late command's verdict comes a tick after its miss: at most the misses.
+                let missed_during = self.tel.missed().saturating_sub(swap.missed_at_start);
+                let held_up_during = self
+                    .tel
+                    .held_up()
+                    .saturating_sub(swap.held_up_at_start)
+                    .min(missed_during);
                 self.active_mapper = swap.new_id;
                 self.swaps += 1;
                 let r = ControlResponse {
                     ok: 1,
                     new_mapper: swap.new_id,
                     old_mapper: swap.old_id,
-                    reserved: 0,
+                    held_up_during: u32::try_from(held_up_during).unwrap_or(u32::MAX),
                     switch_tick,
                     elapsed_ns: swap.started.elapsed().as_nanos() as u64,
-                    missed_during: self.tel.missed() - swap.missed_at_start,
+                    missed_during,
                     message: Text::new("switched"),
                 };
                 tracing::info!(
@@ -818,6 +831,7 @@ impl<'a> Supervisor<'a> {
                     switch_tick,
                     elapsed_ms = r.elapsed_ns as f64 / 1e6,
                     missed = r.missed_during,
+                    held_up = r.held_up_during,
                     "swap done"
                 );
                 r
