@@ -463,13 +463,15 @@ impl SafetyFilter {
     /// `t_ns = now_ns + compute_ns`, so a recorded command gives its `now_ns` back exactly.
     ///
     /// The rules, in this order:
-    /// 1. Faults stop the arm: a non-finite value, a mis-shaped command, a stale robot state,
-    ///    joystick sample (also none at all, unless the map ignores the input by design) or
-    ///    command, a supervisor hold, a released deadman. The target becomes zero and the
-    ///    acceleration limit turns that into a controlled stop. After a fault (these, or ticks
-    ///    the bridge did not execute: missed, a process that died or restarted) and at start-up,
-    ///    the arm stays stopped until the operator's input has passed through neutral
-    ///    ([`restart`], flagged [`safe_flags::AWAITING_NEUTRAL`]).
+    /// 1. Faults stop the arm: a non-finite value (in the command, the state or the
+    ///    operator's input), a mis-shaped command, a stale robot state, joystick sample (also
+    ///    none at all, unless the map ignores the input by design) or command (also none for
+    ///    the tick, [`SafetyFilter::step_unanswered`]), a supervisor hold, a released
+    ///    deadman. The target becomes zero and the acceleration limit turns that into a
+    ///    controlled stop. After a fault (these, or ticks the bridge did not execute:
+    ///    missed, a process that died or restarted) and at start-up, the arm stays stopped
+    ///    until the operator's input has passed through neutral ([`restart`], flagged
+    ///    [`safe_flags::AWAITING_NEUTRAL`]).
     /// 2. A latched e-stop (joystick button or `scl estop`, released only by `scl reset`)
     ///    commands zero at once, the one rule that does not wait for the acceleration limit.
     /// 3. The speed override, then the joint velocity limits by one uniform factor (the command
@@ -505,9 +507,37 @@ impl SafetyFilter {
     /// Each step is one phase below, called in this order; every rule that scales the whole
     /// command does it through one helper that also sets its flag and reports its factor.
     pub fn step(&mut self, cmd: &MapperCommand, state: &RobotState, now_ns: u64) -> SafeCommand {
+        self.step_with(cmd, true, state, now_ns)
+    }
+
+    /// Answers `state` when no mapper command for its tick came in time: the step of a
+    /// command that asks for nothing (zero velocity, no operator input), flagged
+    /// [`safe_flags::STALE_COMMAND`] and a stop: with the e-stop latched zero at once, else a
+    /// controlled stop. The command's [`SafeCommand::mapper_t_ns`] is 0 (no mapper command)
+    /// and its `mapper_id` is `mapper_id` (the active mapper). The safety process calls it
+    /// with the e-stop latched, so the e-stop acts at the next tick whether a mapper is there
+    /// or not; the replay of a recording calls it for each such command.
+    pub fn step_unanswered(
+        &mut self,
+        mapper_id: u32,
+        state: &RobotState,
+        now_ns: u64,
+    ) -> SafeCommand {
+        self.step_with(&unanswered_command(mapper_id, state), false, state, now_ns)
+    }
+
+    /// [`SafetyFilter::step`] of `cmd`, a mapper's (`answered`) or one that stands in for
+    /// none ([`SafetyFilter::step_unanswered`]).
+    fn step_with(
+        &mut self,
+        cmd: &MapperCommand,
+        answered: bool,
+        state: &RobotState,
+        now_ns: u64,
+    ) -> SafeCommand {
         let control = self.take_control();
         // 1. Faults, the e-stop's latch and restart prevention.
-        let mut t = self.classify_faults(cmd, state, now_ns);
+        let mut t = self.classify_faults(cmd, answered, state, now_ns);
         t.report.base_rad_s = self.base_velocity(cmd, state, t.qdot_ok);
         t.arm_ok = self.update_arm(&t);
         let out = if t.flags & safe_flags::ESTOP != 0 {
@@ -549,6 +579,7 @@ impl SafetyFilter {
     fn classify_faults<'s>(
         &mut self,
         cmd: &MapperCommand,
+        answered: bool,
         state: &'s RobotState,
         now_ns: u64,
     ) -> Tick<'s> {
@@ -559,10 +590,18 @@ impl SafetyFilter {
         }
         let q_ok = all_finite(&state.q_rad[..n]);
         let qdot_ok = all_finite(&state.qdot_rad_s[..n]);
-        if !(all_finite(&cmd.qdot_rad_s) && cmd.gripper_rate.is_finite() && q_ok && qdot_ok) {
+        // The operator's input too: a non-finite sample is a fault like a stale one.
+        let input_ok = cmd.flags & mapper_flags::INPUT_NON_FINITE == 0
+            && cmd.action.iter().all(|a| a.is_finite());
+        if !(all_finite(&cmd.qdot_rad_s)
+            && cmd.gripper_rate.is_finite()
+            && input_ok
+            && q_ok
+            && qdot_ok)
+        {
             flags |= safe_flags::NON_FINITE;
         }
-        if cmd.tick != state.tick {
+        if cmd.tick != state.tick || !answered {
             flags |= safe_flags::STALE_COMMAND;
         }
         if now_ns.saturating_sub(cmd.state_t_ns) > self.max_state_age_ns {
@@ -574,7 +613,7 @@ impl SafetyFilter {
         } else {
             now_ns.saturating_sub(cmd.joystick_t_ns) > self.max_joystick_age_ns
         };
-        if joystick_stale || cmd.flags & mapper_flags::INPUT_STALE != 0 {
+        if answered && (joystick_stale || cmd.flags & mapper_flags::INPUT_STALE != 0) {
             flags |= safe_flags::STALE_JOYSTICK;
         }
         if self.hold {
@@ -587,7 +626,7 @@ impl SafetyFilter {
             flags |= safe_flags::ESTOP;
         }
         let armed = self.restart_prevention(cmd, state, flags != 0);
-        if self.cfg.deadman && cmd.buttons & buttons::DEADMAN == 0 {
+        if answered && self.cfg.deadman && cmd.buttons & buttons::DEADMAN == 0 {
             flags |= safe_flags::DEADMAN;
         }
         if !armed && flags == 0 {
@@ -617,8 +656,11 @@ impl SafetyFilter {
         {
             self.restart.interrupt();
         }
-        let unusable =
-            mapper_flags::NO_INPUT | mapper_flags::INPUT_NON_FINITE | mapper_flags::INPUT_STALE;
+        // Only a usable sample that answers a robot tick is the operator's input.
+        let unusable = mapper_flags::NO_INPUT
+            | mapper_flags::INPUT_NON_FINITE
+            | mapper_flags::INPUT_STALE
+            | mapper_flags::INPUT_NO_TICK;
         let operator =
             (cmd.flags & unusable == 0 && !device_gone && cmd.action.iter().all(|a| a.is_finite()))
                 .then(|| restart::Operator {
@@ -910,6 +952,29 @@ impl SafetyFilter {
             closest_pair,
             reserved_tail: 0,
         }
+    }
+}
+
+/// The command [`SafetyFilter::step_unanswered`] stands in for the one that did not come for
+/// `state`'s tick: of mapper `mapper_id`, asking for nothing (zero velocity, no operator
+/// input), at no time (`t_ns` 0).
+pub fn unanswered_command(mapper_id: u32, state: &RobotState) -> MapperCommand {
+    MapperCommand {
+        tick: state.tick,
+        t_ns: 0,
+        state_t_ns: state.t_ns,
+        state_rx_ns: 0,
+        joystick_t_ns: 0,
+        joystick_rx_ns: 0,
+        joystick_seq: 0,
+        compute_ns: 0,
+        mapper_id,
+        n_joints: state.n_joints,
+        flags: mapper_flags::NO_INPUT,
+        buttons: 0,
+        action: [0.0; 2],
+        qdot_rad_s: [0.0; MAX_JOINTS],
+        gripper_rate: 0.0,
     }
 }
 

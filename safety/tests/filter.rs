@@ -1023,3 +1023,37 @@ fn a_filter_for_another_arm() {
     );
     assert_eq!(out.qdot_rad_s[5], 0.0);
 }
+
+/// A tick no mapper command came for, answered by safety itself
+/// ([`SafetyFilter::step_unanswered`]): flagged a stale command and a stop, naming no mapper
+/// command (`mapper_t_ns` 0) and the active mapper; without the e-stop a controlled stop from
+/// the arm's velocity, with the e-stop latched zero at once.
+#[test]
+fn a_tick_without_a_command_is_a_stop_and_zero_under_the_estop() {
+    let mut f = filter();
+    let mut prev = [0.0; MAX_JOINTS];
+    for k in 1..=10 {
+        prev = f
+            .step(&cmd(k, [0.3, 0.0, 0.0, 0.0, 0.0, 0.0]), &state(k), NOW)
+            .qdot_rad_s;
+    }
+    assert!(prev[0] > 0.1);
+    let out = f.step_unanswered(1, &state(11), NOW);
+    assert_eq!(
+        out.flags & !safe_flags::ACCEL_LIMITED,
+        safe_flags::STALE_COMMAND | safe_flags::STOP
+    );
+    assert_eq!((out.tick, out.mapper_t_ns, out.mapper_id), (11, 0, 1));
+    assert!(out.qdot_rad_s[0] > 0.0 && out.qdot_rad_s[0] < prev[0]);
+    f.estop();
+    let out = f.step_unanswered(1, &state(12), NOW);
+    assert_eq!(
+        out.flags,
+        safe_flags::ESTOP | safe_flags::STALE_COMMAND | safe_flags::STOP
+    );
+    assert!(out.qdot_rad_s.iter().all(|v| *v == 0.0));
+    // The next mapper command follows on from the answered tick: its neutral input re-arms.
+    f.reset();
+    let out = f.step(&cmd(13, [0.0; 6]), &state(13), NOW);
+    assert_eq!(out.flags, 0);
+}
