@@ -203,8 +203,12 @@ pub mod mapper_flags {
     /// and with the deadman required its release and press alone re-arm the arm after a
     /// stop.
     pub const IGNORES_INPUT: u32 = 1 << 6;
+    /// The joystick sample answers no robot tick (its source published it before it saw
+    /// one: a device's reading at start-up, an external operator's first sample). Used as
+    /// usual, but not as the operator's neutral input for restart prevention.
+    pub const INPUT_NO_TICK: u32 = 1 << 7;
     /// Short names of the bits, in bit order.
-    pub const NAMES: [&str; 7] = [
+    pub const NAMES: [&str; 8] = [
         "no-input",
         "input-non-finite",
         "input-clamped",
@@ -212,6 +216,7 @@ pub mod mapper_flags {
         "state-invalid",
         "input-stale",
         "ignores-input",
+        "input-no-tick",
     ];
 }
 
@@ -261,7 +266,8 @@ pub struct MapperCommand {
 
 /// [`SafeCommand::flags`] bits: which rule of the safety filter acted this tick.
 pub mod safe_flags {
-    /// A non-finite value in the command or state: controlled stop, fault.
+    /// A non-finite value in the command, the state or the operator's input (the mapper's
+    /// `input-non-finite`, or a non-finite action): controlled stop, fault.
     pub const NON_FINITE: u32 = 1 << 0;
     /// The command's robot state was older than allowed: stop.
     pub const STALE_STATE: u32 = 1 << 1;
@@ -633,7 +639,7 @@ mod tests {
         assert_eq!(state_flags::NAMES.len(), highest(state_flags::SAFETY_STOP));
         assert_eq!(
             mapper_flags::NAMES.len(),
-            highest(mapper_flags::IGNORES_INPUT)
+            highest(mapper_flags::INPUT_NO_TICK)
         );
         assert_eq!(safe_flags::NAMES.len(), highest(safe_flags::SPEED_CAPPED));
         assert_eq!(

@@ -171,7 +171,7 @@ mod tests {
     use super::*;
     use crate::LoadedModel;
     use crate::step::MapperStep;
-    use ipc_types::{JoystickInput, NO_TICK, RobotState, mapper_flags};
+    use ipc_types::{JoystickInput, RobotState, mapper_flags};
     use proptest::prelude::*;
 
     #[test]
@@ -219,7 +219,7 @@ mod tests {
         let state = RobotState::at_rest(7, 1000, 6);
         for axes in [[0.0, 0.0], [1.0, 0.0], [-0.3, 0.9]] {
             let joy = JoystickInput {
-                tick: NO_TICK,
+                tick: 7,
                 t_ns: 900,
                 seq: 1,
                 axes,

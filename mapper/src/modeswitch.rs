@@ -970,7 +970,9 @@ mod tests {
         let arm = Gen3Lite::get().arm();
         let before = arm.fk(q).unwrap();
         for k in 0..ticks {
-            let c = step.step(&state_at(q, k), Some(&joy(axes, 0)));
+            let mut j = joy(axes, 0);
+            j.tick = k;
+            let c = step.step(&state_at(q, k), Some(&j));
             assert_eq!(c.flags, 0);
             for i in 0..6 {
                 q[i] += c.qdot_rad_s[i] * DT;

@@ -107,6 +107,9 @@ impl MapperStep {
                 flags |= mapper_flags::INPUT_STALE;
             }
             Some(j) => {
+                if j.tick == NO_TICK {
+                    flags |= mapper_flags::INPUT_NO_TICK;
+                }
                 let pressed = j.buttons & !self.held;
                 self.held = j.buttons;
                 if pressed != 0 {
@@ -208,7 +211,9 @@ mod tests {
     fn command_is_scaled_map_of_action_with_inherited_times() {
         let (mut step, b) = step_with_basis();
         let s = step.model().header.speed_scale_rad_s;
-        let c = step.step(&state(11), Some(&joy([0.3, -0.4])));
+        let mut j = joy([0.3, -0.4]);
+        j.tick = 11;
+        let c = step.step(&state(11), Some(&j));
         assert_eq!(c.tick, 11);
         assert_eq!(c.mapper_id, 7);
         assert_eq!(
@@ -230,7 +235,9 @@ mod tests {
     #[test]
     fn long_actions_are_clamped_radially() {
         let (mut step, _) = step_with_basis();
-        let c = step.step(&state(1), Some(&joy([3.0, 4.0])));
+        let mut j = joy([3.0, 4.0]);
+        j.tick = 1;
+        let c = step.step(&state(1), Some(&j));
         assert_eq!(c.flags, mapper_flags::INPUT_CLAMPED);
         assert!((c.action[0] - 0.6).abs() < 1e-6 && (c.action[1] - 0.8).abs() < 1e-6);
     }
@@ -245,14 +252,16 @@ mod tests {
         assert_eq!(c.flags, mapper_flags::INPUT_NON_FINITE);
         assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
         assert_eq!(c.gripper_rate, 0.0);
+        let mut j = joy([1.0, 0.0]);
+        j.tick = 1;
         let mut s = state(1);
         s.q_rad[2] = f64::INFINITY;
-        let c = step.step(&s, Some(&joy([1.0, 0.0])));
+        let c = step.step(&s, Some(&j));
         assert_eq!(c.flags, mapper_flags::STATE_INVALID);
         assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
         let mut s = state(1);
         s.n_joints = 5;
-        let c = step.step(&s, Some(&joy([1.0, 0.0])));
+        let c = step.step(&s, Some(&j));
         assert_eq!(c.flags, mapper_flags::STATE_INVALID);
     }
 
@@ -302,9 +311,13 @@ mod tests {
         assert_eq!(c.flags, mapper_flags::INPUT_STALE);
         assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
         assert_eq!(c.gripper_rate, 0.0);
-        // The start-up sample answers no tick: the age rule in safety covers it.
+        // The start-up sample answers no tick: not stale (the age rule in safety covers it),
+        // flagged so safety does not take it for the operator's neutral.
         j.tick = NO_TICK;
-        assert_eq!(step.step(&state(12), Some(&j)).flags, 0);
+        assert_eq!(
+            step.step(&state(12), Some(&j)).flags,
+            mapper_flags::INPUT_NO_TICK
+        );
     }
 
     #[test]
@@ -316,7 +329,9 @@ mod tests {
         model.map = Box::new(PcaMap::new(b));
         model.header.speed_scale_rad_s = 10.0;
         let mut step = MapperStep::new(1, model, 6).unwrap();
-        let c = step.step(&state(1), Some(&joy([1.0, 0.0])));
+        let mut j = joy([1.0, 0.0]);
+        j.tick = 1;
+        let c = step.step(&state(1), Some(&j));
         assert_eq!(c.flags, mapper_flags::OUTPUT_NON_FINITE);
         assert!(c.qdot_rad_s.iter().all(|v| *v == 0.0));
     }

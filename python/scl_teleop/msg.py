@@ -70,6 +70,7 @@ class mapper_flags(_Bits):  # noqa: N801
     STATE_INVALID = 1 << 4
     INPUT_STALE = 1 << 5
     IGNORES_INPUT = 1 << 6
+    INPUT_NO_TICK = 1 << 7
     NAMES = (
         "no-input",
         "input-non-finite",
@@ -78,6 +79,7 @@ class mapper_flags(_Bits):  # noqa: N801
         "state-invalid",
         "input-stale",
         "ignores-input",
+        "input-no-tick",
     )
 
 

@@ -806,9 +806,15 @@ pub fn replay(
     let mut old_control = false;
     for safe in &rec.safe {
         let key = (safe.mapper_id, safe.tick, safe.mapper_t_ns);
-        let (Some(rec_cmd), Some(state)) =
-            (recorded_mapper.get(&key), rec.states.get(&safe.state_t_ns))
-        else {
+        let Some(state) = rec.states.get(&safe.state_t_ns) else {
+            out.skipped += 1;
+            continue;
+        };
+        // A tick safety answered itself (the e-stop latched, no mapper command in time): it
+        // names no mapper command (`mapper_t_ns` 0) and is replayed as it ran.
+        let unanswered = safe.mapper_t_ns == 0 && !recorded_mapper.contains_key(&key);
+        let stand_in = unanswered.then(|| safety::unanswered_command(safe.mapper_id, state));
+        let Some(rec_cmd) = recorded_mapper.get(&key).copied().or(stand_in.as_ref()) else {
             out.skipped += 1;
             continue;
         };
@@ -821,7 +827,7 @@ pub fn replay(
             ),
         };
         let rep_cmd = replayed.get(&key);
-        let input_cmd = rep_cmd.copied().unwrap_or(**rec_cmd);
+        let input_cmd = rep_cmd.copied().unwrap_or(*rec_cmd);
         let control = if safe.control & safe_control::RECORDED != 0 {
             safe.control
         } else {
@@ -839,7 +845,11 @@ pub fn replay(
         };
         filter.apply_control(control);
         let now_ns = safe.t_ns.saturating_sub(safe.compute_ns);
-        let mut res = filter.step(&input_cmd, state, now_ns);
+        let mut res = if unanswered {
+            filter.step_unanswered(safe.mapper_id, state, now_ns)
+        } else {
+            filter.step(&input_cmd, state, now_ns)
+        };
         res.t_ns = safe.t_ns;
         res.mapper_rx_ns = safe.mapper_rx_ns;
         res.compute_ns = safe.compute_ns;
@@ -883,7 +893,7 @@ pub fn replay(
                     robot,
                     state,
                 ),
-                mapper_recorded: **rec_cmd,
+                mapper_recorded: *rec_cmd,
                 mapper_replayed: rep_cmd.copied(),
                 now_ns,
                 control,

@@ -9,9 +9,10 @@
 //! the stick. A map that ignores the action by design (the drill map) needs only the deadman
 //! when it is required, else the stick at rest all the same.
 //!
-//! Only a usable sample tells anything: a missing, non-finite or stale one (whose action the
-//! mapper zeroed) or one from a device that is gone is not the operator at neutral, and the
-//! last of those is itself a fault.
+//! Only a usable sample that answers a robot tick tells anything: a missing, non-finite or
+//! stale one (whose action the mapper zeroed), one from a device that is gone (the last three
+//! are faults themselves) or one published before its source saw a tick (a joystick's start-up
+//! sample, flagged `input-no-tick` by the mapper) is not the operator at neutral.
 
 /// Largest action length `|a|` that counts as the stick at rest. The evdev source applies its
 /// mapping's radial deadzone (inside it the axes are exactly 0), the keyboard source ramps to

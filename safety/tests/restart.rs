@@ -268,3 +268,102 @@ proptest! {
         }
     }
 }
+
+/// The operator's input turns non-finite (a NaN axis: the mapper flags `input-non-finite`
+/// and zeroes the action and the command) for 40 ticks while the stick was held, then comes
+/// back deflected: a stop flagged non-finite at each of those ticks, counted, and no motion
+/// until the stick has passed through neutral. Before, only the acceleration limit acted:
+/// the arm slowed to the zero command, and moved again on the deflected stick at once.
+#[test]
+fn non_finite_operator_input_is_a_fault_that_waits_for_neutral() {
+    let mut f = filter(false);
+    armed_and_moving(&mut f, 5);
+    let before = f.rule_counts();
+    for k in 6..46 {
+        let mut c = cmd(k, REST, 0);
+        c.flags = mapper_flags::INPUT_NON_FINITE;
+        let out = f.step(&c, &state(k), NOW);
+        assert_eq!(
+            out.flags,
+            safe_flags::NON_FINITE | safe_flags::STOP,
+            "tick {k}"
+        );
+        assert!(!moving(&out));
+    }
+    let bit = safe_flags::NON_FINITE.trailing_zeros() as usize;
+    assert_eq!(f.rule_counts()[bit] - before[bit], 40);
+    for k in 46..50 {
+        let out = f.step(&cmd(k, HELD, 0), &state(k), NOW);
+        assert_eq!(
+            out.flags,
+            safe_flags::AWAITING_NEUTRAL | safe_flags::STOP,
+            "tick {k}"
+        );
+    }
+    assert_eq!(f.step(&cmd(50, REST, 0), &state(50), NOW).flags, 0);
+    assert!(moving(&f.step(&cmd(51, HELD, 0), &state(51), NOW)));
+}
+
+/// Non-finite axes that reach safety in the command's action itself (a mapper that did not
+/// flag them) are the same fault: a stop, then neutral required.
+#[test]
+fn a_non_finite_action_is_a_fault_that_waits_for_neutral() {
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let mut f = filter(false);
+        armed_and_moving(&mut f, 5);
+        let mut c = cmd(6, HELD, 0);
+        c.action = [bad, 0.0];
+        let out = f.step(&c, &state(6), NOW);
+        assert_eq!(
+            out.flags,
+            safe_flags::NON_FINITE | safe_flags::STOP,
+            "{bad}"
+        );
+        let out = f.step(&cmd(7, HELD, 0), &state(7), NOW);
+        assert_eq!(
+            out.flags,
+            safe_flags::AWAITING_NEUTRAL | safe_flags::STOP,
+            "{bad}"
+        );
+        assert_eq!(f.step(&cmd(8, REST, 0), &state(8), NOW).flags, 0, "{bad}");
+    }
+}
+
+/// A sample that answers no robot tick (published by a joystick before it saw one: the
+/// mapper flags `input-no-tick`) is not the operator at neutral: at start-up and after a
+/// fault the arm still waits for a neutral sample that answers a tick. Before, a restarted
+/// scripted joystick's first sample (neutral, made before its first tick) re-armed safety,
+/// and the script's deflected stick moved the arm.
+#[test]
+fn a_sample_that_answers_no_tick_is_not_neutral() {
+    let unticked = |tick, a| {
+        let mut c = cmd(tick, a, 0);
+        c.flags = mapper_flags::INPUT_NO_TICK;
+        c
+    };
+    // At start-up.
+    let mut f = filter(false);
+    let out = f.step(&unticked(1, REST), &state(1), NOW);
+    assert_eq!(out.flags, safe_flags::AWAITING_NEUTRAL | safe_flags::STOP);
+    assert!(!moving(&f.step(&cmd(2, HELD, 0), &state(2), NOW)));
+    // After a fault (the joystick restarted: its samples went stale).
+    let mut f = filter(false);
+    armed_and_moving(&mut f, 5);
+    let mut c = cmd(6, REST, 0);
+    c.flags = mapper_flags::INPUT_STALE;
+    f.step(&c, &state(6), NOW);
+    assert!(f.awaiting_neutral());
+    for k in 7..10 {
+        let out = f.step(&unticked(k, REST), &state(k), NOW);
+        assert_eq!(
+            out.flags,
+            safe_flags::AWAITING_NEUTRAL | safe_flags::STOP,
+            "tick {k}"
+        );
+    }
+    assert!(!moving(&f.step(&cmd(10, HELD, 0), &state(10), NOW)));
+    assert!(f.awaiting_neutral());
+    // A neutral sample that answers a tick re-arms.
+    assert_eq!(f.step(&cmd(11, REST, 0), &state(11), NOW).flags, 0);
+    assert!(moving(&f.step(&cmd(12, HELD, 0), &state(12), NOW)));
+}

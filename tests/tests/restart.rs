@@ -39,20 +39,23 @@ struct Run {
 /// Starts `scl up --for SECS` with the replayed input `rows`, the mapper restarted on
 /// failure after `backoff_ms`, and waits until the arm moves.
 fn start(tag: &str, rows: &[InputRow], backoff_ms: u64, secs: u32) -> Run {
-    let prefix = unique_prefix(tag);
-    let domain = DomainGuard(prefix.clone());
     let dir = temp_dir(tag);
     write_replay(&dir.join("input.csv"), rows);
+    let toml = format!(
+        "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n\n\
+         [supervisor]\nbackoff_initial_ms = {backoff_ms}\n\n\
+         [supervisor.restart]\nmapper = \"on-failure\"\n"
+    );
+    start_with(tag, dir, &toml, secs)
+}
+
+/// Starts `scl up --for SECS` with the graph configuration `toml` (in `dir`), and waits
+/// until the arm moves.
+fn start_with(tag: &str, dir: PathBuf, toml: &str, secs: u32) -> Run {
+    let prefix = unique_prefix(tag);
+    let domain = DomainGuard(prefix.clone());
     let cfg = dir.join("graph.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n\n\
-             [supervisor]\nbackoff_initial_ms = {backoff_ms}\n\n\
-             [supervisor.restart]\nmapper = \"on-failure\"\n"
-        ),
-    )
-    .unwrap();
+    std::fs::write(&cfg, toml).unwrap();
     let mut rec = Recorder::join(&prefix);
     let mut up = scl(&prefix);
     up.args(["up", "--json", "--for", &format!("{secs}s"), "--config"])
@@ -426,6 +429,155 @@ fn an_estop_pressed_on_the_joystick_latches_while_the_mapper_is_dead() {
     // The arm stood still from the restart until the stick was deflected again.
     for s in run.states_between(t_restarted, t_again) {
         assert_eq!(speed(&s), 0.0, "tick {}", s.tick);
+    }
+    run.finish();
+}
+
+/// `scl estop` while the mapper is dead (SIGKILLed, restarted only 5 s later) and the bridge
+/// brakes the arm slowly (its controlled stop at 0.02 rad/s²): safety answers the robot
+/// states itself, so the arm's velocity is zero at the first robot state after safety
+/// latched the e-stop (two at most), not at the end of the bridge's controlled stop. Before,
+/// safety published only when a mapper command came: the arm kept the bridge's decaying stop
+/// for seconds.
+#[test]
+fn scl_estop_stops_the_arm_at_once_while_the_mapper_is_dead() {
+    let _serial = serial();
+    let tag = "estopdead";
+    let dir = temp_dir(tag);
+    write_replay(
+        &dir.join("input.csv"),
+        &[row(0.0, REST, 0), row(0.5, HELD, 0), row(30.0, REST, 0)],
+    );
+    let toml = "[joystick]\nsource = \"replay\"\nreplay_file = \"input.csv\"\n\n\
+                [bridge]\nstop_acceleration_rad_s2 = [0.02, 0.02, 0.02, 0.02, 0.02, 0.02]\n\n\
+                [supervisor]\nbackoff_initial_ms = 5000\n\n\
+                [supervisor.restart]\nmapper = \"on-failure\"\n";
+    let mut run = start_with(tag, dir, toml, 12);
+    // At the stick's speed.
+    run.rec.poll_for(Duration::from_secs(1));
+    let (_, t_kill) = run.kill_mapper();
+    let mut c = scl(&run.prefix);
+    c.arg("estop");
+    let out = run_polling(c, &mut run.rec);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let latched = |r: &Recorder| {
+        r.statuses
+            .iter()
+            .find(|s| {
+                s.role == NodeRole::Safety as u32
+                    && s.t_ns > t_kill
+                    && s.safety_state & safety_state::ESTOP != 0
+            })
+            .map(|s| s.t_ns)
+    };
+    assert!(
+        run.rec
+            .poll_until(Duration::from_secs(5), |r| latched(r).is_some()),
+        "safety never latched the e-stop"
+    );
+    let t_latched = latched(&run.rec).unwrap();
+    run.rec.poll_for(Duration::from_secs(1));
+    let before = run.states_between(t_kill, t_latched);
+    let after = run.states_between(t_latched, u64::MAX);
+    assert!(
+        before.last().is_some_and(|s| speed(s) > 0.0),
+        "the machine was too slow: the bridge's stop had ended before the e-stop latched \
+         ({} ms after the kill)",
+        (t_latched - t_kill) / 1_000_000
+    );
+    assert!(after.len() > 20, "{} states after the latch", after.len());
+    // Ticks counted by the states' own numbers: zero velocity from the first or second
+    // state after the latch on, with no decaying stop in between.
+    let first = after[0].tick;
+    let still = after
+        .iter()
+        .position(|s| speed(s) == 0.0)
+        .expect("the arm never stood still after the e-stop");
+    assert!(
+        after[still].tick <= first + 1,
+        "the arm moved for {} ticks after the e-stop latched: {:?}",
+        after[still].tick - first,
+        after[..still].iter().map(speed).collect::<Vec<_>>()
+    );
+    for s in &after[still..] {
+        assert_eq!(speed(s), 0.0, "tick {}", s.tick);
+    }
+    // The commands that stopped it are safety's own: no mapper command, zero, e-stop.
+    let own: Vec<&SafeCommand> = run
+        .rec
+        .safe_commands
+        .iter()
+        .filter(|c| c.t_ns > t_latched && c.mapper_t_ns == 0)
+        .collect();
+    assert!(!own.is_empty(), "safety answered no robot state itself");
+    for c in own {
+        assert!(
+            c.flags & safe_flags::ESTOP != 0 && !moving(c),
+            "tick {}: flags {:#x}",
+            c.tick,
+            c.flags
+        );
+    }
+    run.finish();
+}
+
+/// A scripted joystick (the stick held deflected once its start-up rest is over) SIGKILLed
+/// and restarted by the supervisor: its samples stop (a stale-joystick stop, then neutral
+/// required), and the restarted script's stick is deflected from its first tick on, so the
+/// arm stays stopped. Before, the restarted joystick's first sample, neutral and made before
+/// its first tick, re-armed safety, and the script's deflected stick moved the arm.
+#[test]
+fn a_restarted_scripted_joystick_does_not_rearm_the_arm() {
+    let _serial = serial();
+    let tag = "joyrestart";
+    let dir = temp_dir(tag);
+    let toml = "[joystick]\nsource = \"script\"\nscript = \"constant\"\namplitude = 0.4\n\
+                constant_axes = [1.0, 0.0]\n\n\
+                [supervisor]\nbackoff_initial_ms = 200\n\n\
+                [supervisor.restart]\njoystick = \"on-failure\"\n";
+    let mut run = start_with(tag, dir, toml, 8);
+    run.rec.poll_for(Duration::from_millis(500));
+    run.rec.poll();
+    let old = run.rec.pid_of(NodeRole::Joystick).unwrap();
+    let t_kill = now_ns();
+    scl_tests::send_signal(old, scl_tests::Signal::SIGKILL);
+    let restarted = |r: &Recorder| {
+        r.statuses
+            .iter()
+            .find(|s| {
+                s.role == NodeRole::Joystick as u32
+                    && s.pid != old
+                    && s.phase == phase::RUNNING
+                    && s.handled > 60
+            })
+            .map(|s| s.t_ns)
+    };
+    assert!(
+        run.rec
+            .poll_until(Duration::from_secs(20), |r| restarted(r).is_some()),
+        "the joystick was not restarted"
+    );
+    // The new process numbers its samples from 0.
+    let t_new = run.sample_after(t_kill, |j| j.seq == 0);
+    // Every command mapped from the new joystick's samples is a stop, waiting for neutral.
+    let new: Vec<&SafeCommand> = run
+        .rec
+        .safe_commands
+        .iter()
+        .filter(|c| c.joystick_t_ns >= t_new)
+        .collect();
+    assert!(new.len() > 40, "{} commands", new.len());
+    for c in &new {
+        assert!(
+            c.flags & safe_flags::AWAITING_NEUTRAL != 0 && !moving(c),
+            "tick {}: the restarted joystick's deflected stick moved the arm (flags {:#x})",
+            c.tick,
+            c.flags
+        );
     }
     run.finish();
 }

@@ -536,6 +536,14 @@ impl Source {
         }
     }
 
+    /// Whether the source has input of its own before the first robot tick: a device or
+    /// the keyboard does (the operator's), a script or a replay does not (each is a function
+    /// of the tick), so they publish nothing until the first tick: a neutral sample made up
+    /// before it would be taken for the operator's.
+    fn has_input_before_a_tick(&self) -> bool {
+        matches!(self, Self::Device(_) | Self::Keyboard(_))
+    }
+
     fn input(&mut self, now: Instant, tick: u64, gripper: Option<f64>) -> Input {
         match self {
             Self::Script { script, period_s } => Input {
@@ -602,7 +610,9 @@ pub fn run(
     let mut gripper = None;
     let input = source.input(t0, tick, gripper);
     send_estop(&mut estop_button, &input)?;
-    if let Some(s) = outbox.next(input, tick, true, now_ns()) {
+    if source.has_input_before_a_tick()
+        && let Some(s) = outbox.next(input, tick, true, now_ns())
+    {
         publisher.send(s)?;
         if let Some(r) = recorder.as_mut() {
             r.record(0.0, &input);
@@ -639,7 +649,9 @@ pub fn run(
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
             send_estop(&mut estop_button, &input)?;
-            if let Some(sample) = outbox.next(input, tick, new_state.is_some(), now_ns()) {
+            if (tick != NO_TICK || source.has_input_before_a_tick())
+                && let Some(sample) = outbox.next(input, tick, new_state.is_some(), now_ns())
+            {
                 publisher.send(sample)?;
                 if let Some(r) = recorder.as_mut() {
                     r.record(now.duration_since(t0).as_secs_f64(), &input);

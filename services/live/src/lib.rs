@@ -175,7 +175,7 @@ fn view_loop(
     counters: Arc<Counters>,
     clock: LogClock,
 ) {
-    scl_node::rt::lower_priority();
+    node_rt::rt::lower_priority();
     let mut out: Vec<VizMessage> = Vec::new();
     let mut json = Vec::with_capacity(1024);
     loop {
@@ -318,7 +318,7 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .thread_name("foxglove-ws")
-        .on_thread_start(scl_node::rt::lower_priority)
+        .on_thread_start(node_rt::rt::lower_priority)
         .enable_all()
         .build()
         .map_err(|e| LiveError::Thread(format!("cannot start the server's runtime: {e}")))?;

@@ -414,7 +414,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
         .spawn(move || {
             // The writer thread yields the CPU to everything else in the process and on the
             // machine.
-            scl_node::rt::lower_priority();
+            node_rt::rt::lower_priority();
             let side = SideChannels {
                 procs: procs_rx,
                 metas: metas_rx,

@@ -1,6 +1,13 @@
 //! The safety process: wakes on mapper commands, forwards the active mapper's command for the
 //! newest tick through the filter, as the one publisher of `SafeCommand`. Switches of the
 //! active mapper arrive on the safety-control topic and take effect at their tick.
+//!
+//! While the e-stop is latched, or when no mapper command has come for a period (a mapper
+//! dead or restarting), it also wakes on each robot state; with the e-stop latched it answers
+//! a state itself ([`SafetyFilter::step_unanswered`]: zero velocity) when no command for its
+//! tick has come [`ANSWER_AFTER`] of a period after the state was published, so the e-stop
+//! acts at the next tick whether a mapper is there or not. Other ticks without a command are
+//! left to the bridge, which counts them missed and stops the arm under control.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 /// Why the safety process stopped or could not start, each with the message a user sees.
@@ -19,9 +26,13 @@ pub enum SafetyNodeError {
 
 use std::time::Duration;
 
-use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
+use ipc_types::{
+    MapperCommand, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags,
+    phase, safe_flags, safety_state, time::now_ns,
+};
 use safety::{SafetyConfig, SafetyFilter};
-use transport::Graph;
+use transport::{Graph, TopicPublisher, TopicSubscriber};
 
 use scl_config::{FaultConfig, GraphSection, RtRole};
 use transport::signals;
@@ -31,9 +42,17 @@ use transport::signals;
 /// command; this only shows it meanwhile in the heartbeat).
 const NO_COMMANDS_NS: u64 = 100_000_000;
 
-/// The names of the rules set in `flags`, comma-separated.
-fn rule_names(flags: u32) -> String {
-    ipc_types::safe_flags::NAMES
+/// With the e-stop latched, safety answers a robot state itself when no mapper command for
+/// its tick has come this share of a period after the state was published: well before the
+/// bridge's command deadline (`[bridge] command_deadline`, 0.6 of the period by default).
+pub const ANSWER_AFTER: f64 = 0.25;
+
+/// The longest wait for a command (also how often the heartbeat goes out without one).
+const MAX_WAIT: Duration = Duration::from_millis(100);
+
+/// The names of the bits set in `flags`, comma-separated.
+fn bit_names(flags: u32, names: &[&str]) -> String {
+    names
         .iter()
         .enumerate()
         .filter(|(bit, _)| flags & (1 << bit) != 0)
@@ -45,15 +64,267 @@ fn rule_names(flags: u32) -> String {
 fn safety_state_bits(f: &SafetyFilter) -> u32 {
     let mut bits = 0;
     if f.estopped() {
-        bits |= ipc_types::safety_state::ESTOP;
+        bits |= safety_state::ESTOP;
     }
     if f.held() {
-        bits |= ipc_types::safety_state::HOLD;
+        bits |= safety_state::HOLD;
     }
     if f.awaiting_neutral() {
-        bits |= ipc_types::safety_state::AWAITING_NEUTRAL;
+        bits |= safety_state::AWAITING_NEUTRAL;
     }
     bits
+}
+
+/// Hands every pending message of a control-plane topic to `f`, oldest first.
+fn for_each_pending<T, E: Into<transport::IoError>>(
+    prefix: &Prefix,
+    topic: &str,
+    mut receive: impl FnMut() -> Result<Option<T>, E>,
+    mut f: impl FnMut(T),
+) -> Result<(), SafetyNodeError> {
+    loop {
+        match receive() {
+            Ok(Some(m)) => f(m),
+            Ok(None) => return Ok(()),
+            Err(e) => {
+                return Err(SafetyNodeError::Ipc(transport::IpcError::Io {
+                    service: prefix.service(topic),
+                    op: "receive",
+                    source: e.into(),
+                }));
+            }
+        }
+    }
+}
+
+/// The supervisor's control message: the active mapper from its tick, the hold, and a
+/// relayed e-stop when its counter changed since `estop_seq`.
+fn apply_control(filter: &mut SafetyFilter, c: &SafetyControl, estop_seq: &mut u32) {
+    tracing::info!(
+        mapper = c.active_mapper,
+        from_tick = c.from_tick,
+        hold = c.hold,
+        "control from the supervisor"
+    );
+    filter.request_switch(c.active_mapper, c.from_tick);
+    filter.set_hold(c.hold != 0);
+    if c.estop_seq != *estop_seq {
+        *estop_seq = c.estop_seq;
+        if c.estop != 0 {
+            tracing::warn!("E-STOP latched (relayed by the supervisor)");
+            filter.estop();
+        } else {
+            filter.reset();
+        }
+    }
+}
+
+/// `scl estop` / `scl reset` (or a joystick's e-stop button).
+fn apply_estop(filter: &mut SafetyFilter, e: &EstopCommand) {
+    match e.action {
+        estop_action::ESTOP => {
+            tracing::warn!(from_pid = e.source_pid, "E-STOP latched");
+            filter.estop();
+        }
+        estop_action::RESET => {
+            tracing::info!(from_pid = e.source_pid, "e-stop reset");
+            filter.reset();
+        }
+        other => tracing::warn!(action = other, "unknown e-stop action ignored"),
+    }
+}
+
+/// The data-plane ports of the loop.
+struct Ports {
+    commands: TopicSubscriber<MapperCommand>,
+    states: TopicSubscriber<RobotState>,
+    out: TopicPublisher<SafeCommand>,
+    status: TopicPublisher<NodeStatus>,
+}
+
+/// What the loop remembers between wake-ups.
+struct Forwarder {
+    filter: SafetyFilter,
+    st: NodeStatus,
+    /// The newest robot state.
+    state: Option<RobotState>,
+    /// The tick of the last command published.
+    last_tick: u64,
+    /// The stop reasons last logged.
+    last_stop_flags: u32,
+    /// When the filter last stepped.
+    last_step_ns: u64,
+    /// When the last command of the active mapper arrived.
+    last_command_ns: u64,
+    period_ns: u64,
+    /// `[safety] deadman`, for the log.
+    deadman: bool,
+    /// `[faults] safety_stall_at_tick`.
+    stall_at_tick: u64,
+}
+
+impl Forwarder {
+    fn new(filter: SafetyFilter, period_s: f64, stall_at_tick: u64) -> Self {
+        let now = now_ns();
+        Self {
+            deadman: filter.config().deadman,
+            filter,
+            st: NodeStatus::new(NodeRole::Safety, phase::READY, now),
+            state: None,
+            last_tick: NO_TICK,
+            last_stop_flags: 0,
+            last_step_ns: now,
+            last_command_ns: now,
+            period_ns: (period_s * 1e9).round() as u64,
+            stall_at_tick,
+        }
+    }
+
+    /// When safety answers the newest state itself (the e-stop latched, no command for its
+    /// tick): [`ANSWER_AFTER`] of a period after it was published. `None` when there is
+    /// nothing to answer at `now`: no state, the e-stop not latched, the tick answered, or
+    /// the state a period old (the bridge has gone on without it).
+    fn answer_at(&self, now: u64) -> Option<u64> {
+        let s = self.state.as_ref()?;
+        (self.filter.estopped() && s.tick != self.last_tick && now < s.t_ns + self.period_ns)
+            .then(|| s.t_ns + (self.period_ns as f64 * ANSWER_AFTER) as u64)
+    }
+
+    /// No command of the active mapper for more than a period (none in flight either).
+    fn quiet(&self, now: u64) -> bool {
+        now.saturating_sub(self.last_command_ns) > self.period_ns
+    }
+
+    /// Waits for a mapper command, and for robot states too while the e-stop is latched or no
+    /// command has come for a period; returns whether something came or an answer is due.
+    fn wait(&self, p: &Ports) -> Result<bool, SafetyNodeError> {
+        let now = now_ns();
+        if !(self.quiet(now) || self.filter.estopped()) {
+            return Ok(p.commands.wait(MAX_WAIT)?);
+        }
+        let timeout = match self.answer_at(now) {
+            Some(at) if at <= now => return Ok(true),
+            Some(at) => Duration::from_nanos(at - now).min(MAX_WAIT),
+            None => MAX_WAIT,
+        };
+        let wakes: [&dyn ipc_types::graph::Wakeable; 2] = [&p.commands, &p.states];
+        let woke = ipc_types::wait_any(&wakes, timeout) != 0;
+        let now = now_ns();
+        Ok(woke || self.answer_at(now).is_some_and(|at| now >= at))
+    }
+
+    /// Nothing came: says in the heartbeat what state safety is in, so `scl estop` can
+    /// confirm and `scl status` shows it alive, and, after 100 ms without a command, that the
+    /// arm will wait for neutral input when they resume (a wait can also end without one: a
+    /// signal, another mapper joining).
+    fn idle(&mut self, rx_ns: u64) {
+        if rx_ns.saturating_sub(self.last_step_ns) > NO_COMMANDS_NS {
+            self.filter.interrupt();
+        }
+        self.st.t_ns = now_ns();
+        self.st.safety_state = safety_state_bits(&self.filter);
+    }
+
+    /// The command to publish now, if any: the active mapper's command for the newest
+    /// state's tick through the filter, or with the e-stop latched and none in time, safety's
+    /// own answer.
+    fn next(
+        &mut self,
+        p: &Ports,
+        rx_ns: u64,
+    ) -> Result<Option<(SafeCommand, Option<MapperCommand>)>, SafetyNodeError> {
+        if let Some(s) = p.states.latest()? {
+            self.state = Some(s);
+        }
+        let Some(state) = self.state else {
+            return Ok(None);
+        };
+        let active = self.filter.active_for_tick(state.tick);
+        let mut pending = None;
+        p.commands.drain(|c| {
+            if c.mapper_id == active && c.tick == state.tick {
+                pending = Some(*c);
+            }
+        })?;
+        if pending.is_some() {
+            self.last_command_ns = rx_ns;
+        }
+        let answer = self.answer_at(rx_ns).is_some_and(|at| rx_ns >= at);
+        if state.tick == self.last_tick || !(pending.is_some() || answer) {
+            return Ok(None);
+        }
+        self.last_tick = state.tick;
+        if self.stall_at_tick != 0 && state.tick == self.stall_at_tick {
+            tracing::warn!(tick = state.tick, "fault injection: safety stalls");
+            std::thread::sleep(Duration::from_nanos(self.period_ns * 6 / 5));
+        }
+        let t0 = now_ns();
+        self.last_step_ns = t0;
+        let mut safe = match &pending {
+            Some(cmd) => self.filter.step(cmd, &state, t0),
+            None => self.filter.step_unanswered(active, &state, t0),
+        };
+        // One reading for both, so `t_ns - compute_ns` is the filter's time argument exactly
+        // (a recording replays the step with it).
+        let t1 = now_ns();
+        safe.mapper_rx_ns = if pending.is_some() { rx_ns } else { 0 };
+        safe.compute_ns = t1 - t0;
+        safe.t_ns = t1;
+        self.st.mapper_id = active;
+        Ok(Some((safe, pending)))
+    }
+
+    /// Counts the published command in the heartbeat and logs what changed: restart
+    /// prevention waiting or released, the stop reasons (once per episode, not every tick).
+    fn published(&mut self, safe: &SafeCommand, mapper: Option<&MapperCommand>) {
+        let st = &mut self.st;
+        st.t_ns = safe.t_ns;
+        st.tick = safe.tick;
+        st.handled += 1;
+        st.rule_counts = self.filter.rule_counts();
+        let was_awaiting = st.safety_state & safety_state::AWAITING_NEUTRAL != 0;
+        st.safety_state = safety_state_bits(&self.filter);
+        if safe.flags & safe_flags::STOP != 0 {
+            st.faults += 1;
+        }
+        if self.filter.awaiting_neutral() != was_awaiting {
+            if was_awaiting {
+                tracing::info!(tick = safe.tick, "neutral input seen: motion allowed again");
+            } else {
+                tracing::warn!(
+                    tick = safe.tick,
+                    "waiting for neutral input: the arm moves again once the stick is at rest{}",
+                    if self.deadman {
+                        " and the deadman released and pressed again"
+                    } else {
+                        ""
+                    }
+                );
+            }
+        }
+        let stop_flags = if safe.flags & safe_flags::STOP != 0 {
+            safe.flags
+        } else {
+            0
+        };
+        if stop_flags != self.last_stop_flags {
+            if stop_flags != 0 {
+                let input = mapper.map_or_else(
+                    || "no mapper command for the tick".into(),
+                    |c| bit_names(c.flags, &mapper_flags::NAMES),
+                );
+                tracing::warn!(
+                    tick = safe.tick,
+                    rules = %bit_names(stop_flags, &safe_flags::NAMES),
+                    mapper = %input,
+                    "stopping the arm"
+                );
+            } else {
+                tracing::info!(tick = safe.tick, "stop cleared");
+            }
+            self.last_stop_flags = stop_flags;
+        }
+    }
 }
 
 /// Runs the safety process until a shutdown is requested.
@@ -67,181 +338,71 @@ pub fn run(
     let robot = graph_cfg.profile()?;
     // The workspace rule if enabled, every link against the others and the scene, and the
     // Cartesian speed caps.
-    let mut filter = SafetyFilter::for_graph(cfg.clone(), robot, period_s)
+    let filter = SafetyFilter::for_graph(cfg.clone(), robot, period_s)
         .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
-    let commands = graph.mapper_command_subscriber(true)?;
-    let states = graph.robot_state_subscriber(false)?;
+    let ports = Ports {
+        commands: graph.mapper_command_subscriber(true)?,
+        // Woken on only while the e-stop is latched or no mapper command comes.
+        states: graph.robot_state_subscriber(true)?,
+        // Fails if another safety process already publishes: the arm listens to one only.
+        out: graph.safe_command_publisher()?,
+        status: graph.status_publisher()?,
+    };
     let control = graph.safety_control_subscriber()?;
     let estops = graph.estop_subscriber()?;
-    // Fails if another safety process already publishes: the arm listens to one only.
-    let out = graph.safe_command_publisher()?;
-    let status = graph.status_publisher()?;
-    let mut st = NodeStatus::new(NodeRole::Safety, phase::READY, now_ns());
-    // A restarted safety learns the active mapper from the topic's history.
+    // A restarted safety learns the active mapper (and a relayed e-stop) from the topic's
+    // history.
     let mut estop_seq = 0;
-    let mut apply_control = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
-        while let Some(c) = control.receive().map_err(|e| {
-            SafetyNodeError::Ipc(transport::IpcError::Io {
-                service: prefix.service(ipc_types::control::SAFETY_CONTROL),
-                op: "receive",
-                source: e.into(),
-            })
-        })? {
-            tracing::info!(
-                mapper = c.active_mapper,
-                from_tick = c.from_tick,
-                hold = c.hold,
-                "control from the supervisor"
-            );
-            filter.request_switch(c.active_mapper, c.from_tick);
-            filter.set_hold(c.hold != 0);
-            if c.estop_seq != estop_seq {
-                estop_seq = c.estop_seq;
-                if c.estop != 0 {
-                    tracing::warn!("E-STOP latched (relayed by the supervisor)");
-                    filter.estop();
-                } else {
-                    filter.reset();
-                }
-            }
-        }
-        Ok(())
+    let mut apply_inputs = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
+        let control_topic = ipc_types::control::SAFETY_CONTROL;
+        for_each_pending(
+            prefix,
+            control_topic,
+            || control.receive().map(|m| m.map(|s| *s)),
+            |c| apply_control(filter, &c, &mut estop_seq),
+        )?;
+        for_each_pending(
+            prefix,
+            ipc_types::control::ESTOP,
+            || estops.receive().map(|m| m.map(|s| *s)),
+            |e| apply_estop(filter, &e),
+        )
     };
-    let apply_estop = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
-        while let Some(e) = estops.receive().map_err(|e| {
-            SafetyNodeError::Ipc(transport::IpcError::Io {
-                service: prefix.service(ipc_types::control::ESTOP),
-                op: "receive",
-                source: e.into(),
-            })
-        })? {
-            match e.action {
-                ipc_types::control::estop_action::ESTOP => {
-                    tracing::warn!(from_pid = e.source_pid, "E-STOP latched");
-                    filter.estop();
-                }
-                ipc_types::control::estop_action::RESET => {
-                    tracing::info!(from_pid = e.source_pid, "e-stop reset");
-                    filter.reset();
-                }
-                other => tracing::warn!(action = other, "unknown e-stop action ignored"),
-            }
-        }
-        Ok(())
-    };
-    apply_control(&mut filter)?;
-    apply_estop(&mut filter)?;
+    let mut f = Forwarder::new(filter, period_s, faults.safety_stall_at_tick);
+    apply_inputs(&mut f.filter)?;
     node_rt::rt::elevate(graph_cfg, RtRole::Safety);
-    st.mapper_id = filter.active_for_tick(0);
+    f.st.mapper_id = f.filter.active_for_tick(0);
     // At start-up too the arm waits for neutral input (restart prevention).
-    st.safety_state = safety_state_bits(&filter);
-    status.send(st)?;
+    f.st.safety_state = safety_state_bits(&f.filter);
+    ports.status.send(f.st)?;
     tracing::info!(
-        active_mapper = st.mapper_id,
+        active_mapper = f.st.mapper_id,
         "forwarding to {}",
-        out.service()
+        ports.out.service()
     );
-    st.phase = phase::RUNNING;
-    let mut state = None;
-    let mut last_tick = NO_TICK;
-    let mut last_stop_flags = 0;
-    let mut last_step_ns = now_ns();
+    f.st.phase = phase::RUNNING;
     while !signals::stop_requested() {
-        let woke = commands.wait(Duration::from_millis(100))?;
+        let woke = f.wait(&ports)?;
         let rx_ns = now_ns();
-        apply_control(&mut filter)?;
-        apply_estop(&mut filter)?;
-        if !woke {
-            // No commands (no mapper, no ticks): still say what state safety is in, so
-            // `scl estop` can confirm and `scl status` shows it alive, and, after 100 ms
-            // without a command, that the arm will wait for neutral input when they resume
-            // (a wait can also end without one: a signal, another mapper joining).
-            if rx_ns.saturating_sub(last_step_ns) > NO_COMMANDS_NS {
-                filter.interrupt();
+        apply_inputs(&mut f.filter)?;
+        let next = if woke { f.next(&ports, rx_ns)? } else { None };
+        match next {
+            Some((safe, cmd)) => {
+                ports.out.send(safe)?;
+                f.published(&safe, cmd.as_ref());
+                ports.status.send(f.st)?;
             }
-            st.t_ns = now_ns();
-            st.safety_state = safety_state_bits(&filter);
-            status.send(st)?;
-            continue;
-        }
-        if let Some(s) = states.latest()? {
-            state = Some(s);
-        }
-        let Some(state) = state else {
-            continue;
-        };
-        let active = filter.active_for_tick(state.tick);
-        let mut pending = None;
-        commands.drain(|c| {
-            if c.mapper_id == active && c.tick == state.tick {
-                pending = Some(*c);
+            // Nothing to forward: with no command for a while, the heartbeat says so.
+            None if !woke || f.quiet(rx_ns) => {
+                f.idle(rx_ns);
+                ports.status.send(f.st)?;
             }
-        })?;
-        let Some(cmd) = pending else {
-            continue;
-        };
-        if cmd.tick == last_tick {
-            continue;
+            None => {}
         }
-        last_tick = cmd.tick;
-        if faults.safety_stall_at_tick != 0 && cmd.tick == faults.safety_stall_at_tick {
-            tracing::warn!(tick = cmd.tick, "fault injection: safety stalls");
-            std::thread::sleep(Duration::from_secs_f64(1.2 * period_s));
-        }
-        let t0 = now_ns();
-        last_step_ns = t0;
-        let mut safe = filter.step(&cmd, &state, t0);
-        // One reading for both, so `t_ns - compute_ns` is the filter's time argument exactly
-        // (a recording replays the step with it).
-        let t1 = now_ns();
-        safe.mapper_rx_ns = rx_ns;
-        safe.compute_ns = t1 - t0;
-        safe.t_ns = t1;
-        out.send(safe)?;
-        st.t_ns = safe.t_ns;
-        st.tick = safe.tick;
-        st.handled += 1;
-        st.mapper_id = active;
-        st.rule_counts = filter.rule_counts();
-        let was_awaiting = st.safety_state & ipc_types::safety_state::AWAITING_NEUTRAL != 0;
-        st.safety_state = safety_state_bits(&filter);
-        if safe.flags & ipc_types::safe_flags::STOP != 0 {
-            st.faults += 1;
-        }
-        if filter.awaiting_neutral() != was_awaiting {
-            if was_awaiting {
-                tracing::info!(tick = safe.tick, "neutral input seen: motion allowed again");
-            } else {
-                tracing::warn!(
-                    tick = safe.tick,
-                    "waiting for neutral input: the arm moves again once the stick is at rest{}",
-                    if cfg.deadman {
-                        " and the deadman released and pressed again"
-                    } else {
-                        ""
-                    }
-                );
-            }
-        }
-        // Say when the set of stop reasons changes, not every tick of a stop.
-        let stop_flags = if safe.flags & ipc_types::safe_flags::STOP != 0 {
-            safe.flags
-        } else {
-            0
-        };
-        if stop_flags != last_stop_flags {
-            if stop_flags != 0 {
-                tracing::warn!(tick = safe.tick, rules = %rule_names(stop_flags), "stopping the arm");
-            } else {
-                tracing::info!(tick = safe.tick, "stop cleared");
-            }
-            last_stop_flags = stop_flags;
-        }
-        status.send(st)?;
     }
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    status.send(st)?;
+    f.st.phase = phase::STOPPING;
+    f.st.t_ns = now_ns();
+    ports.status.send(f.st)?;
     Ok(())
 }
