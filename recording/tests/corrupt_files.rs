@@ -77,7 +77,10 @@ fn record_offsets(bytes: &[u8]) -> Vec<usize> {
         if op == 0x0F {
             break;
         }
-        match usize::try_from(len).ok().and_then(|l| (at + 9).checked_add(l)) {
+        match usize::try_from(len)
+            .ok()
+            .and_then(|l| (at + 9).checked_add(l))
+        {
             Some(next) => at = next,
             None => break,
         }

@@ -187,6 +187,15 @@ impl Recording {
         })?;
         r.stopped = summary.stopped;
         r.undecodable = undecodable;
+        if r.safe.is_empty()
+            && let Some(stopped) = &r.stopped
+        {
+            // Nothing readable before the damage: say where the file stopped reading.
+            return Err(ReplayError::Incomplete {
+                path: path.to_owned(),
+                stopped: stopped.clone(),
+            });
+        }
         if r.safe.is_empty() {
             return Err(ReplayError::Empty {
                 path: path.to_owned(),

@@ -58,7 +58,11 @@ fn without_tests(text: &str) -> &str {
     let mut at = 0;
     while let Some(i) = text[at..].find("#[cfg(test)]") {
         let start = at + i;
-        let rest = text[start + "#[cfg(test)]".len()..].trim_start();
+        let mut rest = text[start + "#[cfg(test)]".len()..].trim_start();
+        // Further attributes of the same item (`#[allow(...)]`).
+        while rest.starts_with("#[") {
+            rest = rest.find('\n').map_or("", |n| rest[n..].trim_start());
+        }
         if rest.starts_with("mod ") {
             return &text[..start];
         }
@@ -110,4 +114,6 @@ fn test_modules_are_cut_off() {
         without_tests(text),
         "fn a() {}\n#[cfg(test)]\nfn helper() {}\n"
     );
+    let with_attribute = "fn a() {}\n#[cfg(test)]\n#[allow(clippy::unwrap_used)]\nmod tests {}\n";
+    assert_eq!(without_tests(with_attribute), "fn a() {}\n");
 }

@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use clap::Subcommand;
 use learning::train::TrainConfig;
 use mapper::model::ModelKind;
-use clap::Subcommand;
 use scl::SclError;
 
 /// `scl demos`'s options.
