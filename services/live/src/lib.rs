@@ -478,7 +478,7 @@ mod tests {
             .unwrap();
         let port = server.port();
         assert_eq!(
-            handshake(port, client::SUBPROTOCOL),
+            handshake(port, viz::client::SUBPROTOCOL),
             (101, Some("foxglove.sdk.v1".to_owned()))
         );
         assert_eq!(handshake(port, "foxglove.websocket.v1"), (400, None));

@@ -76,7 +76,7 @@ fn safety_state_bits(f: &SafetyFilter) -> u32 {
 }
 
 /// Hands every pending message of a control-plane topic to `f`, oldest first.
-fn for_each_pending<T, E: Into<transport::IoError>>(
+fn for_each_pending<T, E: Into<transport::graph::IoError>>(
     prefix: &Prefix,
     topic: &str,
     mut receive: impl FnMut() -> Result<Option<T>, E>,
@@ -207,8 +207,8 @@ impl Forwarder {
             Some(at) => Duration::from_nanos(at - now).min(MAX_WAIT),
             None => MAX_WAIT,
         };
-        let wakes: [&dyn ipc_types::graph::Wakeable; 2] = [&p.commands, &p.states];
-        let woke = ipc_types::wait_any(&wakes, timeout) != 0;
+        let wakes: [&dyn transport::graph::Wakeable; 2] = [&p.commands, &p.states];
+        let woke = transport::wait_any(&wakes, timeout) != 0;
         let now = now_ns();
         Ok(woke || self.answer_at(now).is_some_and(|at| now >= at))
     }
