@@ -23,11 +23,13 @@ pub(crate) struct UpArgs {
     pub(crate) json: bool,
     /// Serve this model file (or `bundled`, `modeswitch[:key=value,...]` for Cartesian
     /// mode switching, or the drill map `constant:qdot=v1,...,v6`: that joint velocity in
-    /// rad/s whenever safety lets it, whatever the stick, each within the URDF's limits)
-    /// instead of the config's.
+    /// rad/s whenever safety lets it, whatever the stick, each within the URDF's limits, or
+    /// the go-to map `goto:pose=home` / `goto:q=q1,...,q6[;speed=0.3]`: to a named pose or a
+    /// joint vector on a straight line in joint space) instead of the config's.
     #[arg(long, value_name = "FILE")]
     pub(crate) model: Option<String>,
-    /// Joystick script instead of the config's: `circle` or `step`.
+    /// Joystick script instead of the config's: `circle`, `step`, or `constant` (the
+    /// config's `[joystick] constant_axes` held).
     #[arg(long)]
     pub(crate) script: Option<String>,
     /// Joystick source instead of the config's: `script`, `evdev`, `keyboard`, `replay`,
