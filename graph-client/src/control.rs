@@ -36,6 +36,7 @@ pub fn swap(
             cap: ipc_types::control::TEXT_CAP,
         });
     }
+    crate::require_graph(prefix)?;
     let graph = Graph::join(prefix, &format!("swap-{}", std::process::id()))?;
     let req = ControlRequest {
         kind: request_kind::SWAP,
@@ -73,6 +74,7 @@ pub fn estop(
     timeout: Duration,
 ) -> Result<Option<u32>, ControlError> {
     use ipc_types::control::{EstopCommand, estop_action};
+    crate::require_graph(prefix)?;
     let graph = Graph::join_with(prefix, &format!("estop-{}", std::process::id()), transport)?;
     let status = graph.status_subscriber()?;
     let publisher = graph.estop_publisher()?;
@@ -211,6 +213,7 @@ pub fn status(
     listen: Duration,
     box_names: &[String],
 ) -> Result<GraphStatus, ControlError> {
+    crate::require_graph(prefix)?;
     let me = format!("status-{}", std::process::id());
     let graph = Graph::join_with(prefix, &me, transport)?;
     let sub = graph.status_subscriber()?;

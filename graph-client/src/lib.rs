@@ -29,7 +29,29 @@ pub enum ControlError {
         /// The request's text capacity.
         cap: usize,
     },
+    /// No process of the graph is alive: nothing to ask, and joining would leave the graph's
+    /// shared memory behind.
+    #[error(
+        "no graph is running under the prefix `{prefix}` (no live process); start one with `scl up --prefix {prefix}`"
+    )]
+    NoGraph {
+        /// The graph prefix asked for.
+        prefix: String,
+    },
     /// The e-stop command could not be sent.
     #[error("cannot send the e-stop command: {0}")]
     SendEstop(#[source] iceoryx2::port::SendError),
+}
+
+/// Fails with [`ControlError::NoGraph`] when no process of graph `prefix` is alive, without
+/// joining the graph (a node would create the graph's shared memory, which a graph that is
+/// not there never cleans up).
+pub fn require_graph(prefix: &ipc_types::Prefix) -> Result<(), ControlError> {
+    let (alive, _dead) = transport::graph::census(prefix)?;
+    if alive == 0 {
+        return Err(ControlError::NoGraph {
+            prefix: prefix.as_str().to_owned(),
+        });
+    }
+    Ok(())
 }

@@ -12,7 +12,7 @@ use ipc_types::{
 use kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, Signal, assert_stop_within_two_ticks, joint_reach_pca,
-    run_polling, scl, serial, temp_dir, unique_prefix, wait_clean,
+    leftovers, run_polling, scl, serial, temp_dir, unique_prefix, wait_clean,
 };
 
 const DT: f64 = 0.025;
@@ -651,4 +651,30 @@ fn ctrl_c_stops_the_bridge_first_and_leaves_nothing_behind() {
         wait_clean(&prefix, Duration::from_secs(5)),
         Vec::<String>::new()
     );
+}
+
+/// A command that asks a graph (`status`, `estop`, `reset`, `swap`, `top --once`) on a prefix
+/// where none runs fails, saying so, and leaves nothing in shared memory (before: each exited
+/// having created the prefix's iceoryx2 files, and `top --once` exited 0).
+#[test]
+fn commands_on_a_prefix_with_no_graph_fail_and_leave_no_shared_memory() {
+    let cases: [&[&str]; 6] = [
+        &["status"],
+        &["status", "--json"],
+        &["estop"],
+        &["reset"],
+        &["swap", "bundled"],
+        &["top", "--once"],
+    ];
+    for args in cases {
+        let prefix = unique_prefix("nograph");
+        let out = scl(&prefix).args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "scl {args:?} succeeded: {stderr}");
+        assert!(
+            stderr.contains("no graph is running under the prefix"),
+            "scl {args:?}: {stderr}"
+        );
+        assert_eq!(leftovers(&prefix), Vec::<String>::new(), "scl {args:?}");
+    }
 }

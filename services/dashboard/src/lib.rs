@@ -1003,6 +1003,7 @@ pub fn cli(
     box_names: Vec<String>,
 ) -> Result<std::process::ExitCode, TopError> {
     if args.once {
+        graph_client::require_graph(prefix)?;
         let feed = Feed::open(prefix)?;
         let mut model =
             Model::new(prefix.as_str(), robot.limits().clone()).with_box_names(box_names);
