@@ -64,26 +64,32 @@ class Chain:
 
     def position(self, q: Sequence[float]) -> np.ndarray:
         """The tip's position in the base frame (m)."""
+        return self.position_and_jacobian(q)[0]
+
+    def jacobian(self, q: Sequence[float]) -> np.ndarray:
+        """The tip position's Jacobian (3 x n)."""
+        return self.position_and_jacobian(q)[1]
+
+    def position_and_jacobian(self, q: Sequence[float]) -> Tuple[np.ndarray, np.ndarray]:
+        """The tip's position (m) and its Jacobian (3 x n) in one pass down the chain: a
+        revolute joint's column is its axis crossed with the lever from the joint to the tip.
+        (In one pass, not by differences: the agent answers every tick, and on a loaded
+        machine a slow answer is a stale-joystick stop.)"""
         t = np.eye(4)
+        axes, origins = [], []
         i = 0
         for origin, moving, axis in self.steps:
             t = t @ origin
             if moving:
+                axes.append(t[:3, :3] @ axis)
+                origins.append(t[:3, 3].copy())
                 r = np.eye(4)
                 r[:3, :3] = _rotation(axis, q[i])
                 t = t @ r
                 i += 1
-        return t[:3, 3]
-
-    def jacobian(self, q: Sequence[float], eps: float = 1e-6) -> np.ndarray:
-        """The tip position's Jacobian (3 x n), by central differences."""
-        q = np.asarray(q, dtype=float)
-        cols = []
-        for i in range(self.n):
-            d = np.zeros_like(q)
-            d[i] = eps
-            cols.append((self.position(q + d) - self.position(q - d)) / (2 * eps))
-        return np.stack(cols, axis=1)
+        tip = t[:3, 3]
+        jac = np.stack([np.cross(a, tip - o) for a, o in zip(axes, origins)], axis=1)
+        return tip, jac
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -175,9 +181,15 @@ def run(args: argparse.Namespace) -> dict:
         ticks = 0
         switches = 0
         stalled = 0
-        probe = [(0.6, 0.0), (0.0, 0.6)]
+        # Probing actions for learning the map's effect anew: both axes, both signs, so a
+        # probe leaves the tool about where it was.
+        probe = [(0.6, 0.0), (0.0, 0.6), (-0.6, 0.0), (0.0, -0.6)]
         error = best_error = float("inf")
         best_tick = 0
+        # Ticks the agent drove the arm (not stopped by safety, waiting for neutral): the
+        # patience counts only these, so a loaded machine's stale-input stops do not end
+        # the run early.
+        driving = best_driving = 0
         settled_from = 0
         idle = 0
         neutral_passes = 0
@@ -198,13 +210,13 @@ def run(args: argparse.Namespace) -> dict:
                 if (active is None or c.mapper_id == active) and not c.flags & usable and fresh:
                     est.add(c.action, c.qdot_rad_s)
             q = np.array(s.q())
-            p = chain.position(q)
+            p, jac = chain.position_and_jacobian(q)
             error = float(np.linalg.norm(goal - p))
             if start_error is None:
                 start_error = error
             if error < best_error - 0.001:
-                best_error, best_tick = error, ticks
-            stuck = ticks - best_tick > args.patience / DT
+                best_error, best_tick, best_driving = error, ticks, driving
+            stuck = driving - best_driving > args.patience / DT
             if error < args.tolerance or stuck or time.monotonic() - t0 > args.timeout:
                 break
             if args.verbose and ticks % 40 == 0:
@@ -217,11 +229,12 @@ def run(args: argparse.Namespace) -> dict:
                 op.publish((0.0, 0.0))
                 neutral_passes += 1
                 continue
+            driving += 1
             h = est.h()
             if h is None:
-                op.publish(probe[ticks % 2])
+                op.publish(probe[ticks % 4])
                 continue
-            b_mat = chain.jacobian(q) @ h  # tool velocity per unit action (3 x 2)
+            b_mat = jac @ h  # tool velocity per unit action (3 x 2)
             cands = sample_actions(rng, args.samples)
             predicted = p + DT * args.lookahead * (cands @ b_mat.T)
             dist = np.linalg.norm(predicted - goal, axis=1)
@@ -242,14 +255,16 @@ def run(args: argparse.Namespace) -> dict:
                 switches += 1
                 stalled = 0
                 continue
-            if np.linalg.norm(best) < 0.05:
+            if np.linalg.norm(best) < 0.05 and not has_modes:
                 # Standing still cannot teach the estimate anything: if the map seems to
-                # offer nothing, look again (probe both axes, learn anew).
+                # offer nothing, look again (probe both axes, learn anew). (A map with modes
+                # offers nothing in a mode that cannot serve the goal: the mode button above
+                # answers that.)
                 idle += 1
                 if idle > 3:
                     est.reset()
                     idle = 0
-                    op.publish(probe[ticks % 2])
+                    op.publish(probe[ticks % 4])
                     continue
             else:
                 idle = 0
@@ -284,7 +299,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--tolerance", type=float, default=0.02, help="reached within this (m)")
     ap.add_argument("--timeout", type=float, default=60.0, help="give up after this (s)")
     ap.add_argument("--patience", type=float, default=5.0,
-                    help="stop when the error has not improved by 1 mm for this long (s)")
+                    help="stop when the error has not improved by 1 mm for this long (s of "
+                    "driving: ticks where safety held the arm do not count)")
     ap.add_argument("--samples", type=int, default=64, help="actions sampled per tick")
     ap.add_argument("--lookahead", type=float, default=4.0,
                     help="ticks of motion the greedy choice looks ahead")

@@ -27,6 +27,31 @@ def run_example(name: str, *args: str, timeout: float = 180) -> subprocess.Compl
     return out
 
 
+def test_reach_jacobian_is_the_derivative_of_the_tool_position() -> None:
+    """The agent's one-pass Jacobian (axis x lever) agrees with central differences of its
+    forward kinematics."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("reach", EXAMPLES / "reach.py")
+    reach = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(reach)
+    chain = reach.Chain(REPO / "robots" / "gen3_lite.urdf")
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(-2.0, 2.0, chain.n)
+        p, jac = chain.position_and_jacobian(q)
+        eps = 1e-6
+        diff = np.stack(
+            [
+                (chain.position(q + eps * e) - chain.position(q - eps * e)) / (2 * eps)
+                for e in np.eye(chain.n)
+            ],
+            axis=1,
+        )
+        assert np.allclose(p, chain.position(q))
+        assert np.abs(diff - jac).max() < 1e-6, (q, diff, jac)
+
+
 def test_reach_drives_the_tool_to_the_goal_with_mode_switching(tmp_path: Path) -> None:
     """Mode switching spans every tool direction, one mode at a time: the goal is 28 cm
     below the start, out of reach of the first mode (x-y), so getting within 10 cm of it

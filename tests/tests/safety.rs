@@ -608,3 +608,19 @@ fn the_drill_folding_the_wrist_back_stops_at_the_stop_distance_and_backs_out() {
     let closest = whole_arm_drill("drillfold", [0.0, 0.0, 0.4, 0.0, 0.0, 0.0]);
     println!("closest pair distance, fold drill: {closest:.4} m");
 }
+
+/// Safety does not listen on robot states (it reads them when it needs them, at times it
+/// computes): every listener is a wake-up the bridge pays on every tick. In the default
+/// graph the mapper and the scripted joystick wait on states, nothing else. Before, safety
+/// held a third listener it used only while the e-stop was latched or the mapper silent.
+#[test]
+fn safety_does_not_listen_on_robot_states() {
+    let _serial = serial();
+    let mut listeners = None;
+    let run = run_graph("nolisten", "", 2, 10, |prefix, _| {
+        let graph = transport::Graph::join(prefix, "test-listeners").unwrap();
+        listeners = Some(graph.robot_state_listeners().unwrap());
+    });
+    assert_eq!(listeners, Some(2), "listeners of the robot states");
+    run.finish();
+}

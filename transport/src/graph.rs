@@ -413,6 +413,17 @@ impl Graph {
     ) -> Result<TopicSubscriber<RobotState>, IpcError> {
         self.subscriber(&ROBOT_STATE, wake)
     }
+    /// How many processes wait on robot states (listeners of the topic's event): each is a
+    /// wake-up the bridge pays on every tick. Always 0 over [`Transport::Uds`], whose
+    /// subscribers are woken by the datagram itself.
+    pub fn robot_state_listeners(&self) -> Result<usize, IpcError> {
+        if self.transport == Transport::Uds {
+            return Ok(0);
+        }
+        use iceoryx2::service::port_factory::PortFactory;
+        let (_, ev) = self.event(&ROBOT_STATE)?;
+        Ok(ev.dynamic_config().number_of_listeners())
+    }
     /// Publisher of mapper commands.
     pub fn mapper_command_publisher(&self) -> Result<TopicPublisher<MapperCommand>, IpcError> {
         self.publisher(&MAPPER_COMMAND)

@@ -3,11 +3,16 @@
 //! active mapper arrive on the safety-control topic and take effect at their tick.
 //!
 //! While the e-stop is latched, or when no mapper command has come for a period (a mapper
-//! dead or restarting), it also wakes on each robot state; with the e-stop latched it answers
-//! a state itself ([`SafetyFilter::step_unanswered`]: zero velocity) when no command for its
-//! tick has come [`ANSWER_AFTER`] of a period after the state was published, so the e-stop
-//! acts at the next tick whether a mapper is there or not. Other ticks without a command are
-//! left to the bridge, which counts them missed and stops the arm under control.
+//! dead or restarting), it also wakes once per tick, [`ANSWER_AFTER`] of a period after each
+//! robot state is due (the newest state's time plus whole periods); with the e-stop latched
+//! it answers the state itself ([`SafetyFilter::step_unanswered`]: zero velocity) when no
+//! command for its tick has come by then, so the e-stop acts at the next tick whether a
+//! mapper is there or not. Other ticks without a command are left to the bridge, which
+//! counts them missed and stops the arm under control.
+//!
+//! Safety does not listen on robot states: a listener is a wake-up the bridge pays on every
+//! tick, and safety needs states only in those rare cases, when it reads them at times it
+//! can compute (the whole-graph test `safety_does_not_listen_on_robot_states` keeps it so).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 /// Why the safety process stopped or could not start, each with the message a user sees.
@@ -195,22 +200,54 @@ impl Forwarder {
         now.saturating_sub(self.last_command_ns) > self.period_ns
     }
 
-    /// Waits for a mapper command, and for robot states too while the e-stop is latched or no
-    /// command has come for a period; returns whether something came or an answer is due.
-    fn wait(&self, p: &Ports) -> Result<bool, SafetyNodeError> {
+    /// When to look for the next robot state, if safety answers states now (the e-stop
+    /// latched or no command for a period): [`ANSWER_AFTER`] of a period after the state
+    /// that follows the newest one is due. When that state is late, every twentieth of a
+    /// period until it comes; when none has come for three periods (no bridge), once a
+    /// period. Without a state yet, a period from `now`.
+    fn next_look(&self, now: u64) -> u64 {
+        let period = self.period_ns.max(1);
+        let Some(s) = self.state.as_ref() else {
+            return now + period;
+        };
+        let due = s.t_ns + period + (period as f64 * ANSWER_AFTER) as u64;
+        if due > now {
+            due
+        } else if now < s.t_ns + 3 * period {
+            now + period / 20
+        } else {
+            now + period
+        }
+    }
+
+    /// Waits for a mapper command, and while the e-stop is latched or no command has come
+    /// for a period, also until the next state is due ([`Self::next_look`]): returns
+    /// whether a command came or an answer is due.
+    fn wait(&mut self, p: &Ports) -> Result<bool, SafetyNodeError> {
         let now = now_ns();
         if !(self.quiet(now) || self.filter.estopped()) {
             return Ok(p.commands.wait(MAX_WAIT)?);
         }
+        self.take_newest_state(p)?;
         let timeout = match self.answer_at(now) {
             Some(at) if at <= now => return Ok(true),
-            Some(at) => Duration::from_nanos(at - now).min(MAX_WAIT),
-            None => MAX_WAIT,
+            Some(at) => at - now,
+            None => self.next_look(now) - now,
         };
-        let wakes: [&dyn transport::graph::Wakeable; 2] = [&p.commands, &p.states];
-        let woke = transport::wait_any(&wakes, timeout) != 0;
+        let woke = p
+            .commands
+            .wait(Duration::from_nanos(timeout).min(MAX_WAIT))?;
+        self.take_newest_state(p)?;
         let now = now_ns();
         Ok(woke || self.answer_at(now).is_some_and(|at| now >= at))
+    }
+
+    /// Keeps the newest robot state published since the last look, if any.
+    fn take_newest_state(&mut self, p: &Ports) -> Result<(), SafetyNodeError> {
+        if let Some(s) = p.states.latest()? {
+            self.state = Some(s);
+        }
+        Ok(())
     }
 
     /// Nothing came: says in the heartbeat what state safety is in, so `scl estop` can
@@ -233,9 +270,7 @@ impl Forwarder {
         p: &Ports,
         rx_ns: u64,
     ) -> Result<Option<(SafeCommand, Option<MapperCommand>)>, SafetyNodeError> {
-        if let Some(s) = p.states.latest()? {
-            self.state = Some(s);
-        }
+        self.take_newest_state(p)?;
         let Some(state) = self.state else {
             return Ok(None);
         };
@@ -343,8 +378,8 @@ pub fn run(
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let ports = Ports {
         commands: graph.mapper_command_subscriber(true)?,
-        // Woken on only while the e-stop is latched or no mapper command comes.
-        states: graph.robot_state_subscriber(true)?,
+        // Read, never waited on: see the module's documentation.
+        states: graph.robot_state_subscriber(false)?,
         // Fails if another safety process already publishes: the arm listens to one only.
         out: graph.safe_command_publisher()?,
         status: graph.status_publisher()?,
