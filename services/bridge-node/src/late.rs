@@ -7,6 +7,16 @@
 //! waiting to be run, the bridge among them when it began the tick late, which the graph
 //! cannot keep. The bridge's own hold-ups (periods its process slept through) are told apart
 //! by its clock, not here.
+//!
+//! A missed tick whose command never comes is the machine's too when the chain skipped it:
+//! the next command of the same mapper came (for a later tick) with the chain's work within
+//! the budget. The chain answers every state it is run for, newest first; it leaves one out
+//! only when it was not run between that state and the next. A command of another mapper
+//! proves nothing (a live swap that loses a tick is the graph's miss), nor does one after
+//! more than [`SKIP_MAX`] ticks the bridge began on time and got no command for (a chain
+//! silent while the bridge runs is a mapper or safety that died and came back under the
+//! same id, not one the machine held up: a held-up machine holds the bridge up too, and the
+//! ticks it loses that way are not counted here).
 
 use std::collections::VecDeque;
 
@@ -14,6 +24,9 @@ use ipc_types::SafeCommand;
 
 /// How long after its deadline a late command is still matched (ns), whatever the rate.
 const KEEP_NS: u64 = 1_000_000_000;
+/// A command after at most this many missed ticks in a row that never got their own (the
+/// bridge on time for each) can settle those misses as the machine's.
+pub const SKIP_MAX: usize = 2;
 /// At most this many missed ticks are remembered (a graph that misses every tick at 1 kHz
 /// keeps a quarter of a second of them).
 const KEEP_MAX: usize = 256;
@@ -25,6 +38,8 @@ struct Awaiting {
     ideal_ns: u64,
     state_t_ns: u64,
     deadline_ns: u64,
+    /// The mapper of the last command received before the miss.
+    mapper_before: Option<u32>,
 }
 
 /// What a late command says about its tick's miss.
@@ -43,6 +58,9 @@ pub struct Verdict {
     /// The time the chain has on the ideal grid: the tick's ideal start to its command
     /// deadline (ns).
     pub budget_ns: u64,
+    /// No command came for the tick: the chain answered a later state first (the stamps
+    /// are that later command's; `late_ns` is 0).
+    pub skipped: bool,
 }
 
 impl Verdict {
@@ -57,6 +75,8 @@ impl Verdict {
 #[derive(Debug, Default)]
 pub struct LateCommands {
     awaiting: VecDeque<Awaiting>,
+    /// The mapper of the last command received.
+    last_mapper: Option<u32>,
 }
 
 impl LateCommands {
@@ -74,7 +94,35 @@ impl LateCommands {
             ideal_ns,
             state_t_ns,
             deadline_ns,
+            mapper_before: self.last_mapper,
         });
+    }
+
+    /// Takes in any command received (on time or not): the missed ticks before its tick
+    /// whose commands never came are settled. Where the command is of the mapper that
+    /// commanded before the miss, a verdict on each goes to `out` ([`Verdict::skipped`]);
+    /// otherwise they stay the graph's, with no verdict. Call after [`Self::arrived`].
+    pub fn superseded(&mut self, c: &SafeCommand, out: &mut Vec<Verdict>) {
+        // Every remembered miss since the last command received: the ticks the chain was
+        // silent while the bridge ran on time.
+        let silent = self.awaiting.iter().take_while(|a| a.tick < c.tick).count();
+        for _ in 0..silent {
+            let Some(a) = self.awaiting.pop_front() else {
+                break;
+            };
+            if a.mapper_before == Some(c.mapper_id) && silent <= SKIP_MAX {
+                out.push(Verdict {
+                    tick: a.tick,
+                    late_ns: 0,
+                    mapper_wake_ns: c.state_rx_ns.saturating_sub(a.state_t_ns),
+                    safety_wake_ns: c.mapper_rx_ns.saturating_sub(c.mapper_t_ns),
+                    work_ns: c.mapper_compute_ns.saturating_add(c.compute_ns),
+                    budget_ns: a.deadline_ns.saturating_sub(a.ideal_ns),
+                    skipped: true,
+                });
+            }
+        }
+        self.last_mapper = Some(c.mapper_id);
     }
 
     /// Matches a command that came for another tick than the bridge's current one: the
@@ -89,6 +137,7 @@ impl LateCommands {
             safety_wake_ns: c.mapper_rx_ns.saturating_sub(c.mapper_t_ns),
             work_ns: c.mapper_compute_ns.saturating_add(c.compute_ns),
             budget_ns: a.deadline_ns.saturating_sub(a.ideal_ns),
+            skipped: false,
         })
     }
 }
@@ -158,5 +207,65 @@ mod tests {
             "forgotten after a second"
         );
         assert!(l.arrived(&late(30, 1220 * MS, 0)).is_some());
+    }
+
+    #[test]
+    fn a_tick_the_chain_skipped_is_the_machines_when_the_same_mapper_goes_on() {
+        let mut l = LateCommands::default();
+        let mut out = Vec::new();
+        let mut on_time = late(9, 75 * MS, 100_000);
+        on_time.mapper_id = 4;
+        l.superseded(&on_time, &mut out);
+        l.missed(10, 100 * MS, 100 * MS, 115 * MS);
+        // No command for tick 10 ever; tick 11's comes, from the same mapper, woken 30 ms
+        // after tick 10's state with 100 µs of work.
+        let mut next = late(11, 130 * MS, 100_000);
+        next.mapper_id = 4;
+        assert_eq!(l.arrived(&next), None);
+        l.superseded(&next, &mut out);
+        assert_eq!(out.len(), 1);
+        let v = out[0];
+        assert!(v.skipped && v.held_up(), "{v:?}");
+        assert_eq!((v.tick, v.mapper_wake_ns, v.late_ns), (10, 30 * MS, 0));
+        // Settled once.
+        l.superseded(&next, &mut out);
+        assert_eq!(out.len(), 1);
+    }
+
+    #[test]
+    fn a_tick_skipped_around_a_change_of_mapper_or_by_slow_work_is_the_graphs() {
+        let mut l = LateCommands::default();
+        let mut out = Vec::new();
+        let mut before = late(9, 75 * MS, 100_000);
+        before.mapper_id = 1;
+        l.superseded(&before, &mut out);
+        l.missed(10, 100 * MS, 100 * MS, 115 * MS);
+        let mut swapped = late(11, 125 * MS, 100_000);
+        swapped.mapper_id = 2;
+        l.superseded(&swapped, &mut out);
+        assert!(out.is_empty(), "a swap that loses a tick: {out:?}");
+        l.missed(12, 150 * MS, 150 * MS, 165 * MS);
+        let mut slow = late(13, 150 * MS, 20 * MS);
+        slow.mapper_id = 2;
+        l.superseded(&slow, &mut out);
+        assert_eq!(out.len(), 1);
+        assert!(out[0].skipped && !out[0].held_up(), "{:?}", out[0]);
+        // A mapper back after a restart (same id, three ticks missed on time) proves
+        // nothing.
+        for t in 20..23 {
+            l.missed(t, t * 25 * MS, t * 25 * MS, t * 25 * MS + 15 * MS);
+        }
+        let mut back = late(30, 750 * MS, 100_000);
+        back.mapper_id = 2;
+        l.superseded(&back, &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        // Ticks the bridge itself lost in between are not the chain's silence: a command
+        // eight ticks after one on-time miss still settles it.
+        l.missed(40, 1000 * MS, 1000 * MS, 1015 * MS);
+        let mut after = late(48, 1200 * MS, 100_000);
+        after.mapper_id = 2;
+        l.superseded(&after, &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert!(out[1].held_up());
     }
 }

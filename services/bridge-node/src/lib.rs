@@ -245,7 +245,22 @@ pub fn run(
 /// the chain's own work too slow for the deadline.
 fn say_late(v: &late::Verdict) {
     let ms = |ns: u64| ns as f64 * 1e-6;
-    if v.held_up() {
+    if v.skipped && v.held_up() {
+        tracing::warn!(
+            tick = v.tick,
+            ticks_lost = 1,
+            mapper_wake_ms = ms(v.mapper_wake_ns),
+            work_ms = ms(v.work_ns),
+            "missed tick: the mapper or safety was held up (no command came for it: the same mapper answered a later state first, its work fitted the deadline)"
+        );
+    } else if v.skipped {
+        tracing::warn!(
+            tick = v.tick,
+            work_ms = ms(v.work_ns),
+            budget_ms = ms(v.budget_ns),
+            "missed tick: no command came for it, and the mapper's and safety's work on the next took longer than the command deadline"
+        );
+    } else if v.held_up() {
         tracing::warn!(
             tick = v.tick,
             ticks_lost = 1,
@@ -410,6 +425,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                     verdicts.extend(late.arrived(c));
                     other = Some(*c);
                 }
+                late.superseded(c, &mut verdicts);
             })?;
             let now = now_ns();
             if found.is_some() {
