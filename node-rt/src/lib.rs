@@ -2,7 +2,9 @@
 //! path ([`rt`]: SCHED_FIFO, memory locking, CPU pinning, CPU DMA latency, from the graph
 //! TOML's `[graph]` table) and the latency percentiles the supervisor, the benchmark and the
 //! dashboard report ([`stats`]). The stop flag every loop polls is `transport::signals`.
+//! Besides: how a child tells its parent it is ready ([`ready`]).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+pub mod ready;
 pub mod rt;
 pub mod stats;

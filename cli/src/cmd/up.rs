@@ -87,7 +87,12 @@ pub(crate) fn run(
         record: record.map(|p| scl_recorder::absolute(&p)),
         live,
     };
-    let summary = scl_supervisor::up::run(&opts)?;
+    let summary = scl_supervisor::up::run(&opts).inspect_err(|_| {
+        // A graph that did not start (its live server could not serve, ...) leaves nothing
+        // behind: the supervisor's node is gone; its domain goes too, unless another process
+        // of this prefix is alive.
+        let _ = transport::graph::release_domain(&opts.prefix);
+    })?;
     if json {
         let text = serde_json::to_string(&summary)
             .map_err(|e| SclError::Other(format!("cannot encode the summary: {e}")))?;

@@ -82,6 +82,11 @@ pub struct LiveArgs {
     /// Print the end report as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Announce on stdout, as one line (`node_rt::ready`), that the server listens and the
+    /// graph is joined (with the address bound), or why it could not start: how `scl up
+    /// --live` knows that its own server serves.
+    #[arg(long, hide = true)]
+    pub announce: bool,
 }
 
 /// Parses `ADDR:PORT`; says whether it is a loopback address.
@@ -301,6 +306,8 @@ pub struct LiveOptions {
     pub queue: usize,
     /// The graph configuration (the robot and scene until the safety process is seen).
     pub config: GraphConfig,
+    /// Announce readiness on stdout (`node_rt::ready`) once serving, with the address bound.
+    pub announce: bool,
 }
 
 /// Serves graph `prefix` until a shutdown is requested (Ctrl-C, SIGTERM).
@@ -334,6 +341,8 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
             addr: addr.to_string(),
             reason: e.to_string(),
         })?;
+    // The port bound (the one asked for, or the one the system chose for port 0).
+    let addr = SocketAddr::new(addr.ip(), server.port());
     tracing::info!(
         "serving graph `{prefix}` to Foxglove on ws://{addr} (open connection: Foxglove WebSocket)"
     );
@@ -352,6 +361,9 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
         counters: counters.clone(),
         seen: BTreeSet::new(),
     };
+    if opts.announce {
+        node_rt::ready::announce(&node_rt::ready::Announcement::Ready(addr.to_string()));
+    }
     let mut result = Ok(());
     while result.is_ok() && !signals::stop_requested() {
         result = subs
@@ -384,19 +396,26 @@ pub fn cli(
     config: GraphConfig,
     args: &LiveArgs,
 ) -> Result<std::process::ExitCode, LiveError> {
-    if args.queue == 0 {
-        return Err(LiveError::Thread(
+    let r = if args.queue == 0 {
+        Err(LiveError::Thread(
             "--queue 0: the hand-off needs room for at least one message".into(),
-        ));
+        ))
+    } else {
+        run(
+            prefix,
+            &LiveOptions {
+                listen: args.listen.clone(),
+                queue: args.queue,
+                config,
+                announce: args.announce,
+            },
+        )
     }
-    let r = run(
-        prefix,
-        &LiveOptions {
-            listen: args.listen.clone(),
-            queue: args.queue,
-            config,
-        },
-    )?;
+    .inspect_err(|e| {
+        if args.announce {
+            node_rt::ready::announce(&node_rt::ready::Announcement::Failed(e.to_string()));
+        }
+    })?;
     eprintln!(
         "scl live: {}: {} messages in {:.1} s, {} logged, {} dropped at the hand-off",
         r.listen, r.received, r.duration_s, r.logged, r.dropped
@@ -407,16 +426,6 @@ pub fn cli(
         println!("{text}");
     }
     Ok(std::process::ExitCode::SUCCESS)
-}
-
-/// Whether something accepts TCP connections at `addr` (an unspecified address is tried on
-/// loopback): how `scl up --live` knows the server listens.
-pub fn is_listening(addr: &SocketAddr) -> bool {
-    let mut a = *addr;
-    if a.ip().is_unspecified() {
-        a.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
-    }
-    std::net::TcpStream::connect_timeout(&a, Duration::from_millis(100)).is_ok()
 }
 
 #[cfg(test)]
