@@ -21,14 +21,13 @@ fn occupied_port() -> (TcpListener, String) {
     let addr = l.local_addr().unwrap().to_string();
     let l2 = l.try_clone().unwrap();
     std::thread::spawn(move || {
-        for c in l2.incoming() {
-            // Held open a moment, then dropped: a server that does not speak Foxglove.
-            if let Ok(c) = c {
-                std::thread::spawn(move || {
-                    std::thread::sleep(Duration::from_millis(200));
-                    drop(c);
-                });
-            }
+        // Each connection held open a moment, then dropped: a server that does not speak
+        // Foxglove.
+        for c in l2.incoming().flatten() {
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(200));
+                drop(c);
+            });
         }
     });
     (l, addr)

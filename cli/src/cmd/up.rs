@@ -28,10 +28,9 @@ pub(crate) struct UpArgs {
     /// joint vector on a straight line in joint space) instead of the config's.
     #[arg(long, value_name = "FILE")]
     pub(crate) model: Option<String>,
-    /// Joystick script instead of the config's: `circle`, `step`, or `constant` (the
-    /// config's `[joystick] constant_axes` held).
-    #[arg(long)]
-    pub(crate) script: Option<String>,
+    /// Joystick script instead of the config's (`[joystick] script`).
+    #[arg(long, value_enum)]
+    pub(crate) script: Option<scl_joystick::script::ScriptName>,
     /// Joystick source instead of the config's: `script`, `evdev`, `keyboard`, `replay`,
     /// or `external` (no joystick process: the input comes from whoever publishes it on
     /// the graph's joystick topic, e.g. a Python agent).
@@ -69,7 +68,7 @@ pub(crate) fn run(
         cfg.mapper.model = m;
     }
     if let Some(s) = script {
-        cfg.joystick.script = s;
+        cfg.joystick.script = s.name().to_owned();
     }
     if let Some(s) = joystick {
         cfg.joystick.source = s;
