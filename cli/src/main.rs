@@ -306,15 +306,31 @@ enum Cmd {
 }
 
 fn init_logging() {
+    use tracing_subscriber::Layer as _;
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     let filter = tracing_subscriber::EnvFilter::try_from_env("SCL_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    let stderr = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .without_time()
+        .with_filter(filter);
+    // INFO and above also go to the graph's `log` topic once the process has joined a graph
+    // (`node_rt::log::publish`), whatever SCL_LOG shows on stderr.
+    let graph =
+        node_rt::log::GraphLogLayer.with_filter(tracing_subscriber::filter::LevelFilter::INFO);
+    tracing_subscriber::registry()
+        .with(stderr)
+        .with(graph)
         .init();
+}
+
+/// Publishes this process's log records on graph `prefix`'s `log` topic as `process` until
+/// the returned guard drops (`node_rt::log`).
+fn graph_log(prefix: &Prefix, process: &str) -> Option<node_rt::log::LogPublisher> {
+    node_rt::log::publish(prefix, process)
 }
 
 fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
@@ -327,6 +343,7 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
     match cmd {
         Cmd::Up { graph, args } => {
             let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "supervisor");
             cmd::up::run(prefix, graph.config.config, cfg, args)
         }
         // The doctor reports a bad configuration as one of its findings.
@@ -334,7 +351,13 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             let code = scl::doctor::run(config.config.as_deref(), &args)?;
             Ok(ExitCode::from(code as u8))
         }
-        Cmd::Record { graph, args } => Ok(scl_recorder::cli(&graph.load()?.0, &args)?),
+        Cmd::Record { graph, args } => {
+            let prefix = graph.load()?.0;
+            // Recording a graph, not repairing or converting a file.
+            let live = args.recover.is_none() && args.convert.is_none();
+            let _log = live.then(|| graph_log(&prefix, "recorder"));
+            Ok(scl_recorder::cli(&prefix, &args)?)
+        }
         Cmd::Study { graph, what } => {
             let (prefix, cfg) = graph.load()?;
             Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what, &cfg)?)
@@ -371,18 +394,23 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
         Cmd::Layout => cmd::layout(),
         Cmd::Joystick { graph, args } => {
             let (prefix, mut cfg) = graph.load()?;
+            let _log = (!args.list).then(|| graph_log(&prefix, "joystick"));
             cmd::nodes::joystick(&prefix, &mut cfg, &args)
         }
         Cmd::Mapper { graph, args } => {
             let (prefix, cfg) = graph.load()?;
+            let id = args.id.unwrap_or(cfg.mapper.id);
+            let _log = graph_log(&prefix, &format!("mapper-{id}"));
             cmd::nodes::mapper(&prefix, cfg, args)
         }
         Cmd::Safety { graph } => {
             let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "safety");
             cmd::nodes::safety(&prefix, &cfg)
         }
         Cmd::Bridge { graph, args } => {
             let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "bridge");
             cmd::nodes::bridge(&prefix, cfg, args)
         }
         Cmd::FakeKortex(args) => cmd::nodes::fake_kortex(args),

@@ -673,7 +673,10 @@ fn floor_char_boundary(s: &str, max: usize) -> usize {
     if s.len() <= max {
         return s.len();
     }
-    (0..=max).rev().find(|i| s.is_char_boundary(*i)).unwrap_or(0)
+    (0..=max)
+        .rev()
+        .find(|i| s.is_char_boundary(*i))
+        .unwrap_or(0)
 }
 
 impl NodeStatus {
@@ -737,7 +740,11 @@ mod tests {
         assert!(r.push_text("abc"));
         let long = "é".repeat(LOG_TEXT_BYTES);
         assert!(!r.push_text(&long));
-        assert_eq!(r.text_len as usize, LOG_TEXT_BYTES - 1, "3 + 2k bytes, one short");
+        assert_eq!(
+            r.text_len as usize,
+            LOG_TEXT_BYTES - 1,
+            "3 + 2k bytes, one short"
+        );
         assert!(r.text().starts_with("abcé"));
         assert!(!r.text().contains('\u{fffd}'));
         assert!(r.push_text("x"), "the last byte");

@@ -1,7 +1,9 @@
 //! `scl live`: a read-only observer that serves a running graph to Foxglove over its
 //! WebSocket protocol (Foxglove's own server, the `foxglove` crate): the recording's JSON
 //! topics (`/robot_state`, `/safe_command`, ...) and the 3D view of [`viz`] (`/tf`,
-//! `/scl/arm`, `/scl/map`, `/scl/world`, `/scl/tick`), the same channels a recording holds.
+//! `/scl/arm`, `/scl/map`, `/scl/world`, `/scl/tick`), the same channels a recording holds;
+//! `/scl/log` adds the processes' own log records (the graph's `log` topic), which a
+//! recording does not hold.
 //!
 //! Like the recorder it never slows the control loop:
 //!
@@ -125,6 +127,8 @@ struct Counters {
 /// What goes to the view thread.
 enum Item {
     Message(Payload),
+    /// A process's own log record (boxed: 512 bytes, and rare).
+    Log(Box<ipc_types::LogRecord>),
     Process(Box<ProcessSeen>),
 }
 
@@ -190,6 +194,18 @@ fn view_loop(
             Err(RecvTimeoutError::Disconnected) => break,
         };
         match item {
+            Item::Log(r) => {
+                out.clear();
+                if viz.observe_log(&r, &mut out).is_ok() {
+                    for m in &out {
+                        if let Some(c) = channels.view.get(&m.topic) {
+                            let at = PartialMetadata::with_log_time(clock.log_time(m.t_ns));
+                            c.log_with_meta(&m.data, at);
+                            counters.logged.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                }
+            }
             Item::Process(p) => {
                 let (cfg, model) = process::runs(&p);
                 if let Err(e) =
@@ -234,6 +250,7 @@ struct Subscriptions {
     status: TopicSubscriber<NodeStatus>,
     control: TopicSubscriber<ipc_types::control::SafetyControl>,
     estop: TopicSubscriber<ipc_types::control::EstopCommand>,
+    logs: TopicSubscriber<ipc_types::LogRecord>,
 }
 
 /// The subscriber side of the hand-off: never blocks.
@@ -251,6 +268,13 @@ impl Producer {
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
             }
+        }
+    }
+
+    fn offer_log(&self, r: &ipc_types::LogRecord) {
+        self.counters.received.fetch_add(1, Ordering::Relaxed);
+        if self.tx.try_send(Item::Log(Box::new(*r))).is_err() {
+            self.counters.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -277,6 +301,7 @@ impl Subscriptions {
             status: graph.status_subscriber()?,
             control: graph.safety_control_observer()?,
             estop: graph.estop_observer()?,
+            logs: graph.log_subscriber()?,
         })
     }
 
@@ -293,6 +318,7 @@ impl Subscriptions {
         self.control
             .drain(|m| p.offer(Payload::SafetyControl(*m)))?;
         self.estop.drain(|m| p.offer(Payload::Estop(*m)))?;
+        self.logs.drain(|m| p.offer_log(m))?;
         Ok(())
     }
 }
