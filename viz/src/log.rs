@@ -305,7 +305,7 @@ mod tests {
             (l.level, l.name.as_str(), l.message.as_str()),
             (Level::Warning as i32, "mapper-2", "input stale tick=4")
         );
-        assert_eq!(l.timestamp.unwrap().sec, 1);
+        assert_eq!(l.timestamp.unwrap().sec(), 1);
         r.process = [0; ipc_types::LOG_PROCESS_BYTES];
         assert_eq!(record_line(&r).name, "pid 9");
     }
