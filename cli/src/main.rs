@@ -20,27 +20,143 @@ mod cmd;
 #[derive(Parser, Debug)]
 #[command(name = "scl", version, propagate_version = true)]
 struct Cli {
-    /// Graph prefix: isolates this graph's services and shared memory from every other graph.
-    #[arg(long, global = true, env = ipc_types::prefix::PREFIX_ENV)]
+    /// `--prefix` before the command (`scl --prefix lab status`), as earlier versions took it;
+    /// hidden, since the commands that use it list it. Refused with an offline command.
+    #[arg(long, hide = true, value_name = "PREFIX")]
     prefix: Option<String>,
-    /// Graph configuration (TOML); every key is optional, see examples/graph.toml.
-    #[arg(long, global = true, value_name = "FILE")]
+    /// `--config` before the command, as earlier versions took it (see `prefix`).
+    #[arg(long, hide = true, value_name = "FILE")]
     config: Option<PathBuf>,
     #[command(subcommand)]
     cmd: Cmd,
 }
 
+impl Cmd {
+    /// The command's graph options, if it has them.
+    fn graph_args(&mut self) -> Option<&mut GraphArgs> {
+        match self {
+            Cmd::Up { graph, .. }
+            | Cmd::Record { graph, .. }
+            | Cmd::Study { graph, .. }
+            | Cmd::Live { graph, .. }
+            | Cmd::Top { graph, .. }
+            | Cmd::Swap { graph, .. }
+            | Cmd::Estop { graph }
+            | Cmd::Reset { graph }
+            | Cmd::Status { graph, .. }
+            | Cmd::Joystick { graph, .. }
+            | Cmd::Mapper { graph, .. }
+            | Cmd::Safety { graph }
+            | Cmd::Bridge { graph, .. } => Some(graph),
+            _ => None,
+        }
+    }
+
+    /// The command's `--config`, if it takes one.
+    fn config_args(&mut self) -> Option<&mut ConfigArgs> {
+        match self {
+            Cmd::Bench { config, .. } | Cmd::Doctor { config, .. } | Cmd::Eval { config, .. } => {
+                Some(config)
+            }
+            other => other.graph_args().map(|g| &mut g.config),
+        }
+    }
+
+    /// Takes `--prefix` and `--config` given before the command name; the command's own
+    /// options win. An option the command does not take is an error naming it.
+    fn take_early(
+        &mut self,
+        prefix: Option<String>,
+        config: Option<PathBuf>,
+        name: &str,
+    ) -> Result<(), SclError> {
+        let refuse =
+            |opt: &str| SclError::Other(format!("`{opt}` is not an option of `scl {name}`"));
+        if let Some(p) = prefix {
+            let g = self.graph_args().ok_or_else(|| refuse("--prefix"))?;
+            g.prefix.get_or_insert(p);
+        }
+        if let Some(c) = config {
+            let a = self.config_args().ok_or_else(|| refuse("--config"))?;
+            a.config.get_or_insert(c);
+        }
+        Ok(())
+    }
+}
+
+/// Where a command finds its graph: the options of every command that starts, joins or
+/// talks to a graph (and of nothing else).
+#[derive(clap::Args, Debug, Clone, Default)]
+struct GraphArgs {
+    /// Graph prefix: isolates this graph's services and shared memory from every other graph
+    /// (else the SCL_PREFIX environment variable, else the config's `[graph] prefix`, `scl`).
+    #[arg(long, global = true)]
+    prefix: Option<String>,
+    #[command(flatten)]
+    config: ConfigArgs,
+}
+
+/// The graph configuration, for the commands that read it but join no graph of a prefix
+/// given to them (`doctor`, `bench`, `eval`).
+#[derive(clap::Args, Debug, Clone, Default)]
+struct ConfigArgs {
+    /// Graph configuration (TOML); every key is optional, see examples/graph.toml.
+    #[arg(long, global = true, value_name = "FILE")]
+    config: Option<PathBuf>,
+}
+
+impl ConfigArgs {
+    fn load(&self) -> Result<GraphConfig, SclError> {
+        Ok(GraphConfig::load(self.config.as_deref())?)
+    }
+}
+
+impl GraphArgs {
+    /// The graph's prefix and configuration: the file's, with `--prefix` (or `SCL_PREFIX`)
+    /// over its `[graph] prefix`.
+    fn load(&self) -> Result<(Prefix, GraphConfig), SclError> {
+        let mut cfg = self.config.load()?;
+        // The flag, else the environment (read here, not by clap, so that a `--prefix` given
+        // before the command name still wins over the environment).
+        if let Some(p) = self
+            .prefix
+            .clone()
+            .or_else(|| std::env::var(ipc_types::prefix::PREFIX_ENV).ok())
+        {
+            cfg.graph.prefix = p;
+        }
+        let prefix =
+            Prefix::new(&cfg.graph.prefix).map_err(|e| scl_config::ConfigError::Value {
+                key: "prefix".into(),
+                reason: e.to_string(),
+            })?;
+        Ok((prefix, cfg))
+    }
+}
+
 #[derive(Subcommand, Debug)]
 enum Cmd {
     /// Run the whole graph: joystick, mapper, safety and bridge as supervised children.
-    Up(cmd::up::UpArgs),
+    Up {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: cmd::up::UpArgs,
+    },
     /// Record every message of a running graph to an MCAP file (read-only; Foxglove opens
     /// it), until Ctrl-C. `--recover` repairs a recording cut by a crash.
-    Record(scl_recorder::RecordArgs),
+    Record {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: scl_recorder::RecordArgs,
+    },
     /// User studies as the paper ran them: `run` walks a participant through a study file on
     /// the live graph, `report` draws the figures and runs the tests, `plan` prints the
     /// counterbalanced orders, `simulate` runs simulated participants on the mock arm.
     Study {
+        #[command(flatten)]
+        graph: GraphArgs,
         #[command(subcommand)]
         what: scl_study::StudyCmd,
     },
@@ -48,7 +164,12 @@ enum Cmd {
     /// recording's topics plus the 3D view (/tf, the arm's capsules coloured by clearance, the
     /// map's two directions at the tool, /scl/tick), until Ctrl-C. Open Foxglove, "Open
     /// connection", Foxglove WebSocket, ws://127.0.0.1:8765, and load docs/foxglove-layout.json.
-    Live(scl_live::LiveArgs),
+    Live {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: scl_live::LiveArgs,
+    },
     /// Turn recordings into a training data set (CSV trajectories in train/ and val/).
     Dataset(learning::to_dataset::DatasetArgs),
     /// Re-execute a recording tick by tick (the mapper's and safety's steps on the recorded
@@ -56,7 +177,12 @@ enum Cmd {
     /// exits 1 on a divergence, naming its tick. `--tick K --explain` spells one tick out.
     Replay(replay::ReplayArgs),
     /// A terminal dashboard of a running graph (works over SSH in 80x24).
-    Top(scl_dashboard::TopArgs),
+    Top {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: scl_dashboard::TopArgs,
+    },
     /// Swap the running graph's mapper for one serving MODEL, without missing a tick.
     ///
     /// The supervisor starts a new mapper process beside the old one, waits until it has
@@ -66,14 +192,27 @@ enum Cmd {
     /// meanwhile and how many of them the machine took (held up, as `scl up --json` counts
     /// `held_up`): without real-time scheduling, a loaded machine can hold the graph up
     /// during a swap, whose start-up work competes with it.
-    Swap(cmd::control::SwapArgs),
+    Swap {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: cmd::control::SwapArgs,
+    },
     /// Latch the running graph's e-stop: safety commands zero at once and keeps doing so
     /// until `scl reset`.
-    Estop,
+    Estop {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
     /// Release a latched e-stop.
-    Reset,
-    /// Benchmarks.
+    Reset {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
+    /// Benchmarks (each runs its own graphs, under prefixes of its own).
     Bench {
+        #[command(flatten)]
+        config: ConfigArgs,
         #[command(subcommand)]
         what: cmd::bench::BenchCmd,
     },
@@ -81,22 +220,50 @@ enum Cmd {
     /// settings, shared memory and leftovers, joysticks, the configuration (`--config`), its
     /// model and, with `[bridge] robot = "kortex"`, the arm itself through a read-only session.
     /// Prints ok / warn / fail with what to do; exit code 1 on any fail.
-    Doctor(scl::doctor::DoctorArgs),
+    Doctor {
+        #[command(flatten)]
+        config: ConfigArgs,
+        #[command(flatten)]
+        args: scl::doctor::DoctorArgs,
+    },
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
-    Status(cmd::control::StatusArgs),
+    Status {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: cmd::control::StatusArgs,
+    },
     /// Print the messages' memory layout as JSON (size, alignment, every field's offset and
     /// type, iceoryx2 type names, topic settings, bit names): what a binding in another
     /// language must match; the Python package's drift test compares itself with it.
     Layout,
     /// The joystick process: a script, a joystick or gamepad (evdev), the keyboard, or a
     /// recorded input file; `--list` shows the input devices attached.
-    Joystick(scl_joystick::JoystickArgs),
+    Joystick {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: scl_joystick::JoystickArgs,
+    },
     /// A mapper process serving one model.
-    Mapper(cmd::nodes::MapperArgs),
+    Mapper {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: cmd::nodes::MapperArgs,
+    },
     /// The safety process (the one publisher of the executed command).
-    Safety,
+    Safety {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
     /// The hardware bridge: the robot and the graph's clock.
-    Bridge(cmd::nodes::BridgeArgs),
+    Bridge {
+        #[command(flatten)]
+        graph: GraphArgs,
+        #[command(flatten)]
+        args: cmd::nodes::BridgeArgs,
+    },
     /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
     /// admin), for trying `bridge --robot kortex` without an arm.
     ///
@@ -128,97 +295,157 @@ enum Cmd {
     /// Build a model file from network weights trained elsewhere (the SCL authors' JSON
     /// layout `{"linear_1": [W, b], ...}`, W shaped (in, out)).
     Import(cmd::learn::ImportArgs),
-    /// Evaluate model files offline.
+    /// Evaluate model files offline (the control period comes from the configuration's
+    /// `[graph] rate_hz`).
     Eval {
+        #[command(flatten)]
+        config: ConfigArgs,
         #[command(subcommand)]
         what: cmd::learn::EvalCmd,
     },
 }
 
 fn init_logging() {
+    use tracing_subscriber::Layer as _;
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     let filter = tracing_subscriber::EnvFilter::try_from_env("SCL_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    let stderr = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .without_time()
+        .with_filter(filter);
+    // INFO and above also go to the graph's `log` topic once the process has joined a graph
+    // (`node_rt::log::publish`), whatever SCL_LOG shows on stderr.
+    let graph =
+        node_rt::log::GraphLogLayer.with_filter(tracing_subscriber::filter::LevelFilter::INFO);
+    tracing_subscriber::registry()
+        .with(stderr)
+        .with(graph)
         .init();
 }
 
-fn run(cli: Cli) -> Result<ExitCode, SclError> {
-    // The doctor reports a bad configuration as one of its findings.
-    if let Cmd::Doctor(args) = &cli.cmd {
-        let code = scl::doctor::run(cli.config.as_deref(), args)?;
-        return Ok(ExitCode::from(code as u8));
-    }
-    let mut cfg = GraphConfig::load(cli.config.as_deref())?;
-    if let Some(p) = &cli.prefix {
-        cfg.graph.prefix = p.clone();
-    }
-    let prefix = Prefix::new(&cfg.graph.prefix).map_err(|e| scl_config::ConfigError::Value {
-        key: "prefix".into(),
-        reason: e.to_string(),
-    })?;
-    let period_s = cfg.period_s();
-    match cli.cmd {
-        Cmd::Up(args) => cmd::up::run(prefix, cli.config, cfg, args),
-        Cmd::Doctor(_) => unreachable!("scl doctor runs before the configuration is loaded"),
-        Cmd::Record(args) => Ok(scl_recorder::cli(&prefix, &args)?),
-        Cmd::Study { what } => Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what, &cfg)?),
-        Cmd::Live(args) => Ok(scl_live::cli(&prefix, cfg, &args)?),
+/// Publishes this process's log records on graph `prefix`'s `log` topic as `process` until
+/// the returned guard drops (`node_rt::log`).
+fn graph_log(prefix: &Prefix, process: &str) -> Option<node_rt::log::LogPublisher> {
+    node_rt::log::publish(prefix, process)
+}
+
+fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
+    let Cli {
+        prefix,
+        config,
+        mut cmd,
+    } = cli;
+    cmd.take_early(prefix, config, role)?;
+    match cmd {
+        Cmd::Up { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "supervisor");
+            cmd::up::run(prefix, graph.config.config, cfg, args)
+        }
+        // The doctor reports a bad configuration as one of its findings.
+        Cmd::Doctor { config, args } => {
+            let code = scl::doctor::run(config.config.as_deref(), &args)?;
+            Ok(ExitCode::from(code as u8))
+        }
+        Cmd::Record { graph, args } => {
+            let prefix = graph.load()?.0;
+            // Recording a graph, not repairing or converting a file.
+            let live = args.recover.is_none() && args.convert.is_none();
+            let _log = live.then(|| graph_log(&prefix, "recorder"));
+            Ok(scl_recorder::cli(&prefix, &args)?)
+        }
+        Cmd::Study { graph, what } => {
+            let (prefix, cfg) = graph.load()?;
+            Ok(scl_study::cli(&prefix, cfg.graph.profile()?, &what, &cfg)?)
+        }
+        Cmd::Live { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            Ok(scl_live::cli(&prefix, cfg, &args)?)
+        }
         Cmd::Dataset(args) => Ok(learning::to_dataset::cli(&args)?),
         Cmd::Replay(args) => Ok(replay::cli(&args)?),
-        Cmd::Top(args) => Ok(scl_dashboard::cli(
-            &prefix,
-            &args,
-            cfg.profile()?,
-            cfg.safety.scene.box_names(),
-        )?),
-        Cmd::Swap(args) => cmd::control::swap(&prefix, args),
-        Cmd::Estop => cmd::control::estop(&prefix, &cfg, true),
-        Cmd::Reset => cmd::control::estop(&prefix, &cfg, false),
-        Cmd::Bench { what } => cmd::bench::run(what, cfg),
-        Cmd::Status(args) => cmd::control::status(&prefix, &cfg, args),
+        Cmd::Top { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            Ok(scl_dashboard::cli(
+                &prefix,
+                &args,
+                cfg.profile()?,
+                cfg.safety.scene.box_names(),
+            )?)
+        }
+        Cmd::Swap { graph, args } => cmd::control::swap(&graph.load()?.0, args),
+        Cmd::Estop { graph } => {
+            let (prefix, cfg) = graph.load()?;
+            cmd::control::estop(&prefix, &cfg, true)
+        }
+        Cmd::Reset { graph } => {
+            let (prefix, cfg) = graph.load()?;
+            cmd::control::estop(&prefix, &cfg, false)
+        }
+        Cmd::Bench { config, what } => cmd::bench::run(what, config.load()?),
+        Cmd::Status { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            cmd::control::status(&prefix, &cfg, args)
+        }
         Cmd::Layout => cmd::layout(),
-        Cmd::Joystick(args) => cmd::nodes::joystick(&prefix, &mut cfg, &args),
-        Cmd::Mapper(args) => cmd::nodes::mapper(&prefix, cfg, args),
-        Cmd::Safety => cmd::nodes::safety(&prefix, &cfg),
-        Cmd::Bridge(args) => cmd::nodes::bridge(&prefix, cfg, args),
+        Cmd::Joystick { graph, args } => {
+            let (prefix, mut cfg) = graph.load()?;
+            let _log = (!args.list).then(|| graph_log(&prefix, "joystick"));
+            cmd::nodes::joystick(&prefix, &mut cfg, &args)
+        }
+        Cmd::Mapper { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            let id = args.id.unwrap_or(cfg.mapper.id);
+            let _log = graph_log(&prefix, &format!("mapper-{id}"));
+            cmd::nodes::mapper(&prefix, cfg, args)
+        }
+        Cmd::Safety { graph } => {
+            let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "safety");
+            cmd::nodes::safety(&prefix, &cfg)
+        }
+        Cmd::Bridge { graph, args } => {
+            let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "bridge");
+            cmd::nodes::bridge(&prefix, cfg, args)
+        }
         Cmd::FakeKortex(args) => cmd::nodes::fake_kortex(args),
         Cmd::Demos(args) => cmd::learn::demos(args),
         Cmd::Plot(args) => cmd::learn::plot(args),
         Cmd::Train(t) => cmd::learn::train(&t),
         Cmd::Import(args) => cmd::learn::import(args),
-        Cmd::Eval { what } => cmd::learn::eval(what, period_s),
+        Cmd::Eval { config, what } => cmd::learn::eval(what, config.load()?.period_s()),
     }
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let role = match &cli.cmd {
-        Cmd::Up(_) => "up",
-        Cmd::Swap(_) => "swap",
-        Cmd::Status(_) => "status",
-        Cmd::Estop => "estop",
+        Cmd::Up { .. } => "up",
+        Cmd::Swap { .. } => "swap",
+        Cmd::Status { .. } => "status",
+        Cmd::Estop { .. } => "estop",
         Cmd::Bench { .. } => "bench",
-        Cmd::Reset => "reset",
+        Cmd::Reset { .. } => "reset",
         Cmd::Layout => "layout",
-        Cmd::Joystick(_) => "joystick",
-        Cmd::Mapper(_) => "mapper",
-        Cmd::Safety => "safety",
-        Cmd::Bridge(_) => "bridge",
+        Cmd::Joystick { .. } => "joystick",
+        Cmd::Mapper { .. } => "mapper",
+        Cmd::Safety { .. } => "safety",
+        Cmd::Bridge { .. } => "bridge",
         Cmd::FakeKortex(_) => "fake-kortex",
         Cmd::Demos(_) => "demos",
         Cmd::Plot(_) => "plot",
-        Cmd::Record(_) => "record",
+        Cmd::Record { .. } => "record",
         Cmd::Study { .. } => "study",
-        Cmd::Live(_) => "live",
+        Cmd::Live { .. } => "live",
         Cmd::Dataset(_) => "dataset",
         Cmd::Replay(_) => "replay",
-        Cmd::Top(_) => "top",
-        Cmd::Doctor(_) => "doctor",
+        Cmd::Top { .. } => "top",
+        Cmd::Doctor { .. } => "doctor",
         Cmd::Train(_) => "train",
         Cmd::Import(_) => "import",
         Cmd::Eval { .. } => "eval",
@@ -227,7 +454,7 @@ fn main() -> ExitCode {
     let span = tracing::info_span!("scl", role);
     let _guard = span.enter();
     signals::install();
-    match run(cli) {
+    match run(cli, role) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("scl {role}: error: {e}");
@@ -290,6 +517,139 @@ mod tests {
         );
     }
 
+    /// `--prefix` and `--config` appear on the commands that use them and on no other:
+    /// every subcommand is in exactly one of the three lists.
+    #[test]
+    fn prefix_and_config_only_where_they_are_used() {
+        use clap::CommandFactory;
+        const GRAPH: [&str; 13] = [
+            "up", "record", "study", "live", "top", "swap", "estop", "reset", "status", "joystick",
+            "mapper", "safety", "bridge",
+        ];
+        const CONFIG_ONLY: [&str; 3] = ["bench", "doctor", "eval"];
+        const OFFLINE: [&str; 8] = [
+            "dataset",
+            "replay",
+            "layout",
+            "fake-kortex",
+            "demos",
+            "plot",
+            "train",
+            "import",
+        ];
+        let mut cli = Cli::command();
+        cli.build();
+        // Hidden ones (before the command name, as earlier versions took them) do not count.
+        let has = |c: &clap::Command, id: &str| {
+            c.get_arguments()
+                .any(|a| a.get_id() == id && !a.is_hide_set())
+        };
+        assert!(!has(&cli, "prefix") && !has(&cli, "config"));
+        for sub in cli.get_subcommands().filter(|c| c.get_name() != "help") {
+            let name = sub.get_name();
+            let want = if GRAPH.contains(&name) {
+                (true, true)
+            } else if CONFIG_ONLY.contains(&name) {
+                (false, true)
+            } else {
+                assert!(OFFLINE.contains(&name), "`scl {name}` is in no list");
+                (false, false)
+            };
+            // The command and each of its own subcommands (`scl study run --prefix x`).
+            let own = sub.get_subcommands().filter(|c| c.get_name() != "help");
+            for c in std::iter::once(sub).chain(own) {
+                assert_eq!(
+                    (has(c, "prefix"), has(c, "config")),
+                    want,
+                    "`scl {name}` ({}): (--prefix, --config)",
+                    c.get_name()
+                );
+            }
+        }
+    }
+
+    /// `scl up --script` lists exactly the scripts the joystick's parser takes (one type,
+    /// `ScriptName`, is both the possible values and the parser).
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn up_script_help_lists_every_script_the_joystick_takes() {
+        use clap::CommandFactory;
+        let cli = Cli::command();
+        let up = cli.find_subcommand("up").unwrap();
+        let script = up.get_arguments().find(|a| a.get_id() == "script").unwrap();
+        let listed: Vec<String> = script
+            .get_possible_values()
+            .iter()
+            .map(|v| v.get_name().to_owned())
+            .collect();
+        assert_eq!(listed, scl_joystick::script::ScriptName::names());
+        let mut j = scl_config::JoystickConfig::default();
+        for name in &listed {
+            j.script = name.clone();
+            assert!(
+                scl_joystick::script::Script::from_config(&j).is_some(),
+                "{name}"
+            );
+            assert!(
+                Cli::try_parse_from(["scl", "up", "--script", name]).is_ok(),
+                "{name}"
+            );
+        }
+        assert!(Cli::try_parse_from(["scl", "up", "--script", "sine"]).is_err());
+        // And `--model`'s help names the model specs that are not files.
+        let model = up.get_arguments().find(|a| a.get_id() == "model").unwrap();
+        let help = model.get_help().unwrap().to_string();
+        for spec in ["bundled", "modeswitch", "constant:", "goto:"] {
+            assert!(help.contains(spec), "--model help lacks {spec}: {help}");
+        }
+    }
+
+    /// The graph commands take `--prefix` before or after their own options, and
+    /// `SCL_PREFIX` as before; an offline command refuses `--prefix`.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn prefix_goes_with_the_graph_commands() {
+        let cli = Cli::try_parse_from(["scl", "status", "--prefix", "lab"]).unwrap();
+        let Cmd::Status { graph, .. } = cli.cmd else {
+            panic!("not status")
+        };
+        assert_eq!(graph.prefix.as_deref(), Some("lab"));
+        assert!(Cli::try_parse_from(["scl", "train", "--prefix", "lab"]).is_err());
+        // Before the command name, as earlier versions took them: given to the command; its
+        // own option wins; an offline command refuses them.
+        let early = |argv: &[&str]| {
+            let cli = Cli::try_parse_from(argv).unwrap();
+            let mut cmd = cli.cmd;
+            cmd.take_early(cli.prefix, cli.config, "x").map(|()| cmd)
+        };
+        let Ok(Cmd::Status { graph, .. }) = early(&["scl", "--prefix", "lab", "status"]) else {
+            panic!("not status")
+        };
+        assert_eq!(graph.prefix.as_deref(), Some("lab"));
+        let Ok(Cmd::Up { graph, .. }) = early(&["scl", "--prefix", "a", "up", "--prefix", "b"])
+        else {
+            panic!("not up")
+        };
+        assert_eq!(graph.prefix.as_deref(), Some("b"));
+        let Ok(Cmd::Bench { config, .. }) = early(&[
+            "scl", "--config", "f.toml", "bench", "latency", "--for", "1s",
+        ]) else {
+            panic!("not bench")
+        };
+        assert_eq!(
+            config.config.as_deref(),
+            Some(std::path::Path::new("f.toml"))
+        );
+        let e = early(&["scl", "--prefix", "lab", "layout"]).err().unwrap();
+        assert!(e.to_string().contains("`--prefix` is not an option"), "{e}");
+        assert!(
+            early(&[
+                "scl", "--config", "f.toml", "train", "--data", "d", "--out", "m"
+            ])
+            .is_err()
+        );
+    }
+
     #[test]
     fn cli_is_consistent() {
         use clap::CommandFactory;
@@ -316,7 +676,7 @@ mod tests {
             !text.contains("dbg-user-x") && !text.contains("dbg-pass-y"),
             "{text}"
         );
-        let Cmd::Bridge(bridge) = cli.cmd else {
+        let Cmd::Bridge { args: bridge, .. } = cli.cmd else {
             panic!("not the bridge")
         };
         assert_eq!(bridge.password.unwrap().into_inner(), "dbg-pass-y");

@@ -310,9 +310,13 @@ pub fn status_from_heartbeats(
         }
         out.nodes.push(row);
     }
+    // A process's log publisher (`<process>-log`, `node_rt::log`) is that process, not
+    // another node.
     out.other_nodes = alive
         .into_iter()
-        .filter(|(name, pid)| *name != me && !latest.iter().any(|s| s.pid == *pid))
+        .filter(|(name, pid)| {
+            *name != me && !name.ends_with("-log") && !latest.iter().any(|s| s.pid == *pid)
+        })
         .collect();
     out
 }

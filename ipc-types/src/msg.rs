@@ -581,6 +581,104 @@ pub struct NodeStatus {
     pub held_up: u32,
 }
 
+/// [`LogRecord::level`] values (`tracing`'s levels).
+pub mod log_level {
+    /// Trace.
+    pub const TRACE: u32 = 1;
+    /// Debug.
+    pub const DEBUG: u32 = 2;
+    /// Info.
+    pub const INFO: u32 = 3;
+    /// Warning.
+    pub const WARN: u32 = 4;
+    /// Error.
+    pub const ERROR: u32 = 5;
+}
+
+/// Bytes of [`LogRecord::text`].
+pub const LOG_TEXT_BYTES: usize = 472;
+/// Bytes of [`LogRecord::process`].
+pub const LOG_PROCESS_BYTES: usize = 16;
+
+/// One log line of a process of the graph (its own `tracing` record, at INFO and above), as
+/// the process wrote it: fixed size, the text cut at [`LOG_TEXT_BYTES`] on a character
+/// boundary. Published on the `log` topic by every process of the graph, read by `scl live`
+/// (Foxglove's `/scl/log`). Not part of the control path: a process drops (and counts) the
+/// records it cannot hand over at once.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scl::LogRecord")]
+#[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
+pub struct LogRecord {
+    /// When it was logged (monotonic ns).
+    pub t_ns: u64,
+    /// Process id.
+    pub pid: u32,
+    /// [`log_level`] value.
+    pub level: u32,
+    /// Records this process dropped before this one, since it started (the hand-off was
+    /// full or the topic could not take them).
+    pub dropped: u32,
+    /// Bytes of `text` in use.
+    pub text_len: u32,
+    /// The process as the log names it (`supervisor`, `mapper-2`, `safety`, ...), UTF-8,
+    /// zero-padded.
+    pub process: [u8; LOG_PROCESS_BYTES],
+    /// The message and its fields (`message key=value ...`), UTF-8.
+    pub text: [u8; LOG_TEXT_BYTES],
+}
+
+impl LogRecord {
+    /// An empty record.
+    pub fn zeroed() -> Self {
+        <Self as zerocopy::FromZeros>::new_zeroed()
+    }
+
+    /// The text (the bytes in use; a record from elsewhere with broken UTF-8 reads lossily).
+    pub fn text(&self) -> std::borrow::Cow<'_, str> {
+        let n = (self.text_len as usize).min(LOG_TEXT_BYTES);
+        String::from_utf8_lossy(&self.text[..n])
+    }
+
+    /// The process's name.
+    pub fn process(&self) -> std::borrow::Cow<'_, str> {
+        let n = self
+            .process
+            .iter()
+            .position(|b| *b == 0)
+            .unwrap_or(LOG_PROCESS_BYTES);
+        String::from_utf8_lossy(&self.process[..n])
+    }
+
+    /// Sets the process's name, cut to [`LOG_PROCESS_BYTES`] on a character boundary.
+    pub fn set_process(&mut self, name: &str) {
+        self.process = [0; LOG_PROCESS_BYTES];
+        let n = floor_char_boundary(name, LOG_PROCESS_BYTES);
+        self.process[..n].copy_from_slice(&name.as_bytes()[..n]);
+    }
+
+    /// Appends `s` to the text, cut on a character boundary where the text is full; returns
+    /// whether all of it fit.
+    pub fn push_text(&mut self, s: &str) -> bool {
+        let at = (self.text_len as usize).min(LOG_TEXT_BYTES);
+        let n = floor_char_boundary(s, LOG_TEXT_BYTES - at);
+        self.text[at..at + n].copy_from_slice(&s.as_bytes()[..n]);
+        self.text_len = (at + n) as u32;
+        n == s.len()
+    }
+}
+
+/// The largest `n <= max` at which `s` can be cut.
+fn floor_char_boundary(s: &str, max: usize) -> usize {
+    if s.len() <= max {
+        return s.len();
+    }
+    (0..=max)
+        .rev()
+        .find(|i| s.is_char_boundary(*i))
+        .unwrap_or(0)
+}
+
 impl NodeStatus {
     /// A status for `role` in `phase` with every counter at zero.
     pub fn new(role: NodeRole, phase: u32, t_ns: u64) -> Self {
@@ -618,6 +716,7 @@ mod tests {
             assert_eq!(MapperCommand::type_name(), "scl::MapperCommand");
             assert_eq!(SafeCommand::type_name(), "scl::SafeCommand");
             assert_eq!(NodeStatus::type_name(), "scl::NodeStatus");
+            assert_eq!(LogRecord::type_name(), "scl::LogRecord");
         }
     }
 
@@ -630,6 +729,27 @@ mod tests {
         assert_eq!(std::mem::size_of::<SafeCommand>(), 192);
         assert_eq!(std::mem::size_of::<TickReport>(), 120);
         assert_eq!(std::mem::size_of::<NodeStatus>(), 152);
+        assert_eq!(std::mem::size_of::<LogRecord>(), 512);
+    }
+
+    #[test]
+    fn log_text_is_cut_on_a_character_boundary() {
+        let mut r = LogRecord::zeroed();
+        r.set_process("a-process-name-longer-than-16");
+        assert_eq!(r.process(), "a-process-name-l");
+        assert!(r.push_text("abc"));
+        let long = "é".repeat(LOG_TEXT_BYTES);
+        assert!(!r.push_text(&long));
+        assert_eq!(
+            r.text_len as usize,
+            LOG_TEXT_BYTES - 1,
+            "3 + 2k bytes, one short"
+        );
+        assert!(r.text().starts_with("abcé"));
+        assert!(!r.text().contains('\u{fffd}'));
+        assert!(r.push_text("x"), "the last byte");
+        assert!(!r.push_text("y"));
+        assert_eq!(r.text_len as usize, LOG_TEXT_BYTES);
     }
 
     #[test]

@@ -64,6 +64,16 @@ pub const STATUS: TopicSettings = TopicSettings {
     max_subscribers: 8,
 };
 
+/// The processes' own log records ([`crate::LogRecord`]): every process of the graph may
+/// publish (a swap runs two mappers); a late reader (`scl live` restarted) gets the last few.
+pub const LOG: TopicSettings = TopicSettings {
+    name: "log",
+    history: 16,
+    buffer: 256,
+    max_publishers: 16,
+    max_subscribers: 4,
+};
+
 /// How the data-plane topics travel. The control plane (swaps, e-stop, safety control)
 /// always uses iceoryx2.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]

@@ -29,11 +29,11 @@ use iceoryx2::service::port_factory::{event, publish_subscribe};
 use iceoryx2::service::service_name::ServiceNameError;
 use iceoryx2_cal::named_concept::NamedConceptRemoveError;
 use ipc_types::topics::{
-    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
+    JOYSTICK, LOG, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
 };
 use ipc_types::{
-    JoystickInput, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand, TickReport,
-    Transport,
+    JoystickInput, LogRecord, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand,
+    TickReport, Transport,
 };
 
 use crate::uds::Datagram;
@@ -323,6 +323,13 @@ impl Graph {
                 inner: PubInner::Uds(std::cell::RefCell::new(p)),
             });
         }
+        self.iox_publisher(s)
+    }
+
+    fn iox_publisher<T: ZeroCopySend + core::fmt::Debug + Datagram>(
+        &self,
+        s: &TopicSettings,
+    ) -> Result<TopicPublisher<T>, IpcError> {
         let (service, data) = self.pubsub::<T>(s)?;
         let publisher = data
             .publisher_builder()
@@ -360,6 +367,14 @@ impl Graph {
                 inner: SubInner::Uds(sub),
             });
         }
+        self.iox_subscriber(s, wake)
+    }
+
+    fn iox_subscriber<T: ZeroCopySend + core::fmt::Debug + Datagram>(
+        &self,
+        s: &TopicSettings,
+        wake: bool,
+    ) -> Result<TopicSubscriber<T>, IpcError> {
         let (service, data) = self.pubsub::<T>(s)?;
         let subscriber = data
             .subscriber_builder()
@@ -462,6 +477,17 @@ impl Graph {
     /// Subscriber of every node's heartbeat.
     pub fn status_subscriber(&self) -> Result<TopicSubscriber<NodeStatus>, IpcError> {
         self.subscriber(&STATUS, false)
+    }
+
+    /// Publisher of this process's log records (always iceoryx2, whatever the data plane's
+    /// transport). Fails with [`IpcError::Port`] when the topic has all the publishers it
+    /// admits.
+    pub fn log_publisher(&self) -> Result<TopicPublisher<LogRecord>, IpcError> {
+        self.iox_publisher(&LOG)
+    }
+    /// Subscriber of every process's log records (`scl live`), with the last few at once.
+    pub fn log_subscriber(&self) -> Result<TopicSubscriber<LogRecord>, IpcError> {
+        self.iox_subscriber(&LOG, false)
     }
 
     /// Removes the resources that dead processes of this graph left behind (a SIGKILLed
@@ -584,6 +610,16 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> 
                 Ok(n)
             }
             PubInner::Uds(p) => Ok(p.borrow_mut().send(&msg)),
+        }
+    }
+
+    /// Connects the subscribers that came since the last send and hands them the topic's
+    /// history (iceoryx2 does so on a send, or here); best effort: a failure shows on the
+    /// next send.
+    pub fn update_connections(&self) {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        if let PubInner::Iox { publisher, .. } = &self.inner {
+            let _ = publisher.update_connections();
         }
     }
 
@@ -778,6 +814,40 @@ mod tests {
         drop((sub, publ, g));
         assert!(release_domain(&p).unwrap());
         assert!(leftovers(&p).is_empty(), "{:?}", leftovers(&p));
+    }
+
+    /// Log records travel on iceoryx2 whatever the data plane's transport, from several
+    /// publishers, and a reader that comes late gets the last few.
+    #[test]
+    fn log_records_reach_a_late_reader_from_several_processes() {
+        let p = unique_prefix("log");
+        let a = Graph::join_with(&p, "a", Transport::Uds).unwrap();
+        let b = Graph::join(&p, "b").unwrap();
+        let (pa, pb) = (a.log_publisher().unwrap(), b.log_publisher().unwrap());
+        let mut r = LogRecord::zeroed();
+        r.set_process("safety");
+        r.push_text("first");
+        pa.send(r).unwrap();
+        let mut r2 = LogRecord::zeroed();
+        r2.set_process("bridge");
+        r2.push_text("second");
+        pb.send(r2).unwrap();
+        let sub = b.log_subscriber().unwrap();
+        pa.update_connections();
+        pb.update_connections();
+        let mut got = Vec::new();
+        sub.drain(|m| got.push((m.process().into_owned(), m.text().into_owned())))
+            .unwrap();
+        got.sort();
+        assert_eq!(
+            got,
+            [
+                ("bridge".to_owned(), "second".to_owned()),
+                ("safety".to_owned(), "first".to_owned())
+            ]
+        );
+        drop((sub, pa, pb, a, b));
+        assert!(release_domain(&p).unwrap());
     }
 
     fn leftovers(p: &Prefix) -> Vec<String> {

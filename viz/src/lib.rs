@@ -83,7 +83,8 @@ pub enum VizTopic {
     World,
     /// `/scl/tick`: JSON, the plottable numbers of a tick ([`TickView`]).
     Tick,
-    /// `/scl/log`: `foxglove.Log`, what the processes and the safety filter say ([`log`]).
+    /// `/scl/log`: `foxglove.Log`, what the processes and the safety filter say, and the
+    /// processes' own log records ([`log`]).
     Log,
 }
 
@@ -381,6 +382,21 @@ impl Viz {
             }
             _ => {}
         }
+        Ok(())
+    }
+
+    /// Takes one of the processes' own log records (the graph's `log` topic); appends its
+    /// `/scl/log` line to `out`.
+    pub fn observe_log(
+        &mut self,
+        r: &ipc_types::LogRecord,
+        out: &mut Vec<VizMessage>,
+    ) -> Result<(), VizError> {
+        out.push(VizMessage {
+            topic: VizTopic::Log,
+            t_ns: r.t_ns,
+            data: encode(VizTopic::Log, &log::record_line(r))?,
+        });
         Ok(())
     }
 

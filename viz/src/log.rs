@@ -12,13 +12,19 @@
 //!
 //! Each line's `name` is the process (`safety`, `mapper-2`, `supervisor`, `pid 1234`), its
 //! timestamp the monotonic time of the message it comes from.
+//!
+//! Beside these, the processes' own log records (what each wrote to its log at INFO and
+//! above, [`LogRecord`], from the graph's `log` topic) become lines too ([`record_line`]):
+//! name the process, level its level, message its text.
 
 use std::collections::BTreeMap;
 
 use foxglove::messages::Log;
 use foxglove::messages::log::Level;
 use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
-use ipc_types::{NodeRole, NodeStatus, SafeCommand, phase, safe_flags, safety_state};
+use ipc_types::{
+    LogRecord, NodeRole, NodeStatus, SafeCommand, log_level, phase, safe_flags, safety_state,
+};
 use recording::Payload;
 
 use crate::scene::timestamp;
@@ -65,6 +71,24 @@ fn line(level: Level, name: &str, t_ns: u64, message: String) -> Log {
         file: String::new(),
         line: 0,
     }
+}
+
+/// The `/scl/log` line of a process's own log record.
+pub fn record_line(r: &LogRecord) -> Log {
+    let level = match r.level {
+        log_level::ERROR => Level::Error,
+        log_level::WARN => Level::Warning,
+        log_level::INFO => Level::Info,
+        log_level::DEBUG | log_level::TRACE => Level::Debug,
+        _ => Level::Unknown,
+    };
+    let name = r.process();
+    let name = if name.is_empty() {
+        format!("pid {}", r.pid)
+    } else {
+        name.into_owned()
+    };
+    line(level, &name, r.t_ns, r.text().into_owned())
 }
 
 fn process_name(st: &NodeStatus) -> String {
@@ -266,6 +290,24 @@ mod tests {
             flags,
             ..SafeCommand::zeroed()
         })
+    }
+
+    #[test]
+    fn a_process_log_record_is_a_line_with_its_name_and_level() {
+        let mut r = LogRecord::zeroed();
+        r.t_ns = 1_500_000_000;
+        r.pid = 9;
+        r.level = log_level::WARN;
+        r.set_process("mapper-2");
+        r.push_text("input stale tick=4");
+        let l = record_line(&r);
+        assert_eq!(
+            (l.level, l.name.as_str(), l.message.as_str()),
+            (Level::Warning as i32, "mapper-2", "input stale tick=4")
+        );
+        assert_eq!(l.timestamp.unwrap().sec(), 1);
+        r.process = [0; ipc_types::LOG_PROCESS_BYTES];
+        assert_eq!(record_line(&r).name, "pid 9");
     }
 
     #[test]

@@ -28,10 +28,9 @@ pub(crate) struct UpArgs {
     /// joint vector on a straight line in joint space) instead of the config's.
     #[arg(long, value_name = "FILE")]
     pub(crate) model: Option<String>,
-    /// Joystick script instead of the config's: `circle`, `step`, or `constant` (the
-    /// config's `[joystick] constant_axes` held).
-    #[arg(long)]
-    pub(crate) script: Option<String>,
+    /// Joystick script instead of the config's (`[joystick] script`).
+    #[arg(long, value_enum)]
+    pub(crate) script: Option<scl_joystick::script::ScriptName>,
     /// Joystick source instead of the config's: `script`, `evdev`, `keyboard`, `replay`,
     /// or `external` (no joystick process: the input comes from whoever publishes it on
     /// the graph's joystick topic, e.g. a Python agent).
@@ -69,7 +68,7 @@ pub(crate) fn run(
         cfg.mapper.model = m;
     }
     if let Some(s) = script {
-        cfg.joystick.script = s;
+        cfg.joystick.script = s.name().to_owned();
     }
     if let Some(s) = joystick {
         cfg.joystick.source = s;
@@ -87,7 +86,12 @@ pub(crate) fn run(
         record: record.map(|p| scl_recorder::absolute(&p)),
         live,
     };
-    let summary = scl_supervisor::up::run(&opts)?;
+    let summary = scl_supervisor::up::run(&opts).inspect_err(|_| {
+        // A graph that did not start (its live server could not serve, ...) leaves nothing
+        // behind: the supervisor's node is gone; its domain goes too, unless another process
+        // of this prefix is alive.
+        let _ = transport::graph::release_domain(&opts.prefix);
+    })?;
     if json {
         let text = serde_json::to_string(&summary)
             .map_err(|e| SclError::Other(format!("cannot encode the summary: {e}")))?;

@@ -47,7 +47,7 @@ pub struct Report {
     pub failed: bool,
 }
 
-/// Runs every check on the configuration at `config` (`scl --config FILE doctor`; without
+/// Runs every check on the configuration at `config` (`scl doctor --config FILE`; without
 /// it, the defaults: mock arm, scripted joystick, bundled model) and prints the report;
 /// returns the exit code (1 on any fail).
 pub fn run(config: Option<&Path>, args: &DoctorArgs) -> Result<i32, DoctorError> {

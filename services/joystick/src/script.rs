@@ -11,6 +11,43 @@ use scl_config::JoystickConfig;
 /// starts its pattern from its beginning.
 pub const START_REST_S: f64 = 0.5;
 
+/// The scripts by name: what `[joystick] script`, `scl up --script` and `scl joystick
+/// --script` accept. [`Script::from_config`] parses the name with this type, so the help (its
+/// possible values) and the parser cannot disagree.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScriptName {
+    /// A slow circle (`circle_period_s`).
+    Circle,
+    /// Steps: +x, 0, +y, 0, -x, 0, -y, 0 (`step_hold_s`, `step_rest_s`).
+    Step,
+    /// `[joystick] constant_axes` held.
+    Constant,
+}
+
+impl ScriptName {
+    /// The script called `name`, if there is one.
+    pub fn parse(name: &str) -> Option<Self> {
+        <Self as clap::ValueEnum>::from_str(name, false).ok()
+    }
+
+    /// The name as written in the config and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Circle => "circle",
+            Self::Step => "step",
+            Self::Constant => "constant",
+        }
+    }
+
+    /// Every name, in order.
+    pub fn names() -> Vec<&'static str> {
+        <Self as clap::ValueEnum>::value_variants()
+            .iter()
+            .map(|s| s.name())
+            .collect()
+    }
+}
+
 /// A scripted input: `a(t)` with `|a| <= amplitude`.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Script {
@@ -60,24 +97,23 @@ pub fn check_constant_axes(axes: [f64; 2]) -> Result<(), String> {
 impl Script {
     /// The script named in the config, or `None` for an unknown name.
     pub fn from_config(c: &JoystickConfig) -> Option<Self> {
-        match c.script.as_str() {
-            "circle" => Some(Self::Circle {
+        Some(match ScriptName::parse(&c.script)? {
+            ScriptName::Circle => Self::Circle {
                 period_s: c.circle_period_s,
                 amplitude: c.amplitude,
-            }),
-            "constant" => Some(Self::Constant {
+            },
+            ScriptName::Constant => Self::Constant {
                 axes: [
                     c.amplitude * c.constant_axes[0],
                     c.amplitude * c.constant_axes[1],
                 ],
-            }),
-            "step" => Some(Self::Step {
+            },
+            ScriptName::Step => Self::Step {
                 hold_s: c.step_hold_s,
                 rest_s: c.step_rest_s,
                 amplitude: c.amplitude,
-            }),
-            _ => None,
-        }
+            },
+        })
     }
 
     /// The axes at time `t_s` since the script started.
@@ -139,6 +175,21 @@ impl Script {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every name `--script` lists is a script, and nothing else is.
+    #[test]
+    fn every_listed_script_name_parses_and_no_other() {
+        let mut c = JoystickConfig::default();
+        assert_eq!(ScriptName::names(), ["circle", "step", "constant"]);
+        for name in ScriptName::names() {
+            c.script = name.to_owned();
+            assert!(Script::from_config(&c).is_some(), "{name}");
+        }
+        for name in ["", "Circle", "sine", "circle "] {
+            c.script = name.to_owned();
+            assert!(Script::from_config(&c).is_none(), "{name:?}");
+        }
+    }
 
     #[test]
     fn circle_is_unit_and_periodic() {

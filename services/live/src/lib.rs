@@ -1,7 +1,9 @@
 //! `scl live`: a read-only observer that serves a running graph to Foxglove over its
 //! WebSocket protocol (Foxglove's own server, the `foxglove` crate): the recording's JSON
 //! topics (`/robot_state`, `/safe_command`, ...) and the 3D view of [`viz`] (`/tf`,
-//! `/scl/arm`, `/scl/map`, `/scl/world`, `/scl/tick`), the same channels a recording holds.
+//! `/scl/arm`, `/scl/map`, `/scl/world`, `/scl/tick`), the same channels a recording holds;
+//! `/scl/log` adds the processes' own log records (the graph's `log` topic), which a
+//! recording does not hold.
 //!
 //! Like the recorder it never slows the control loop:
 //!
@@ -82,6 +84,11 @@ pub struct LiveArgs {
     /// Print the end report as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Announce on stdout, as one line (`node_rt::ready`), that the server listens and the
+    /// graph is joined (with the address bound), or why it could not start: how `scl up
+    /// --live` knows that its own server serves.
+    #[arg(long, hide = true)]
+    pub announce: bool,
 }
 
 /// Parses `ADDR:PORT`; says whether it is a loopback address.
@@ -120,6 +127,8 @@ struct Counters {
 /// What goes to the view thread.
 enum Item {
     Message(Payload),
+    /// A process's own log record (boxed: 512 bytes, and rare).
+    Log(Box<ipc_types::LogRecord>),
     Process(Box<ProcessSeen>),
 }
 
@@ -185,6 +194,18 @@ fn view_loop(
             Err(RecvTimeoutError::Disconnected) => break,
         };
         match item {
+            Item::Log(r) => {
+                out.clear();
+                if viz.observe_log(&r, &mut out).is_ok() {
+                    for m in &out {
+                        if let Some(c) = channels.view.get(&m.topic) {
+                            let at = PartialMetadata::with_log_time(clock.log_time(m.t_ns));
+                            c.log_with_meta(&m.data, at);
+                            counters.logged.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                }
+            }
             Item::Process(p) => {
                 let (cfg, model) = process::runs(&p);
                 if let Err(e) =
@@ -229,6 +250,7 @@ struct Subscriptions {
     status: TopicSubscriber<NodeStatus>,
     control: TopicSubscriber<ipc_types::control::SafetyControl>,
     estop: TopicSubscriber<ipc_types::control::EstopCommand>,
+    logs: TopicSubscriber<ipc_types::LogRecord>,
 }
 
 /// The subscriber side of the hand-off: never blocks.
@@ -246,6 +268,13 @@ impl Producer {
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
             }
+        }
+    }
+
+    fn offer_log(&self, r: &ipc_types::LogRecord) {
+        self.counters.received.fetch_add(1, Ordering::Relaxed);
+        if self.tx.try_send(Item::Log(Box::new(*r))).is_err() {
+            self.counters.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -272,6 +301,7 @@ impl Subscriptions {
             status: graph.status_subscriber()?,
             control: graph.safety_control_observer()?,
             estop: graph.estop_observer()?,
+            logs: graph.log_subscriber()?,
         })
     }
 
@@ -288,6 +318,7 @@ impl Subscriptions {
         self.control
             .drain(|m| p.offer(Payload::SafetyControl(*m)))?;
         self.estop.drain(|m| p.offer(Payload::Estop(*m)))?;
+        self.logs.drain(|m| p.offer_log(m))?;
         Ok(())
     }
 }
@@ -301,6 +332,8 @@ pub struct LiveOptions {
     pub queue: usize,
     /// The graph configuration (the robot and scene until the safety process is seen).
     pub config: GraphConfig,
+    /// Announce readiness on stdout (`node_rt::ready`) once serving, with the address bound.
+    pub announce: bool,
 }
 
 /// Serves graph `prefix` until a shutdown is requested (Ctrl-C, SIGTERM).
@@ -334,6 +367,8 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
             addr: addr.to_string(),
             reason: e.to_string(),
         })?;
+    // The port bound (the one asked for, or the one the system chose for port 0).
+    let addr = SocketAddr::new(addr.ip(), server.port());
     tracing::info!(
         "serving graph `{prefix}` to Foxglove on ws://{addr} (open connection: Foxglove WebSocket)"
     );
@@ -352,6 +387,9 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
         counters: counters.clone(),
         seen: BTreeSet::new(),
     };
+    if opts.announce {
+        node_rt::ready::announce(&node_rt::ready::Announcement::Ready(addr.to_string()));
+    }
     let mut result = Ok(());
     while result.is_ok() && !signals::stop_requested() {
         result = subs
@@ -384,19 +422,26 @@ pub fn cli(
     config: GraphConfig,
     args: &LiveArgs,
 ) -> Result<std::process::ExitCode, LiveError> {
-    if args.queue == 0 {
-        return Err(LiveError::Thread(
+    let r = if args.queue == 0 {
+        Err(LiveError::Thread(
             "--queue 0: the hand-off needs room for at least one message".into(),
-        ));
+        ))
+    } else {
+        run(
+            prefix,
+            &LiveOptions {
+                listen: args.listen.clone(),
+                queue: args.queue,
+                config,
+                announce: args.announce,
+            },
+        )
     }
-    let r = run(
-        prefix,
-        &LiveOptions {
-            listen: args.listen.clone(),
-            queue: args.queue,
-            config,
-        },
-    )?;
+    .inspect_err(|e| {
+        if args.announce {
+            node_rt::ready::announce(&node_rt::ready::Announcement::Failed(e.to_string()));
+        }
+    })?;
     eprintln!(
         "scl live: {}: {} messages in {:.1} s, {} logged, {} dropped at the hand-off",
         r.listen, r.received, r.duration_s, r.logged, r.dropped
@@ -407,16 +452,6 @@ pub fn cli(
         println!("{text}");
     }
     Ok(std::process::ExitCode::SUCCESS)
-}
-
-/// Whether something accepts TCP connections at `addr` (an unspecified address is tried on
-/// loopback): how `scl up --live` knows the server listens.
-pub fn is_listening(addr: &SocketAddr) -> bool {
-    let mut a = *addr;
-    if a.ip().is_unspecified() {
-        a.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
-    }
-    std::net::TcpStream::connect_timeout(&a, Duration::from_millis(100)).is_ok()
 }
 
 #[cfg(test)]

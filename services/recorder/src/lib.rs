@@ -267,6 +267,9 @@ pub struct Producer {
     seen: BTreeSet<u32>,
     /// Metadata records to the writer thread (rare: unbounded).
     metas: Sender<recording::Metadata>,
+    /// The processes' own log records to the writer thread (`/scl/log`); a full hand-off
+    /// drops them.
+    logs: Sender<ipc_types::LogRecord>,
 }
 
 impl Producer {
@@ -292,6 +295,12 @@ impl Producer {
                 false
             }
         }
+    }
+
+    /// Hands a process's own log record to the writer (a `/scl/log` line of the 3D view);
+    /// never waits: a full hand-off drops it.
+    pub fn log(&mut self, r: &ipc_types::LogRecord) {
+        let _ = self.logs.try_send(*r);
     }
 
     /// Hands a metadata record to the writer (written before the file is finished).
@@ -382,6 +391,29 @@ impl View {
         Ok((self.out.len() as u64, n))
     }
 
+    /// Writes the `/scl/log` line of a process's own log record; returns the messages and
+    /// bytes written.
+    fn write_log<W: Write>(
+        &mut self,
+        w: &mut LogWriter<W>,
+        r: &ipc_types::LogRecord,
+    ) -> Result<(u64, usize), RecordError> {
+        self.out.clear();
+        if self.viz.observe_log(r, &mut self.out).is_err() {
+            return Ok((0, 0));
+        }
+        let mut n = 0;
+        let clock = w.clock();
+        for m in &self.out {
+            let s = self.seq.entry(m.topic).or_default();
+            *s = s.wrapping_add(1);
+            let id = self.ids.get(&m.topic).copied().unwrap_or_default();
+            w.write_raw(id, *s, clock.log_time(m.t_ns), m.t_ns, &m.data)?;
+            n += m.data.len();
+        }
+        Ok((self.out.len() as u64, n))
+    }
+
     /// Takes what a newly seen mapper or safety process runs.
     fn process(&mut self, p: &process::ProcessSeen) {
         let (cfg, model) = process::runs(p);
@@ -407,6 +439,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
     let (tx, rx) = crossbeam_channel::bounded(queue.max(1));
     let (procs, procs_rx) = crossbeam_channel::unbounded();
     let (metas, metas_rx) = crossbeam_channel::unbounded();
+    let (logs, logs_rx) = crossbeam_channel::bounded(256);
     let tally = Arc::new(Tally::default());
     let t2 = tally.clone();
     let handle = std::thread::Builder::new()
@@ -418,6 +451,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
             let side = SideChannels {
                 procs: procs_rx,
                 metas: metas_rx,
+                logs: logs_rx,
             };
             write_loop(writer, view, rx, &side, &t2, &topics, flush_every)
         })?;
@@ -429,6 +463,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
             procs,
             seen: BTreeSet::new(),
             metas,
+            logs,
         },
         tally,
         handle,
@@ -439,6 +474,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
 struct SideChannels {
     procs: Receiver<process::ProcessSeen>,
     metas: Receiver<recording::Metadata>,
+    logs: Receiver<ipc_types::LogRecord>,
 }
 
 fn write_loop<W: Write>(
@@ -515,6 +551,19 @@ fn write_loop<W: Write>(
                 fail(&mut error, &mut pending, e);
             }
         }
+        while let Ok(r) = side.logs.try_recv() {
+            if error.is_none()
+                && let Some(v) = view.as_mut()
+            {
+                match v.write_log(&mut w, &r) {
+                    Ok((k, n)) => {
+                        pending_view += k;
+                        pending_bytes += n;
+                    }
+                    Err(e) => fail(&mut error, &mut pending, e),
+                }
+            }
+        }
         if error.is_none() && (last_flush.elapsed() >= flush_every || pending_bytes >= FLUSH_BYTES)
         {
             match w.flush() {
@@ -564,6 +613,8 @@ struct Subscriptions {
     status: Option<TopicSubscriber<NodeStatus>>,
     control: Option<TopicSubscriber<ipc_types::control::SafetyControl>>,
     estop: Option<TopicSubscriber<ipc_types::control::EstopCommand>>,
+    /// The processes' own log records (to the 3D view's `/scl/log`).
+    logs: TopicSubscriber<ipc_types::LogRecord>,
 }
 
 impl Subscriptions {
@@ -591,6 +642,7 @@ impl Subscriptions {
             estop: has(Topic::Estop)
                 .then(|| graph.estop_observer())
                 .transpose()?,
+            logs: graph.log_subscriber()?,
         })
     }
 
@@ -635,6 +687,7 @@ impl Subscriptions {
                 p.offer(Payload::Estop(*m));
             })?;
         }
+        self.logs.drain(|m| p.log(m))?;
         Ok(())
     }
 }

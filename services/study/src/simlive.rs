@@ -150,7 +150,7 @@ impl LiveSim {
             .map_err(|e| live(e.to_string()))?;
         // The prefix on the command line: it overrides an SCL_PREFIX this process inherited.
         let child = Command::new(&self.exe)
-            .args(["--prefix", self.prefix.as_str(), "up", "--config"])
+            .args(["up", "--prefix", self.prefix.as_str(), "--config"])
             .arg(&cfg_path)
             .env("SCL_LOG", "info")
             .stdin(Stdio::null())

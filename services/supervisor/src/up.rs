@@ -392,6 +392,12 @@ struct Supervisor<'a> {
 }
 
 fn spawn(args: &[String]) -> std::io::Result<Child> {
+    command(args)?.spawn()
+}
+
+/// The command line of a child: this binary with `args`, in its own process group, sent
+/// SIGTERM if the supervisor dies.
+fn command(args: &[String]) -> std::io::Result<Command> {
     let exe = std::env::current_exe()?;
     let mut cmd = Command::new(exe);
     cmd.args(args);
@@ -407,7 +413,7 @@ fn spawn(args: &[String]) -> std::io::Result<Child> {
             Ok(())
         });
     }
-    cmd.spawn()
+    Ok(cmd)
 }
 
 fn terminate(child: &Child) {
@@ -415,35 +421,80 @@ fn terminate(child: &Child) {
     let _ = kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM);
 }
 
-/// Starts `scl live --listen addr` and waits until it accepts connections (or exits).
+/// Starts `scl live --listen addr --announce` and waits until it says it serves (or could
+/// not start, or exits). The child announces itself on its standard output
+/// ([`node_rt::ready`]) once its own server listens and it has joined the graph, so another
+/// program that happens to listen on the same port is never taken for it: the live server's
+/// error (the port in use, ...) is then this function's, and the graph does not start.
 fn start_live(
     sv: &Supervisor<'_>,
     addr: &str,
     timeout: Duration,
 ) -> Result<Child, SupervisorError> {
-    let a: std::net::SocketAddr = addr.parse().map_err(|e| {
+    use node_rt::ready::{self, Announcement};
+    let _: std::net::SocketAddr = addr.parse().map_err(|e| {
         SupervisorError::Graph(format!(
             "--live {addr}: expected ADDR:PORT, e.g. 127.0.0.1:8765 ({e})"
         ))
     })?;
-    let mut probe = a;
-    if probe.ip().is_unspecified() {
-        probe.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
-    }
     let mut args = sv.child_args("live");
-    args.extend(["--listen".to_owned(), addr.to_owned()]);
-    let mut child = spawn(&args)
+    args.extend([
+        "--listen".to_owned(),
+        addr.to_owned(),
+        "--announce".to_owned(),
+    ]);
+    let mut cmd = command(&args)
         .map_err(|e| SupervisorError::Graph(format!("cannot start the live process: {e}")))?;
-    let t0 = Instant::now();
-    loop {
-        if let Ok(Some(st)) = child.try_wait() {
+    let mut child = cmd
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| SupervisorError::Graph(format!("cannot start the live process: {e}")))?;
+    let (tx, rx) = std::sync::mpsc::channel();
+    if let Some(out) = child.stdout.take() {
+        // Reads the announcement, then whatever else the child writes there (nothing, today)
+        // until it exits, so it never writes into a closed pipe.
+        let reader = std::thread::Builder::new()
+            .name("live-announce".into())
+            .spawn(move || {
+                use std::io::BufRead;
+                let mut lines = std::io::BufReader::new(out).lines();
+                for line in lines.by_ref() {
+                    let Ok(line) = line else { break };
+                    if let Some(a) = ready::parse(&line) {
+                        let _ = tx.send(a);
+                        break;
+                    }
+                }
+                lines.for_each(drop);
+            });
+        if let Err(e) = reader {
+            stop_live(&mut child);
             return Err(SupervisorError::Graph(format!(
-                "scl live exited ({st}) before serving on {addr}"
+                "cannot read the live process's announcement: {e}"
             )));
         }
-        if std::net::TcpStream::connect_timeout(&probe, Duration::from_millis(100)).is_ok() {
-            tracing::info!("Foxglove: open a connection to ws://{addr}");
-            return Ok(child);
+    }
+    let t0 = Instant::now();
+    loop {
+        match rx.recv_timeout(Duration::from_millis(20)) {
+            Ok(Announcement::Ready(at)) => {
+                tracing::info!("Foxglove: open a connection to ws://{at}");
+                return Ok(child);
+            }
+            Ok(Announcement::Failed(reason)) => {
+                let st = wait_exit(&mut child);
+                return Err(SupervisorError::Graph(format!(
+                    "the live server did not start ({st}): {reason}"
+                )));
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                // Its standard output closed without a word: it exited (or closed it).
+                let st = wait_exit(&mut child);
+                return Err(SupervisorError::Graph(format!(
+                    "scl live exited ({st}) before serving on {addr}"
+                )));
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
         }
         if t0.elapsed() > timeout {
             stop_live(&mut child);
@@ -451,8 +502,21 @@ fn start_live(
                 "scl live did not serve on {addr} within {timeout:?}"
             )));
         }
-        std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+/// Waits for a live child that is exiting by itself (SIGTERM, then SIGKILL after 3 s, if it
+/// does not); says how it ended.
+fn wait_exit(child: &mut Child) -> String {
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(3) {
+        if let Ok(Some(st)) = child.try_wait() {
+            return st.to_string();
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    stop_live(child);
+    "still running; stopped".to_owned()
 }
 
 /// Stops the live child (SIGTERM, then SIGKILL after 3 s); says if it had died already.
