@@ -144,7 +144,8 @@ pub fn speed_scale(points: &[PointJacobian], v: &[f64], cap: f64) -> f64 {
 pub struct WholeArm {
     model: &'static CollisionModel,
     scene: Scene,
-    gripper_range: (f64, f64),
+    /// The profile's gripper joint when open and when closed (rad); `None` without a gripper.
+    gripper: Option<(f64, f64)>,
     /// The tool (`tool_frame`) in the gripper base's frame.
     tool_offset: Point3<f64>,
     now: Box<Clearance>,
@@ -196,7 +197,7 @@ impl WholeArm {
         Some(Self {
             model,
             scene,
-            gripper_range: model.gripper_range(),
+            gripper: robot.gripper().map(|g| (g.open_rad(), g.closed_rad())),
             tool_offset,
             now,
             next: Box::new(Clearance::default()),
@@ -221,7 +222,8 @@ impl WholeArm {
     }
 
     /// Computes the clearance at the arm joints `q` with the gripper at `gripper` (the
-    /// robot state's `c`: 0 open, 1 closed; not finite: the model's default) and the
+    /// robot state's `c`: 0 open, 1 closed, as the profile's gripper maps it; not finite, or a
+    /// profile without a gripper: the model's default) and the
     /// Jacobians of the capsule ends and the tool. Returns whether the model gave finite
     /// values (if not, the rules are off this tick and [`WholeArm::closest`] is `None`).
     pub fn update(&mut self, q: &[f64], gripper: f64) -> bool {
@@ -234,11 +236,13 @@ impl WholeArm {
             return false;
         }
         self.q[..n].copy_from_slice(q);
-        let (lo, hi) = self.gripper_range;
-        self.q[n] = if gripper.is_finite() {
-            hi - gripper.clamp(0.0, 1.0) * (hi - lo)
-        } else {
-            self.model.gripper_default_rad()
+        // The profile says which end of the joint's range is open (the Gen3 lite's upper end,
+        // the Gen3's 2F-85 its lower one).
+        self.q[n] = match self.gripper {
+            Some((open, closed)) if gripper.is_finite() => {
+                open - gripper.clamp(0.0, 1.0) * (open - closed)
+            }
+            _ => self.model.gripper_default_rad(),
         };
         if self
             .model
@@ -411,4 +415,36 @@ fn rows(cols: &[Vector3<f64>; MAX_ARM_JOINTS]) -> PointJacobian {
         }
     }
     j
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The gripper joint the model is given is the profile's angle for the state's `c`:
+    /// open at `c = 0` whichever end of the joint's range that is (the Gen3 lite's upper
+    /// end, 0.96 rad; the Gen3's 2F-85 its lower one, 0 rad), the model's default when `c`
+    /// is not finite.
+    #[test]
+    fn the_gripper_joint_follows_the_profiles_open_and_closed_ends() {
+        for (name, open, closed) in [("gen3_lite", 0.96, -0.09), ("gen3", 0.0, 0.8)] {
+            let robot = RobotProfile::by_name(name).unwrap();
+            let g = robot.gripper().unwrap();
+            assert_eq!((g.open_rad(), g.closed_rad()), (open, closed), "{name}");
+            let mut arm = WholeArm::new(robot, Scene::default()).unwrap();
+            let n = robot.n_joints();
+            let home = robot.named_pose("home").unwrap();
+            for (c, want) in [(0.0, open), (1.0, closed), (0.5, g.angle(0.5))] {
+                assert!(arm.update(home, c), "{name}");
+                assert!(
+                    (arm.q[n] - want).abs() < 1e-15,
+                    "{name} c = {c}: {}",
+                    arm.q[n]
+                );
+            }
+            assert!(arm.update(home, f64::NAN));
+            let default = robot.collision_model().unwrap().gripper_default_rad();
+            assert_eq!(arm.q[n], default, "{name}");
+        }
+    }
 }
