@@ -77,9 +77,9 @@ fn a_tick_of_the_filter_does_not_allocate_for_any_profile() {
                 s.gripper = 0.5;
                 let out = f.step(&cmd(tick, &qdot), &s, NOW);
                 flags |= out.flags;
-                for j in 0..n {
-                    prev[j] = out.qdot_rad_s[j];
-                    q[j] += prev[j] * dt;
+                prev = out.qdot_rad_s;
+                for (qj, v) in q.iter_mut().zip(&prev).take(n) {
+                    *qj += v * dt;
                 }
             }
         });
