@@ -5,9 +5,10 @@
 //! (the collision model's clearance every tick, the speed caps) and the real tool model: at
 //! home (nothing near), with the gripper 5 cm above the table and driving down (braking, the
 //! exact check of the next tick), and with two boxes in the scene; last, two of these after a
-//! sweep of the caches, as the safety process meets them at each 40 Hz tick.
+//! sweep of the caches, as the safety process meets them at each 40 Hz tick; last, the Gen3
+//! (7 joints) beside the Gen3 lite with each profile's own filter.
 //!
-//! Run: `cargo bench -p safety --bench filter`.
+//! Run: `cargo bench -p safety --bench filter` (the two profiles alone: `-- gen3`).
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -212,5 +213,69 @@ fn bench_cold(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench, bench_whole_arm, bench_cold);
+/// A command of `v.len()` joints.
+fn cmd_n(tick: u64, v: &[f64]) -> MapperCommand {
+    let mut c = cmd_of(tick, [0.0; 6]);
+    c.qdot_rad_s = [0.0; MAX_JOINTS];
+    c.qdot_rad_s[..v.len()].copy_from_slice(v);
+    c.n_joints = v.len() as u32;
+    c
+}
+
+/// The Gen3 (7 joints) beside the Gen3 lite (6), each with the filter the safety process
+/// builds for its profile (`SafetyFilter::for_graph`: the workspace rule on the arm chain's
+/// tool, the whole-arm rules on the profile's collision model, the default table): at home
+/// with a command in the middle of the range, and with the gripper about 5 cm above the table
+/// and the shoulder driving it down (braking, the exact check of the next tick). Run alone:
+/// `cargo bench -p safety --bench filter -- gen3`.
+fn bench_profiles(c: &mut Criterion) {
+    let mut tick = 0u64;
+    for (name, mid, shoulder, down) in [
+        (
+            "gen3_lite",
+            &[0.3, -0.2, 0.1, 0.3, -0.1, 0.2][..],
+            -0.98,
+            &[0.0, -0.2, 0.0, 0.0, 0.0, 0.0][..],
+        ),
+        (
+            "gen3",
+            &[0.3, -0.2, 0.1, 0.3, -0.1, 0.2, 0.1][..],
+            0.82,
+            &[0.0, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0][..],
+        ),
+    ] {
+        let robot = kinematics::RobotProfile::by_name(name).unwrap();
+        let n = robot.n_joints();
+        let dt = 1.0 / robot.control_rate_hz();
+        let mut home = RobotState::at_rest(0, NOW - 1_000_000, n as u32);
+        home.q_rad[..n].copy_from_slice(robot.named_pose("home").unwrap());
+        let mut near = home;
+        near.q_rad[1] = shoulder;
+        for (case, s, v) in [
+            ("at home", home, mid),
+            ("braking near the table", near, down),
+        ] {
+            let mut s = s;
+            let mut f = SafetyFilter::for_graph(SafetyConfig::for_robot(robot), robot, dt).unwrap();
+            let out = f.step(&cmd_n(1, v), &s, NOW);
+            assert!(out.clearance_m.is_finite(), "{name}: {out:?}");
+            if case != "at home" {
+                assert!(out.clearance_m < 0.07, "{name}: {}", out.clearance_m);
+            }
+            c.bench_function(
+                &format!("{name}: safety step (whole arm, table, {case})"),
+                |b| {
+                    b.iter(|| {
+                        tick += 1;
+                        s.tick = tick;
+                        s.applied_tick = tick - 1;
+                        black_box(f.step(black_box(&cmd_n(tick, v)), &s, NOW))
+                    })
+                },
+            );
+        }
+    }
+}
+
+criterion_group!(benches, bench, bench_whole_arm, bench_cold, bench_profiles);
 criterion_main!(benches);

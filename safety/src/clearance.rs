@@ -1,10 +1,13 @@
-//! The whole-arm rules: the distance between every checked pair of the Gen3 lite's collision
-//! model (each link against the others and against the scene, `kinematics::collision`), and
-//! the Cartesian speed of the tool and of every link capsule's ends.
+//! The whole-arm rules: the distance between every checked pair of the robot profile's
+//! collision model (each link against the others and against the scene,
+//! `kinematics::collision`), and the Cartesian speed of the tool and of every link capsule's
+//! ends, for an arm of any number of joints up to [`MAX_ARM_JOINTS`] (the Gen3 lite's six,
+//! the Gen3's seven).
 //!
 //! The rules are pure functions on slices, like [`crate::rules`]: a checked pair is a
 //! [`Near`] (its distance `d` and the row `g` with `d_dot = g · qdot`), a point is its
-//! translational Jacobian. [`WholeArm`] computes them at a tick's state (the clearance once,
+//! translational Jacobian. Rows and Jacobians have [`MAX_ARM_JOINTS`] columns, the arm's
+//! joints then zeros; `qdot` is the arm's joints only (a longer one would see the zeros). [`WholeArm`] computes them at a tick's state (the clearance once,
 //! the rows of the pairs that matter, the Jacobians of the capsule ends), allocation-free.
 //!
 //! * Slow-down ([`slowdown_scale`]): a pair within the slowdown distance may approach at most
@@ -20,9 +23,8 @@
 //! opens a gap (`d_dot >= 0`) is never limited by it.
 
 use kinematics::RobotProfile;
-use kinematics::collision::{
-    ARM_JOINTS as N_JOINTS, Clearance, CollisionLink, CollisionModel, Scene, Target, side_code,
-};
+pub use kinematics::collision::MAX_ARM_JOINTS;
+use kinematics::collision::{Clearance, CollisionLink, CollisionModel, Scene, Target, side_code};
 use nalgebra::{Point3, Vector3};
 
 /// Slack kept above the stop distance (m): the rules predict a distance over one tick to
@@ -41,8 +43,16 @@ pub const BRAKE_SHARE: f64 = 0.75;
 /// Refinements of [`WholeArm::verify`] before it stops the arm instead.
 const VERIFY_STEPS: usize = 4;
 
-/// A translational Jacobian: row `i` is axis `i`, column `j` joint `j` (m per rad).
-pub type PointJacobian = [[f64; N_JOINTS]; 3];
+// Every arm the filter takes (`ipc_types::MAX_JOINTS` joints at most) fits the rows.
+const _: () = assert!(ipc_types::MAX_JOINTS <= MAX_ARM_JOINTS);
+
+/// A row over the arm's joints: entry `j` per rad/s of joint `j`, zero beyond the arm's
+/// joints.
+pub type JointRow = [f64; MAX_ARM_JOINTS];
+
+/// A translational Jacobian: row `i` is axis `i`, column `j` joint `j` (m per rad), zero
+/// beyond the arm's joints.
+pub type PointJacobian = [JointRow; 3];
 
 /// A checked pair as the rules see it: its signed distance and the row `g` of
 /// `d_dot = g · qdot`.
@@ -50,8 +60,8 @@ pub type PointJacobian = [[f64; N_JOINTS]; 3];
 pub struct Near {
     /// Signed distance (m).
     pub distance_m: f64,
-    /// `d_dot = rate_row · qdot` (m/s for rad/s).
-    pub rate_row: [f64; N_JOINTS],
+    /// `d_dot = rate_row · qdot` (m/s for rad/s), zero beyond the arm's joints.
+    pub rate_row: JointRow,
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -134,12 +144,17 @@ pub fn speed_scale(points: &[PointJacobian], v: &[f64], cap: f64) -> f64 {
 pub struct WholeArm {
     model: &'static CollisionModel,
     scene: Scene,
-    gripper_range: (f64, f64),
+    /// The profile's gripper joint when open and when closed (rad); `None` without a gripper.
+    gripper: Option<(f64, f64)>,
     /// The tool (`tool_frame`) in the gripper base's frame.
     tool_offset: Point3<f64>,
     now: Box<Clearance>,
     next: Box<Clearance>,
-    q: [f64; N_JOINTS + 1],
+    /// The arm's joints (the model's).
+    n: usize,
+    /// The arm joints of the last [`WholeArm::update`], then the gripper joint (the first
+    /// `n + 1` entries are used).
+    q: [f64; MAX_ARM_JOINTS + 1],
     valid: bool,
     near: Vec<Near>,
     /// Capsule ends, then the tool (last).
@@ -157,10 +172,11 @@ fn is_static(pair: &kinematics::collision::PairId) -> bool {
 
 impl WholeArm {
     /// `robot`'s collision model in `scene`; `None` if the profile has no collision model
-    /// or its arm is not the model's [`N_JOINTS`] joints.
+    /// or its arm does not have the model's joints (at most [`MAX_ARM_JOINTS`]).
     pub fn new(robot: &RobotProfile, scene: Scene) -> Option<Self> {
         let model = robot.collision_model()?;
-        if robot.n_joints() != N_JOINTS {
+        let n = model.n_joints();
+        if robot.n_joints() != n || n > MAX_ARM_JOINTS {
             return None;
         }
         let home = robot.named_pose("home")?;
@@ -181,15 +197,16 @@ impl WholeArm {
         Some(Self {
             model,
             scene,
-            gripper_range: model.gripper_range(),
+            gripper: robot.gripper().map(|g| (g.open_rad(), g.closed_rad())),
             tool_offset,
             now,
             next: Box::new(Clearance::default()),
-            q: [0.0; N_JOINTS + 1],
+            n,
+            q: [0.0; MAX_ARM_JOINTS + 1],
             valid: false,
             near: Vec::with_capacity(kinematics::collision::MAX_PAIRS),
             points: Vec::with_capacity(n_points),
-            angular: [[0.0; N_JOINTS]; 3],
+            angular: [[0.0; MAX_ARM_JOINTS]; 3],
             closest: None,
         })
     }
@@ -199,8 +216,14 @@ impl WholeArm {
         &self.scene
     }
 
-    /// Computes the clearance at the six arm joints `q` with the gripper at `gripper` (the
-    /// robot state's `c`: 0 open, 1 closed; not finite: the model's default) and the
+    /// The arm's number of joints (the length of `q` in [`WholeArm::update`]).
+    pub fn n_joints(&self) -> usize {
+        self.n
+    }
+
+    /// Computes the clearance at the arm joints `q` with the gripper at `gripper` (the
+    /// robot state's `c`: 0 open, 1 closed, as the profile's gripper maps it; not finite, or a
+    /// profile without a gripper: the model's default) and the
     /// Jacobians of the capsule ends and the tool. Returns whether the model gave finite
     /// values (if not, the rules are off this tick and [`WholeArm::closest`] is `None`).
     pub fn update(&mut self, q: &[f64], gripper: f64) -> bool {
@@ -208,19 +231,22 @@ impl WholeArm {
         self.closest = None;
         self.near.clear();
         self.points.clear();
-        if q.len() != N_JOINTS {
+        let n = self.n;
+        if q.len() != n {
             return false;
         }
-        self.q[..N_JOINTS].copy_from_slice(q);
-        let (lo, hi) = self.gripper_range;
-        self.q[N_JOINTS] = if gripper.is_finite() {
-            hi - gripper.clamp(0.0, 1.0) * (hi - lo)
-        } else {
-            self.model.gripper_default_rad()
+        self.q[..n].copy_from_slice(q);
+        // The profile says which end of the joint's range is open (the Gen3 lite's upper end,
+        // the Gen3's 2F-85 its lower one).
+        self.q[n] = match self.gripper {
+            Some((open, closed)) if gripper.is_finite() => {
+                open - gripper.clamp(0.0, 1.0) * (open - closed)
+            }
+            _ => self.model.gripper_default_rad(),
         };
         if self
             .model
-            .clearance(&self.q, &self.scene, &mut self.now)
+            .clearance(&self.q[..=n], &self.scene, &mut self.now)
             .is_err()
         {
             return false;
@@ -321,7 +347,7 @@ impl WholeArm {
     /// pair can come that close: none is within four times the fastest point's travel of
     /// `stop_m`.
     pub fn verify(&mut self, v: &mut [f64], stop_m: f64, dt: f64) -> f64 {
-        if !self.valid || v.len() != N_JOINTS {
+        if !self.valid || v.len() != self.n {
             return 1.0;
         }
         let reach = 4.0 * self.max_point_speed(v) * dt + 2.0 * CLEARANCE_SLACK_M;
@@ -343,7 +369,7 @@ impl WholeArm {
             }
             if self
                 .model
-                .clearance(&q, &self.scene, &mut self.next)
+                .clearance(&q[..=self.n], &self.scene, &mut self.next)
                 .is_err()
             {
                 break;
@@ -381,12 +407,44 @@ impl WholeArm {
     pub const NO_PAIR: [u16; 2] = [side_code::NONE; 2];
 }
 
-fn rows(cols: &[Vector3<f64>; N_JOINTS]) -> PointJacobian {
-    let mut j = [[0.0; N_JOINTS]; 3];
+fn rows(cols: &[Vector3<f64>; MAX_ARM_JOINTS]) -> PointJacobian {
+    let mut j = [[0.0; MAX_ARM_JOINTS]; 3];
     for (c, col) in cols.iter().enumerate() {
         for (i, row) in j.iter_mut().enumerate() {
             row[c] = col[i];
         }
     }
     j
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The gripper joint the model is given is the profile's angle for the state's `c`:
+    /// open at `c = 0` whichever end of the joint's range that is (the Gen3 lite's upper
+    /// end, 0.96 rad; the Gen3's 2F-85 its lower one, 0 rad), the model's default when `c`
+    /// is not finite.
+    #[test]
+    fn the_gripper_joint_follows_the_profiles_open_and_closed_ends() {
+        for (name, open, closed) in [("gen3_lite", 0.96, -0.09), ("gen3", 0.0, 0.8)] {
+            let robot = RobotProfile::by_name(name).unwrap();
+            let g = robot.gripper().unwrap();
+            assert_eq!((g.open_rad(), g.closed_rad()), (open, closed), "{name}");
+            let mut arm = WholeArm::new(robot, Scene::default()).unwrap();
+            let n = robot.n_joints();
+            let home = robot.named_pose("home").unwrap();
+            for (c, want) in [(0.0, open), (1.0, closed), (0.5, g.angle(0.5))] {
+                assert!(arm.update(home, c), "{name}");
+                assert!(
+                    (arm.q[n] - want).abs() < 1e-15,
+                    "{name} c = {c}: {}",
+                    arm.q[n]
+                );
+            }
+            assert!(arm.update(home, f64::NAN));
+            let default = robot.collision_model().unwrap().gripper_default_rad();
+            assert_eq!(arm.q[n], default, "{name}");
+        }
+    }
 }

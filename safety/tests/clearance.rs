@@ -264,9 +264,11 @@ fn the_base_against_the_scene_is_not_reported() {
 // ---- each rule alone ----
 
 fn near(distance_m: f64, row: [f64; 6]) -> Near {
+    let mut rate_row = [0.0; clearance::MAX_ARM_JOINTS];
+    rate_row[..6].copy_from_slice(&row);
     Near {
         distance_m,
-        rate_row: row,
+        rate_row,
     }
 }
 
@@ -347,9 +349,9 @@ fn the_slowdown_scales_the_approach_down_to_zero_at_the_stop_distance() {
 
 #[test]
 fn the_speed_cap_scales_the_fastest_point_to_the_cap() {
-    let mut a = [[0.0; 6]; 3];
+    let mut a = [[0.0; clearance::MAX_ARM_JOINTS]; 3];
     a[0][0] = 0.5; // 0.5 m/s per rad/s of joint 0 along x
-    let mut b = [[0.0; 6]; 3];
+    let mut b = [[0.0; clearance::MAX_ARM_JOINTS]; 3];
     b[1][0] = 0.3;
     b[2][1] = 0.4; // |(0, 0.3 q0, 0.4 q1)|
     let v = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0];

@@ -290,24 +290,9 @@ fn no_pair_passes_the_stop_distance_and_no_point_the_speed_cap_on_the_gen3_lite(
     whole_arm_holds(RobotProfile::by_name("gen3_lite").unwrap());
 }
 
-/// The Gen3's whole-arm rules are not available yet: `safety::clearance::WholeArm` takes a
-/// six-joint arm only (`WholeArm::new` returns `None` unless the arm has 6 joints), so the
-/// filter refuses the Gen3's profile with an error naming the key, never a filter without the
-/// rules. When `WholeArm` is generalised (issue 30), this test fails: replace it with
-/// `whole_arm_holds(RobotProfile::by_name("gen3").unwrap())`, as for the Gen3 lite.
 #[test]
-fn the_gen3s_whole_arm_rules_are_refused_until_whole_arm_takes_seven_joints() {
-    let robot = RobotProfile::by_name("gen3").unwrap();
-    let cfg = SafetyConfig::for_robot(robot);
-    let e = SafetyFilter::for_robot(cfg, robot, period(robot))
-        .unwrap()
-        .with_whole_arm(robot)
-        .expect_err("the Gen3's whole-arm rules exist now: test them with whole_arm_holds");
-    let msg = e.to_string();
-    assert!(
-        msg.contains("no collision model for this 7-joint arm"),
-        "{msg}"
-    );
+fn no_pair_passes_the_stop_distance_and_no_point_the_speed_cap_on_the_gen3() {
+    whole_arm_holds(RobotProfile::by_name("gen3").unwrap());
 }
 
 /// Every built-in profile is covered by the tests above.
@@ -315,4 +300,146 @@ fn the_gen3s_whole_arm_rules_are_refused_until_whole_arm_takes_seven_joints() {
 fn every_builtin_profile_is_covered() {
     let names: Vec<&str> = RobotProfile::names().collect();
     assert_eq!(names, ["gen3_lite", "gen3"]);
+}
+
+/// Runs `robot`'s filter ([`SafetyFilter::for_graph`], as the safety process builds it) in
+/// closed loop from `q0` at rest with the constant command `qdot` for `ticks`; returns the
+/// final pose, the last output and the closest checked pair over the run, asserting on the
+/// way that no pair comes closer than the stop distance and that every output kept within the
+/// acceleration limits (every stop braked in time).
+fn drive(
+    f: &mut SafetyFilter,
+    robot: &RobotProfile,
+    q0: &[f64],
+    qdot: &[f64],
+    ticks: u64,
+    first_tick: u64,
+) -> (Vec<f64>, ipc_types::SafeCommand, (PairId, f64)) {
+    let n = robot.n_joints();
+    let dt = period(robot);
+    let stop = f.config().stop_distance_m;
+    let amax = f.config().max_acceleration_rad_s2.clone();
+    let scene = f.config().scene.scene().unwrap();
+    let closest_at = |q: &[f64]| {
+        distances(robot, q, &scene)
+            .into_iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap()
+    };
+    let mut q = q0.to_vec();
+    let mut prev = vec![0.0; n];
+    let mut closest = closest_at(&q);
+    let mut out = None;
+    for k in 0..ticks {
+        let tick = first_tick + k;
+        let o = f.step(&cmd(tick, qdot), &state(tick, &q, &prev, k > 0), NOW);
+        for j in 0..n {
+            let change = o.qdot_rad_s[j] - f.last_report().base_rad_s[j];
+            assert!(
+                change.abs() <= amax[j] * dt * (1.0 + 1e-9),
+                "tick {tick} joint {j}: changed by {change}, more than the acceleration limit"
+            );
+            prev[j] = o.qdot_rad_s[j];
+            q[j] += prev[j] * dt;
+        }
+        let (pair, d) = closest_at(&q);
+        assert!(
+            d >= stop - 1e-9,
+            "tick {tick}: {pair} at {d} m, below the stop distance {stop} m (flags {:#x})",
+            o.flags
+        );
+        if d < closest.1 {
+            closest = (pair, d);
+        }
+        out = Some(o);
+    }
+    (q, out.unwrap(), closest)
+}
+
+/// The Gen3 (seven joints) from home, driven for 20 s into the table (joint 2 forward) and
+/// folded onto itself (joint 6 bending the gripper back onto the shoulder): the filter the safety process builds
+/// takes the Gen3's collision model, no pair comes closer than the stop distance, the arm
+/// comes to rest within a few millimetres of it, braking within the acceleration limits,
+/// with the closest pair (a Gen3 link) and its distance reported; the reversed command backs
+/// out.
+#[test]
+fn the_gen3_driven_into_the_table_or_onto_itself_stops_at_the_stop_distance() {
+    let robot = RobotProfile::by_name("gen3").unwrap();
+    let home = robot.named_pose("home").unwrap();
+    for (name, qdot) in [
+        ("table", [0.0, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0]),
+        ("fold", [0.0, 0.0, 0.0, 0.0, 0.0, -0.4, 0.0]),
+    ] {
+        let cfg = SafetyConfig::for_robot(robot);
+        let stop = cfg.stop_distance_m;
+        let mut f = SafetyFilter::for_graph(cfg, robot, period(robot)).unwrap();
+        let (q, last, closest) = drive(&mut f, robot, home, &qdot, 800, 1);
+        eprintln!(
+            "gen3 drill {name}: closest {} at {:.4} m, at rest at q {q:.3?}",
+            closest.0, closest.1
+        );
+        assert!(
+            last.flags & ipc_types::safe_flags::CLEARANCE_LIMITED != 0,
+            "{name}: {:#x}",
+            last.flags
+        );
+        assert!(
+            last.qdot_rad_s.iter().all(|v| v.abs() < 1e-3),
+            "{name}: {last:?}"
+        );
+        assert!(
+            closest.1 < stop + 0.005,
+            "{name}: stopped {} m short",
+            closest.1
+        );
+        assert_eq!(last.closest_pair, closest.0.code(), "{name}");
+        assert!((last.clearance_m - closest.1).abs() < 1e-3, "{name}");
+        let back: Vec<f64> = qdot.iter().map(|v| -v).collect();
+        let (_, out, _) = drive(&mut f, robot, &q, &back, 80, 801);
+        assert_eq!(
+            out.flags & ipc_types::safe_flags::CLEARANCE_LIMITED,
+            0,
+            "{name}"
+        );
+        assert!(
+            out.clearance_m > closest.1 + 0.02,
+            "{name}: {}",
+            out.clearance_m
+        );
+    }
+}
+
+/// The Gen3's whole-arm model takes its seven joints: the tool's translational and angular
+/// Jacobians are the arm chain's (base -> TCP) in all seven columns, zero beyond, and a joint
+/// vector of another length is refused.
+#[test]
+fn the_gen3s_whole_arm_jacobians_are_the_chains_in_seven_columns() {
+    use safety::clearance::{MAX_ARM_JOINTS, WholeArm};
+    let robot = RobotProfile::by_name("gen3").unwrap();
+    let mut arm = WholeArm::new(robot, Scene::default()).unwrap();
+    assert_eq!(arm.n_joints(), 7);
+    let q = [0.3, 0.5, -2.6, -1.9, 0.4, 0.8, -0.7];
+    assert!(arm.update(&q, 0.5));
+    let mut jac = kinematics::Jacobian::zeros(7);
+    robot.arm().fk_jacobian(&q, &mut jac).unwrap();
+    let tool = arm.tool().unwrap();
+    let angular = arm.angular();
+    for i in 0..3 {
+        for j in 0..7 {
+            assert!(
+                (tool[i][j] - jac.get(i, j)).abs() < 1e-12,
+                "linear ({i}, {j}): {} vs {}",
+                tool[i][j],
+                jac.get(i, j)
+            );
+            assert!(
+                (angular[i][j] - jac.get(i + 3, j)).abs() < 1e-12,
+                "angular ({i}, {j})"
+            );
+        }
+        assert!(tool[i][7..MAX_ARM_JOINTS].iter().all(|v| *v == 0.0));
+    }
+    assert!(arm.closest().is_some());
+    assert!(!arm.update(&q[..6], 0.5));
+    assert!(arm.closest().is_none());
 }

@@ -3,14 +3,12 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
+use super::MAX_ARM_JOINTS;
 use super::{
     Capsule, CapsuleRef, CollisionLink, Contact, MAX_CAPSULES, MAX_PAIRS, PairId, Scene, Target,
     geometry,
 };
 use crate::chain::{JointAxis, JointKind, MAX_DOF};
-/// The Gen3 lite's six joints: the width of the rows of [`Clearance::rate_row`] and
-/// [`Clearance::point_jacobian`] (the `_all` variants have every joint of the model).
-const N_JOINTS: usize = crate::gen3_lite::N_JOINTS;
 
 /// The clearance of one joint state (see
 /// [`CollisionModel::clearance`](super::CollisionModel::clearance)): fixed arrays on the stack
@@ -126,43 +124,34 @@ impl Clearance {
         })
     }
 
-    /// The row `g` with `d_dot = g · qdot` (m/s for `qdot` in rad/s, the six arm joints)
-    /// for a contact of this state: `g = nᵀ (J_a - J_b)`, `J_a` and `J_b` the translational
-    /// Jacobians of the closest points as points of their links (zero for the scene), `n`
-    /// the contact's gradient (its unit normal but deep in a box). The gripper is held
-    /// still. `None` when the contact has no normal (deep overlap).
-    ///
-    /// Exact where the closest points move smoothly; where the closest pair of features
-    /// switches (parallel segments, a capsule's axis level with the table) the distance has
-    /// one-sided derivatives and this is one of them.
-    ///
-    /// The row has six entries, the joints of a Gen3 lite: `None` for a model of another
-    /// number of joints, whose rows [`Clearance::rate_row_all`] gives.
-    pub fn rate_row(&self, contact: &Contact) -> Option<[f64; N_JOINTS]> {
-        if self.n_joints != N_JOINTS {
-            return None;
-        }
-        let all = self.rate_row_all(contact)?;
-        let mut row = [0.0; N_JOINTS];
-        row.copy_from_slice(&all[..N_JOINTS]);
-        Some(row)
-    }
-
-    /// Number of arm joints of the model that computed this state (the used entries of the
-    /// `_all` rows and Jacobians).
+    /// Number of arm joints of the model that computed this state: the used columns of
+    /// [`Clearance::rate_row`], [`Clearance::point_jacobian`] and
+    /// [`Clearance::angular_jacobian`] (the rest are zero).
     pub fn n_joints(&self) -> usize {
         self.n_joints
     }
 
-    /// [`Clearance::rate_row`] for a model of any number of joints: entries beyond
-    /// [`Clearance::n_joints`] are zero.
-    pub fn rate_row_all(&self, contact: &Contact) -> Option<[f64; MAX_DOF]> {
+    /// The row `g` with `d_dot = g · qdot` (m/s for `qdot` in rad/s, the arm joints) for a
+    /// contact of this state: `g = nᵀ (J_a - J_b)`, `J_a` and `J_b` the translational
+    /// Jacobians of the closest points as points of their links (zero for the scene), `n`
+    /// the contact's gradient (its unit normal but deep in a box). The gripper is held
+    /// still. `None` when the contact has no normal (deep overlap).
+    ///
+    /// Entry `j` is arm joint `j`, for the model's [`Clearance::n_joints`] joints (six on a
+    /// Gen3 lite, seven on a Gen3); the entries beyond are zero, so `g · qdot` may take a
+    /// `qdot` of just the arm's joints.
+    ///
+    /// Exact where the closest points move smoothly; where the closest pair of features
+    /// switches (parallel segments, a capsule's axis level with the table) the distance has
+    /// one-sided derivatives and this is one of them.
+    pub fn rate_row(&self, contact: &Contact) -> Option<[f64; MAX_ARM_JOINTS]> {
         let g = contact.gradient?;
         let normal = contact.normal?;
-        let mut row = [0.0; MAX_DOF];
+        let mut row = [0.0; MAX_ARM_JOINTS];
         let mut add = |link: CollisionLink, p: &Point3<f64>, sign: f64| {
-            for (r, col) in row.iter_mut().zip(self.point_jacobian_all(link, p)) {
-                *r += sign * g.dot(&col);
+            let cols = self.point_jacobian(link, p);
+            for (r, col) in row.iter_mut().zip(&cols).take(self.n_joints) {
+                *r += sign * g.dot(col);
             }
         };
         // The velocities are those of the closest points of the capsules' axes (the surface
@@ -183,25 +172,14 @@ impl Clearance {
 
     /// The translational Jacobian of the point `p` (base frame) moving with `link` at this
     /// state: column `j` is the point's velocity (m/s) per rad/s of arm joint `j`, zero for
-    /// the joints that do not move the link (the gripper held still). `J qdot` is the point's
-    /// velocity. Allocation-free.
-    ///
-    /// The first six joints (a Gen3 lite's); [`Clearance::point_jacobian_all`] has them all.
-    pub fn point_jacobian(&self, link: CollisionLink, p: &Point3<f64>) -> [Vector3<f64>; N_JOINTS] {
-        let all = self.point_jacobian_all(link, p);
-        let mut cols = [Vector3::zeros(); N_JOINTS];
-        cols.copy_from_slice(&all[..N_JOINTS]);
-        cols
-    }
-
-    /// [`Clearance::point_jacobian`] with a column for every joint of the model (zero
-    /// beyond [`Clearance::n_joints`]).
-    pub fn point_jacobian_all(
+    /// the joints that do not move the link (the gripper held still) and beyond the model's
+    /// [`Clearance::n_joints`]. `J qdot` is the point's velocity. Allocation-free.
+    pub fn point_jacobian(
         &self,
         link: CollisionLink,
         p: &Point3<f64>,
-    ) -> [Vector3<f64>; MAX_DOF] {
-        let mut cols = [Vector3::zeros(); MAX_DOF];
+    ) -> [Vector3<f64>; MAX_ARM_JOINTS] {
+        let mut cols = [Vector3::zeros(); MAX_ARM_JOINTS];
         let moved = usize::from(self.link_moved_by[link.index()]).min(self.n_joints);
         for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
             *c = axis.point_velocity(&p.coords);
@@ -211,19 +189,9 @@ impl Clearance {
 
     /// The angular Jacobian of `link` at this state: column `j` is the link's angular
     /// velocity (rad/s, base frame) per rad/s of arm joint `j` (the axis of a revolute joint
-    /// that moves the link, else zero).
-    ///
-    /// The first six joints (a Gen3 lite's); [`Clearance::angular_jacobian_all`] has them all.
-    pub fn angular_jacobian(&self, link: CollisionLink) -> [Vector3<f64>; N_JOINTS] {
-        let all = self.angular_jacobian_all(link);
-        let mut cols = [Vector3::zeros(); N_JOINTS];
-        cols.copy_from_slice(&all[..N_JOINTS]);
-        cols
-    }
-
-    /// [`Clearance::angular_jacobian`] with a column for every joint of the model.
-    pub fn angular_jacobian_all(&self, link: CollisionLink) -> [Vector3<f64>; MAX_DOF] {
-        let mut cols = [Vector3::zeros(); MAX_DOF];
+    /// that moves the link, else zero; zero beyond the model's [`Clearance::n_joints`]).
+    pub fn angular_jacobian(&self, link: CollisionLink) -> [Vector3<f64>; MAX_ARM_JOINTS] {
+        let mut cols = [Vector3::zeros(); MAX_ARM_JOINTS];
         let moved = usize::from(self.link_moved_by[link.index()]).min(self.n_joints);
         for (c, axis) in cols.iter_mut().zip(&self.axes).take(moved) {
             if axis.kind == JointKind::Revolute {
@@ -234,7 +202,7 @@ impl Clearance {
     }
 
     /// [`Clearance::rate_row`] of the closest pair.
-    pub fn closest_rate_row(&self) -> Option<[f64; N_JOINTS]> {
+    pub fn closest_rate_row(&self) -> Option<[f64; MAX_ARM_JOINTS]> {
         self.rate_row(self.closest.as_ref()?)
     }
 }

@@ -12,13 +12,15 @@
 //! * The pairs are built at load: every capsule against every capsule of another link,
 //!   except the link pairs the file excludes (adjacent links, and those Kinova's MoveIt
 //!   configuration marks as never colliding; each exclusion carries its reason).
-//! * [`CollisionModel::clearance`] computes, for joint angles `q` (the six arm joints, and
-//!   the gripper joint if known) and a [`Scene`], every pair's exact signed distance (self
-//!   pairs, then each link against the table, then against each box), the closest pair with
-//!   its closest points, into a caller-owned [`Clearance`]: fixed arrays, no allocation. The
+//! * [`CollisionModel::clearance`] computes, for joint angles `q` (the arm joints, six on
+//!   a Gen3 lite and seven on a Gen3, and the gripper joint if known) and a [`Scene`], every
+//!   pair's exact signed distance (self pairs, then each link against the table, then
+//!   against each box), the closest pair with its closest points, into a caller-owned
+//!   [`Clearance`]: fixed arrays, no allocation. The
 //!   base is not checked against the table: it stands on it by design (nor is the shoulder,
 //!   which joint 1 only turns about the vertical: its height above the table is fixed).
-//! * [`Clearance::rate_row`] gives the row `g` with `d_dot = g · qdot` for a pair's distance:
+//! * [`Clearance::rate_row`] gives the row `g` with `d_dot = g · qdot` for a pair's distance
+//!   (one entry per arm joint of the model, zeros up to [`MAX_ARM_JOINTS`]):
 //!   `g = nᵀ (J_a - J_b)`, `n` the unit normal between the closest points (for a capsule deep
 //!   in a box where two faces are equally near, the weighted mix of their normals that is the
 //!   depth's exact gradient) and `J` the translational Jacobians of those points as points of
@@ -67,9 +69,10 @@ pub const FILE_VERSION: u32 = 1;
 /// Most capsules a model may have.
 pub const MAX_CAPSULES: usize = 32;
 
-/// Joints of the arm the model covers: its rate rows and point Jacobians have this many
-/// columns (the gripper joint, when given, is the next entry of `q`).
-pub const ARM_JOINTS: usize = crate::gen3_lite::N_JOINTS;
+/// Most arm joints a model may have: the width of the rate rows and point Jacobians of a
+/// [`Clearance`] (the model's own [`Clearance::n_joints`] columns, then zeros). Every arm a
+/// [`crate::chain::Chain`] can hold fits.
+pub const MAX_ARM_JOINTS: usize = crate::chain::MAX_DOF;
 
 /// Most capsule pairs a model may check against each other.
 pub const MAX_SELF_PAIRS: usize = 256;

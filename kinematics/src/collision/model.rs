@@ -77,7 +77,7 @@ impl CollisionModel {
         self.margin_m
     }
 
-    /// The gripper joint's value used when [`CollisionModel::clearance`] is given the six arm
+    /// The gripper joint's value used when [`CollisionModel::clearance`] is given the arm
     /// joints only (rad).
     pub fn gripper_default_rad(&self) -> f64 {
         self.gripper_default_rad
