@@ -271,6 +271,37 @@ fn start_up_sets_servoing_and_clears_faults_before_anything_else_in_order() {
     assert_eq!(fake.snapshot().stats.refused_not_servoing, 0);
 }
 
+/// A bare Kortex client's session on a connection of its own to `fake`, with the robot-side
+/// watchdog `connection_inactivity_timeout_ms` (0: none): the stream, its decoder and the
+/// session id (CreateSession is message 1).
+fn raw_session(
+    fake: &FakeKortex,
+    connection_inactivity_timeout_ms: u32,
+) -> (TcpStream, FrameDecoder, u16) {
+    let mut stream = TcpStream::connect(fake.addr()).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut dec = FrameDecoder::new();
+    let info = msg::CreateSessionInfo {
+        username: "admin".into(),
+        session_inactivity_timeout: 60_000,
+        password: "admin".into(),
+        connection_inactivity_timeout: connection_inactivity_timeout_ms,
+    };
+    let reply = raw_call(
+        &mut stream,
+        &mut dec,
+        0,
+        1,
+        Function::CreateSession,
+        info.encode_to_vec(),
+    );
+    assert_eq!(reply.error(), None);
+    let session = reply.header().session_id();
+    (stream, dec, session)
+}
+
 /// A bare Kortex client on `stream`: sends one request, returns the reply.
 fn raw_call(
     stream: &mut TcpStream,
@@ -322,28 +353,8 @@ fn raw_call_uid(
 #[test]
 fn the_fake_refuses_motion_until_single_level_servoing_is_set() {
     let fake = start_fake(FakeConfig::default());
-    let mut stream = TcpStream::connect(fake.addr()).unwrap();
-    stream
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
-    let mut dec = FrameDecoder::new();
-    let info = msg::CreateSessionInfo {
-        username: "admin".into(),
-        session_inactivity_timeout: 60_000,
-        password: "admin".into(),
-        // No robot-side watchdog: this test is about servoing, whatever the machine's load.
-        connection_inactivity_timeout: 0,
-    };
-    let reply = raw_call(
-        &mut stream,
-        &mut dec,
-        0,
-        1,
-        Function::CreateSession,
-        info.encode_to_vec(),
-    );
-    assert_eq!(reply.error(), None);
-    let session = reply.header().session_id();
+    // No robot-side watchdog: this test is about servoing, whatever the machine's load.
+    let (mut stream, mut dec, session) = raw_session(&fake, 0);
     // A client that skips SetServoingMode: its commands are refused, the arm does not move.
     let speeds = joint_speeds_msg(&MOVE).encode_to_vec();
     let refused = |f: &Frame| {
@@ -817,27 +828,7 @@ fn an_observing_session_reads_the_arm_beside_the_bridge_without_stopping_it() {
     let mut arm = KortexArm::connect(&cfg, &admin()).unwrap();
     moving(&fake, &mut arm);
 
-    let mut stream = TcpStream::connect(fake.addr()).unwrap();
-    stream
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
-    let mut dec = FrameDecoder::new();
-    let info = msg::CreateSessionInfo {
-        username: "admin".into(),
-        session_inactivity_timeout: 60_000,
-        password: "admin".into(),
-        connection_inactivity_timeout: 50,
-    };
-    let reply = raw_call(
-        &mut stream,
-        &mut dec,
-        0,
-        1,
-        Function::CreateSession,
-        info.encode_to_vec(),
-    );
-    assert_eq!(reply.error(), None);
-    let session = reply.header().session_id();
+    let (mut stream, mut dec, session) = raw_session(&fake, 50);
     assert_ne!(session, arm.session_id());
     assert_eq!(fake.snapshot().open_sessions, 2);
     let mut id = 1;

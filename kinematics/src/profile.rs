@@ -159,66 +159,65 @@ const ROBOTS: [fn() -> ProfileSpec<'static>; 2] = [gen3_lite, gen3];
 /// Each built-in profile, parsed once per process when first asked for.
 static LOADED: [OnceLock<RobotProfile>; ROBOTS.len()] = [const { OnceLock::new() }; ROBOTS.len()];
 
+/// The spec of a Kinova arm from its module (`crate::gen3_lite`, `crate::gen3`), which names
+/// its URDF, links, joints, teleoperation limits, poses, rates and gripper joint alike; what
+/// differs between the arms is given: the collision model, the continuous joints' software
+/// limit and the gripper joint's open and closed positions (rad).
+macro_rules! kinova_spec {
+    ($module:ident, $name:literal, $description:literal, collision: $collision:expr,
+     continuous_limit_rad: $continuous:expr, gripper_rad: ($open:expr, $closed:expr)) => {{
+        use crate::$module as g;
+        const POSES: &[(&str, &[f64])] = &[
+            ("home", &g::HOME),
+            ("zero", &g::ZERO),
+            ("retract", &g::RETRACT),
+        ];
+        ProfileSpec {
+            name: $name,
+            description: $description,
+            urdf: g::URDF,
+            urdf_name: g::URDF_NAME,
+            base_link: g::BASE_LINK,
+            tcp_link: g::TCP_LINK,
+            joint_names: &g::JOINT_NAMES,
+            teleop_velocity_rad_s: &g::DEFAULT_VELOCITY_RAD_S,
+            teleop_acceleration_rad_s2: &g::DEFAULT_ACCELERATION_RAD_S2,
+            poses: POSES,
+            control_rate_hz: g::CONTROL_RATE_HZ,
+            gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
+            collision: $collision,
+            continuous_limit_rad: $continuous,
+            gripper: Some(GripperSpec {
+                joint: g::GRIPPER_JOINT,
+                open_rad: $open,
+                closed_rad: $closed,
+            }),
+        }
+    }};
+}
+
 /// The Kinova Gen3 lite ([`crate::gen3_lite`]).
 fn gen3_lite() -> ProfileSpec<'static> {
-    use crate::gen3_lite as g;
-    const POSES: &[(&str, &[f64])] = &[
-        ("home", &g::HOME),
-        ("zero", &g::ZERO),
-        ("retract", &g::RETRACT),
-    ];
-    ProfileSpec {
-        name: "gen3_lite",
-        description: "Gen3 lite",
-        urdf: g::URDF,
-        urdf_name: g::URDF_NAME,
-        base_link: g::BASE_LINK,
-        tcp_link: g::TCP_LINK,
-        joint_names: &g::JOINT_NAMES,
-        teleop_velocity_rad_s: &g::DEFAULT_VELOCITY_RAD_S,
-        teleop_acceleration_rad_s2: &g::DEFAULT_ACCELERATION_RAD_S2,
-        poses: POSES,
-        control_rate_hz: g::CONTROL_RATE_HZ,
-        gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
+    kinova_spec!(
+        gen3_lite,
+        "gen3_lite",
+        "Gen3 lite",
         collision: Some(CollisionModel::get),
         continuous_limit_rad: None,
-        gripper: Some(GripperSpec {
-            joint: g::GRIPPER_JOINT,
-            open_rad: 0.96,
-            closed_rad: -0.09,
-        }),
-    }
+        gripper_rad: (0.96, -0.09)
+    )
 }
 
 /// The Kinova Gen3, 7 DoF, with a Robotiq 2F-85 ([`crate::gen3`]).
 fn gen3() -> ProfileSpec<'static> {
-    use crate::gen3 as g;
-    const POSES: &[(&str, &[f64])] = &[
-        ("home", &g::HOME),
-        ("zero", &g::ZERO),
-        ("retract", &g::RETRACT),
-    ];
-    ProfileSpec {
-        name: "gen3",
-        description: "Gen3",
-        urdf: g::URDF,
-        urdf_name: g::URDF_NAME,
-        base_link: g::BASE_LINK,
-        tcp_link: g::TCP_LINK,
-        joint_names: &g::JOINT_NAMES,
-        teleop_velocity_rad_s: &g::DEFAULT_VELOCITY_RAD_S,
-        teleop_acceleration_rad_s2: &g::DEFAULT_ACCELERATION_RAD_S2,
-        poses: POSES,
-        control_rate_hz: g::CONTROL_RATE_HZ,
-        gripper_time_constant_s: g::GRIPPER_TIME_CONSTANT_S,
-        collision: Some(g::collision_model),
-        continuous_limit_rad: Some(g::CONTINUOUS_LIMIT_RAD),
-        gripper: Some(GripperSpec {
-            joint: g::GRIPPER_JOINT,
-            open_rad: g::GRIPPER_OPEN_RAD,
-            closed_rad: g::GRIPPER_CLOSED_RAD,
-        }),
-    }
+    kinova_spec!(
+        gen3,
+        "gen3",
+        "Gen3",
+        collision: Some(crate::gen3::collision_model),
+        continuous_limit_rad: Some(crate::gen3::CONTINUOUS_LIMIT_RAD),
+        gripper_rad: (crate::gen3::GRIPPER_OPEN_RAD, crate::gen3::GRIPPER_CLOSED_RAD)
+    )
 }
 
 impl ProfileSpec<'static> {

@@ -685,237 +685,22 @@ pub fn replay(
     rec: &Recording,
     explain_tick: Option<u64>,
 ) -> Result<(Replay, Option<TickTrace>), ReplayError> {
-    let mut notes = Vec::new();
-    if let Some(why) = &rec.stopped {
-        notes.push(format!(
-            "the recording is incomplete ({why}): replayed up to its end"
-        ));
-    }
-    if rec.undecodable > 0 {
-        notes.push(format!(
-            "{} messages did not decode (a non-finite value is written as null) and were left out",
-            rec.undecodable
-        ));
-    }
+    let mut notes = recording_notes(rec);
     let cfg = rec.graph_config(&mut notes)?;
-    let cerr = |reason: String| ReplayError::Config {
-        path: rec.path.clone(),
-        what: "the graph configuration".into(),
-        reason,
-    };
-    let robot = cfg.profile().map_err(|e| cerr(e.to_string()))?;
+    let robot = cfg
+        .profile()
+        .map_err(|e| graph_config_error(rec, e.to_string()))?;
     let period_s = cfg.period_s();
-
-    // Mappers: one step per process, commands in recorded order.
-    let mut steps: HashMap<u32, Option<(MapperStep, String, bool)>> = HashMap::new();
-    let mut replayed: Replayed = HashMap::new();
-    let mut mapper_divs: BTreeMap<(u64, u32), Divergence> = BTreeMap::new();
-    let (mut mapper_commands, mut mapper_identical, mut skipped) = (0u64, 0u64, 0u64);
-    let mut rebuilt = 0u64;
-    for cmd in &rec.mapper {
-        let pid = rec.incarnation(NodeRole::Mapper, cmd.mapper_id, cmd.t_ns);
-        if let std::collections::hash_map::Entry::Vacant(slot) = steps.entry(pid) {
-            let s = match rec.model(cmd.mapper_id, pid, robot, &mut notes)? {
-                Some((model, name, altered)) => Some((
-                    MapperStep::new(cmd.mapper_id, model.at_period(period_s), robot.n_joints())
-                        .map_err(|source| ReplayError::Model {
-                            path: rec.path.clone(),
-                            mapper_id: cmd.mapper_id,
-                            pid,
-                            source,
-                        })?,
-                    name,
-                    altered,
-                )),
-                None => None,
-            };
-            slot.insert(s);
-        }
-        let Some(Some((step, model_name, altered))) = steps.get_mut(&pid) else {
-            skipped += 1;
-            continue;
-        };
-        let Some(state) = rec.states.get(&cmd.state_t_ns) else {
-            skipped += 1;
-            continue;
-        };
-        let joy = joystick_for(rec, cmd);
-        if joy.is_some_and(|(_, r)| r) {
-            rebuilt += 1;
-        }
-        let mut out = step.step(state, joy.as_ref().map(|(j, _)| j));
-        out.t_ns = cmd.t_ns;
-        out.state_rx_ns = cmd.state_rx_ns;
-        out.joystick_rx_ns = cmd.joystick_rx_ns;
-        out.compute_ns = cmd.compute_ns;
-        mapper_commands += 1;
-        let d = mapper_diff(cmd, &out);
-        if d.is_empty() {
-            mapper_identical += 1;
-        } else {
-            let input = match joy {
-                _ if *altered => format!(
-                    "the model: {model_name} is not the file recorded (its SHA-256 differs from \
-                     the one recorded with it); the robot state (tick {}) and joystick sample \
-                     (seq {}) were fed as recorded",
-                    state.tick, cmd.joystick_seq
-                ),
-                Some((_, true)) => format!(
-                    "the joystick sample (seq {}) is not in the recording and was rebuilt from \
-                     the command",
-                    cmd.joystick_seq
-                ),
-                _ => format!(
-                    "none: the recorded robot state (tick {}) and joystick sample (seq {}) were \
-                     fed as recorded; the model ({model_name}) or the map's state differs",
-                    state.tick, cmd.joystick_seq
-                ),
-            };
-            mapper_divs
-                .entry((cmd.tick, cmd.mapper_id))
-                .or_insert_with(|| Divergence {
-                    tick: cmd.tick,
-                    stage: "mapper".into(),
-                    mapper_id: cmd.mapper_id,
-                    fields: d,
-                    recorded_flags: bit_names(cmd.flags, &ipc_types::mapper_flags::NAMES),
-                    replayed_flags: bit_names(out.flags, &ipc_types::mapper_flags::NAMES),
-                    input,
-                });
-        }
-        replayed.insert((cmd.mapper_id, cmd.tick, cmd.t_ns), out);
-    }
-    if rebuilt > 0 {
-        notes.push(format!(
-            "{rebuilt} joystick samples were not in the recording and were rebuilt from the \
-             mapper's commands"
-        ));
-    }
-    let recorded_mapper: HashMap<(u32, u64, u64), &MapperCommand> = rec
-        .mapper
-        .iter()
-        .map(|c| ((c.mapper_id, c.tick, c.t_ns), c))
-        .collect();
-
-    // Safety: one filter per process, commands in recorded order.
-    let mut filters: HashMap<u32, SafetyFilter> = HashMap::new();
-    let mut out = Replay {
-        ticks: 0,
-        identical: 0,
-        diverged: 0,
-        first_divergence: None,
-        mapper_commands,
-        mapper_identical,
-        skipped,
-        events: control_events(&rec.safe),
-        notes: Vec::new(),
-    };
-    let mut first: Option<Divergence> = None;
-    let mut trace = None;
-    let mut old_control = false;
-    for safe in &rec.safe {
-        let key = (safe.mapper_id, safe.tick, safe.mapper_t_ns);
-        let Some(state) = rec.states.get(&safe.state_t_ns) else {
-            out.skipped += 1;
-            continue;
-        };
-        // A tick safety answered itself (the e-stop latched, no mapper command in time): it
-        // names no mapper command (`mapper_t_ns` 0) and is replayed as it ran.
-        let unanswered = safe.mapper_t_ns == 0 && !recorded_mapper.contains_key(&key);
-        let stand_in = unanswered.then(|| safety::unanswered_command(safe.mapper_id, state));
-        let Some(rec_cmd) = recorded_mapper.get(&key).copied().or(stand_in.as_ref()) else {
-            out.skipped += 1;
-            continue;
-        };
-        let pid = rec.incarnation(NodeRole::Safety, 0, safe.t_ns);
-        let filter = match filters.entry(pid) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(v) => v.insert(
-                SafetyFilter::for_graph(cfg.safety.clone(), robot, period_s)
-                    .map_err(|e| cerr(format!("the safety filter: {e}")))?,
-            ),
-        };
-        let rep_cmd = replayed.get(&key);
-        let input_cmd = rep_cmd.copied().unwrap_or(*rec_cmd);
-        let control = if safe.control & safe_control::RECORDED != 0 {
-            safe.control
-        } else {
-            old_control = true;
-            // Before the control bits were recorded: the flags say whether the e-stop was
-            // latched and the arm held (an interruption is not known).
-            let mut c = 0;
-            if safe.flags & safe_flags::ESTOP != 0 {
-                c |= safe_control::ESTOP;
-            }
-            if safe.flags & safe_flags::HOLD != 0 {
-                c |= safe_control::HOLD;
-            }
-            c
-        };
-        filter.apply_control(control);
-        let now_ns = safe.t_ns.saturating_sub(safe.compute_ns);
-        let mut res = if unanswered {
-            filter.step_unanswered(safe.mapper_id, state, now_ns)
-        } else {
-            filter.step(&input_cmd, state, now_ns)
-        };
-        res.t_ns = safe.t_ns;
-        res.mapper_rx_ns = safe.mapper_rx_ns;
-        res.compute_ns = safe.compute_ns;
-        if safe.control & safe_control::RECORDED == 0 {
-            res.control = safe.control;
-        }
-        out.ticks += 1;
-        let d = safe_diff(safe, &res);
-        let mapper_div = mapper_divs.get(&(safe.tick, safe.mapper_id));
-        if d.is_empty() && mapper_div.is_none() {
-            out.identical += 1;
-        } else {
-            out.diverged += 1;
-            if first.is_none() {
-                first = Some(match mapper_div {
-                    Some(m) => m.clone(),
-                    None => Divergence {
-                        tick: safe.tick,
-                        stage: "safety".into(),
-                        mapper_id: safe.mapper_id,
-                        fields: d,
-                        recorded_flags: bit_names(safe.flags, &safe_flags::NAMES),
-                        replayed_flags: bit_names(res.flags, &safe_flags::NAMES),
-                        input: "none: the mapper command, robot state, control inputs and time \
-                                were fed as recorded; the filter or its configuration differs"
-                            .into(),
-                    },
-                });
-            }
-        }
-        if explain_tick == Some(safe.tick) {
-            trace = Some(TickTrace {
-                state: *state,
-                joystick: joystick_for(rec, rec_cmd),
-                model: steps
-                    .get(&rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns))
-                    .and_then(|s| s.as_ref().map(|(_, n, _)| n.clone())),
-                h: linear_map_at(
-                    rec,
-                    rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns),
-                    robot,
-                    state,
-                ),
-                mapper_recorded: *rec_cmd,
-                mapper_replayed: rep_cmd.copied(),
-                now_ns,
-                control,
-                safe_recorded: *safe,
-                safe_replayed: res,
-                report: filter.last_report(),
-                config: filter.config().clone(),
-            });
-        }
-    }
+    let mappers = replay_mappers(rec, robot, period_s, &mut notes)?;
+    let SafetyReplay {
+        mut out,
+        mut first,
+        trace,
+        old_control,
+    } = replay_safety(rec, &cfg, robot, period_s, &mappers, explain_tick)?;
     // A mapper that diverged before any tick safety forwarded from it (a swap's warm-up)
     // is the first divergence if it came first.
-    if let Some(m) = mapper_divs.values().next()
+    if let Some(m) = mappers.divs.values().next()
         && first.as_ref().is_none_or(|f| m.tick < f.tick)
     {
         first = Some(m.clone());
@@ -951,6 +736,349 @@ pub fn replay(
     out.first_divergence = first;
     out.notes = notes;
     Ok((out, trace))
+}
+
+/// What the reader of a replay must know of the recording itself: it is cut, or some of
+/// its messages did not decode.
+fn recording_notes(rec: &Recording) -> Vec<String> {
+    let mut notes = Vec::new();
+    if let Some(why) = &rec.stopped {
+        notes.push(format!(
+            "the recording is incomplete ({why}): replayed up to its end"
+        ));
+    }
+    if rec.undecodable > 0 {
+        notes.push(format!(
+            "{} messages did not decode (a non-finite value is written as null) and were left out",
+            rec.undecodable
+        ));
+    }
+    notes
+}
+
+/// The recorded graph configuration is unusable: `reason`.
+fn graph_config_error(rec: &Recording, reason: String) -> ReplayError {
+    ReplayError::Config {
+        path: rec.path.clone(),
+        what: "the graph configuration".into(),
+        reason,
+    }
+}
+
+/// A mapper process's step, with its model's name and whether the model file was altered
+/// after the recording; `None` when the recording does not hold its model.
+type ReplayedMapper = Option<(MapperStep, String, bool)>;
+
+/// The mappers' replay.
+#[derive(Default)]
+struct MapperReplay {
+    /// Each mapper process's step, by process id.
+    steps: HashMap<u32, ReplayedMapper>,
+    /// The replayed commands.
+    replayed: Replayed,
+    /// The first divergence of each (tick, mapper id).
+    divs: BTreeMap<(u64, u32), Divergence>,
+    /// Commands replayed.
+    commands: u64,
+    /// Commands replayed bit for bit.
+    identical: u64,
+    /// Commands whose model or robot state is not in the recording.
+    skipped: u64,
+}
+
+/// Replays every mapper command through its process's step, in recorded order.
+fn replay_mappers(
+    rec: &Recording,
+    robot: &'static kinematics::RobotProfile,
+    period_s: f64,
+    notes: &mut Vec<String>,
+) -> Result<MapperReplay, ReplayError> {
+    let mut m = MapperReplay::default();
+    let mut rebuilt = 0u64;
+    for cmd in &rec.mapper {
+        let pid = rec.incarnation(NodeRole::Mapper, cmd.mapper_id, cmd.t_ns);
+        if let std::collections::hash_map::Entry::Vacant(slot) = m.steps.entry(pid) {
+            slot.insert(mapper_step(
+                rec,
+                cmd.mapper_id,
+                pid,
+                robot,
+                period_s,
+                notes,
+            )?);
+        }
+        let Some(Some((step, model_name, altered))) = m.steps.get_mut(&pid) else {
+            m.skipped += 1;
+            continue;
+        };
+        let Some(state) = rec.states.get(&cmd.state_t_ns) else {
+            m.skipped += 1;
+            continue;
+        };
+        let joy = joystick_for(rec, cmd);
+        if joy.is_some_and(|(_, r)| r) {
+            rebuilt += 1;
+        }
+        let mut out = step.step(state, joy.as_ref().map(|(j, _)| j));
+        out.t_ns = cmd.t_ns;
+        out.state_rx_ns = cmd.state_rx_ns;
+        out.joystick_rx_ns = cmd.joystick_rx_ns;
+        out.compute_ns = cmd.compute_ns;
+        m.commands += 1;
+        let d = mapper_diff(cmd, &out);
+        if d.is_empty() {
+            m.identical += 1;
+        } else {
+            let rebuilt_joy = matches!(joy, Some((_, true)));
+            let input = mapper_input(*altered, rebuilt_joy, model_name, state.tick, cmd);
+            m.divs
+                .entry((cmd.tick, cmd.mapper_id))
+                .or_insert_with(|| Divergence {
+                    tick: cmd.tick,
+                    stage: "mapper".into(),
+                    mapper_id: cmd.mapper_id,
+                    fields: d,
+                    recorded_flags: bit_names(cmd.flags, &ipc_types::mapper_flags::NAMES),
+                    replayed_flags: bit_names(out.flags, &ipc_types::mapper_flags::NAMES),
+                    input,
+                });
+        }
+        m.replayed.insert((cmd.mapper_id, cmd.tick, cmd.t_ns), out);
+    }
+    if rebuilt > 0 {
+        notes.push(format!(
+            "{rebuilt} joystick samples were not in the recording and were rebuilt from the \
+             mapper's commands"
+        ));
+    }
+    Ok(m)
+}
+
+/// The step of mapper `mapper_id`'s process `pid`, from the model the recording holds.
+fn mapper_step(
+    rec: &Recording,
+    mapper_id: u32,
+    pid: u32,
+    robot: &'static kinematics::RobotProfile,
+    period_s: f64,
+    notes: &mut Vec<String>,
+) -> Result<ReplayedMapper, ReplayError> {
+    Ok(match rec.model(mapper_id, pid, robot, notes)? {
+        Some((model, name, altered)) => Some((
+            MapperStep::new(mapper_id, model.at_period(period_s), robot.n_joints()).map_err(
+                |source| ReplayError::Model {
+                    path: rec.path.clone(),
+                    mapper_id,
+                    pid,
+                    source,
+                },
+            )?,
+            name,
+            altered,
+        )),
+        None => None,
+    })
+}
+
+/// What was not fed as recorded to a mapper command that diverged (its divergence's
+/// `input`): the model file (`altered`), the joystick sample (`rebuilt`), or nothing.
+fn mapper_input(
+    altered: bool,
+    rebuilt: bool,
+    model_name: &str,
+    state_tick: u64,
+    cmd: &MapperCommand,
+) -> String {
+    if altered {
+        format!(
+            "the model: {model_name} is not the file recorded (its SHA-256 differs from \
+             the one recorded with it); the robot state (tick {state_tick}) and joystick sample \
+             (seq {}) were fed as recorded",
+            cmd.joystick_seq
+        )
+    } else if rebuilt {
+        format!(
+            "the joystick sample (seq {}) is not in the recording and was rebuilt from \
+             the command",
+            cmd.joystick_seq
+        )
+    } else {
+        format!(
+            "none: the recorded robot state (tick {state_tick}) and joystick sample (seq {}) were \
+             fed as recorded; the model ({model_name}) or the map's state differs",
+            cmd.joystick_seq
+        )
+    }
+}
+
+/// The safety filter's replay.
+struct SafetyReplay {
+    /// The counts (the first divergence and the notes not yet set).
+    out: Replay,
+    /// The first tick that diverged, at the mapper or at safety.
+    first: Option<Divergence>,
+    /// The trace of the tick asked for.
+    trace: Option<TickTrace>,
+    /// Whether commands recorded before the control bits were replayed.
+    old_control: bool,
+}
+
+/// Replays every safety command through its process's filter, in recorded order, each fed
+/// the mapper command as replayed (as recorded where it was not).
+fn replay_safety(
+    rec: &Recording,
+    cfg: &scl_config::GraphConfig,
+    robot: &'static kinematics::RobotProfile,
+    period_s: f64,
+    mappers: &MapperReplay,
+    explain_tick: Option<u64>,
+) -> Result<SafetyReplay, ReplayError> {
+    let recorded_mapper: HashMap<(u32, u64, u64), &MapperCommand> = rec
+        .mapper
+        .iter()
+        .map(|c| ((c.mapper_id, c.tick, c.t_ns), c))
+        .collect();
+    let mut filters: HashMap<u32, SafetyFilter> = HashMap::new();
+    let mut r = SafetyReplay {
+        out: Replay {
+            ticks: 0,
+            identical: 0,
+            diverged: 0,
+            first_divergence: None,
+            mapper_commands: mappers.commands,
+            mapper_identical: mappers.identical,
+            skipped: mappers.skipped,
+            events: control_events(&rec.safe),
+            notes: Vec::new(),
+        },
+        first: None,
+        trace: None,
+        old_control: false,
+    };
+    for safe in &rec.safe {
+        let key = (safe.mapper_id, safe.tick, safe.mapper_t_ns);
+        let Some(state) = rec.states.get(&safe.state_t_ns) else {
+            r.out.skipped += 1;
+            continue;
+        };
+        // A tick safety answered itself (the e-stop latched, no mapper command in time): it
+        // names no mapper command (`mapper_t_ns` 0) and is replayed as it ran.
+        let unanswered = safe.mapper_t_ns == 0 && !recorded_mapper.contains_key(&key);
+        let stand_in = unanswered.then(|| safety::unanswered_command(safe.mapper_id, state));
+        let Some(rec_cmd) = recorded_mapper.get(&key).copied().or(stand_in.as_ref()) else {
+            r.out.skipped += 1;
+            continue;
+        };
+        let pid = rec.incarnation(NodeRole::Safety, 0, safe.t_ns);
+        let filter = match filters.entry(pid) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(v) => v.insert(
+                SafetyFilter::for_graph(cfg.safety.clone(), robot, period_s)
+                    .map_err(|e| graph_config_error(rec, format!("the safety filter: {e}")))?,
+            ),
+        };
+        let rep_cmd = mappers.replayed.get(&key);
+        let input_cmd = rep_cmd.copied().unwrap_or(*rec_cmd);
+        let (control, recorded) = control_bits(safe);
+        r.old_control |= !recorded;
+        let input = (!unanswered).then_some(&input_cmd);
+        let (res, now_ns) = step_as_recorded(filter, safe, state, input, control, recorded);
+        r.out.ticks += 1;
+        let d = safe_diff(safe, &res);
+        let mapper_div = mappers.divs.get(&(safe.tick, safe.mapper_id));
+        if d.is_empty() && mapper_div.is_none() {
+            r.out.identical += 1;
+        } else {
+            r.out.diverged += 1;
+            if r.first.is_none() {
+                r.first = Some(match mapper_div {
+                    Some(m) => m.clone(),
+                    None => safety_divergence(safe, &res, d),
+                });
+            }
+        }
+        if explain_tick == Some(safe.tick) {
+            let mapper_pid = rec.incarnation(NodeRole::Mapper, safe.mapper_id, rec_cmd.t_ns);
+            r.trace = Some(TickTrace {
+                state: *state,
+                joystick: joystick_for(rec, rec_cmd),
+                model: mappers
+                    .steps
+                    .get(&mapper_pid)
+                    .and_then(|s| s.as_ref().map(|(_, n, _)| n.clone())),
+                h: linear_map_at(rec, mapper_pid, robot, state),
+                mapper_recorded: *rec_cmd,
+                mapper_replayed: rep_cmd.copied(),
+                now_ns,
+                control,
+                safe_recorded: *safe,
+                safe_replayed: res,
+                report: filter.last_report(),
+                config: filter.config().clone(),
+            });
+        }
+    }
+    Ok(r)
+}
+
+/// Steps `filter` as safety did for the recorded `safe`: `control` applied, at the time it
+/// began, on the mapper command `input` (`None`: a tick safety answered itself); the result
+/// stamped as recorded (with the recorded control field if the bits were not `recorded`).
+/// Returns it and the filter's time argument.
+fn step_as_recorded(
+    filter: &mut SafetyFilter,
+    safe: &SafeCommand,
+    state: &RobotState,
+    input: Option<&MapperCommand>,
+    control: u32,
+    recorded: bool,
+) -> (SafeCommand, u64) {
+    filter.apply_control(control);
+    let now_ns = safe.t_ns.saturating_sub(safe.compute_ns);
+    let mut res = match input {
+        None => filter.step_unanswered(safe.mapper_id, state, now_ns),
+        Some(cmd) => filter.step(cmd, state, now_ns),
+    };
+    res.t_ns = safe.t_ns;
+    res.mapper_rx_ns = safe.mapper_rx_ns;
+    res.compute_ns = safe.compute_ns;
+    if !recorded {
+        res.control = safe.control;
+    }
+    (res, now_ns)
+}
+
+/// The control bits safety applied before a recorded step, and whether they were recorded:
+/// before they were, the flags say whether the e-stop was latched and the arm held (an
+/// interruption is not known).
+fn control_bits(safe: &SafeCommand) -> (u32, bool) {
+    if safe.control & safe_control::RECORDED != 0 {
+        return (safe.control, true);
+    }
+    let mut c = 0;
+    if safe.flags & safe_flags::ESTOP != 0 {
+        c |= safe_control::ESTOP;
+    }
+    if safe.flags & safe_flags::HOLD != 0 {
+        c |= safe_control::HOLD;
+    }
+    (c, false)
+}
+
+/// A safety command `res` that replayed differently from the recorded `safe` (fields `d`),
+/// fed as recorded.
+fn safety_divergence(safe: &SafeCommand, res: &SafeCommand, d: Vec<FieldDiff>) -> Divergence {
+    Divergence {
+        tick: safe.tick,
+        stage: "safety".into(),
+        mapper_id: safe.mapper_id,
+        fields: d,
+        recorded_flags: bit_names(safe.flags, &safe_flags::NAMES),
+        replayed_flags: bit_names(res.flags, &safe_flags::NAMES),
+        input: "none: the mapper command, robot state, control inputs and time \
+                were fed as recorded; the filter or its configuration differs"
+            .into(),
+    }
 }
 
 /// The human-readable report of a replay.

@@ -6,46 +6,25 @@
 //! the output is a non-negative multiple of the command when only these rules act.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop)]
 
-use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, safe_flags};
+use ipc_types::{MapperCommand, RobotState, SafeCommand, safe_flags};
 use kinematics::collision::{Clearance, CollisionLink, CollisionModel, PairId, Scene, Target};
 use kinematics::gen3_lite;
 use proptest::prelude::*;
 use safety::clearance::{self, Near, WholeArm};
 use safety::{SafetyConfig, SafetyFilter};
 
-const NOW: u64 = 1_000_000_000;
+mod common;
+use common::NOW;
+
 const DT: f64 = 0.025;
 
 fn cmd(tick: u64, qdot: [f64; 6]) -> MapperCommand {
-    let mut q = [0.0; MAX_JOINTS];
-    q[..6].copy_from_slice(&qdot);
-    MapperCommand {
-        tick,
-        t_ns: NOW - 500_000,
-        state_t_ns: NOW - 1_000_000,
-        state_rx_ns: 0,
-        joystick_t_ns: NOW - 10_000_000,
-        joystick_rx_ns: 0,
-        joystick_seq: 1,
-        compute_ns: 100,
-        mapper_id: 1,
-        n_joints: 6,
-        flags: 0,
-        buttons: 0,
-        action: [0.0; 2],
-        qdot_rad_s: q,
-        gripper_rate: 0.0,
-    }
+    common::command(tick, &qdot, 0.0)
 }
 
-/// The state at `tick`: pose `q`, moving at `qdot`, which was the command of the tick before
-/// (`executed`) or the robot's own measurement.
+/// The state at `tick`: pose `q`, moving at `qdot` ([`common::moving_state`], six joints).
 fn state(tick: u64, q: &[f64], qdot: &[f64], executed: bool) -> RobotState {
-    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, 6);
-    s.q_rad[..6].copy_from_slice(&q[..6]);
-    s.qdot_rad_s[..6].copy_from_slice(&qdot[..6]);
-    s.applied_tick = if executed { tick - 1 } else { NO_TICK };
-    s
+    common::moving_state(tick, &q[..6], &qdot[..6], executed)
 }
 
 fn whole_arm(cfg: SafetyConfig) -> SafetyFilter {

@@ -11,7 +11,9 @@ use kinematics::gen3_lite;
 use proptest::prelude::*;
 use safety::*;
 
-const NOW: u64 = 1_000_000_000;
+mod common;
+use common::NOW;
+
 const DT: f64 = 0.025;
 
 fn limits() -> ArmLimits {
@@ -24,31 +26,11 @@ fn gen3_lite_tcp() -> ChainTcp {
 }
 
 fn state(tick: u64) -> RobotState {
-    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, 6);
-    s.applied_tick = tick.wrapping_sub(1);
-    s
+    common::resting_state(tick, 6)
 }
 
 fn cmd(tick: u64, qdot: [f64; 6]) -> MapperCommand {
-    let mut q = [0.0; MAX_JOINTS];
-    q[..6].copy_from_slice(&qdot);
-    MapperCommand {
-        tick,
-        t_ns: NOW - 500_000,
-        state_t_ns: NOW - 1_000_000,
-        state_rx_ns: 0,
-        joystick_t_ns: NOW - 10_000_000,
-        joystick_rx_ns: 0,
-        joystick_seq: 1,
-        compute_ns: 100,
-        mapper_id: 1,
-        n_joints: 6,
-        flags: 0,
-        buttons: 0,
-        action: [0.0; 2],
-        qdot_rad_s: q,
-        gripper_rate: 0.5,
-    }
+    common::command(tick, &qdot, 0.5)
 }
 
 /// Default limits.

@@ -2,14 +2,14 @@
 //! moves again only once the operator's input has passed through neutral.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use ipc_types::{
-    MAX_JOINTS, MapperCommand, NO_TICK, RobotState, buttons, mapper_flags, safe_flags,
-};
+use ipc_types::{MapperCommand, NO_TICK, RobotState, buttons, mapper_flags, safe_flags};
 use kinematics::gen3_lite;
 use proptest::prelude::*;
 use safety::{NEUTRAL_MAX_ACTION, SafetyConfig, SafetyFilter};
 
-const NOW: u64 = 1_000_000_000;
+mod common;
+use common::NOW;
+
 const DT: f64 = 0.025;
 const QDOT: [f64; 6] = [0.1, -0.1, 0.0, 0.05, 0.0, 0.0];
 
@@ -25,35 +25,18 @@ fn filter(deadman: bool) -> SafetyFilter {
 
 /// The state of `tick`, having executed the command of the tick before.
 fn state(tick: u64) -> RobotState {
-    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, 6);
-    s.applied_tick = tick.wrapping_sub(1);
-    s
+    common::resting_state(tick, 6)
 }
 
 /// A command for `tick` from a stick at `a` (the map's velocity `QDOT` scaled by `|a|`, as
 /// a linear map gives), with `buttons`.
 fn cmd(tick: u64, a: [f32; 2], buttons: u32) -> MapperCommand {
     let norm = f64::from(a[0]).hypot(f64::from(a[1]));
-    let mut qdot = [0.0; MAX_JOINTS];
-    for j in 0..6 {
-        qdot[j] = QDOT[j] * norm;
-    }
+    let qdot: [f64; 6] = std::array::from_fn(|j| QDOT[j] * norm);
     MapperCommand {
-        tick,
-        t_ns: NOW - 500_000,
-        state_t_ns: NOW - 1_000_000,
-        state_rx_ns: 0,
-        joystick_t_ns: NOW - 10_000_000,
-        joystick_rx_ns: 0,
-        joystick_seq: 1,
-        compute_ns: 100,
-        mapper_id: 1,
-        n_joints: 6,
-        flags: 0,
         buttons,
         action: a,
-        qdot_rad_s: qdot,
-        gripper_rate: 0.0,
+        ..common::command(tick, &qdot, 0.0)
     }
 }
 

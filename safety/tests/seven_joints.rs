@@ -10,46 +10,18 @@
 //!   faster than the linear cap, the tool turns no faster than the angular cap.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop)]
 
-use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState};
+use ipc_types::MapperCommand;
 use kinematics::RobotProfile;
 use kinematics::collision::{Clearance, CollisionLink, PairId, Scene, Target};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
 use safety::{SafetyConfig, SafetyFilter};
 
-const NOW: u64 = 1_000_000_000;
+mod common;
+use common::{NOW, moving_state as state};
 
 fn cmd(tick: u64, qdot: &[f64]) -> MapperCommand {
-    let mut q = [0.0; MAX_JOINTS];
-    q[..qdot.len()].copy_from_slice(qdot);
-    MapperCommand {
-        tick,
-        t_ns: NOW - 500_000,
-        state_t_ns: NOW - 1_000_000,
-        state_rx_ns: 0,
-        joystick_t_ns: NOW - 10_000_000,
-        joystick_rx_ns: 0,
-        joystick_seq: 1,
-        compute_ns: 100,
-        mapper_id: 1,
-        n_joints: qdot.len() as u32,
-        flags: 0,
-        buttons: 0,
-        action: [0.0; 2],
-        qdot_rad_s: q,
-        gripper_rate: 0.0,
-    }
-}
-
-/// The state at `tick`: pose `q`, moving at `qdot`, which was the command of the tick before
-/// (`executed`) or the robot's own measurement.
-fn state(tick: u64, q: &[f64], qdot: &[f64], executed: bool) -> RobotState {
-    let n = q.len();
-    let mut s = RobotState::at_rest(tick, NOW - 1_000_000, n as u32);
-    s.q_rad[..n].copy_from_slice(q);
-    s.qdot_rad_s[..n].copy_from_slice(qdot);
-    s.applied_tick = if executed { tick - 1 } else { NO_TICK };
-    s
+    common::command(tick, qdot, 0.0)
 }
 
 /// One random closed-loop run: a start pose (fractions of each joint's range inside the

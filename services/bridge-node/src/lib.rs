@@ -51,7 +51,9 @@ use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
 use hw_bridge::tick::{BridgeCore, GateChange, MissReason, Outcome};
 use hw_bridge::{Robot, RobotError};
-use ipc_types::{NodeRole, NodeStatus, Prefix, SafeCommand, TickReport, phase, time::now_ns};
+use ipc_types::{
+    NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, TickReport, phase, time::now_ns,
+};
 use serde::Deserialize;
 use transport::Graph;
 
@@ -334,34 +336,16 @@ struct Ctx<'a> {
     resume: &'a Resume,
 }
 
+/// The tick loop: on each deadline of the clock, begin the tick (read the robot), publish
+/// the state, wait for the tick's command until the command deadline, execute it (or stop),
+/// count what was held up, then send the heartbeat and the tick report. A robot error ends
+/// the loop like a shutdown: the arm is stopped, then the last state goes out.
 fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
-    let (graph, cfg, faults) = (ctx.graph, ctx.cfg, ctx.faults);
-    let period_ns = ctx.period_ns;
-    let period_s = period_ns as f64 * 1e-9;
-    let wait_ns = command_wait_ns(period_ns, cfg.command_deadline);
-    let states = graph.robot_state_publisher()?;
-    let commands = graph.safe_command_subscriber(true)?;
-    let status = graph.status_publisher()?;
-    let reports = graph.tick_report_publisher()?;
-    let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
-    if let Some(t) = ctx.resume.start_tick {
-        core.start_at(t);
-        tracing::info!(
-            start_tick = t,
-            "resuming the graph's tick count from a stop"
-        );
-    }
-    let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
-    status.send(st)?;
-    st.phase = phase::RUNNING;
-    tracing::info!(rate_hz = 1e9 / period_ns as f64, robot = %cfg.robot, "ticking");
-
-    let mut clock = Clock::new(now_ns() + period_ns, period_ns);
+    let mut t = Ticker::start(ctx, robot)?;
+    let mut clock = Clock::new(now_ns() + ctx.period_ns, ctx.period_ns);
     // Drop whatever commands are left over from an earlier bridge of this graph.
-    commands.drain(|_| {})?;
+    t.commands.drain(|_| {})?;
     let mut failure: Option<RobotError> = None;
-    let mut late = late::LateCommands::default();
-    let mut first_tick = true;
     while !signals::stop_requested() {
         let (ideal_ns, lateness_ns, skipped) = match clock.wait() {
             Wake::Interrupted => continue,
@@ -374,19 +358,135 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         if signals::stop_requested() {
             break;
         }
+        let woke = Woke {
+            ideal_ns,
+            lateness_ns,
+            skipped,
+            deadline_ns: ideal_ns + t.wait_ns,
+        };
+        let state = match t.begin(skipped) {
+            Ok(s) => s,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
+        t.publish_state(state)?;
+        let mut verdicts = Vec::new();
+        let reply = t.await_command(state.tick, woke.deadline_ns, &mut verdicts)?;
+        let outcome = match t
+            .core
+            .finish_tick(reply.found.as_ref().or(reply.other.as_ref()))
+        {
+            Ok(o) => o,
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        };
+        t.count_hold_ups(&woke, matches!(outcome, Outcome::Missed(_)), verdicts);
+        let latency_ns = t.settle(outcome, &state, &woke, reply.received_ns);
+        t.send_status(latency_ns, &state, &woke, &reply)?;
+        t.send_report(outcome, &state, &woke, &reply)?;
+    }
+    t.shutdown(failure)
+}
+
+/// One wake-up of the clock: the tick's place on the ideal grid and how late it began.
+struct Woke {
+    /// The tick's ideal start (ns).
+    ideal_ns: u64,
+    /// How late the wake-up was against it (ns).
+    lateness_ns: u64,
+    /// Whole periods slept through before it.
+    skipped: u64,
+    /// When the tick's command is due (ns): the ideal start plus the command wait.
+    deadline_ns: u64,
+}
+
+/// What came back for a tick by its command deadline.
+#[derive(Default)]
+struct Reply {
+    /// The tick's own command.
+    found: Option<SafeCommand>,
+    /// The newest command for another tick.
+    other: Option<SafeCommand>,
+    /// When the tick's own command was taken (ns); 0 if it did not come.
+    received_ns: u64,
+}
+
+/// The bridge's running state: its ports, the core, the heartbeat and the missed ticks
+/// whose commands may still come.
+struct Ticker<'a, R: Robot> {
+    ctx: &'a Ctx<'a>,
+    /// How long into each period the tick's command is waited for (ns).
+    wait_ns: u64,
+    states: transport::TopicPublisher<RobotState>,
+    commands: transport::TopicSubscriber<SafeCommand>,
+    status: transport::TopicPublisher<NodeStatus>,
+    reports: transport::TopicPublisher<TickReport>,
+    core: BridgeCore<R>,
+    /// The heartbeat.
+    st: NodeStatus,
+    late: late::LateCommands,
+    /// Until the first tick has begun (a restarted bridge counts its downtime then).
+    first_tick: bool,
+}
+
+impl<'a, R: Robot> Ticker<'a, R> {
+    /// Opens the ports, sets up the core (from the resumed tick count) and says `READY`.
+    fn start(ctx: &'a Ctx<'a>, robot: R) -> Result<Self, BridgeNodeError> {
+        let (graph, cfg) = (ctx.graph, ctx.cfg);
+        let period_ns = ctx.period_ns;
+        let period_s = period_ns as f64 * 1e-9;
+        let wait_ns = command_wait_ns(period_ns, cfg.command_deadline);
+        let states = graph.robot_state_publisher()?;
+        let commands = graph.safe_command_subscriber(true)?;
+        let status = graph.status_publisher()?;
+        let reports = graph.tick_report_publisher()?;
+        let mut core = BridgeCore::new(robot, period_s, cfg.stop_acceleration_rad_s2.clone());
+        if let Some(t) = ctx.resume.start_tick {
+            core.start_at(t);
+            tracing::info!(
+                start_tick = t,
+                "resuming the graph's tick count from a stop"
+            );
+        }
+        let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
+        status.send(st)?;
+        st.phase = phase::RUNNING;
+        tracing::info!(rate_hz = 1e9 / period_ns as f64, robot = %cfg.robot, "ticking");
+        Ok(Self {
+            ctx,
+            wait_ns,
+            states,
+            commands,
+            status,
+            reports,
+            core,
+            st,
+            late: late::LateCommands::default(),
+            first_tick: true,
+        })
+    }
+
+    /// Begins the tick: counts the periods slept through (and, at the first tick of a
+    /// restarted bridge, those no bridge ran through), reads the robot, says what the start
+    /// gate changed.
+    fn begin(&mut self, skipped: u64) -> Result<RobotState, RobotError> {
         // Woken this long after the deadline it slept for, the process was not run by the
         // operating system (or the host of a virtual machine): the periods it slept through
         // are lost, and so is this tick if it starts past its command deadline and misses
         // (its state goes out, but no command can come back in time: the bridge brakes).
-        core.add_skipped(skipped);
+        self.core.add_skipped(skipped);
         let begin_ns = now_ns();
-        if std::mem::take(&mut first_tick)
-            && let Some(last) = ctx.resume.last_state_t_ns
+        if std::mem::take(&mut self.first_tick)
+            && let Some(last) = self.ctx.resume.last_state_t_ns
         {
             // The periods no bridge ran through: the graph's loss, counted as missed.
-            let lost = downtime_periods(last, begin_ns, period_ns);
+            let lost = downtime_periods(last, begin_ns, self.ctx.period_ns);
             if lost > 0 {
-                core.add_skipped(lost);
+                self.core.add_skipped(lost);
                 tracing::warn!(
                     ticks_lost = lost,
                     down_ms = begin_ns.saturating_sub(last) as f64 * 1e-6,
@@ -395,108 +495,151 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
                 );
             }
         }
-        let state = match core.begin_tick(begin_ns) {
-            Ok(s) => s,
-            Err(e) => {
-                failure = Some(e);
-                break;
-            }
-        };
-        if let Some(change) = core.take_gate_change() {
+        let state = self.core.begin_tick(begin_ns)?;
+        if let Some(change) = self.core.take_gate_change() {
             say_gate(change, state.tick);
         }
-        let stop_after = faults.bridge_states_stop_after_ticks;
-        if stop_after == 0 || st.handled < stop_after {
-            states.send(state)?;
-        } else if st.handled == stop_after {
+        Ok(state)
+    }
+
+    /// Publishes the tick's state, unless the fault injection `bridge_states_stop_after_ticks`
+    /// has stopped them.
+    fn publish_state(&self, state: RobotState) -> Result<(), BridgeNodeError> {
+        let stop_after = self.ctx.faults.bridge_states_stop_after_ticks;
+        if stop_after == 0 || self.st.handled < stop_after {
+            self.states.send(state)?;
+        } else if self.st.handled == stop_after {
             tracing::warn!(tick = state.tick, "fault injection: robot states stop");
         }
+        Ok(())
+    }
 
-        let deadline = ideal_ns + wait_ns;
-        let mut found: Option<SafeCommand> = None;
-        let mut other: Option<SafeCommand> = None;
-        let mut received_ns = 0;
-        let mut verdicts = Vec::new();
+    /// Waits until `tick`'s command comes or `deadline_ns` passes; late commands for missed
+    /// ticks add their verdicts to `verdicts`.
+    fn await_command(
+        &mut self,
+        tick: u64,
+        deadline_ns: u64,
+        verdicts: &mut Vec<late::Verdict>,
+    ) -> Result<Reply, BridgeNodeError> {
+        let mut reply = Reply::default();
+        let late = &mut self.late;
         loop {
-            commands.drain(|c| {
-                if c.tick == state.tick {
-                    found = Some(*c);
+            self.commands.drain(|c| {
+                if c.tick == tick {
+                    reply.found = Some(*c);
                 } else {
                     verdicts.extend(late.arrived(c));
-                    other = Some(*c);
+                    reply.other = Some(*c);
                 }
                 late.superseded(c, &mut verdicts);
             })?;
             let now = now_ns();
-            if found.is_some() {
-                received_ns = now;
+            if reply.found.is_some() {
+                reply.received_ns = now;
                 break;
             }
-            if now >= deadline || signals::stop_requested() {
+            if now >= deadline_ns || signals::stop_requested() {
                 break;
             }
-            commands.wait(Duration::from_nanos(deadline - now))?;
+            self.commands
+                .wait(Duration::from_nanos(deadline_ns - now))?;
         }
-        let outcome = match core.finish_tick(found.as_ref().or(other.as_ref())) {
-            Ok(o) => o,
-            Err(e) => {
-                failure = Some(e);
-                break;
-            }
-        };
-        let missed_now = matches!(outcome, Outcome::Missed(_));
-        let lost = ticks_lost(skipped, lateness_ns, wait_ns, missed_now);
+        Ok(reply)
+    }
+
+    /// Counts in the heartbeat the ticks the machine held up: the bridge's own (periods slept
+    /// through, this tick if it began past its command wait and `missed`) and the chain's
+    /// (late commands whose work fitted the deadline), and says them.
+    fn count_hold_ups(&mut self, woke: &Woke, missed: bool, verdicts: Vec<late::Verdict>) {
+        let lost = ticks_lost(woke.skipped, woke.lateness_ns, self.wait_ns, missed);
         if lost > 0 {
-            let late_ms = (skipped * period_ns + lateness_ns) as f64 * 1e-6;
+            let late_ms = (woke.skipped * self.ctx.period_ns + woke.lateness_ns) as f64 * 1e-6;
             tracing::warn!(
                 ticks_lost = lost,
                 late_ms,
                 "missed tick: the bridge was held up past a command deadline"
             );
-            st.held_up = st.held_up.saturating_add(lost as u32);
+            self.st.held_up = self.st.held_up.saturating_add(lost as u32);
         }
         for v in verdicts {
             say_late(&v);
             if v.held_up() {
-                st.held_up = st.held_up.saturating_add(1);
+                self.st.held_up = self.st.held_up.saturating_add(1);
             }
         }
-        st.latency_ns = match outcome {
+    }
+
+    /// The tick's latency for the heartbeat (the state's publication to its command's
+    /// arrival; 0 unless executed); a miss is noted for its late command and said.
+    fn settle(
+        &mut self,
+        outcome: Outcome,
+        state: &RobotState,
+        woke: &Woke,
+        received_ns: u64,
+    ) -> u64 {
+        match outcome {
             Outcome::Executed => received_ns - state.t_ns,
             // The arm found moving at start: a stop, not a miss (said by say_gate).
             Outcome::StoppingAtStart => 0,
             Outcome::Missed(reason) => {
                 // A tick begun past its deadline is the bridge's own hold-up, counted above.
                 if matches!(reason, MissReason::NoCommand | MissReason::WrongTick)
-                    && lateness_ns < wait_ns
+                    && woke.lateness_ns < self.wait_ns
                 {
-                    late.missed(state.tick, ideal_ns, state.t_ns, deadline);
+                    self.late
+                        .missed(state.tick, woke.ideal_ns, state.t_ns, woke.deadline_ns);
                 }
-                if core.missed() <= 10 || core.missed().is_power_of_two() {
+                let missed = self.core.missed();
+                if missed <= 10 || missed.is_power_of_two() {
                     tracing::warn!(
                         tick = state.tick,
                         ?reason,
-                        missed = core.missed(),
+                        missed,
                         "missed tick: controlled stop"
                     );
                 }
                 0
             }
-        };
+        }
+    }
+
+    /// Sends the heartbeat for the tick.
+    fn send_status(
+        &mut self,
+        latency_ns: u64,
+        state: &RobotState,
+        woke: &Woke,
+        reply: &Reply,
+    ) -> Result<(), BridgeNodeError> {
+        let st = &mut self.st;
+        st.latency_ns = latency_ns;
         st.t_ns = now_ns();
         st.tick = state.tick;
         st.handled += 1;
-        st.faults = core.missed();
-        st.lateness_ns = lateness_ns;
-        st.joint_travel_rad = core.joint_travel_rad();
-        st.mapper_id = found.map_or(0, |c| c.mapper_id);
-        status.send(st)?;
+        st.faults = self.core.missed();
+        st.lateness_ns = woke.lateness_ns;
+        st.joint_travel_rad = self.core.joint_travel_rad();
+        st.mapper_id = reply.found.map_or(0, |c| c.mapper_id);
+        self.status.send(*st)?;
+        Ok(())
+    }
+
+    /// Sends the tick's timing report (the command's stamps only if it was executed).
+    fn send_report(
+        &self,
+        outcome: Outcome,
+        state: &RobotState,
+        woke: &Woke,
+        reply: &Reply,
+    ) -> Result<(), BridgeNodeError> {
         let executed = matches!(outcome, Outcome::Executed);
-        let c = found.filter(|_| executed);
-        reports.send(TickReport {
+        let c = reply.found.filter(|_| executed);
+        self.reports.send(TickReport {
             tick: state.tick,
-            ideal_ns,
-            lateness_ns,
+            ideal_ns: woke.ideal_ns,
+            lateness_ns: woke.lateness_ns,
             state_t_ns: state.t_ns,
             state_rx_ns: c.map_or(0, |c| c.state_rx_ns),
             joystick_t_ns: c.map_or(0, |c| c.joystick_t_ns),
@@ -504,43 +647,49 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
             mapper_t_ns: c.map_or(0, |c| c.mapper_t_ns),
             mapper_rx_ns: c.map_or(0, |c| c.mapper_rx_ns),
             safe_t_ns: c.map_or(0, |c| c.t_ns),
-            safe_rx_ns: if executed { received_ns } else { 0 },
+            safe_rx_ns: if executed { reply.received_ns } else { 0 },
             mapper_compute_ns: c.map_or(0, |c| c.mapper_compute_ns),
             safety_compute_ns: c.map_or(0, |c| c.compute_ns),
-            missed: core.missed(),
+            missed: self.core.missed(),
             executed: u32::from(executed),
             reserved: 0,
         })?;
+        Ok(())
     }
-    // Stop the arm first (also after a robot error: as far as the robot can be reached),
-    // then say so.
-    let (last, stopped) = core.shutdown(now_ns());
-    if let Err(e) = stopped {
-        match &failure {
-            None => failure = Some(e),
-            Some(_) => tracing::warn!("while stopping after the failure: {e}"),
+
+    /// Stops the arm first (also after a robot error: as far as the robot can be reached),
+    /// then says so: the last state, a `STOPPING` heartbeat, the link's counts. Returns the
+    /// robot's error, if any.
+    fn shutdown(mut self, mut failure: Option<RobotError>) -> Result<(), BridgeNodeError> {
+        let (last, stopped) = self.core.shutdown(now_ns());
+        if let Err(e) = stopped {
+            match &failure {
+                None => failure = Some(e),
+                Some(_) => tracing::warn!("while stopping after the failure: {e}"),
+            }
         }
-    }
-    states.send(last)?;
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    st.latency_ns = 0;
-    status.send(st)?;
-    let link = core.robot().link_stats();
-    tracing::info!(
-        ticks = st.handled,
-        missed = core.missed(),
-        requests = link.requests,
-        late_replies = link.late_replies,
-        stale_readings = link.stale_readings,
-        skipped_bytes = link.skipped_bytes,
-        clamped_commands = link.clamped_commands,
-        signal = signals::signal(),
-        "arm stopped; bridge exiting"
-    );
-    match failure {
-        Some(e) => Err(BridgeNodeError::Robot(e)),
-        None => Ok(()),
+        self.states.send(last)?;
+        let st = &mut self.st;
+        st.phase = phase::STOPPING;
+        st.t_ns = now_ns();
+        st.latency_ns = 0;
+        self.status.send(*st)?;
+        let link = self.core.robot().link_stats();
+        tracing::info!(
+            ticks = st.handled,
+            missed = self.core.missed(),
+            requests = link.requests,
+            late_replies = link.late_replies,
+            stale_readings = link.stale_readings,
+            skipped_bytes = link.skipped_bytes,
+            clamped_commands = link.clamped_commands,
+            signal = signals::signal(),
+            "arm stopped; bridge exiting"
+        );
+        match failure {
+            Some(e) => Err(BridgeNodeError::Robot(e)),
+            None => Ok(()),
+        }
     }
 }
 

@@ -544,6 +544,14 @@ impl Source {
         matches!(self, Self::Device(_) | Self::Keyboard(_))
     }
 
+    /// Whether the operator asked to quit (the keyboard source's quit key).
+    fn quit(&mut self) -> bool {
+        match self {
+            Self::Keyboard(k) => k.quit(),
+            _ => false,
+        }
+    }
+
     fn input(&mut self, now: Instant, tick: u64, gripper: Option<f64>) -> Input {
         match self {
             Self::Script { script, period_s } => Input {
@@ -559,6 +567,10 @@ impl Source {
 
 /// Runs the joystick process until a shutdown is requested (or, at a terminal of its own,
 /// the keyboard source's quit key).
+///
+/// Each turn of the loop: wait for a robot state or the source's thread, take the newest
+/// state, read the source, send an e-stop press and the sample (unless a fault injection
+/// silenced the joystick), show the input, and on a new state send the heartbeat.
 pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
@@ -567,35 +579,15 @@ pub fn run(
     period_s: f64,
 ) -> Result<(), JoystickError> {
     let mut source = Source::open(cfg, period_s)?;
-    let mut recorder = if cfg.record_input.is_empty() {
+    let recorder = if cfg.record_input.is_empty() {
         None
     } else {
         Some(replay::InputRecorder::create(Path::new(&cfg.record_input))?)
     };
     let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
-    let publisher = graph.joystick_publisher()?;
+    let samples = graph.joystick_publisher()?;
     // Kept for the process's life: a sample of a publisher that is gone is not delivered.
-    let estop_publisher = graph.estop_publisher()?;
-    let mut estop_button = EstopButton::default();
-    let send_estop = |button: &mut EstopButton, input: &Input| -> Result<(), JoystickError> {
-        if button.pressed(input.buttons) {
-            tracing::warn!("e-stop button pressed: E-STOP sent to safety");
-            estop_publisher
-                .send_copy(ipc_types::control::EstopCommand {
-                    t_ns: now_ns(),
-                    action: ipc_types::control::estop_action::ESTOP,
-                    source_pid: std::process::id(),
-                })
-                .map_err(|e| {
-                    JoystickError::Ipc(transport::IpcError::Io {
-                        service: prefix.service(ipc_types::control::ESTOP),
-                        op: "send",
-                        source: e.into(),
-                    })
-                })?;
-        }
-        Ok(())
-    };
+    let estop = graph.estop_publisher()?;
     let states = graph.robot_state_subscriber(true)?;
     let status = graph.status_publisher()?;
     let heartbeats = if matches!(source, Source::Keyboard(_)) {
@@ -605,37 +597,27 @@ pub fn run(
     };
     node_rt::rt::elevate(graph_cfg, RtRole::Joystick);
     let t0 = Instant::now();
-    let mut outbox = Outbox::default();
+    let mut out = Outputs {
+        prefix,
+        samples,
+        estop,
+        estop_button: EstopButton::default(),
+        outbox: Outbox::default(),
+        recorder,
+        t0,
+    };
     let mut tick = NO_TICK;
     let mut gripper = None;
     let input = source.input(t0, tick, gripper);
-    send_estop(&mut estop_button, &input)?;
-    if source.has_input_before_a_tick()
-        && let Some(s) = outbox.next(input, tick, true, now_ns())
-    {
-        publisher.send(s)?;
-        if let Some(r) = recorder.as_mut() {
-            r.record(0.0, &input);
-        }
+    out.send_estop(&input)?;
+    if source.has_input_before_a_tick() {
+        out.publish(input, tick, true, t0)?;
     }
     status.send(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
-    tracing::info!(source = %cfg.source, "publishing on {}", publisher.service());
+    tracing::info!(source = %cfg.source, "publishing on {}", out.samples.service());
     let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
-    let quit = |source: &mut Source| match source {
-        Source::Keyboard(k) => k.quit(),
-        _ => false,
-    };
-    while !signals::stop_requested() && !quit(&mut source) {
-        let timeout = source.timeout(Instant::now());
-        match source.waker() {
-            Some(w) => {
-                let wakes: [&dyn Wakeable; 2] = [&states, w];
-                transport::wait_any(&wakes, timeout);
-            }
-            None => {
-                states.wait(timeout)?;
-            }
-        }
+    while !signals::stop_requested() && !source.quit() {
+        wait_for_input(&source, &states)?;
         let new_state = states.latest()?;
         if let Some(s) = &new_state {
             tick = s.tick;
@@ -648,14 +630,9 @@ pub fn run(
         let input = source.input(now, tick, gripper);
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
-            send_estop(&mut estop_button, &input)?;
-            if (tick != NO_TICK || source.has_input_before_a_tick())
-                && let Some(sample) = outbox.next(input, tick, new_state.is_some(), now_ns())
-            {
-                publisher.send(sample)?;
-                if let Some(r) = recorder.as_mut() {
-                    r.record(now.duration_since(t0).as_secs_f64(), &input);
-                }
+            out.send_estop(&input)?;
+            if tick != NO_TICK || source.has_input_before_a_tick() {
+                out.publish(input, tick, new_state.is_some(), now)?;
             }
         } else if st.handled == silent && new_state.is_some() {
             tracing::warn!(tick, "fault injection: the joystick goes silent");
@@ -664,17 +641,12 @@ pub fn run(
             k.show(&input);
         }
         if let Some(s) = new_state {
-            st.t_ns = now_ns();
-            st.tick = s.tick;
-            st.handled += 1;
-            if input.buttons & buttons::NO_DEVICE != 0 {
-                st.faults += 1;
-            }
+            count_tick(&mut st, s.tick, &input);
             status.send(st)?;
         }
     }
     drop(source);
-    if let Some(r) = recorder {
+    if let Some(r) = out.recorder.take() {
         let file = cfg.record_input.clone();
         let rows = r.finish(t0.elapsed().as_secs_f64())?;
         tracing::info!(rows, file, "input recorded");
@@ -683,6 +655,89 @@ pub fn run(
     st.t_ns = now_ns();
     status.send(st)?;
     Ok(())
+}
+
+/// Where the joystick's samples go: the sample topic, the e-stop topic, the input file.
+struct Outputs<'a> {
+    prefix: &'a Prefix,
+    samples: transport::TopicPublisher<JoystickInput>,
+    estop: transport::control::EstopPublisher,
+    estop_button: EstopButton,
+    outbox: Outbox,
+    recorder: Option<replay::InputRecorder>,
+    /// When the process started (the input file's time 0).
+    t0: Instant,
+}
+
+impl Outputs<'_> {
+    /// Sends an E-STOP to safety when `input` presses the e-stop button.
+    fn send_estop(&mut self, input: &Input) -> Result<(), JoystickError> {
+        if self.estop_button.pressed(input.buttons) {
+            tracing::warn!("e-stop button pressed: E-STOP sent to safety");
+            self.estop
+                .send_copy(ipc_types::control::EstopCommand {
+                    t_ns: now_ns(),
+                    action: ipc_types::control::estop_action::ESTOP,
+                    source_pid: std::process::id(),
+                })
+                .map_err(|e| {
+                    JoystickError::Ipc(transport::IpcError::Io {
+                        service: self.prefix.service(ipc_types::control::ESTOP),
+                        op: "send",
+                        source: e.into(),
+                    })
+                })?;
+        }
+        Ok(())
+    }
+
+    /// Publishes `input` as the answer to `tick` when the [`Outbox`] says a sample is due
+    /// (a change, or a `new_state` to answer), and records it as read at `at`.
+    fn publish(
+        &mut self,
+        input: Input,
+        tick: u64,
+        new_state: bool,
+        at: Instant,
+    ) -> Result<(), JoystickError> {
+        if let Some(sample) = self.outbox.next(input, tick, new_state, now_ns()) {
+            self.samples.send(sample)?;
+            if let Some(r) = self.recorder.as_mut() {
+                r.record(at.duration_since(self.t0).as_secs_f64(), &input);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Waits for a robot state or, for a threaded source, its thread's wake-up (at most the
+/// source's timeout).
+fn wait_for_input(
+    source: &Source,
+    states: &transport::TopicSubscriber<ipc_types::RobotState>,
+) -> Result<(), JoystickError> {
+    let timeout = source.timeout(Instant::now());
+    match source.waker() {
+        Some(w) => {
+            let wakes: [&dyn Wakeable; 2] = [states, w];
+            transport::wait_any(&wakes, timeout);
+        }
+        None => {
+            states.wait(timeout)?;
+        }
+    }
+    Ok(())
+}
+
+/// Counts the answer to robot tick `tick` in the heartbeat `st` (a fault while the device is
+/// gone).
+fn count_tick(st: &mut NodeStatus, tick: u64, input: &Input) {
+    st.t_ns = now_ns();
+    st.tick = tick;
+    st.handled += 1;
+    if input.buttons & buttons::NO_DEVICE != 0 {
+        st.faults += 1;
+    }
 }
 
 /// Checks `[joystick]`: every key, and the files the chosen source needs (the mapping, the

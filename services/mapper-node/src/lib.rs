@@ -26,6 +26,10 @@ use scl_config::{FaultConfig, GraphSection, RtRole};
 use transport::signals;
 
 /// Runs the mapper process until a shutdown is requested.
+///
+/// Each turn of the loop: wait for a state or a joystick sample (or, with `rt_prewarm_us`,
+/// warm the map just before the next state is due), take the newest sample, and on a new
+/// state map it and publish the command, then the heartbeat.
 pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
@@ -46,53 +50,17 @@ pub fn run(
     st.mapper_id = id;
     set_mode(&mut st, &step);
     status.send(st)?;
-    let h = &step.model().header;
-    tracing::info!(
-        id,
-        kind = %h.kind,
-        model = %step.model().source,
-        speed_scale_rad_s = h.speed_scale_rad_s,
-        "serving"
-    );
+    say_serving(&step, id);
     st.phase = phase::RUNNING;
     // The newest joystick sample and when it arrived; samples are taken as they come (the
     // joystick publishes on change), the map runs on each robot state.
     let mut joy = None;
     let mut joy_rx_ns = 0;
     let wakes: [&dyn transport::graph::Wakeable; 2] = [&states, &joystick];
-    // `rt_prewarm_us`: wake that long before the next state (the last one's time plus a
-    // period) and warm the map once; a state or sample arriving meanwhile is handled as usual.
-    let prewarm_ns = u64::from(graph_cfg.rt_prewarm_us) * 1000;
-    let period_ns = (graph_cfg.period_s() * 1e9).round() as u64;
-    let mut last: Option<ipc_types::RobotState> = None;
-    let mut warm_out = [0.0f64; ipc_types::MAX_JOINTS];
-    if prewarm_ns > 0 {
-        tracing::info!(
-            prewarm_us = graph_cfg.rt_prewarm_us,
-            "warming the map before each tick"
-        );
-    }
+    let mut prewarm = Prewarm::new(graph_cfg);
     while !signals::stop_requested() {
-        let mut woke_pre = None;
-        if prewarm_ns > 0
-            && let Some(l) = &last
-        {
-            let at = l.t_ns + period_ns - prewarm_ns;
-            let now = now_ns();
-            if now < at {
-                let w = transport::wait_any(&wakes, Duration::from_nanos(at - now));
-                if w == 0 {
-                    let n = (l.n_joints as usize).min(ipc_types::MAX_JOINTS);
-                    step.warm(l, &mut warm_out[..n]);
-                    last = None;
-                    continue;
-                }
-                woke_pre = Some(w);
-            }
-        }
-        let woke = match woke_pre {
-            Some(w) => w,
-            None => transport::wait_any(&wakes, Duration::from_millis(100)),
+        let Some(woke) = prewarm.wait(&wakes, &mut step) else {
+            continue;
         };
         let rx_ns = now_ns();
         if let Some(j) = joystick.latest()? {
@@ -105,40 +73,132 @@ pub fn run(
         let Some(state) = states.latest()? else {
             continue;
         };
-        last = Some(state);
-        let t0 = now_ns();
-        let mut cmd = step.step(&state, joy.as_ref());
-        let t1 = now_ns();
-        cmd.compute_ns = t1 - t0;
-        cmd.state_rx_ns = rx_ns;
-        cmd.joystick_rx_ns = if joy.is_some() { joy_rx_ns } else { 0 };
-        if faults.mapper_nan_at_tick != 0 && state.tick == faults.mapper_nan_at_tick {
-            tracing::warn!(tick = state.tick, "fault injection: a NaN velocity");
-            cmd.qdot_rad_s[0] = f64::NAN;
-        }
-        cmd.t_ns = now_ns();
+        prewarm.last = Some(state);
+        let joy_rx = if joy.is_some() { joy_rx_ns } else { 0 };
+        let cmd = map_state(&mut step, &state, joy.as_ref(), rx_ns, joy_rx, faults);
         commands.send(cmd)?;
-        st.t_ns = cmd.t_ns;
-        st.tick = state.tick;
-        st.handled += 1;
-        if cmd.flags != 0 {
-            st.faults += 1;
-        }
-        if set_mode(&mut st, &step) {
-            tracing::info!(
-                id,
-                tick = state.tick,
-                mode = step.mode().map_or("-", |m| m.name),
-                switches = st.mode_switches,
-                "mode switch"
-            );
-        }
+        count_tick(&mut st, &step, &cmd, state.tick, id);
         status.send(st)?;
     }
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     status.send(st)?;
     Ok(())
+}
+
+/// Says which model the mapper serves.
+fn say_serving(step: &MapperStep, id: u32) {
+    let h = &step.model().header;
+    tracing::info!(
+        id,
+        kind = %h.kind,
+        model = %step.model().source,
+        speed_scale_rad_s = h.speed_scale_rad_s,
+        "serving"
+    );
+}
+
+/// `rt_prewarm_us`: wake that long before the next state (the last one's time plus a
+/// period) and warm the map once; a state or sample arriving meanwhile is handled as usual.
+struct Prewarm {
+    prewarm_ns: u64,
+    period_ns: u64,
+    /// The last state mapped, until the map has been warmed for the next one.
+    last: Option<ipc_types::RobotState>,
+    warm_out: [f64; ipc_types::MAX_JOINTS],
+}
+
+impl Prewarm {
+    fn new(graph_cfg: &GraphSection) -> Self {
+        let prewarm_ns = u64::from(graph_cfg.rt_prewarm_us) * 1000;
+        if prewarm_ns > 0 {
+            tracing::info!(
+                prewarm_us = graph_cfg.rt_prewarm_us,
+                "warming the map before each tick"
+            );
+        }
+        Self {
+            prewarm_ns,
+            period_ns: (graph_cfg.period_s() * 1e9).round() as u64,
+            last: None,
+            warm_out: [0.0; ipc_types::MAX_JOINTS],
+        }
+    }
+
+    /// Waits for a state or a joystick sample: the bits of [`transport::wait_any`], or `None`
+    /// when the wait ended at the warm-up time and the map was warmed.
+    fn wait(
+        &mut self,
+        wakes: &[&dyn transport::graph::Wakeable; 2],
+        step: &mut MapperStep,
+    ) -> Option<u64> {
+        if self.prewarm_ns > 0
+            && let Some(l) = &self.last
+        {
+            let at = l.t_ns + self.period_ns - self.prewarm_ns;
+            let now = now_ns();
+            if now < at {
+                let w = transport::wait_any(wakes, Duration::from_nanos(at - now));
+                if w == 0 {
+                    let n = (l.n_joints as usize).min(ipc_types::MAX_JOINTS);
+                    step.warm(l, &mut self.warm_out[..n]);
+                    self.last = None;
+                    return None;
+                }
+                return Some(w);
+            }
+        }
+        Some(transport::wait_any(wakes, Duration::from_millis(100)))
+    }
+}
+
+/// Maps `state` with the newest joystick sample into the tick's command, stamped with its
+/// compute time and arrival times (`mapper_nan_at_tick` injects its fault here).
+fn map_state(
+    step: &mut MapperStep,
+    state: &ipc_types::RobotState,
+    joy: Option<&ipc_types::JoystickInput>,
+    rx_ns: u64,
+    joy_rx_ns: u64,
+    faults: &FaultConfig,
+) -> ipc_types::MapperCommand {
+    let t0 = now_ns();
+    let mut cmd = step.step(state, joy);
+    let t1 = now_ns();
+    cmd.compute_ns = t1 - t0;
+    cmd.state_rx_ns = rx_ns;
+    cmd.joystick_rx_ns = joy_rx_ns;
+    if faults.mapper_nan_at_tick != 0 && state.tick == faults.mapper_nan_at_tick {
+        tracing::warn!(tick = state.tick, "fault injection: a NaN velocity");
+        cmd.qdot_rad_s[0] = f64::NAN;
+    }
+    cmd.t_ns = now_ns();
+    cmd
+}
+
+/// Counts a published command in the heartbeat `st` and says a mode switch.
+fn count_tick(
+    st: &mut NodeStatus,
+    step: &MapperStep,
+    cmd: &ipc_types::MapperCommand,
+    tick: u64,
+    id: u32,
+) {
+    st.t_ns = cmd.t_ns;
+    st.tick = tick;
+    st.handled += 1;
+    if cmd.flags != 0 {
+        st.faults += 1;
+    }
+    if set_mode(st, step) {
+        tracing::info!(
+            id,
+            tick,
+            mode = step.mode().map_or("-", |m| m.name),
+            switches = st.mode_switches,
+            "mode switch"
+        );
+    }
 }
 
 /// Copies the map's mode into the heartbeat (see [`NodeStatus::mode`]); returns whether the

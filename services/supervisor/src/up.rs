@@ -942,52 +942,16 @@ impl<'a> Supervisor<'a> {
 /// The caller has checked `[joystick]` (`scl_joystick::validate`, the joystick's sources and
 /// their files: `scl up` does, before this) so that a bad one is refused before anything
 /// starts; the graph configuration and the model are checked here.
+///
+/// The steps: check, join the graph, start the children in order ([`start_children`]),
+/// supervise every 2 ms until a shutdown, a lasting failure or `--for` ends the run, stop the
+/// children bridge first ([`Supervisor::stop_children`]), release the graph.
 pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     let cfg = &opts.config;
-    cfg.validate()?;
-    // Refuse a bad model, or a recording over an existing file, before anything starts.
-    MapperStep::load(
-        &cfg.mapper.model,
-        cfg.mapper.id,
-        cfg.profile()?,
-        cfg.period_s(),
-    )?;
-    if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
-        return Err(recording::RecordError::Exists(p.clone()).into());
-    }
-    let cleaned = transport::graph::cleanup_dead_nodes(&opts.prefix)?;
-    if cleaned > 0 {
-        tracing::info!(
-            cleaned,
-            "removed resources of dead processes of graph `{}`",
-            opts.prefix
-        );
-    }
-    let graph = Graph::join_with(&opts.prefix, "supervisor", cfg.graph.transport)?;
-    let status = graph.status_subscriber()?;
-    let states = graph.robot_state_subscriber(false)?;
-    let mapper_commands = graph.mapper_command_subscriber(false)?;
-    let safe_commands = graph.safe_command_subscriber(false)?;
-    let server = graph.control_server()?;
-    let estops = graph.estop_subscriber()?;
-    let mut sv = Supervisor {
-        opts,
-        graph,
-        procs: Vec::new(),
-        tel: Telemetry::default(),
-        last_state: None,
-        next_mapper_id: cfg.mapper.id + 1,
-        active_mapper: cfg.mapper.id,
-        restarts: 0,
-        swaps: 0,
-        control_seq: 0,
-        swap: None,
-        switch_publisher: None,
-        switch: (cfg.mapper.id, 0),
-        hold: false,
-        estop: (0, false),
-        cleanup: CleanupSchedule::new(Duration::from_secs(1)),
-    };
+    check_before_start(opts)?;
+    let graph = join_graph(opts)?;
+    let ports = Ports::open(&graph)?;
+    let mut sv = Supervisor::new(opts, graph);
     // Reaping and holding the arm must not wait behind other load; below the control path.
     node_rt::rt::elevate(&cfg.graph, scl_config::RtRole::Supervisor);
     // Idle CPUs kept out of deep sleep while the graph runs; released when `_dma` drops.
@@ -997,6 +961,133 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         Some(addr) => Some(start_live(&sv, addr, start_timeout)?),
         None => None,
     };
+    let plan = start_plan(&sv);
+    let mut failure = start_children(&mut sv, plan, &ports.status, start_timeout)?;
+
+    let started = Instant::now();
+    let mut next_report = Duration::from_secs(1);
+    let (notifier, mut watchdog) = systemd_notifier(cfg);
+    while failure.is_none() && !signals::stop_requested() {
+        std::thread::sleep(Duration::from_millis(2));
+        if let Some(f) = sv.reap() {
+            failure = Some(f);
+            break;
+        }
+        sv.restart_due()?;
+        ports.status.drain(|s| sv.tel.take(s))?;
+        sv.update_hold()?;
+        sv.relay_estops(&ports.estops)?;
+        sv.take_commands(&ports)?;
+        sv.serve_swaps(&ports.server)?;
+        if let Some(n) = &notifier
+            && let Some(notice) =
+                watchdog.poll(Instant::now(), sv.tel.ticks() > 0, sv.tel.last_bridge_beat)
+        {
+            n.send(notice.message());
+        }
+
+        let elapsed = started.elapsed();
+        if elapsed >= next_report {
+            next_report += Duration::from_secs(1);
+            sv.report_progress(elapsed);
+        }
+        if opts.duration.is_some_and(|d| elapsed >= d) {
+            break;
+        }
+    }
+    let duration_s = started.elapsed().as_secs_f64();
+    if let Some(n) = &notifier {
+        n.send("STOPPING=1");
+    }
+    if sv.swap.is_some() {
+        sv.finish_swap(Err("the graph is shutting down".into()));
+    }
+    sv.stop_children();
+    if let Some(child) = live.as_mut() {
+        stop_live(child);
+    }
+    ports.status.drain(|s| sv.tel.take(s))?;
+    ports.safe_commands.drain(|c| sv.tel.take_safe(c))?;
+    let summary = sv.summary(duration_s, failure);
+    drop(ports);
+    drop(sv);
+    // Last one out: remove what killed children left and the domain itself, unless an
+    // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
+    transport::graph::release_domain(&opts.prefix)?;
+    if cfg.graph.transport == ipc_types::Transport::Uds {
+        transport::uds::remove_graph(opts.prefix.as_str());
+    }
+    if let Some(f) = &summary.failure {
+        tracing::error!("{f}; the graph was stopped (bridge first)");
+    }
+    Ok(summary)
+}
+
+/// Refuses a bad configuration or model, or a recording over an existing file, before
+/// anything starts.
+fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
+    let cfg = &opts.config;
+    cfg.validate()?;
+    MapperStep::load(
+        &cfg.mapper.model,
+        cfg.mapper.id,
+        cfg.profile()?,
+        cfg.period_s(),
+    )?;
+    if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
+        return Err(recording::RecordError::Exists(p.clone()).into());
+    }
+    Ok(())
+}
+
+/// Removes what dead processes of the graph left, then joins it as the supervisor.
+fn join_graph(opts: &UpOptions) -> Result<Graph, SupervisorError> {
+    let cleaned = transport::graph::cleanup_dead_nodes(&opts.prefix)?;
+    if cleaned > 0 {
+        tracing::info!(
+            cleaned,
+            "removed resources of dead processes of graph `{}`",
+            opts.prefix
+        );
+    }
+    Ok(Graph::join_with(
+        &opts.prefix,
+        "supervisor",
+        opts.config.graph.transport,
+    )?)
+}
+
+/// The topics and services the supervisor reads while the graph runs (dropped in this
+/// order, before the graph).
+struct Ports {
+    status: transport::TopicSubscriber<NodeStatus>,
+    states: transport::TopicSubscriber<RobotState>,
+    mapper_commands: transport::TopicSubscriber<MapperCommand>,
+    safe_commands: transport::TopicSubscriber<SafeCommand>,
+    server: transport::control::ControlServer,
+    estops: transport::control::EstopSubscriber,
+}
+
+impl Ports {
+    fn open(graph: &Graph) -> Result<Self, SupervisorError> {
+        Ok(Self {
+            status: graph.status_subscriber()?,
+            states: graph.robot_state_subscriber(false)?,
+            mapper_commands: graph.mapper_command_subscriber(false)?,
+            safe_commands: graph.safe_command_subscriber(false)?,
+            server: graph.control_server()?,
+            estops: graph.estop_subscriber()?,
+        })
+    }
+}
+
+/// The children to start, in order: role, mapper id, arguments.
+type StartPlan = Vec<(NodeRole, u32, Vec<String>)>;
+
+/// The children to start, in order: the recorder (if recording), the joystick (unless the
+/// source is external), the mapper, safety, and the bridge (the clock) last.
+fn start_plan(sv: &Supervisor<'_>) -> StartPlan {
+    let (opts, cfg) = (sv.opts, &sv.opts.config);
     let mut plan = Vec::new();
     if let Some(path) = &opts.record {
         // The recorder first: it sees the graph from its first message on.
@@ -1027,8 +1118,19 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
         (NodeRole::Safety, 0, sv.child_args("safety")),
         (NodeRole::Bridge, 0, sv.child_args("bridge")),
     ]);
-    let mut failure: Option<String> = None;
-    'start: for (role, id, args) in plan {
+    plan
+}
+
+/// Starts the children of `plan` in order, each awaited until it reports ready; returns why
+/// the start-up stopped (a child died, or did not report ready within `start_timeout`), if
+/// it did.
+fn start_children(
+    sv: &mut Supervisor<'_>,
+    plan: StartPlan,
+    status: &transport::TopicSubscriber<NodeStatus>,
+    start_timeout: Duration,
+) -> Result<Option<String>, SupervisorError> {
+    for (role, id, args) in plan {
         let i = sv.push(role, id, args);
         sv.start(i)?;
         let t0 = Instant::now();
@@ -1038,170 +1140,174 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
                 && let Ok(Some(s)) = c.try_wait()
             {
                 sv.procs[i].child = None;
-                failure = Some(format!(
+                return Ok(Some(format!(
                     "the {} process {} during start-up",
                     role.name(),
                     describe(s)
-                ));
-                break 'start;
+                )));
             }
             if t0.elapsed() > start_timeout || signals::stop_requested() {
-                failure = Some(format!(
+                return Ok(Some(format!(
                     "the {} process did not report ready within {start_timeout:?}",
                     role.name()
-                ));
-                break 'start;
+                )));
             }
             std::thread::sleep(Duration::from_millis(2));
         }
     }
+    Ok(None)
+}
 
-    let started = Instant::now();
-    let mut next_report = Duration::from_secs(1);
-    // Under systemd (Type=notify): ready after the first executed tick, the watchdog petted
-    // while the bridge beats (ten periods of silence make it stale).
+/// Under systemd (Type=notify): ready after the first executed tick, the watchdog petted
+/// while the bridge beats (ten periods of silence make it stale).
+fn systemd_notifier(
+    cfg: &GraphConfig,
+) -> (Option<crate::notify::Notifier>, crate::notify::Watchdog) {
     let notifier = crate::notify::Notifier::from_env().unwrap_or_else(|e| {
         tracing::warn!("{e}; systemd will not be notified");
         None
     });
-    let mut watchdog = crate::notify::Watchdog::new(
+    let watchdog = crate::notify::Watchdog::new(
         crate::notify::watchdog_from_env(),
         Duration::from_secs_f64(10.0 * cfg.period_s()),
     );
-    while failure.is_none() && !signals::stop_requested() {
-        std::thread::sleep(Duration::from_millis(2));
-        if let Some(f) = sv.reap() {
-            failure = Some(f);
-            break;
+    (notifier, watchdog)
+}
+
+impl<'a> Supervisor<'a> {
+    /// A supervisor of the graph `graph` with no child yet.
+    fn new(opts: &'a UpOptions, graph: Graph) -> Self {
+        let cfg = &opts.config;
+        Self {
+            opts,
+            graph,
+            procs: Vec::new(),
+            tel: Telemetry::default(),
+            last_state: None,
+            next_mapper_id: cfg.mapper.id + 1,
+            active_mapper: cfg.mapper.id,
+            restarts: 0,
+            swaps: 0,
+            control_seq: 0,
+            swap: None,
+            switch_publisher: None,
+            switch: (cfg.mapper.id, 0),
+            hold: false,
+            estop: (0, false),
+            cleanup: CleanupSchedule::new(Duration::from_secs(1)),
         }
-        sv.restart_due()?;
-        status.drain(|s| sv.tel.take(s))?;
-        sv.update_hold()?;
-        // Relay e-stops into the control topic, whose history outlives `scl estop`: a
-        // restarted safety comes up still latched.
+    }
+
+    /// Relays e-stops into the control topic, whose history outlives `scl estop`: a
+    /// restarted safety comes up still latched.
+    fn relay_estops(
+        &mut self,
+        estops: &transport::control::EstopSubscriber,
+    ) -> Result<(), SupervisorError> {
         while let Some(e) = estops
             .receive()
             .map_err(|e| SupervisorError::Graph(format!("e-stop topic: {e}")))?
         {
-            sv.estop = (
-                sv.estop.0.wrapping_add(1),
+            self.estop = (
+                self.estop.0.wrapping_add(1),
                 e.action == ipc_types::control::estop_action::ESTOP,
             );
-            sv.publish_control()?;
+            self.publish_control()?;
         }
-        states.drain(|s| sv.last_state = Some(*s))?;
+        Ok(())
+    }
+
+    /// Takes what the graph published since the last turn: the newest state, the mappers'
+    /// commands (a swap's warm-up), the commands safety forwarded (the telemetry, a swap's
+    /// switch).
+    fn take_commands(&mut self, ports: &Ports) -> Result<(), SupervisorError> {
+        ports.states.drain(|s| self.last_state = Some(*s))?;
         let mut cmds = Vec::new();
-        mapper_commands.drain(|c| cmds.push(*c))?;
+        ports.mapper_commands.drain(|c| cmds.push(*c))?;
         for c in &cmds {
-            sv.on_mapper_command(c)?;
+            self.on_mapper_command(c)?;
         }
         let mut executed = Vec::new();
-        safe_commands.drain(|c| {
+        ports.safe_commands.drain(|c| {
             executed.push((c.tick, c.mapper_id));
-            sv.tel.take_safe(c);
+            self.tel.take_safe(c);
         })?;
         for (tick, id) in executed {
-            sv.on_safe_command(tick, id);
+            self.on_safe_command(tick, id);
         }
+        Ok(())
+    }
+
+    /// Begins the swaps requested on the control service and refuses one that took too long.
+    fn serve_swaps(
+        &mut self,
+        server: &transport::control::ControlServer,
+    ) -> Result<(), SupervisorError> {
         while let Some(request) = server
             .receive()
             .map_err(|e| SupervisorError::Graph(format!("control service: {e}")))?
         {
-            sv.begin_swap(request);
+            self.begin_swap(request);
         }
-        sv.check_swap_timeout();
-        if let Some(n) = &notifier
-            && let Some(notice) =
-                watchdog.poll(Instant::now(), sv.tel.ticks() > 0, sv.tel.last_bridge_beat)
-        {
-            n.send(notice.message());
-        }
-
-        let elapsed = started.elapsed();
-        if elapsed >= next_report {
-            next_report += Duration::from_secs(1);
-            let l = percentiles_us(&sv.tel.latency_ns);
-            let restarts = if sv.restarts > 0 {
-                format!("  restarts {}", sv.restarts)
-            } else {
-                String::new()
-            };
-            eprintln!(
-                "scl up: {:>4.0}s  ticks {:>6}  missed {:>3}  e2e p50 {:>6.1} µs  p99 {:>7.1} µs  mapper {}{restarts}",
-                elapsed.as_secs_f64(),
-                sv.tel.ticks(),
-                sv.tel.missed(),
-                l.p50,
-                l.p99,
-                sv.active_mapper,
-            );
-        }
-        if opts.duration.is_some_and(|d| elapsed >= d) {
-            break;
-        }
-    }
-    let duration_s = started.elapsed().as_secs_f64();
-    if let Some(n) = &notifier {
-        n.send("STOPPING=1");
-    }
-    if sv.swap.is_some() {
-        sv.finish_swap(Err("the graph is shutting down".into()));
+        self.check_swap_timeout();
+        Ok(())
     }
 
-    // Bridge first: it stops the arm at once and publishes a final state. The recorder
-    // last, so the file holds everything up to the end.
-    for role in [
-        NodeRole::Bridge,
-        NodeRole::Safety,
-        NodeRole::Mapper,
-        NodeRole::Joystick,
-        NodeRole::Recorder,
-    ] {
-        for p in sv.procs.iter_mut().filter(|p| p.role == role) {
-            signal_and_wait(p, Duration::from_secs(3));
+    /// Prints the once-a-second progress line.
+    fn report_progress(&self, elapsed: Duration) {
+        let l = percentiles_us(&self.tel.latency_ns);
+        let restarts = if self.restarts > 0 {
+            format!("  restarts {}", self.restarts)
+        } else {
+            String::new()
+        };
+        eprintln!(
+            "scl up: {:>4.0}s  ticks {:>6}  missed {:>3}  e2e p50 {:>6.1} µs  p99 {:>7.1} µs  mapper {}{restarts}",
+            elapsed.as_secs_f64(),
+            self.tel.ticks(),
+            self.tel.missed(),
+            l.p50,
+            l.p99,
+            self.active_mapper,
+        );
+    }
+
+    /// Stops the children: the bridge first (it stops the arm at once and publishes a final
+    /// state), the recorder last, so the file holds everything up to the end.
+    fn stop_children(&mut self) {
+        for role in [
+            NodeRole::Bridge,
+            NodeRole::Safety,
+            NodeRole::Mapper,
+            NodeRole::Joystick,
+            NodeRole::Recorder,
+        ] {
+            for p in self.procs.iter_mut().filter(|p| p.role == role) {
+                signal_and_wait(p, Duration::from_secs(3));
+            }
         }
     }
-    if let Some(child) = live.as_mut() {
-        stop_live(child);
+
+    /// The run's summary, `duration_s` long, with the `failure` that ended it.
+    fn summary(&self, duration_s: f64, failure: Option<String>) -> Summary {
+        Summary {
+            ticks: self.tel.ticks(),
+            missed: self.tel.missed(),
+            held_up: self.tel.held_up(),
+            latency_us: percentiles_us(&self.tel.latency_ns),
+            tick_lateness_us: percentiles_us(&self.tel.lateness_ns),
+            joint_travel_rad: self.tel.travel(),
+            latency_samples: self.tel.latency_ns.len(),
+            duration_s,
+            prefix: self.opts.prefix.to_string(),
+            active_mapper: self.tel.active_mapper,
+            restarts: self.restarts,
+            swaps: self.swaps,
+            failure,
+            min_clearance_m: self.tel.min_clearance_m,
+            max_tcp_speed_m_s: self.tel.max_tcp_speed_m_s,
+        }
     }
-    status.drain(|s| sv.tel.take(s))?;
-    safe_commands.drain(|c| sv.tel.take_safe(c))?;
-    let summary = Summary {
-        ticks: sv.tel.ticks(),
-        missed: sv.tel.missed(),
-        held_up: sv.tel.held_up(),
-        latency_us: percentiles_us(&sv.tel.latency_ns),
-        tick_lateness_us: percentiles_us(&sv.tel.lateness_ns),
-        joint_travel_rad: sv.tel.travel(),
-        latency_samples: sv.tel.latency_ns.len(),
-        duration_s,
-        prefix: opts.prefix.to_string(),
-        active_mapper: sv.tel.active_mapper,
-        restarts: sv.restarts,
-        swaps: sv.swaps,
-        failure,
-        min_clearance_m: sv.tel.min_clearance_m,
-        max_tcp_speed_m_s: sv.tel.max_tcp_speed_m_s,
-    };
-    drop((
-        status,
-        states,
-        mapper_commands,
-        safe_commands,
-        server,
-        estops,
-    ));
-    drop(sv);
-    // Last one out: remove what killed children left and the domain itself, unless an
-    // observer (a recorder, a test) is still attached; it releases the domain when it leaves.
-    transport::graph::release_domain(&opts.prefix)?;
-    if cfg.graph.transport == ipc_types::Transport::Uds {
-        transport::uds::remove_graph(opts.prefix.as_str());
-    }
-    if let Some(f) = &summary.failure {
-        tracing::error!("{f}; the graph was stopped (bridge first)");
-    }
-    Ok(summary)
 }
 
 #[cfg(test)]

@@ -161,6 +161,8 @@ fn replay_json(path: &Path) -> (Option<i32>, serde_json::Value, String) {
 #[test]
 fn a_recorded_run_with_a_swap_an_estop_and_its_reset_replays_bit_for_bit() {
     let run = recorded_run();
+    // Its `scl replay` runs are not to overlap another test's graph (one test binary).
+    let _serial = serial();
     let (safe, _, att) = contents(&run.file);
     // What the run went through is in the recording: both models, safety's configuration,
     // the swap (mapper 2 reached the arm), the e-stop and the motion after its reset.
@@ -246,6 +248,8 @@ fn a_recorded_run_with_a_swap_an_estop_and_its_reset_replays_bit_for_bit() {
 #[test]
 fn a_recording_with_an_altered_model_diverges_at_the_first_tick_the_map_moves() {
     let run = recorded_run();
+    // Its `scl replay` runs are not to overlap another test's graph (one test binary).
+    let _serial = serial();
     let altered = run.dir.join("altered.mcap");
     let _ = std::fs::remove_file(&altered);
     let n = replay::edit::rewrite_attachments(&run.file, &altered, |name, data| {
@@ -364,6 +368,8 @@ fn whatif_json(run: &Run, model: &str, out: &str) -> serde_json::Value {
 #[test]
 fn the_counterfactual_is_zero_with_the_same_model_and_differs_from_the_first_move_with_pca() {
     let run = plain_run();
+    // Its `scl replay` runs are not to overlap another test's graph (one test binary).
+    let _serial = serial();
     let v = whatif_json(run, "bundled", "same.mcap");
     assert!(v["ticks"].as_u64().unwrap() >= 250, "{v}");
     assert_eq!(v["ticks_differing"], 0, "{v}");

@@ -56,7 +56,7 @@ fn contents(path: &Path) -> Contents {
             } => {
                 *c.counts.entry(channel.topic.clone()).or_default() += 1;
                 if channel.message_encoding != "json" {
-                    // The 3D view's protobuf channels: decoded in tests/tests/live.rs.
+                    // The 3D view's protobuf channels: decoded in tests/tests/whole_graph/live.rs.
                     return Ok(());
                 }
                 let value: serde_json::Value = serde_json::from_slice(data).unwrap();
