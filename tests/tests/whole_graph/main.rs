@@ -12,6 +12,8 @@ mod graph;
 mod joystick;
 mod kortex;
 mod live;
+mod live_log;
+mod live_port;
 mod modeswitch;
 mod rate;
 mod recording;

@@ -1,7 +1,6 @@
 //! Whole-graph tests of the processes' own logs on Foxglove: a process's `tracing` warning
 //! reaches a Foxglove client of `scl up --live` on `/scl/log` (`foxglove.Log`), named after
 //! the process, at its level, with its text; and a recording's `/scl/log` holds it too.
-#![allow(clippy::unwrap_used, missing_docs)]
 
 use std::io::BufRead;
 use std::process::Stdio;

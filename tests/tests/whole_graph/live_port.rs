@@ -2,7 +2,6 @@
 //! graph with the live server's own error (nothing starts, nothing is left behind), and a
 //! normal start logs no error (the supervisor does not probe the server with a connection of
 //! its own; the live child announces that it serves, and on which port).
-#![allow(clippy::unwrap_used, missing_docs)]
 
 use std::net::TcpListener;
 use std::process::{Output, Stdio};
