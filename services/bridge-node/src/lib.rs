@@ -537,7 +537,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
                     verdicts.extend(late.arrived(c));
                     reply.other = Some(*c);
                 }
-                late.superseded(c, &mut verdicts);
+                late.superseded(c, verdicts);
             })?;
             let now = now_ns();
             if reply.found.is_some() {
