@@ -342,8 +342,10 @@ fn kill_child_and_check(role: NodeRole) {
         "the graph did not start"
     );
     let pid = rec.pid_of(role).unwrap();
-    let t_kill = now_ns();
     scl_tests::send_signal(pid, Signal::SIGKILL);
+    // Read after the signal is sent: read before, a test thread the machine holds up between
+    // the reading and the kill lets the process answer a state stamped after the "kill".
+    let t_kill = now_ns();
     let t0 = std::time::Instant::now();
     while guard.child().try_wait().unwrap().is_none() {
         rec.poll();
