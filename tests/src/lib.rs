@@ -225,7 +225,8 @@ impl Drop for DomainGuard {
 /// Checks that the bridge commanded a stop within the first two ticks after an event at
 /// `t_ns` (a kill), given the robot states recorded after it. A state reports the command
 /// executed during the period before it (`applied_tick`, flags), so a stop commanded at the
-/// second tick after the event shows in the third state; a shutdown state reports itself.
+/// second tick after the event shows in the third state; a shutdown state reports itself and
+/// repeats the tick it stopped in.
 /// Returns the index of the first state that reports the stop.
 pub fn assert_stop_within_two_ticks(after: &[RobotState], what: &str) -> usize {
     let stop = ipc_types::state_flags::STOPPING
@@ -235,11 +236,14 @@ pub fn assert_stop_within_two_ticks(after: &[RobotState], what: &str) -> usize {
         .iter()
         .position(|s| s.flags & stop != 0)
         .unwrap_or_else(|| panic!("{what}: the bridge never reported a stop"));
-    // A stop already reported by the first state was commanded before the event: at once.
+    // Counted in the states' own ticks (a shutdown state repeats the tick of the period it
+    // stopped in). A stop already reported by the first state was commanded before the
+    // event: at once.
+    let ticks_in = after[first].tick.saturating_sub(after[0].tick) as usize;
     let commanded_at = if after[first].flags & ipc_types::state_flags::SHUTDOWN != 0 {
-        first
+        ticks_in
     } else {
-        first.saturating_sub(1)
+        ticks_in.saturating_sub(1)
     };
     assert!(
         commanded_at < 2,

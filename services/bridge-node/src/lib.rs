@@ -374,11 +374,6 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         t.publish_state(state)?;
         let mut verdicts = Vec::new();
         let reply = t.await_command(state.tick, woke.deadline_ns, &mut verdicts)?;
-        if reply.found.is_none() && signals::stop_requested() {
-            // A stop requested while the command was awaited: the arm stops below
-            // (`shutdown`), and the tick is not a miss.
-            break;
-        }
         let outcome = match t
             .core
             .finish_tick(reply.found.as_ref().or(reply.other.as_ref()))
