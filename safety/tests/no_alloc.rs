@@ -14,28 +14,12 @@ use safety::{BoxConfig, SafetyConfig, SafetyFilter};
 #[global_allocator]
 static GLOBAL: test_support::CountingAllocator = test_support::CountingAllocator;
 
-const NOW: u64 = 1_000_000_000;
+mod common;
+
+use common::NOW;
 
 fn cmd(tick: u64, qdot: &[f64]) -> MapperCommand {
-    let mut q = [0.0; MAX_JOINTS];
-    q[..qdot.len()].copy_from_slice(qdot);
-    MapperCommand {
-        tick,
-        t_ns: NOW - 500_000,
-        state_t_ns: NOW - 1_000_000,
-        state_rx_ns: 0,
-        joystick_t_ns: NOW - 10_000_000,
-        joystick_rx_ns: 0,
-        joystick_seq: 1,
-        compute_ns: 100,
-        mapper_id: 1,
-        n_joints: qdot.len() as u32,
-        flags: 0,
-        buttons: 0,
-        action: [0.0; 2],
-        qdot_rad_s: q,
-        gripper_rate: 0.0,
-    }
+    common::command(tick, qdot, 0.0)
 }
 
 #[test]
