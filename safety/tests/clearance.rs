@@ -128,26 +128,7 @@ fn driving_into_the_table_or_onto_the_arm_stops_at_the_stop_distance_and_backs_o
         let scene = cfg.scene.scene().unwrap();
         let mut f = whole_arm(cfg);
         let (q, last, closest) = drill(&mut f, gen3_lite::HOME, qdot, 800, 1, stop);
-        eprintln!(
-            "drill {name}: closest {} at {:.4} m, at rest at q {q:.3?}",
-            closest.0, closest.1
-        );
-        assert!(
-            last.flags & safe_flags::CLEARANCE_LIMITED != 0,
-            "{name}: {:#x}",
-            last.flags
-        );
-        assert!(
-            last.qdot_rad_s.iter().all(|v| v.abs() < 1e-3),
-            "{name}: {last:?}"
-        );
-        assert!(
-            closest.1 < stop + 0.005,
-            "{name}: stopped {} m short",
-            closest.1
-        );
-        assert_eq!(last.closest_pair, closest.0.code(), "{name}");
-        assert!((last.clearance_m - closest.1).abs() < 1e-3, "{name}");
+        common::assert_at_rest_at_the_stop_distance("drill", name, &q, &last, closest, stop);
         let held = min_distance(&q, &scene).1;
         let back = qdot.map(|v| -v);
         let (q, out, _) = drill(&mut f, q, back, 80, 801, stop);

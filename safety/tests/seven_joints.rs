@@ -346,26 +346,7 @@ fn the_gen3_driven_into_the_table_or_onto_itself_stops_at_the_stop_distance() {
         let stop = cfg.stop_distance_m;
         let mut f = SafetyFilter::for_graph(cfg, robot, period(robot)).unwrap();
         let (q, last, closest) = drive(&mut f, robot, home, &qdot, 800, 1);
-        eprintln!(
-            "gen3 drill {name}: closest {} at {:.4} m, at rest at q {q:.3?}",
-            closest.0, closest.1
-        );
-        assert!(
-            last.flags & ipc_types::safe_flags::CLEARANCE_LIMITED != 0,
-            "{name}: {:#x}",
-            last.flags
-        );
-        assert!(
-            last.qdot_rad_s.iter().all(|v| v.abs() < 1e-3),
-            "{name}: {last:?}"
-        );
-        assert!(
-            closest.1 < stop + 0.005,
-            "{name}: stopped {} m short",
-            closest.1
-        );
-        assert_eq!(last.closest_pair, closest.0.code(), "{name}");
-        assert!((last.clearance_m - closest.1).abs() < 1e-3, "{name}");
+        common::assert_at_rest_at_the_stop_distance("gen3 drill", name, &q, &last, closest, stop);
         let back: Vec<f64> = qdot.iter().map(|v| -v).collect();
         let (_, out, _) = drive(&mut f, robot, &q, &back, 80, 801);
         assert_eq!(

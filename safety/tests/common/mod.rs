@@ -2,7 +2,8 @@
 //! number of joints, stamped around [`NOW`].
 #![allow(dead_code)]
 
-use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState};
+use ipc_types::{MAX_JOINTS, MapperCommand, NO_TICK, RobotState, SafeCommand, safe_flags};
+use kinematics::collision::PairId;
 
 /// The filter's time in the tests (ns).
 pub const NOW: u64 = 1_000_000_000;
@@ -50,4 +51,37 @@ pub fn resting_state(tick: u64, n_joints: u32) -> RobotState {
     let mut s = RobotState::at_rest(tick, NOW - 1_000_000, n_joints);
     s.applied_tick = tick.wrapping_sub(1);
     s
+}
+
+/// A whole-arm drill's end: the last command `last` holds the arm at rest by the clearance
+/// rule, within 5 mm of the stop distance `stop`, reporting the closest pair `closest` and its
+/// distance. `what` and `name` name the drill in the messages; `q` is where the arm rests.
+pub fn assert_at_rest_at_the_stop_distance(
+    what: &str,
+    name: &str,
+    q: &[f64],
+    last: &SafeCommand,
+    closest: (PairId, f64),
+    stop: f64,
+) {
+    eprintln!(
+        "{what} {name}: closest {} at {:.4} m, at rest at q {q:.3?}",
+        closest.0, closest.1
+    );
+    assert!(
+        last.flags & safe_flags::CLEARANCE_LIMITED != 0,
+        "{name}: {:#x}",
+        last.flags
+    );
+    assert!(
+        last.qdot_rad_s.iter().all(|v| v.abs() < 1e-3),
+        "{name}: {last:?}"
+    );
+    assert!(
+        closest.1 < stop + 0.005,
+        "{name}: stopped {} m short",
+        closest.1
+    );
+    assert_eq!(last.closest_pair, closest.0.code(), "{name}");
+    assert!((last.clearance_m - closest.1).abs() < 1e-3, "{name}");
 }
