@@ -66,10 +66,6 @@ class Chain:
         """The tip's position in the base frame (m)."""
         return self.position_and_jacobian(q)[0]
 
-    def jacobian(self, q: Sequence[float]) -> np.ndarray:
-        """The tip position's Jacobian (3 x n)."""
-        return self.position_and_jacobian(q)[1]
-
     def position_and_jacobian(self, q: Sequence[float]) -> Tuple[np.ndarray, np.ndarray]:
         """The tip's position (m) and its Jacobian (3 x n) in one pass down the chain: a
         revolute joint's column is its axis crossed with the lever from the joint to the tip.
