@@ -539,7 +539,11 @@ impl<'a, R: Robot> Ticker<'a, R> {
                 reply.received_ns = now;
                 break;
             }
-            if now >= deadline_ns || signals::stop_requested() {
+            // A stop requested meanwhile waits for the command all the same: the supervisor
+            // stops the bridge first, so the command still comes, and leaving now would count
+            // the graph's last tick as its own miss. The stop follows at the end of this tick,
+            // at most the command wait later.
+            if now >= deadline_ns {
                 break;
             }
             self.commands

@@ -23,7 +23,16 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
     let _domain = DomainGuard(prefix.clone());
     let dir = scl_tests::temp_dir("rate500");
     let cfg = dir.join("graph.toml");
-    std::fs::write(&cfg, format!("[graph]\nrate_hz = {RATE_HZ}\n")).unwrap();
+    // The step script comes back to rest every 0.3 s: at 500 Hz a debug build's wake-up can
+    // pass the 1.6 ms state age (80 % of the period), a stale-state stop, and restart
+    // prevention then waits for neutral input, which a circle never gives again.
+    std::fs::write(
+        &cfg,
+        format!(
+            "[graph]\nrate_hz = {RATE_HZ}\n[joystick]\nscript = \"step\"\nstep_hold_s = 0.2\nstep_rest_s = 0.1\n"
+        ),
+    )
+    .unwrap();
     let defaults = {
         let text = std::fs::read_to_string(&cfg).unwrap();
         // The accelerations the filter enforces: the profile's defaults (the file sets none).
@@ -42,7 +51,7 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
         Command::new(scl_binary())
             .arg("--config")
             .arg(&cfg)
-            .args(["up", "--for", "4s", "--json", "--script", "circle"])
+            .args(["up", "--for", "4s", "--json"])
             .env("SCL_PREFIX", prefix.as_str())
             .env("SCL_LOG", "warn")
             .stdout(Stdio::piped())
