@@ -36,6 +36,8 @@ pub use mcap::records::Metadata;
 use mcap::write::NoSeek;
 use serde_json::Value;
 
+mod lengths;
+
 /// The SHA-256 digest of `bytes` in lower-case hex: how a recording names the files it embeds
 /// (models, the graph configuration).
 pub fn sha256_hex(bytes: &[u8]) -> String {
@@ -803,6 +805,8 @@ impl<F: FnMut(Event<'_>) -> Result<(), RecordError>> Walk<F> {
     /// One record (top level or from a chunk); `Ok(true)` at the data-end record.
     fn record(&mut self, opcode: u8, body: &[u8]) -> Result<bool, RecordStop> {
         use mcap::records::{Record, op};
+        // Before the crate parses it: it reserves what a length field says (`lengths`).
+        lengths::check(opcode, body).map_err(|e| RecordStop::Damaged(e.to_string()))?;
         if opcode == op::CHUNK {
             return self.chunk(body).map(|()| false);
         }

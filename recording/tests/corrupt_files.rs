@@ -6,14 +6,51 @@
 //! does not justify.
 #![allow(clippy::unwrap_used, missing_docs)]
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use ipc_types::RobotState;
 use proptest::prelude::*;
 use recording::{Event, LogWriter, Payload, ReadSummary, RecordError, StopCause, Topic};
 
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+/// The allocator of this test binary: the system's, counting every allocation larger than
+/// anything a reader may justify ([`recording::MAX_CHUNK_BYTES`], a chunk's expansion, plus a
+/// margin). The inputs here are kilobytes, so any such allocation came from a length field
+/// that was trusted; [`every_reader`] fails on it.
+struct Counting;
+
+/// Allocations above [`HUGE_BYTES`] so far, in any test of this binary.
+static HUGE: AtomicUsize = AtomicUsize::new(0);
+const HUGE_BYTES: usize = (recording::MAX_CHUNK_BYTES as usize) + (1 << 20);
+
+// SAFETY: every call is passed on to `System` unchanged; the counter has no effect on memory.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if layout.size() > HUGE_BYTES {
+            HUGE.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: the caller's contract for `alloc` is `System::alloc`'s.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System` with this layout (every allocation above does).
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if new_size > HUGE_BYTES {
+            HUGE.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: as for `dealloc`, and the caller's contract for `realloc` is `System`'s.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOC: Counting = Counting;
 
 /// A finished recording of `n` robot states in chunks of 10, zstd-compressed as the writer
 /// makes them now.
@@ -88,8 +125,8 @@ fn record_offsets(bytes: &[u8]) -> Vec<usize> {
     out
 }
 
-/// Every entry point on `bytes`; panics only if a reader panics (or aborts on an allocation).
-/// Returns what [`recording::read`] said.
+/// Every entry point on `bytes`; panics if a reader panics or any test of this binary has
+/// allocated more than a reader may justify ([`HUGE`]). Returns what [`recording::read`] said.
 fn every_reader(bytes: &[u8]) -> Result<ReadSummary, RecordError> {
     let path = Path::new("fuzz.mcap");
     let mut n = 0u64;
@@ -107,6 +144,11 @@ fn every_reader(bytes: &[u8]) -> Result<ReadSummary, RecordError> {
     let slow = recording::read(OneByte(bytes), path, |_| Ok(()));
     assert_eq!(slow.is_ok(), r.is_ok(), "{slow:?} / {r:?}");
     let _ = recording::recover_into(bytes, path, Vec::new(), Path::new("out.mcap"));
+    assert_eq!(
+        HUGE.load(Ordering::Relaxed),
+        0,
+        "an allocation above {HUGE_BYTES} bytes: a length field was trusted"
+    );
     r
 }
 
@@ -183,6 +225,61 @@ fn a_chunk_that_claims_a_huge_expansion_is_damage_not_an_allocation() {
     let st = s.stopped.unwrap();
     assert_eq!(st.offset, chunk as u64);
     assert!(matches!(st.cause, StopCause::Damaged(_)), "{st}");
+}
+
+/// The fuzz target's first find (`recording/fuzz/regressions/`): a Header record of 5 bytes
+/// whose profile string says 0xa0000000 bytes. The mcap crate reserved the 2.68 GB before
+/// reading; now the file is refused, naming the record and the field.
+#[test]
+fn the_fuzzers_header_with_a_huge_string_length_is_damage_not_an_allocation() {
+    let input = include_bytes!("../fuzz/regressions/oom-207e5fbb83e862d520c291b6084ff001b95c053b");
+    // The fuzz target puts the magic in front when the first byte's top bit is clear.
+    assert_eq!(input[0] & 0x80, 0);
+    let mut bytes = MAGIC.to_vec();
+    bytes.extend_from_slice(&input[1..]);
+    // A header that cannot be read: not an MCAP file, and the error says why.
+    match every_reader(&bytes) {
+        Err(RecordError::NotMcap { reason, .. }) => {
+            assert!(reason.contains("a string at byte 4"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A `uint32`-prefixed string.
+fn mcap_string(s: &str) -> Vec<u8> {
+    let mut v = (s.len() as u32).to_le_bytes().to_vec();
+    v.extend_from_slice(s.as_bytes());
+    v
+}
+
+/// A record: opcode, `uint64` length, body.
+fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+    let mut v = vec![opcode];
+    v.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    v.extend_from_slice(body);
+    v
+}
+
+/// A file: the magic, a header, then `rest`.
+fn file_with(rest: &[u8]) -> Vec<u8> {
+    let mut header = mcap_string("");
+    header.extend(mcap_string("test"));
+    let mut bytes = MAGIC.to_vec();
+    bytes.extend(record(0x01, &header));
+    bytes.extend_from_slice(rest);
+    bytes
+}
+
+/// An uncompressed chunk holding `records` (CRC 0: not checked).
+fn chunk_of(records: &[u8]) -> Vec<u8> {
+    let mut body = vec![0; 16];
+    body.extend_from_slice(&(records.len() as u64).to_le_bytes());
+    body.extend_from_slice(&0u32.to_le_bytes());
+    body.extend(mcap_string(""));
+    body.extend_from_slice(&(records.len() as u64).to_le_bytes());
+    body.extend_from_slice(records);
+    record(0x06, &body)
 }
 
 #[test]
@@ -276,6 +373,28 @@ proptest! {
         let r = every_reader(&bytes);
         check_names_the_place(&bytes, &r);
         prop_assert!(!r.as_ref().is_ok_and(|s| s.complete));
+    }
+
+    /// Any record the mcap crate parses field by field (top level, and inside a chunk), its
+    /// body small random bytes with a large length written somewhere: read without allocating
+    /// what the length says.
+    #[test]
+    fn records_whose_length_fields_lie_are_read_without_trusting_them(
+        opcode in 0x01u8..=0x0f,
+        mut body in proptest::collection::vec(any::<u8>(), 0..96),
+        lie in (any::<usize>(), 0x0100_0000u64..=u64::MAX, any::<bool>()),
+        in_chunk in any::<bool>(),
+    ) {
+        let (at, big, wide) = lie;
+        let width = if wide { 8 } else { 4 };
+        if body.len() >= width {
+            let at = at % (body.len() - width + 1);
+            body[at..at + width].copy_from_slice(&big.to_le_bytes()[..width]);
+        }
+        let rec = record(opcode, &body);
+        let bytes = if in_chunk { file_with(&chunk_of(&rec)) } else { file_with(&rec) };
+        let r = every_reader(&bytes);
+        check_names_the_place(&bytes, &r);
     }
 
     #[test]
