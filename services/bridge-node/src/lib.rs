@@ -33,14 +33,54 @@ pub enum BridgeNodeError {
     #[error(transparent)]
     Robot(#[from] hw_bridge::RobotError),
     /// The Kortex credentials could not be found or read (the message never holds them).
-    #[error("{0}")]
-    Credentials(String),
+    #[error(transparent)]
+    Credentials(#[from] CredentialsError),
     /// The fake Kortex robot could not start.
     #[error(transparent)]
     FakeKortex(#[from] hw_bridge::kortex::fake::FakeError),
-    /// The graph or the process failed (a child died, a thread did not start, ...).
-    #[error("{0}")]
-    Graph(String),
+    /// `[bridge.mock]` does not fit the robot.
+    #[error("config: {0}")]
+    Mock(#[from] hw_bridge::mock::MockConfigError),
+    /// `[bridge] robot` names no backend.
+    #[error("bridge.robot: `{name}` is not a robot; use mock or kortex")]
+    UnknownRobot {
+        /// The name as written.
+        name: String,
+    },
+}
+
+/// Why the Kortex credentials could not be had. No variant holds or shows them.
+#[derive(Debug, thiserror::Error)]
+pub enum CredentialsError {
+    /// The credentials file could not be read.
+    #[error("cannot read credentials file {}: {source}", path.display())]
+    Read {
+        /// `[bridge.kortex] credentials_file`.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The credentials file is not the expected TOML. The parser's own error is left out on
+    /// purpose: it quotes the offending line, which may hold the password.
+    #[error(
+        "credentials file {}{}: expected `username = \"...\"` and `password = \"...\"` (TOML strings) and nothing else",
+        path.display(),
+        line.map_or(String::new(), |l| format!(", line {l}"))
+    )]
+    Parse {
+        /// `[bridge.kortex] credentials_file`.
+        path: PathBuf,
+        /// The line the parser stopped at, if it said.
+        line: Option<usize>,
+    },
+    /// Neither the arguments, their environment variables nor the file gave them.
+    #[error(
+        "no Kortex {missing}: set {USER_ENV} and {PASSWORD_ENV}, or bridge.kortex.credentials_file (a TOML file with username and password)"
+    )]
+    Missing {
+        /// `user name and password`, `user name` or `password`.
+        missing: &'static str,
+    },
 }
 
 use std::path::{Path, PathBuf};
@@ -114,12 +154,10 @@ struct CredentialsFile {
     password: Option<String>,
 }
 
-fn read_credentials_file(path: &Path) -> Result<CredentialsFile, BridgeNodeError> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        BridgeNodeError::Credentials(format!(
-            "cannot read credentials file {}: {e}",
-            path.display()
-        ))
+fn read_credentials_file(path: &Path) -> Result<CredentialsFile, CredentialsError> {
+    let text = std::fs::read_to_string(path).map_err(|source| CredentialsError::Read {
+        path: path.to_owned(),
+        source,
     })?;
     #[cfg(unix)]
     if let Ok(meta) = std::fs::metadata(path) {
@@ -131,18 +169,11 @@ fn read_credentials_file(path: &Path) -> Result<CredentialsFile, BridgeNodeError
             );
         }
     }
-    // The parser's own message quotes the offending line, which may hold the password: only
-    // the line number is reported.
-    toml::from_str(&text).map_err(|e| {
-        let line = e
+    toml::from_str(&text).map_err(|e| CredentialsError::Parse {
+        path: path.to_owned(),
+        line: e
             .span()
-            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
-        BridgeNodeError::Credentials(format!(
-            "credentials file {}{}: expected `username = \"...\"` and `password = \"...\"` \
-             (TOML strings) and nothing else",
-            path.display(),
-            line.map_or(String::new(), |l| format!(", line {l}"))
-        ))
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1)),
     })
 }
 
@@ -167,10 +198,7 @@ pub fn kortex_credentials(
                 (true, false) => "user name",
                 _ => "password",
             };
-            Err(BridgeNodeError::Credentials(format!(
-                "no Kortex {missing}: set {USER_ENV} and {PASSWORD_ENV}, or \
-                 bridge.kortex.credentials_file (a TOML file with username and password)"
-            )))
+            Err(CredentialsError::Missing { missing }.into())
         }
     }
 }
@@ -207,8 +235,7 @@ pub fn run(
     let robot = graph_cfg.profile()?;
     let backend = match cfg.robot.as_str() {
         "mock" => {
-            let mut arm = MockArm::for_robot(robot, cfg.mock.clone())
-                .map_err(|e| BridgeNodeError::Graph(format!("config: {e}")))?;
+            let mut arm = MockArm::for_robot(robot, cfg.mock.clone())?;
             if let Some((q, c)) = &resume.pose {
                 arm.resume(q, *c);
             }
@@ -216,9 +243,9 @@ pub fn run(
         }
         "kortex" => Backend::Kortex(kortex_credentials(&cfg.kortex, creds)?),
         other => {
-            return Err(BridgeNodeError::Graph(format!(
-                "bridge.robot: `{other}` is not a robot; use mock or kortex"
-            )));
+            return Err(BridgeNodeError::UnknownRobot {
+                name: other.to_owned(),
+            });
         }
     };
     node_rt::rt::elevate(graph_cfg, RtRole::Bridge);
@@ -795,9 +822,15 @@ mod tests {
             credentials_file: f.display().to_string(),
             ..KortexConfig::default()
         };
-        let e = kortex_credentials(&cfg, &CredentialArgs::default())
-            .unwrap_err()
-            .to_string();
+        let e = kortex_credentials(&cfg, &CredentialArgs::default()).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                BridgeNodeError::Credentials(CredentialsError::Parse { line: Some(2), .. })
+            ),
+            "{e:?}"
+        );
+        let e = e.to_string();
         assert!(e.contains("line 2") && e.contains("kortex.toml"), "{e}");
         assert!(!e.contains("sup3r"), "{e}");
         let args = CredentialArgs {

@@ -24,9 +24,9 @@ pub enum SafetyNodeError {
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] transport::IpcError),
-    /// The graph or the process failed (a child died, a thread did not start, ...).
-    #[error("{0}")]
-    Graph(String),
+    /// `[safety]` does not fit the robot or the rate (the filter could not be built).
+    #[error("config: {0}")]
+    Filter(#[from] safety::ConfigError),
 }
 
 use std::time::Duration;
@@ -373,8 +373,7 @@ pub fn run(
     let robot = graph_cfg.profile()?;
     // The workspace rule if enabled, every link against the others and the scene, and the
     // Cartesian speed caps.
-    let filter = SafetyFilter::for_graph(cfg.clone(), robot, period_s)
-        .map_err(|e| SafetyNodeError::Graph(format!("config: {e}")))?;
+    let filter = SafetyFilter::for_graph(cfg.clone(), robot, period_s)?;
     let graph = Graph::join_with(prefix, "safety", graph_cfg.transport)?;
     let ports = Ports {
         commands: graph.mapper_command_subscriber(true)?,

@@ -37,7 +37,7 @@ use serde::Serialize;
 use transport::Graph;
 use transport::control::{ActiveControlRequest, SafetyControlPublisher};
 
-use crate::SupervisorError;
+use crate::{LiveStartError, SupervisorError};
 use mapper::step::MapperStep;
 use node_rt::stats::{Percentiles, percentiles_us};
 use scl_config::{GraphConfig, RestartPolicy, SupervisorConfig};
@@ -432,23 +432,27 @@ fn start_live(
     timeout: Duration,
 ) -> Result<Child, SupervisorError> {
     use node_rt::ready::{self, Announcement};
-    let _: std::net::SocketAddr = addr.parse().map_err(|e| {
-        SupervisorError::Graph(format!(
-            "--live {addr}: expected ADDR:PORT, e.g. 127.0.0.1:8765 ({e})"
-        ))
-    })?;
+    let _: std::net::SocketAddr = addr
+        .parse()
+        .map_err(|source| SupervisorError::LiveAddress {
+            addr: addr.to_owned(),
+            source,
+        })?;
     let mut args = sv.child_args("live");
     args.extend([
         "--listen".to_owned(),
         addr.to_owned(),
         "--announce".to_owned(),
     ]);
-    let mut cmd = command(&args)
-        .map_err(|e| SupervisorError::Graph(format!("cannot start the live process: {e}")))?;
+    let spawn_error = |source| SupervisorError::Spawn {
+        process: "live",
+        source,
+    };
+    let mut cmd = command(&args).map_err(spawn_error)?;
     let mut child = cmd
         .stdout(std::process::Stdio::piped())
         .spawn()
-        .map_err(|e| SupervisorError::Graph(format!("cannot start the live process: {e}")))?;
+        .map_err(spawn_error)?;
     let (tx, rx) = std::sync::mpsc::channel();
     if let Some(out) = child.stdout.take() {
         // Reads the announcement, then whatever else the child writes there (nothing, today)
@@ -469,9 +473,7 @@ fn start_live(
             });
         if let Err(e) = reader {
             stop_live(&mut child);
-            return Err(SupervisorError::Graph(format!(
-                "cannot read the live process's announcement: {e}"
-            )));
+            return Err(LiveStartError::Announcement(e).into());
         }
     }
     let t0 = Instant::now();
@@ -483,24 +485,26 @@ fn start_live(
             }
             Ok(Announcement::Failed(reason)) => {
                 let st = wait_exit(&mut child);
-                return Err(SupervisorError::Graph(format!(
-                    "the live server did not start ({st}): {reason}"
-                )));
+                return Err(LiveStartError::Refused { status: st, reason }.into());
             }
             Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                 // Its standard output closed without a word: it exited (or closed it).
                 let st = wait_exit(&mut child);
-                return Err(SupervisorError::Graph(format!(
-                    "scl live exited ({st}) before serving on {addr}"
-                )));
+                return Err(LiveStartError::Exited {
+                    status: st,
+                    addr: addr.to_owned(),
+                }
+                .into());
             }
             Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
         }
         if t0.elapsed() > timeout {
             stop_live(&mut child);
-            return Err(SupervisorError::Graph(format!(
-                "scl live did not serve on {addr} within {timeout:?}"
-            )));
+            return Err(LiveStartError::Timeout {
+                addr: addr.to_owned(),
+                timeout,
+            }
+            .into());
         }
     }
 }
@@ -599,8 +603,9 @@ impl<'a> Supervisor<'a> {
             args.push(format!("--resume-t-ns={}", s.t_ns));
         }
         let p = &mut self.procs[i];
-        let child = spawn(&args).map_err(|e| {
-            SupervisorError::Graph(format!("cannot start the {} process: {e}", p.role.name()))
+        let child = spawn(&args).map_err(|source| SupervisorError::Spawn {
+            process: p.role.name(),
+            source,
         })?;
         p.pid = child.id();
         p.child = Some(child);
@@ -756,9 +761,12 @@ impl<'a> Supervisor<'a> {
             estop_seq: self.estop.0,
             estop: u32::from(self.estop.1),
         };
-        publisher.send_copy(msg).map_err(|e| {
-            SupervisorError::Graph(format!("cannot send the switch to safety: {e}"))
-        })?;
+        publisher
+            .send_copy(msg)
+            .map_err(|e| SupervisorError::Control {
+                what: "cannot send the switch to safety",
+                source: e.into(),
+            })?;
         // Keep the publisher (and with it the topic's history for a restarted safety).
         self.switch_publisher = Some(publisher);
         Ok(())
@@ -1204,10 +1212,10 @@ impl<'a> Supervisor<'a> {
         &mut self,
         estops: &transport::control::EstopSubscriber,
     ) -> Result<(), SupervisorError> {
-        while let Some(e) = estops
-            .receive()
-            .map_err(|e| SupervisorError::Graph(format!("e-stop topic: {e}")))?
-        {
+        while let Some(e) = estops.receive().map_err(|e| SupervisorError::Control {
+            what: "cannot read the e-stop topic",
+            source: e.into(),
+        })? {
             self.estop = (
                 self.estop.0.wrapping_add(1),
                 e.action == ipc_types::control::estop_action::ESTOP,
@@ -1243,10 +1251,10 @@ impl<'a> Supervisor<'a> {
         &mut self,
         server: &transport::control::ControlServer,
     ) -> Result<(), SupervisorError> {
-        while let Some(request) = server
-            .receive()
-            .map_err(|e| SupervisorError::Graph(format!("control service: {e}")))?
-        {
+        while let Some(request) = server.receive().map_err(|e| SupervisorError::Control {
+            what: "cannot read the control service",
+            source: e.into(),
+        })? {
             self.begin_swap(request);
         }
         self.check_swap_timeout();
