@@ -32,7 +32,7 @@ use std::collections::BTreeMap;
 
 use foxglove::Encode;
 use ipc_types::{MAX_JOINTS, NodeRole, RobotState, SafeCommand, buttons, safe_flags};
-use kinematics::collision::{CapsuleRef, CollisionModel};
+use kinematics::collision::{CapsuleRef, CollisionModel, MAX_ARM_JOINTS};
 
 use kinematics::{Chain, Clearance, Jacobian, RobotProfile, Scene};
 use mapper::LoadedModel;
@@ -448,17 +448,23 @@ impl Viz {
         if let Some(cm) = self.collision {
             // The gripper joint from the state's gripper, as the safety filter takes it.
             let (lo, hi) = cm.gripper_range();
-            let mut q7 = [0.0; 7];
-            q7[..6].copy_from_slice(&s.q()[..6.min(n)]);
-            q7[6] = if s.gripper.is_finite() {
+            // The arm's joints (six on a Gen3 lite, seven on a Gen3), then the gripper's.
+            let mut q = [0.0; MAX_ARM_JOINTS + 1];
+            let nq = n.min(MAX_ARM_JOINTS);
+            q[..nq].copy_from_slice(&s.q()[..nq]);
+            q[nq] = if s.gripper.is_finite() {
                 hi - s.gripper.clamp(0.0, 1.0) * (hi - lo)
             } else {
                 cm.gripper_default_rad()
             };
-            if n == 6 && cm.clearance(&q7, &self.scene, &mut self.clearance).is_ok() {
+            if n <= MAX_ARM_JOINTS
+                && cm
+                    .clearance(&q[..=nq], &self.scene, &mut self.clearance)
+                    .is_ok()
+            {
                 // The collision model's links the chain does not have (the gripper's), hung
                 // from the chain's tip link.
-                for link in kinematics::CollisionLink::ALL {
+                for &link in cm.links() {
                     if chain.link_id(link.name()).is_none() {
                         let rel = scene::from_tip(chain, s.q(), self.clearance.link_pose(link))
                             .map_err(|e| VizError::Config(format!("forward kinematics: {e}")))?;

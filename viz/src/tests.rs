@@ -146,6 +146,39 @@ fn arm_capsules_are_sent_whole_once_a_second_and_on_a_colour_change() {
     assert_eq!(arm.entities.len(), v.refs.len());
 }
 
+/// The Gen3's seven joints: the clearance and the arm's capsules as for the Gen3 lite's six,
+/// every capsule of its collision model sent, the gripper's links hung from the chain's tip.
+#[test]
+fn a_gen3_state_gets_its_clearance_and_every_capsule() {
+    let cfg = GraphConfig::parse("[graph]\nrobot = \"gen3\"\n", Path::new("g.toml")).unwrap();
+    let mut v = Viz::new(&cfg).unwrap();
+    assert_eq!(v.robot().n_joints(), 7);
+    let home = v.robot().named_pose("home").unwrap();
+    let mut s = RobotState::at_rest(0, 1_000_000_000, 7);
+    s.q_rad[..7].copy_from_slice(&home);
+    let out = messages(&mut v, &s);
+    let arm = out.iter().find(|m| m.topic == VizTopic::Arm).unwrap();
+    let arm = SceneUpdate::decode(arm.data.as_slice()).unwrap();
+    assert!(!v.refs.is_empty());
+    assert_eq!(arm.entities.len(), v.refs.len());
+    let tick = out.iter().find(|m| m.topic == VizTopic::Tick).unwrap();
+    let row: serde_json::Value = serde_json::from_slice(&tick.data).unwrap();
+    let d = row["clearance_m"].as_f64().unwrap();
+    // The one the collision model computes at that pose in the graph's scene (the gripper
+    // at rest, open: the state's 0).
+    let cm = v.robot().collision_model().unwrap();
+    let mut q = home.to_vec();
+    q.push(cm.gripper_range().1);
+    let mut cl = Box::<kinematics::collision::Clearance>::default();
+    cm.clearance(&q, &cfg.safety.scene.scene().unwrap(), &mut cl)
+        .unwrap();
+    assert!(
+        d > 0.0 && d == cl.min_distance_m(),
+        "{d} {}",
+        cl.min_distance_m()
+    );
+}
+
 #[test]
 fn the_map_arrows_are_j_s_h_e_i() {
     let mut v = viz_with_bundled();
