@@ -155,7 +155,7 @@ fn a_gen3_state_gets_its_clearance_and_every_capsule() {
     assert_eq!(v.robot().n_joints(), 7);
     let home = v.robot().named_pose("home").unwrap();
     let mut s = RobotState::at_rest(0, 1_000_000_000, 7);
-    s.q_rad[..7].copy_from_slice(&home);
+    s.q_rad[..7].copy_from_slice(home);
     let out = messages(&mut v, &s);
     let arm = out.iter().find(|m| m.topic == VizTopic::Arm).unwrap();
     let arm = SceneUpdate::decode(arm.data.as_slice()).unwrap();
