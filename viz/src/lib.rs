@@ -46,9 +46,20 @@ pub use scene::{ANGULAR_ARROW_M_PER_RAD_S, LINEAR_ARROW_S, TOOL_FRAME};
 /// What can go wrong building the 3D view or converting a recording.
 #[derive(Debug, thiserror::Error)]
 pub enum VizError {
-    /// The graph configuration (its robot or `[safety]` scene) is unusable.
-    #[error("{0}")]
-    Config(String),
+    /// The graph configuration (its robot) is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_config::ConfigError),
+    /// The `[safety]` scene is unusable.
+    #[error(transparent)]
+    Scene(#[from] safety::ConfigError),
+    /// A state's kinematics could not be computed (what for: `forward kinematics`, ...).
+    #[error("{what}: {source}")]
+    Kinematics {
+        /// What was being computed.
+        what: &'static str,
+        /// Why.
+        source: kinematics::KinError,
+    },
     /// A recording could not be read or written.
     #[error(transparent)]
     Record(#[from] recording::RecordError),
@@ -259,7 +270,7 @@ impl Viz {
     /// The view of a graph with configuration `cfg`: its robot and its `[safety]` scene and
     /// workspace bounds.
     pub fn new(cfg: &GraphConfig) -> Result<Self, VizError> {
-        let robot = cfg.profile().map_err(|e| VizError::Config(e.to_string()))?;
+        let robot = cfg.profile()?;
         let mut v = Self {
             robot,
             collision: None,
@@ -285,7 +296,7 @@ impl Viz {
     /// Takes the robot, scene and bounds of `cfg` (the safety process's configuration); the
     /// models loaded so far stay if the robot is the same.
     pub fn configure(&mut self, cfg: &GraphConfig) -> Result<(), VizError> {
-        let robot = cfg.profile().map_err(|e| VizError::Config(e.to_string()))?;
+        let robot = cfg.profile()?;
         if robot.name() != self.robot.name() {
             self.mappers.clear();
             self.active = None;
@@ -298,7 +309,7 @@ impl Viz {
             .map(|c| c.capsule_refs().to_vec())
             .unwrap_or_default();
         let sc = &cfg.safety.scene;
-        self.scene = sc.scene().map_err(|e| VizError::Config(e.to_string()))?;
+        self.scene = sc.scene()?;
         self.boxes = sc
             .boxes
             .iter()
@@ -441,8 +452,11 @@ impl Viz {
         }
         let t = s.t_ns;
         let frame = scene::root_frame(chain).to_owned();
-        let mut tf = scene::frame_transforms(chain, s.q(), t)
-            .map_err(|e| VizError::Config(format!("forward kinematics: {e}")))?;
+        let mut tf =
+            scene::frame_transforms(chain, s.q(), t).map_err(|source| VizError::Kinematics {
+                what: "forward kinematics",
+                source,
+            })?;
         let mut clearance = None;
         let mut arm = None;
         if let Some(cm) = self.collision {
@@ -467,7 +481,10 @@ impl Viz {
                 for &link in cm.links() {
                     if chain.link_id(link.name()).is_none() {
                         let rel = scene::from_tip(chain, s.q(), self.clearance.link_pose(link))
-                            .map_err(|e| VizError::Config(format!("forward kinematics: {e}")))?;
+                            .map_err(|source| VizError::Kinematics {
+                                what: "forward kinematics",
+                                source,
+                            })?;
                         tf.transforms
                             .push(scene::transform(t, chain.tip(), link.name(), &rel));
                     }
@@ -527,9 +544,13 @@ impl Viz {
                 data: encode(VizTopic::Arm, &arm)?,
             });
         }
-        let tool = chain
-            .fk_jacobian(s.q(), &mut self.jac)
-            .map_err(|e| VizError::Config(format!("Jacobian: {e}")))?;
+        let tool =
+            chain
+                .fk_jacobian(s.q(), &mut self.jac)
+                .map_err(|source| VizError::Kinematics {
+                    what: "Jacobian",
+                    source,
+                })?;
         let jm = self.jac.matrix().into_owned();
         let twist = |qd: &[f64]| {
             let v = &jm * DVector::from_column_slice(&qd[..n]);
