@@ -604,6 +604,26 @@ mod tests {
         }
     }
 
+    /// A hand-off of no room and a `--meta` without `=` are refused while parsing, naming the
+    /// flag and the value; a pair splits at the first `=`.
+    #[test]
+    fn record_and_live_arguments_are_checked_while_parsing() {
+        for argv in [
+            &["scl", "record", "--out", "x.mcap", "--queue", "0"][..],
+            &["scl", "live", "--queue", "0"][..],
+            &["scl", "record", "--out", "x.mcap", "--meta", "participant"][..],
+        ] {
+            let e = Cli::try_parse_from(argv).unwrap_err().to_string();
+            assert!(e.contains(argv[argv.len() - 2]), "{e}");
+        }
+        let cli = Cli::try_parse_from(["scl", "record", "--out", "x.mcap", "--meta", " p = a=b"])
+            .unwrap();
+        let Cmd::Record { args, .. } = cli.cmd else {
+            panic!("not record")
+        };
+        assert_eq!(args.meta, [("p".to_owned(), " a=b".to_owned())]);
+    }
+
     /// The graph commands take `--prefix` before or after their own options, and
     /// `SCL_PREFIX` as before; an offline command refuses `--prefix`.
     #[test]

@@ -58,16 +58,29 @@ pub enum LiveError {
     #[error("--listen {0}: expected ADDR:PORT, e.g. 127.0.0.1:8765 ({1})")]
     Listen(String, String),
     /// The WebSocket server could not start (the port is taken, ...).
-    #[error("cannot serve Foxglove on {addr}: {reason}")]
+    #[error("cannot serve Foxglove on {addr}: {source}")]
     Server {
         /// The address.
         addr: String,
         /// Why.
-        reason: String,
+        source: foxglove::FoxgloveError,
     },
-    /// A thread did not start.
-    #[error("{0}")]
-    Thread(String),
+    /// A channel of the server could not be made.
+    #[error("cannot create channel {topic}: {source}")]
+    Channel {
+        /// The channel's topic.
+        topic: String,
+        /// Why.
+        source: foxglove::FoxgloveError,
+    },
+    /// A thread did not start (`what`: the server's runtime, the view thread).
+    #[error("cannot start {what}: {source}")]
+    Thread {
+        /// Which.
+        what: &'static str,
+        /// Why.
+        source: std::io::Error,
+    },
 }
 
 /// `scl live`'s arguments.
@@ -79,7 +92,7 @@ pub struct LiveArgs {
     pub listen: String,
     /// Messages the hand-off to the view thread holds; beyond that, messages are dropped and
     /// counted, never waited for.
-    #[arg(long, default_value_t = DEFAULT_QUEUE)]
+    #[arg(long, default_value_t = DEFAULT_QUEUE, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub queue: usize,
     /// Print the end report as one JSON object on stdout.
     #[arg(long)]
@@ -149,7 +162,10 @@ fn channel(
         .schema(Schema::new(s.name, s.encoding, s.data))
         .message_encoding(encoding)
         .build_raw()
-        .map_err(|e| LiveError::Thread(format!("cannot create channel {topic}: {e}")))
+        .map_err(|source| LiveError::Channel {
+            topic: topic.to_owned(),
+            source,
+        })
 }
 
 impl Channels {
@@ -354,7 +370,10 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
         .on_thread_start(node_rt::rt::lower_priority)
         .enable_all()
         .build()
-        .map_err(|e| LiveError::Thread(format!("cannot start the server's runtime: {e}")))?;
+        .map_err(|source| LiveError::Thread {
+            what: "the server's runtime",
+            source,
+        })?;
     let ctx = Context::new();
     let channels = Channels::new(&ctx)?;
     let server = ctx
@@ -363,9 +382,9 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
         .bind(addr.ip().to_string(), addr.port())
         .tokio_runtime(rt.handle())
         .start_blocking()
-        .map_err(|e| LiveError::Server {
+        .map_err(|source| LiveError::Server {
             addr: addr.to_string(),
-            reason: e.to_string(),
+            source,
         })?;
     // The port bound (the one asked for, or the one the system chose for port 0).
     let addr = SocketAddr::new(addr.ip(), server.port());
@@ -381,7 +400,10 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let view = std::thread::Builder::new()
         .name("live-view".into())
         .spawn(move || view_loop(rx, viz, channels, c2, clock))
-        .map_err(|e| LiveError::Thread(format!("cannot start the view thread: {e}")))?;
+        .map_err(|source| LiveError::Thread {
+            what: "the view thread",
+            source,
+        })?;
     let mut producer = Producer {
         tx,
         counters: counters.clone(),
@@ -422,21 +444,15 @@ pub fn cli(
     config: GraphConfig,
     args: &LiveArgs,
 ) -> Result<std::process::ExitCode, LiveError> {
-    let r = if args.queue == 0 {
-        Err(LiveError::Thread(
-            "--queue 0: the hand-off needs room for at least one message".into(),
-        ))
-    } else {
-        run(
-            prefix,
-            &LiveOptions {
-                listen: args.listen.clone(),
-                queue: args.queue,
-                config,
-                announce: args.announce,
-            },
-        )
-    }
+    let r = run(
+        prefix,
+        &LiveOptions {
+            listen: args.listen.clone(),
+            queue: args.queue,
+            config,
+            announce: args.announce,
+        },
+    )
     .inspect_err(|e| {
         if args.announce {
             node_rt::ready::announce(&node_rt::ready::Announcement::Failed(e.to_string()));

@@ -33,9 +33,12 @@ pub enum RecorderError {
     /// The 3D view could not be built, or a recording not converted.
     #[error(transparent)]
     Viz(#[from] viz::VizError),
-    /// The graph or the process failed (a child died, a thread did not start, ...).
-    #[error("{0}")]
-    Graph(String),
+    /// The writer thread could not be started.
+    #[error("cannot start the recorder's writer thread: {0}")]
+    Thread(#[source] std::io::Error),
+    /// `--json`: the report could not be encoded.
+    #[error("cannot encode the report: {0}")]
+    Report(#[source] serde_json::Error),
 }
 
 use graph_client::process;
@@ -86,12 +89,12 @@ pub struct RecordArgs {
     pub convert: Option<PathBuf>,
     /// Messages the hand-off to the writer thread holds; beyond that, messages are dropped
     /// and counted, never waited for.
-    #[arg(long, default_value_t = DEFAULT_QUEUE)]
+    #[arg(long, default_value_t = DEFAULT_QUEUE, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub queue: usize,
     /// A KEY=VALUE pair for the recording's `scl.trial` metadata record, written at the
     /// start (repeatable; `scl study run` names the participant, task, condition, attempt).
-    #[arg(long = "meta", value_name = "KEY=VALUE")]
-    pub meta: Vec<String>,
+    #[arg(long = "meta", value_name = "KEY=VALUE", value_parser = parse_key_value)]
+    pub meta: Vec<(String, String)>,
     /// A JSON object of strings read when the recording stops and written as its
     /// `scl.trial.outcome` metadata record (`scl study run` puts the attempt's outcome there
     /// before it stops the recorder); absent file: no record.
@@ -766,9 +769,8 @@ fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError
     let subs = Subscriptions::open(&graph, &opts.topics)?;
     let heartbeat = graph.status_publisher()?;
     let (producer, tally, writer) =
-        start_pipeline(w, opts.topics.clone(), opts.queue, opts.flush_every, view).map_err(
-            |e| RecorderError::Graph(format!("cannot start the recorder's writer thread: {e}")),
-        )?;
+        start_pipeline(w, opts.topics.clone(), opts.queue, opts.flush_every, view)
+            .map_err(RecorderError::Thread)?;
     Ok(Running {
         subs,
         heartbeat,
@@ -892,6 +894,13 @@ pub fn render_report(r: &RecordReport) -> String {
     s
 }
 
+/// `--meta KEY=VALUE`: the key (trimmed) and the value.
+fn parse_key_value(kv: &str) -> Result<(String, String), String> {
+    kv.split_once('=')
+        .map(|(k, v)| (k.trim().to_owned(), v.to_owned()))
+        .ok_or_else(|| format!("`{kv}`: write it as KEY=VALUE"))
+}
+
 /// `scl record`: records until Ctrl-C / SIGTERM, or recovers a cut recording.
 pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode, RecorderError> {
     if let Some(broken) = &args.recover {
@@ -928,18 +937,7 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
         }
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    if args.queue == 0 {
-        return Err(RecorderError::Graph(
-            "--queue 0: the hand-off needs room for at least one message".into(),
-        ));
-    }
-    let mut trial = BTreeMap::new();
-    for kv in &args.meta {
-        let (k, v) = kv
-            .split_once('=')
-            .ok_or_else(|| RecorderError::Graph(format!("--meta `{kv}`: write it as KEY=VALUE")))?;
-        trial.insert(k.trim().to_owned(), v.to_owned());
-    }
+    let trial: BTreeMap<String, String> = args.meta.iter().cloned().collect();
     let opts = RecordOptions {
         out: args.out.clone(),
         topics: Topic::parse_list(&args.topics)?,
@@ -951,8 +949,7 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
     let r = run(prefix, &opts)?;
     eprint!("{}", render_report(&r));
     if args.json {
-        let text = serde_json::to_string(&r)
-            .map_err(|e| RecorderError::Graph(format!("cannot encode the report: {e}")))?;
+        let text = serde_json::to_string(&r).map_err(RecorderError::Report)?;
         println!("{text}");
     }
     Ok(if r.write_error.is_some() {
