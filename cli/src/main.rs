@@ -613,11 +613,11 @@ mod tests {
             &["scl", "live", "--queue", "0"][..],
             &["scl", "record", "--out", "x.mcap", "--meta", "participant"][..],
         ] {
-            let e = Cli::try_parse_from(argv).unwrap_err().to_string();
+            let e = Cli::try_parse_from(argv).expect_err("refused").to_string();
             assert!(e.contains(argv[argv.len() - 2]), "{e}");
         }
         let cli = Cli::try_parse_from(["scl", "record", "--out", "x.mcap", "--meta", " p = a=b"])
-            .unwrap();
+            .expect("a pair");
         let Cmd::Record { args, .. } = cli.cmd else {
             panic!("not record")
         };
