@@ -27,6 +27,18 @@ pub enum BenchError {
     /// The graph or the process failed (a child died, a thread did not start, ...).
     #[error("{0}")]
     Graph(String),
+    /// A run's graph published no tick report the benchmark could see: nothing was measured.
+    #[error(
+        "the {transport} run's graph (prefix {prefix}) published no tick report; its log: {log}"
+    )]
+    NoTicks {
+        /// The run's transport.
+        transport: Transport,
+        /// The run's prefix.
+        prefix: String,
+        /// The run's log.
+        log: String,
+    },
 }
 
 use std::path::{Path, PathBuf};
@@ -480,8 +492,12 @@ pub(crate) fn run_one(
     let log = std::fs::File::create(&log_path)
         .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
     let secs = opts.duration.as_secs_f64();
+    // The prefix on the command line too: an `SCL_PREFIX` in the environment would otherwise
+    // move the child's graph away from the one observed here.
     let mut up_args = vec![
         "up".into(),
+        "--prefix".into(),
+        prefix.to_string(),
         "--config".into(),
         cfg_path.display().to_string(),
         "--for".into(),
@@ -570,6 +586,13 @@ pub(crate) fn run_one(
         .filter(|l| l.contains("real-time"))
         .map(|l| l.trim().to_owned())
         .collect();
+    if samples.ticks == 0 {
+        return Err(BenchError::NoTicks {
+            transport,
+            prefix: prefix.to_string(),
+            log: log_path.display().to_string(),
+        });
+    }
     let mut report = RunReport::new(transport, &samples, realtime, cfg.graph.rate_hz);
     report.held_up = held_up;
     report.cpu_per_tick_us = cpu.per_tick_us();

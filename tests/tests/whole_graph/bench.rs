@@ -6,7 +6,7 @@
 
 use std::process::Stdio;
 
-use scl_tests::{scl_binary, serial, temp_dir};
+use scl_tests::{scl_binary, serial, temp_dir, unique_prefix};
 
 /// Every distribution in the report: measured (samples taken) and ordered.
 fn check_dist(name: &str, d: &serde_json::Value, min_samples: u64) {
@@ -49,6 +49,9 @@ fn bench_latency_measures_both_transports() {
         ])
         .arg(&out_dir)
         .env("SCL_LOG", "warn")
+        // A prefix in the environment (a lab's shell, the service's unit) must not move the
+        // benchmark's graphs away from what it observes.
+        .env("SCL_PREFIX", unique_prefix("bench-env").as_str())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .output()
