@@ -264,14 +264,15 @@ enum Cmd {
         #[command(flatten)]
         args: cmd::nodes::BridgeArgs,
     },
-    /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
-    /// admin), for trying `bridge --robot kortex` without an arm.
+    /// A fake Kinova arm speaking the Kortex protocol on 127.0.0.1 (user admin, password
+    /// admin), for trying `bridge --robot kortex` without an arm: the Gen3 lite, or the arm of
+    /// the robot profile `--robot` names (`gen3`: the 7-joint Gen3).
     ///
     /// Serves over TCP: Session.CreateSession, CloseSession, KeepAlive; Base.Stop,
     /// ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
     /// GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
     /// SendJointSpeedsCommand, SendGripperCommand (position, finger 1), GetProductConfiguration
-    /// (an empty CompleteProductConfiguration); BaseCyclic.RefreshFeedback;
+    /// (the arm's Kortex model and degrees of freedom); BaseCyclic.RefreshFeedback;
     /// ControlConfig.GetKinematicHardLimits; DeviceConfig.GetFirmwareVersion; over UDP the
     /// cyclic channel (CreateSession, CloseSession, BaseCyclic.Refresh, RefreshFeedback).
     ///
