@@ -67,9 +67,10 @@ pub(crate) struct FakeKortexArgs {
     /// position the bridge holds at entry, and the bridge must stop it.
     #[arg(long, value_name = "zero|offset:JOINT:RAD")]
     pub(crate) misread_cyclic: Option<hw_bridge::kortex::CyclicMisread>,
-    /// The arm it plays: a robot profile, as `[graph] robot` names it (`gen3_lite`, `gen3`).
-    /// It answers with that arm's actuator count, Kortex model, joint position and speed
-    /// limits, and joint arrays of its length on both channels.
+    /// The arm it plays: a robot profile, by the name `[graph] robot` takes (an unknown name
+    /// is refused with the known ones). It answers with that arm's actuator count, Kortex
+    /// model, joint position and speed limits, and joint arrays of its length on both
+    /// channels.
     #[arg(long, value_name = "NAME", default_value = kinematics::RobotProfile::default_name(),
           value_parser = robot_profile)]
     pub(crate) robot: &'static kinematics::RobotProfile,
