@@ -469,6 +469,34 @@ mod tests {
     use learning::train::TrainConfig;
     use mapper::model::ModelKind;
 
+    /// `scl fake-kortex --robot`: the default profile when absent, a profile by the name
+    /// `[graph] robot` takes, and an unknown name refused naming the flag and the known ones.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn fake_kortex_takes_a_robot_profile_by_name() {
+        let robot = |extra: &[&str]| {
+            let mut argv = vec!["scl", "fake-kortex"];
+            argv.extend_from_slice(extra);
+            Cli::try_parse_from(argv).map(|c| match c.cmd {
+                Cmd::FakeKortex(a) => a.robot.name().to_owned(),
+                _ => panic!("not fake-kortex"),
+            })
+        };
+        let default = kinematics::RobotProfile::default_name();
+        assert_eq!(robot(&[]).unwrap(), default);
+        for name in kinematics::RobotProfile::names() {
+            assert_eq!(robot(&["--robot", name]).unwrap(), name);
+        }
+        let e = robot(&["--robot", "ur5"]).unwrap_err().to_string();
+        assert!(
+            e.contains("--robot") && e.contains("`ur5` is not a known robot"),
+            "{e}"
+        );
+        for name in kinematics::RobotProfile::names() {
+            assert!(e.contains(name), "{e}");
+        }
+    }
+
     /// `scl train` with nothing but the kind, the data and the output trains the paper's
     /// models: the same settings as the library's defaults.
     #[test]

@@ -1532,6 +1532,44 @@ fn feedback(r: &Reading, n: usize) -> msg::Feedback {
 mod tests {
     use super::*;
 
+    /// The fake plays the profile's arm; a misread naming a joint the arm lacks is refused.
+    #[test]
+    fn the_fake_plays_the_profiles_arm_and_refuses_a_misread_past_its_joints() {
+        for name in RobotProfile::names() {
+            let robot = RobotProfile::by_name(name).unwrap();
+            let n = robot.n_joints();
+            let cfg = FakeConfig::for_robot(robot);
+            assert_eq!(cfg.actuator_count as usize, n);
+            assert_eq!(cfg.joint_speed_limits_deg_s.len(), n);
+            assert_eq!(cfg.joint_acceleration_limits_deg_s2.len(), n);
+            assert_eq!(cfg.model, FoundRobot::of_profile(robot).model);
+            assert_ne!(cfg.model, msg::model_id::UNSPECIFIED, "{name}");
+            let fake = FakeKortex::start(cfg.clone()).unwrap();
+            let s = fake.snapshot();
+            assert_eq!((s.q_rad.len(), s.command_in_force.len()), (n, n));
+            let home = robot.named_pose("home").unwrap();
+            assert!(
+                s.q_rad.iter().zip(home).all(|(a, b)| (a - b).abs() < 1e-9),
+                "{name}: {:?}",
+                s.q_rad
+            );
+            drop(fake);
+            let misread = |joint| FakeConfig {
+                cyclic_misread: Some(CyclicMisread::Offset {
+                    joint,
+                    offset_rad: 0.1,
+                }),
+                ..cfg.clone()
+            };
+            let e = FakeKortex::start(misread(n)).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("joint {n}")) && e.contains(&format!("has {n} joints")),
+                "{e}"
+            );
+            FakeKortex::start(misread(n - 1)).unwrap();
+        }
+    }
+
     #[test]
     fn cyclic_misreads_parse_and_apply() {
         assert_eq!(
