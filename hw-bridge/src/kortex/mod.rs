@@ -1,5 +1,7 @@
-//! The Kortex backend: a clean-room client of Kinova's Kortex API for the Gen3 lite, written
-//! from the protocol facts in `shared/reference/kortex-protocol.md`.
+//! The Kortex backend: a clean-room client of Kinova's Kortex API for the Kinova arm of the
+//! graph's robot profile (the Gen3 lite, the 7-joint Gen3), written from the protocol facts in
+//! `shared/reference/kortex-protocol.md`. At connect it checks that the arm is the profile's
+//! ([`FoundRobot`], [`KortexModel`]).
 //!
 //! * [`wire`]: TCP framing and the protobuf envelope (`Frame`, `Header`), the streaming
 //!   decoder that resynchronises on a wrong magic.
@@ -15,7 +17,8 @@
 //!   held for `entry_hold_ms` before the graph's commands apply), the following-error check;
 //!   where the cyclic command's layout comes from and what is still assumed is listed there.
 //! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol (the cyclic
-//!   channel included), for tests and for trying the bridge without an arm.
+//!   channel included), playing the arm of a robot profile, for tests and for trying the
+//!   bridge without an arm.
 //!
 //! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
 //! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
