@@ -264,14 +264,15 @@ enum Cmd {
         #[command(flatten)]
         args: cmd::nodes::BridgeArgs,
     },
-    /// A fake Gen3 lite speaking the Kortex protocol on 127.0.0.1 (user admin, password
-    /// admin), for trying `bridge --robot kortex` without an arm.
+    /// A fake Kinova arm speaking the Kortex protocol on 127.0.0.1 (user admin, password
+    /// admin), for trying `bridge --robot kortex` without an arm: the Gen3 lite, or the arm of
+    /// the robot profile `--robot` names (`gen3`: the 7-joint Gen3).
     ///
     /// Serves over TCP: Session.CreateSession, CloseSession, KeepAlive; Base.Stop,
     /// ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
     /// GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
     /// SendJointSpeedsCommand, SendGripperCommand (position, finger 1), GetProductConfiguration
-    /// (an empty CompleteProductConfiguration); BaseCyclic.RefreshFeedback;
+    /// (the arm's Kortex model and degrees of freedom); BaseCyclic.RefreshFeedback;
     /// ControlConfig.GetKinematicHardLimits; DeviceConfig.GetFirmwareVersion; over UDP the
     /// cyclic channel (CreateSession, CloseSession, BaseCyclic.Refresh, RefreshFeedback).
     ///
@@ -467,6 +468,34 @@ mod tests {
     use super::*;
     use learning::train::TrainConfig;
     use mapper::model::ModelKind;
+
+    /// `scl fake-kortex --robot`: the default profile when absent, a profile by the name
+    /// `[graph] robot` takes, and an unknown name refused naming the flag and the known ones.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn fake_kortex_takes_a_robot_profile_by_name() {
+        let robot = |extra: &[&str]| {
+            let mut argv = vec!["scl", "fake-kortex"];
+            argv.extend_from_slice(extra);
+            Cli::try_parse_from(argv).map(|c| match c.cmd {
+                Cmd::FakeKortex(a) => a.robot.name().to_owned(),
+                _ => panic!("not fake-kortex"),
+            })
+        };
+        let default = kinematics::RobotProfile::default_name();
+        assert_eq!(robot(&[]).unwrap(), default);
+        for name in kinematics::RobotProfile::names() {
+            assert_eq!(robot(&["--robot", name]).unwrap(), name);
+        }
+        let e = robot(&["--robot", "ur5"]).unwrap_err().to_string();
+        assert!(
+            e.contains("--robot") && e.contains("`ur5` is not a known robot"),
+            "{e}"
+        );
+        for name in kinematics::RobotProfile::names() {
+            assert!(e.contains(name), "{e}");
+        }
+    }
 
     /// `scl train` with nothing but the kind, the data and the output trains the paper's
     /// models: the same settings as the library's defaults.

@@ -3,8 +3,9 @@
 //! * [`Robot`]: the backend trait, fallible ([`RobotError`]) because a real robot can fail.
 //! * [`mock::MockArm`]: integrates commanded joint velocities at 40 Hz inside the joint
 //!   limits, with a first-order gripper, and injectable command latency and drops.
-//! * [`kortex`]: the Kortex client for the Gen3 lite ([`kortex::KortexArm`]) and a fake robot
-//!   speaking the same protocol on loopback ([`kortex::FakeKortex`]).
+//! * [`kortex`]: the Kortex client for the Kinova arm of the robot profile
+//!   ([`kortex::KortexArm`]) and a fake robot of any profile speaking the same protocol on
+//!   loopback ([`kortex::FakeKortex`]).
 //! * [`tick::BridgeCore`]: the pure tick logic: publish the state of tick k, execute only the
 //!   command for tick k, count a miss and start a controlled stop otherwise.
 //! * [`clock`]: the graph's only clock, an absolute-deadline timer, and the real-time settings

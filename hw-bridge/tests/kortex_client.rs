@@ -5,7 +5,7 @@
 //! The machine running these may be loaded (two shared cores): where the reply timeout is not
 //! the point, the client waits [`REPLY_TIMEOUT_MS`] for a reply, so a starved fake thread
 //! cannot fail a tick; the connection inactivity timeout stays at the product's 200 ms.
-#![allow(clippy::unwrap_used, missing_docs)]
+#![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -19,7 +19,7 @@ use hw_bridge::kortex::{
 use hw_bridge::tick::BridgeCore;
 use hw_bridge::{Robot, RobotError};
 use ipc_types::{MAX_JOINTS, NO_TICK, SafeCommand, state_flags};
-use kinematics::gen3_lite;
+use kinematics::{RobotProfile, gen3_lite};
 use prost::Message as _;
 
 const DT: f64 = 0.025;
@@ -33,12 +33,14 @@ const REPLY_TIMEOUT_MS: u32 = 2_000;
 /// short enough to keep them quick.
 const SHORT_REPLY_TIMEOUT_MS: u32 = 1_000;
 
-/// The start-up requests, in the order `KortexArm::connect` sends them.
-const START_UP: [Function; 6] = [
+/// The start-up requests, in the order `KortexArm::connect` sends them: the arm's identity
+/// (read only) before anything is commanded.
+const START_UP: [Function; 7] = [
     Function::CreateSession,
+    Function::GetActuatorCount,
+    Function::GetProductConfiguration,
     Function::SetServoingMode,
     Function::ClearFaults,
-    Function::GetActuatorCount,
     Function::GetKinematicHardLimits,
     Function::RefreshFeedback,
 ];
@@ -242,14 +244,14 @@ fn the_session_asks_for_exactly_the_configured_inactivity_timeouts() {
 }
 
 #[test]
-fn start_up_sets_servoing_and_clears_faults_before_anything_else_in_order() {
+fn start_up_identifies_the_arm_then_sets_servoing_and_clears_faults_in_order() {
     let fake = start_fake(FakeConfig::default());
     let mut arm = connect(&fake);
     assert_eq!(requested(&fake), START_UP);
     let log = fake.request_log();
     // Message ids count up from 1; the session id is 0 until CreateSession answered.
     let ids: Vec<u16> = log.iter().map(|r| r.message_id).collect();
-    assert_eq!(ids, [1, 2, 3, 4, 5, 6]);
+    assert_eq!(ids, [1, 2, 3, 4, 5, 6, 7]);
     assert_eq!(log[0].session_id, 0);
     assert!(log[1..].iter().all(|r| r.session_id == 0x1234), "{log:?}");
     assert!(fake.snapshot().single_level_servoing);
@@ -508,35 +510,232 @@ fn a_wrong_password_is_refused_by_name_and_not_repeated() {
     assert_eq!(fake.snapshot().stats.sessions_opened, 0);
 }
 
+/// A client of profile `robot` on `fake` (reply timeout [`REPLY_TIMEOUT_MS`]).
+fn connect_as(fake: &FakeKortex, robot: &str) -> Result<KortexArm, KortexError> {
+    KortexArm::connect_to(
+        RobotProfile::by_name(robot).unwrap(),
+        &client_cfg(fake),
+        &admin(),
+    )
+}
+
+/// A refused start-up went as far as the arm's identity, then Stop and CloseSession: nothing
+/// was commanded but the stop.
+fn assert_refused_at_identity(fake: &FakeKortex) {
+    let s = fake.snapshot();
+    assert_eq!((s.stats.sessions_opened, s.stats.sessions_closed), (1, 1));
+    assert!(!s.single_level_servoing && !s.commanded_to_move(), "{s:?}");
+    assert_eq!(
+        requested(fake),
+        [
+            Function::CreateSession,
+            Function::GetActuatorCount,
+            Function::GetProductConfiguration,
+            Function::Stop,
+            Function::CloseSession,
+        ]
+    );
+}
+
 #[test]
-fn a_robot_that_is_not_a_gen3_lite_is_refused_and_its_session_closed() {
+fn a_gen3_lite_is_refused_by_a_gen3_profile_naming_both() {
+    let fake = start_fake(FakeConfig::default());
+    let e = connect_as(&fake, "gen3").unwrap_err();
+    assert!(
+        matches!(&e, KortexError::WrongRobot { found, profile, .. }
+            if found.actuators == 6 && found.model == msg::model_id::L31 && profile == "gen3"),
+        "{e:?}"
+    );
+    assert_eq!(
+        e.to_string(),
+        "wrong robot: the robot found is a Gen3 lite (Kortex model L31, 6 actuators), but the \
+         configured robot profile `gen3` is a Gen3 (Kortex model L53, 7 actuators); set [graph] \
+         robot to the arm's profile, or connect to the arm the profile describes"
+    );
+    assert_refused_at_identity(&fake);
+}
+
+#[test]
+fn a_gen3_is_refused_by_a_gen3_lite_profile_naming_both() {
+    let fake = start_fake(FakeConfig::for_robot(
+        RobotProfile::by_name("gen3").unwrap(),
+    ));
+    let e = connect_as(&fake, "gen3_lite").unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "wrong robot: the robot found is a Gen3 (Kortex model L53, 7 actuators), but the \
+         configured robot profile `gen3_lite` is a Gen3 lite (Kortex model L31, 6 actuators); \
+         set [graph] robot to the arm's profile, or connect to the arm the profile describes"
+    );
+    assert_refused_at_identity(&fake);
+    // The default profile is the Gen3 lite's: `connect` refuses it too.
+    let fake = start_fake(FakeConfig::for_robot(
+        RobotProfile::by_name("gen3").unwrap(),
+    ));
+    let e = KortexArm::connect(&client_cfg(&fake), &admin()).unwrap_err();
+    assert!(matches!(e, KortexError::WrongRobot { .. }), "{e}");
+}
+
+#[test]
+fn the_model_alone_refuses_an_arm_with_the_profiles_actuator_count() {
+    // A Gen3 with the Gen3 lite's six actuators (Kinova sells a 6-joint Gen3): the count
+    // matches the gen3_lite profile, the model does not.
+    let fake = start_fake(FakeConfig {
+        model: msg::model_id::L53,
+        ..FakeConfig::default()
+    });
+    let e = connect_as(&fake, "gen3_lite").unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("the robot found is a Gen3 (Kortex model L53, 6 actuators)")
+            && text.contains("profile `gen3_lite` is a Gen3 lite"),
+        "{text}"
+    );
+    assert_refused_at_identity(&fake);
+}
+
+#[test]
+fn an_arm_that_reports_no_model_is_known_by_its_actuator_count_alone() {
+    // Older firmware may report no model: the count decides, both ways.
+    let fake = start_fake(FakeConfig {
+        model: msg::model_id::UNSPECIFIED,
+        ..FakeConfig::default()
+    });
+    let mut arm = connect_as(&fake, "gen3_lite").unwrap();
+    tick(&mut arm, &MOVE, 0.0).unwrap();
+    arm.shutdown().unwrap();
+    let fake = start_fake(FakeConfig {
+        model: msg::model_id::UNSPECIFIED,
+        ..FakeConfig::default()
+    });
+    let e = connect_as(&fake, "gen3").unwrap_err();
+    assert!(
+        e.to_string().contains(
+            "the robot found is an arm of 6 actuators (model not reported), but the configured \
+             robot profile `gen3` is a Gen3 (Kortex model L53, 7 actuators)"
+        ),
+        "{e}"
+    );
+    assert_refused_at_identity(&fake);
+    // An arm that answers GetProductConfiguration with an error (a function its firmware
+    // does not serve) is known by its count too.
+    let fake = start_fake(FakeConfig::default());
+    fake.inject(
+        Fault::ErrorReply {
+            code: 1,
+            sub_code: 0,
+            detail: "unknown function".into(),
+        },
+        Some(Function::GetProductConfiguration),
+    );
+    let mut arm = connect_as(&fake, "gen3_lite").unwrap();
+    tick(&mut arm, &MOVE, 0.0).unwrap();
+    arm.shutdown().unwrap();
+    // A model the bridge does not know (a later arm) is too.
+    let fake = start_fake(FakeConfig {
+        model: 42,
+        ..FakeConfig::default()
+    });
+    let e = connect_as(&fake, "gen3").unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("an arm of 6 actuators (Kortex model 42, unknown to the bridge)"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_robot_with_another_actuator_count_is_refused_and_its_session_closed() {
     let fake = start_fake(FakeConfig {
         actuator_count: 7,
         ..FakeConfig::default()
     });
     let e = KortexArm::connect(&client_cfg(&fake), &admin()).unwrap_err();
     assert!(
-        matches!(e, KortexError::ActuatorCount { found: 7, .. }),
+        matches!(&e, KortexError::WrongRobot { found, .. } if found.actuators == 7),
         "{e}"
     );
-    assert_eq!(
-        e.to_string(),
-        "the robot reports 7 actuators; a Gen3 lite has 6"
+    assert!(
+        e.to_string().contains(
+            "the robot found is a Gen3 lite (Kortex model L31, 7 actuators), but the configured \
+             robot profile `gen3_lite` is a Gen3 lite (Kortex model L31, 6 actuators)"
+        ),
+        "{e}"
     );
+    assert_refused_at_identity(&fake);
+}
+
+/// The client drives a fake Gen3: seven joints in every message, the Gen3's own speed limits.
+#[test]
+fn the_client_drives_a_fake_gen3_with_seven_joints() {
+    let gen3 = RobotProfile::by_name("gen3").unwrap();
+    let fake = start_fake(FakeConfig::for_robot(gen3));
+    let mut arm = connect_as(&fake, "gen3").unwrap();
+    assert_eq!(requested(&fake), START_UP);
+    assert_eq!(arm.speed_limits_rad_s().len(), 7);
+    for (got, want) in arm
+        .speed_limits_rad_s()
+        .iter()
+        .zip(gen3.urdf_velocity_rad_s())
+    {
+        assert!((got - want).abs() < 1e-5, "{got} vs {want}");
+    }
+    let home = gen3.named_pose("home").unwrap();
+    let first = arm.advance(DT).unwrap();
+    for j in 0..7 {
+        assert!((first.q_rad[j] - home[j]).abs() < 1e-4, "joint {j}");
+    }
     let s = fake.snapshot();
-    assert_eq!((s.stats.sessions_opened, s.stats.sessions_closed), (1, 1));
-    // Start-up went as far as the count, then Stop and CloseSession.
-    assert_eq!(
-        requested(&fake),
-        [
-            Function::CreateSession,
-            Function::SetServoingMode,
-            Function::ClearFaults,
-            Function::GetActuatorCount,
-            Function::Stop,
-            Function::CloseSession,
-        ]
-    );
+    assert_eq!((s.q_rad.len(), s.command_in_force.len()), (7, 7));
+    // Every joint moves, the seventh too.
+    let v = [0.1, -0.1, 0.1, -0.1, 0.1, -0.1, 0.2];
+    for _ in 0..8 {
+        tick(&mut arm, &v, 0.0).unwrap();
+    }
+    wait_until(&fake, "the seven-joint command arrived", |s| {
+        s.stats.joint_speed_commands >= 8
+    });
+    let log = fake.joint_speed_log();
+    let last = log.last().unwrap();
+    assert_eq!(last.len(), 7);
+    for j in 0..7 {
+        assert!((last[j] - v[j]).abs() < 1e-5, "joint {j}: {last:?}");
+    }
+    let r = arm.advance(DT).unwrap();
+    assert!(r.q_rad[6] - first.q_rad[6] > 0.01, "{r:?}");
+    assert_eq!(r.q_rad[7], 0.0, "nothing past the seventh joint");
+    arm.shutdown().unwrap();
+    assert!(!fake.snapshot().commanded_to_move());
+}
+
+/// The Gen3's joint 3 is at a half turn at home (180°): the arm reports it in `[0, 360)`, so
+/// turning it on past 180° reads 181° on the wire. The client's reading stays continuous (past
+/// π, not a jump to -π) for the profile's continuous joints.
+#[test]
+fn a_gen3_joint_turning_past_a_half_turn_reads_without_a_jump() {
+    let gen3 = RobotProfile::by_name("gen3").unwrap();
+    assert!(gen3.continuous_joints()[2]);
+    let fake = start_fake(FakeConfig::for_robot(gen3));
+    let mut arm = connect_as(&fake, "gen3").unwrap();
+    let v = [0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 0.0];
+    let mut last = arm.advance(DT).unwrap().q_rad[2];
+    let t0 = Instant::now();
+    while last < std::f64::consts::PI + 0.05 {
+        arm.command(&v, 0.0).unwrap();
+        std::thread::sleep(PERIOD);
+        let q = arm.advance(DT).unwrap().q_rad[2];
+        assert!(q >= last - 1e-9 && q - last < 0.1, "{last} -> {q}");
+        last = q;
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "joint 3 stays at {last}"
+        );
+    }
+    // The fake arm agrees (it tracks the joint past the half turn too).
+    arm.command(&[0.0; 7], 0.0).unwrap();
+    let s = fake.snapshot();
+    assert!(s.q_rad[2] > std::f64::consts::PI, "{s:?}");
+    arm.shutdown().unwrap();
 }
 
 #[test]

@@ -260,8 +260,8 @@ fn a_robot_that_misreads_the_command_fails_the_entry_check_and_is_stopped() {
     assert!(!s.in_fault, "{s:?}");
     // Every Refresh carried the held position: the graph's commands were not applied.
     let (first, last) = (
-        s.first_position_command.unwrap(),
-        s.last_position_command.unwrap(),
+        s.first_position_command.clone().unwrap(),
+        s.last_position_command.clone().unwrap(),
     );
     for j in 0..6 {
         assert!((first[j] - start[j]).abs() < 1e-4, "joint {j}: {s:?}");
@@ -392,4 +392,50 @@ fn stop_holds_the_commanded_position() {
     assert_eq!(arm.position_command().unwrap(), held.as_slice());
     arm.shutdown().unwrap();
     assert_back_to_single_level(&fake.snapshot());
+}
+
+/// Low-level servoing of a fake Gen3: seven actuators in every position command and feedback,
+/// the seventh moved too; joint 3, at a half turn at home (180°, where the wire's `[0, 360)`
+/// angle wraps), turns past it without a jump in the reading or the following-error check
+/// firing.
+#[test]
+fn low_level_drives_a_fake_gen3_with_seven_actuators() {
+    let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
+    let fake = FakeKortex::start(FakeConfig {
+        cyclic_timeout: Duration::from_millis(500),
+        ..FakeConfig::for_robot(gen3)
+    })
+    .unwrap();
+    let before = fake.snapshot().q_rad;
+    assert_eq!(before.len(), 7);
+    let mut arm = KortexArm::connect_to(
+        gen3,
+        &low_level_cfg(&fake),
+        &Credentials::new("admin", "admin"),
+    )
+    .unwrap();
+    assert!(arm.is_low_level());
+    assert_eq!(arm.position_command().unwrap().len(), 7);
+    let v = [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.2];
+    through_entry_hold(&mut arm, &v);
+    for _ in 0..200 {
+        tick(&mut arm, &v).unwrap();
+    }
+    let q_cmd = arm.position_command().unwrap().to_vec();
+    let s = fake.snapshot();
+    let first = s.first_position_command.clone().unwrap();
+    assert_eq!((first.len(), s.q_rad.len()), (7, 7));
+    for j in [2, 6] {
+        assert!(q_cmd[j] - before[j] > 0.03, "joint {j}: {q_cmd:?}");
+        assert!((s.q_rad[j] - q_cmd[j]).abs() < 1e-3, "joint {j}: {s:?}");
+    }
+    // Past the half turn, continuous: no jump of 2π.
+    let r = arm.advance(DT).unwrap();
+    assert!(r.q_rad[2] > std::f64::consts::PI, "{:?}", r.q_rad);
+    assert!((r.q_rad[2] - q_cmd[2]).abs() < 1e-3, "{:?}", r.q_rad);
+    arm.command(&[0.0; 7], 0.0).unwrap();
+    arm.shutdown().unwrap();
+    let s = fake.snapshot();
+    assert_back_to_single_level(&s);
+    assert!(!s.in_fault && s.stats.cyclic_timeouts == 0, "{s:?}");
 }

@@ -67,6 +67,18 @@ pub(crate) struct FakeKortexArgs {
     /// position the bridge holds at entry, and the bridge must stop it.
     #[arg(long, value_name = "zero|offset:JOINT:RAD")]
     pub(crate) misread_cyclic: Option<hw_bridge::kortex::CyclicMisread>,
+    /// The arm it plays: a robot profile, by the name `[graph] robot` takes (an unknown name
+    /// is refused with the known ones). It answers with that arm's actuator count, Kortex
+    /// model, joint position and speed limits, and joint arrays of its length on both
+    /// channels.
+    #[arg(long, value_name = "NAME", default_value = kinematics::RobotProfile::default_name(),
+          value_parser = robot_profile)]
+    pub(crate) robot: &'static kinematics::RobotProfile,
+}
+
+/// `--robot`: a robot profile by name; an unknown name is refused with the known ones.
+fn robot_profile(name: &str) -> Result<&'static kinematics::RobotProfile, String> {
+    kinematics::RobotProfile::by_name(name).map_err(|e| e.to_string())
 }
 
 /// `scl joystick`.
@@ -156,7 +168,12 @@ pub(crate) fn fake_kortex(args: FakeKortexArgs) -> Result<ExitCode, SclError> {
     let FakeKortexArgs {
         port,
         misread_cyclic,
+        robot,
     } = args;
-    scl_bridge_node::fake_kortex::run(port, misread_cyclic)?;
+    scl_bridge_node::fake_kortex::run(hw_bridge::kortex::FakeConfig {
+        port,
+        cyclic_misread: misread_cyclic,
+        ..hw_bridge::kortex::FakeConfig::for_robot(robot)
+    })?;
     Ok(ExitCode::SUCCESS)
 }

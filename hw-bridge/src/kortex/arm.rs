@@ -3,9 +3,14 @@
 //!
 //! Start-up (each call waits for its reply, bounded by `reply_timeout_ms`):
 //! CreateSession (credentials, session and connection inactivity timeouts; the session id is
-//! read from the reply), SetServoingMode(single-level), ClearFaults, GetActuatorCount (must be
-//! the profile's joint count), GetKinematicHardLimits (the bridge scales every command into the robot's own joint speed
-//! limits), RefreshFeedback (the first reading).
+//! read from the reply); the arm's identity, before anything is commanded: GetActuatorCount
+//! (must be the profile's joint count) and GetProductConfiguration (the Kortex model, which
+//! must be the profile's where the arm reports one: [`super::KortexModel`]; an arm that reports
+//! none, or a model the bridge does not know, or answers the call with an error, as older
+//! firmware may, is identified by its actuator count alone); a mismatch is
+//! [`KortexError::WrongRobot`], naming the robot found and the profile configured. Then
+//! SetServoingMode(single-level), ClearFaults, GetKinematicHardLimits (the bridge scales every
+//! command into the robot's own joint speed limits), RefreshFeedback (the first reading).
 //!
 //! The 40 Hz loop is pipelined and never waits on the socket: a reader thread owns the
 //! receiving half of the socket, decodes frames and hands them to the control loop through a
@@ -48,7 +53,7 @@ use prost::Message as _;
 use super::cyclic::{self, CyclicSession};
 use super::wire::{Decoded, Frame, FrameDecoder, FrameType, WireError};
 use super::{
-    Credentials, Function, KortexConfig, KortexError, KortexMode, function_name,
+    Credentials, FoundRobot, Function, KortexConfig, KortexError, KortexMode, function_name,
     gripper_position_msg, joint_speeds_msg, msg, reading_from_feedback, scale_to_limits,
 };
 use crate::{LinkStats, Reading, Robot, RobotError};
@@ -379,6 +384,8 @@ impl KortexArm {
         let reply = self.call(Function::CreateSession, info.encode_to_vec())?;
         self.session_id = reply.frame.header().session_id();
         self.session_open = true;
+        let found = self.identify()?;
+        found.check(self.robot)?;
         self.call(
             Function::SetServoingMode,
             msg::ServoingModeInformation {
@@ -387,27 +394,14 @@ impl KortexArm {
             .encode_to_vec(),
         )?;
         self.call(Function::ClearFaults, Vec::new())?;
-        let reply = self.call(Function::GetActuatorCount, Vec::new())?;
-        let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
         let n = self.robot.n_joints();
-        if count.count as usize != n {
-            return Err(KortexError::ActuatorCount {
-                found: count.count,
-                expected: n,
-                robot: self.robot.description().to_owned(),
-            });
-        }
         let reply = self.call(Function::GetKinematicHardLimits, Vec::new())?;
         let limits: msg::KinematicLimits = decode(Function::GetKinematicHardLimits, &reply)?;
         self.speed_limit_rad_s = speed_limits_from(&limits, n)?;
         let reply = self.call(Function::RefreshFeedback, Vec::new())?;
         let fb: msg::Feedback = decode(Function::RefreshFeedback, &reply)?;
-        self.reading = reading_from_feedback(&fb, n, &self.limits, 0.0).map_err(|reason| {
-            KortexError::Payload {
-                function: Function::RefreshFeedback.name(),
-                reason,
-            }
-        })?;
+        // The first reading: continuous joints in (-π, π] (unwrapped against zero).
+        self.reading = self.reading_of(&fb)?;
         self.gripper_target = self.reading.gripper;
         self.gripper_sent = self.reading.gripper;
         let limits_deg: Vec<String> = limits
@@ -420,13 +414,46 @@ impl KortexArm {
             session = format_args!("{:#06x}", self.session_id),
             connection_timeout_ms = cfg.connection_timeout_ms,
             session_timeout_ms = cfg.session_timeout_ms,
-            "Kortex session open; {n} actuators; joint speed hard limits [{}] deg/s",
+            "Kortex session open; {found}; joint speed hard limits [{}] deg/s",
             limits_deg.join(", ")
         );
         if cfg.mode == KortexMode::LowLevel {
             self.enter_low_level(cfg, credentials)?;
         }
         Ok(())
+    }
+
+    /// What the arm says it is: `Base.GetActuatorCount` and `Base.GetProductConfiguration`'s
+    /// model (read-only calls). An error reply to the latter (older firmware) leaves the
+    /// model unreported; any other failure is returned.
+    fn identify(&mut self) -> Result<FoundRobot, KortexError> {
+        let reply = self.call(Function::GetActuatorCount, Vec::new())?;
+        let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
+        let (model, refused) = match self.call(Function::GetProductConfiguration, Vec::new()) {
+            Ok(reply) => {
+                let c: msg::CompleteProductConfiguration =
+                    decode(Function::GetProductConfiguration, &reply)?;
+                (c.model, false)
+            }
+            Err(e @ KortexError::Robot { .. }) => {
+                tracing::warn!(
+                    "{e}: the arm's model is unknown; its actuator count alone identifies it"
+                );
+                (msg::model_id::UNSPECIFIED, true)
+            }
+            Err(e) => return Err(e),
+        };
+        let found = FoundRobot {
+            model,
+            actuators: count.count,
+        };
+        if found.kortex_model().is_none() && !refused {
+            tracing::warn!(
+                "the arm reports no Kortex model the bridge knows ({found}): its actuator count \
+                 alone identifies it"
+            );
+        }
+        Ok(found)
     }
 
     /// Low-level mode, entered only from rest: checks the measured joint speeds, opens the UDP
@@ -509,8 +536,10 @@ impl KortexArm {
         self.cyclic.as_ref().map(CyclicSession::q_cmd)
     }
 
+    /// The reading of a feedback: see [`reading_from_feedback`]; the profile's continuous
+    /// joints then unwrapped against the previous reading ([`unwrap_continuous`]).
     fn reading_of(&self, fb: &msg::Feedback) -> Result<Reading, KortexError> {
-        reading_from_feedback(
+        let mut r = reading_from_feedback(
             fb,
             self.robot.n_joints(),
             &self.limits,
@@ -519,7 +548,14 @@ impl KortexArm {
         .map_err(|reason| KortexError::Payload {
             function: Function::RefreshFeedback.name(),
             reason,
-        })
+        })?;
+        unwrap_continuous(
+            &mut r,
+            &self.reading.q_rad,
+            self.robot.continuous_joints(),
+            &self.limits,
+        );
+        Ok(r)
     }
 
     /// A tick's cyclic feedback (`None`: none arrived) after `period_s` (0: the first
@@ -952,12 +988,7 @@ impl KortexArm {
             && self.connected
             && let Ok(reply) = self.call(Function::RefreshFeedback, Vec::new())
             && let Ok(fb) = decode::<msg::Feedback>(Function::RefreshFeedback, &reply)
-            && let Ok(r) = reading_from_feedback(
-                &fb,
-                self.robot.n_joints(),
-                &self.limits,
-                self.reading.gripper,
-            )
+            && let Ok(r) = self.reading_of(&fb)
         {
             self.reading = r;
         }
@@ -994,6 +1025,32 @@ impl KortexArm {
 
     fn in_loop<T>(&mut self, r: Result<T, KortexError>) -> Result<T, RobotError> {
         r.map_err(|e| RobotError::Kortex(self.fault(e)))
+    }
+}
+
+/// The arm reports every angle in `[0, 360)`, which [`reading_from_feedback`] brings to
+/// `(-π, π]`; a continuous joint (`continuous[j]`, one the arm turns past a half turn, such as
+/// the Gen3's joints 1, 3, 5 and 7) may be anywhere within its software limits, so its
+/// reading is the angle nearest to its previous one `prev_rad` (no jump of 2π when it turns
+/// past ±π), and flags the limit as [`reading_from_feedback`] does. The first reading is
+/// unwrapped against zero: in `(-π, π]`.
+pub fn unwrap_continuous(
+    r: &mut Reading,
+    prev_rad: &[f64],
+    continuous: &[bool],
+    limits: &ArmLimits,
+) {
+    for (j, (&c, &prev)) in continuous.iter().zip(prev_rad).enumerate() {
+        if !c {
+            continue;
+        }
+        let d = super::wrap_deg((r.q_rad[j] - prev).to_degrees()).to_radians();
+        r.q_rad[j] = prev + d;
+        if let (Some(lo), Some(hi)) = (limits.lower_rad.get(j), limits.upper_rad.get(j))
+            && (r.q_rad[j] <= lo + 0.01 || r.q_rad[j] >= hi - 0.01)
+        {
+            r.at_limit = true;
+        }
     }
 }
 

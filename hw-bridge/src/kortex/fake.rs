@@ -1,5 +1,11 @@
-//! [`FakeKortex`]: a fake Gen3 lite that speaks the Kortex protocol on loopback, for tests and
+//! [`FakeKortex`]: a fake Kinova arm that speaks the Kortex protocol on loopback, for tests and
 //! for trying the bridge without an arm (`scl fake-kortex`).
+//!
+//! It plays the arm of a robot profile ([`FakeConfig::robot`]; the Gen3 lite by default,
+//! [`FakeConfig::for_robot`] for another): the profile's actuator count, joint position limits
+//! (the simulated arm's), joint speed and acceleration limits (GetKinematicHardLimits), joint
+//! arrays of the profile's length in every message, on both channels, and its Kortex model in
+//! GetProductConfiguration ([`super::KortexModel`]).
 //!
 //! It listens on `127.0.0.1` only, keeps a kinematic simulation of the arm ([`MockArm`],
 //! brought up to the present whenever it is looked at, since a real robot moves by itself),
@@ -23,8 +29,8 @@
 //! ApplyEmergencyStop, ClearFaults, SetServoingMode (single-level, low-level),
 //! GetServoingMode, GetActuatorCount, GetArmState, GetMeasuredJointAngles,
 //! SendJointSpeedsCommand, SendGripperCommand (position mode, finger 1),
-//! GetProductConfiguration (an empty CompleteProductConfiguration: every field at its
-//! default); BaseCyclic.RefreshFeedback; ControlConfig.GetKinematicHardLimits;
+//! GetProductConfiguration (the model and degrees of freedom of the profile's arm);
+//! BaseCyclic.RefreshFeedback; ControlConfig.GetKinematicHardLimits;
 //! DeviceConfig.GetFirmwareVersion. Not served (answered with a protocol-server error naming
 //! the function): every other call, among them notifications (`OnNotification...Topic`),
 //! actions and trajectories, Cartesian commands and poses, twist commands, the device
@@ -73,11 +79,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use ipc_types::MAX_JOINTS;
-use kinematics::gen3_lite;
+use kinematics::RobotProfile;
 use prost::Message as _;
 
 use super::wire::{Decoded, ErrorPayload, Frame, FrameDecoder, FrameType, Header, MAGIC};
-use super::{Credentials, Function, angle_rad_to_wire_deg, msg};
+use super::{Credentials, FoundRobot, Function, angle_rad_to_wire_deg, msg};
 use crate::Reading;
 use crate::mock::{MockArm, MockConfig, MockConfigError};
 
@@ -98,8 +104,15 @@ pub struct FakeConfig {
     pub port: u16,
     /// The credentials it accepts.
     pub credentials: Credentials,
-    /// What GetActuatorCount answers (6 for a Gen3 lite; other values test the bridge).
+    /// The arm it plays: its joints (every joint array, both channels), position limits (the
+    /// simulated arm's) and named poses ([`MockConfig::initial_pose`]).
+    pub robot: &'static RobotProfile,
+    /// What GetActuatorCount answers (the profile's joint count; other values test the
+    /// bridge).
     pub actuator_count: u32,
+    /// What GetProductConfiguration answers for the model ([`msg::model_id`]: the profile's
+    /// Kortex model; 0, not reported, as older firmware may; other values test the bridge).
+    pub model: i32,
     /// What GetKinematicHardLimits answers for the joint speeds (deg/s).
     pub joint_speed_limits_deg_s: Vec<f32>,
     /// What GetKinematicHardLimits answers for the joint accelerations (deg/s²).
@@ -168,7 +181,8 @@ impl std::str::FromStr for CyclicMisread {
             (Some("offset"), Some(j), Some(r), None) => {
                 let joint: usize = j.parse().map_err(|_| usage())?;
                 let offset_rad: f64 = r.parse().map_err(|_| usage())?;
-                if joint >= gen3_lite::N_JOINTS || !offset_rad.is_finite() {
+                // The arm's own joint count is checked when the fake starts.
+                if joint >= MAX_JOINTS || !offset_rad.is_finite() {
                     return Err(usage());
                 }
                 Ok(Self::Offset { joint, offset_rad })
@@ -179,20 +193,30 @@ impl std::str::FromStr for CyclicMisread {
 }
 
 impl Default for FakeConfig {
+    /// [`FakeConfig::for_robot`] of the default robot profile.
     fn default() -> Self {
-        // The URDF velocity limits of gen3-lite.md, in deg/s.
-        let speed = [1.6f64, 1.6, 1.6, 1.6, 1.6, 3.2];
+        Self::for_robot(RobotProfile::default_robot())
+    }
+}
+
+impl FakeConfig {
+    /// A fake of the arm of `robot`, on a free port, accepting admin / admin: the profile's
+    /// actuator count and Kortex model, its URDF velocity limits as the joint speed hard
+    /// limits and its acceleration limits (both in deg/s and deg/s², as the robot reports
+    /// them), the simulated arm at its `home` pose.
+    pub fn for_robot(robot: &'static RobotProfile) -> Self {
+        let found = FoundRobot::of_profile(robot);
+        let deg = |v: &[f64]| v.iter().map(|v| v.to_degrees() as f32).collect();
         Self {
             port: 0,
             credentials: Credentials::new("admin", "admin"),
-            actuator_count: gen3_lite::N_JOINTS as u32,
-            joint_speed_limits_deg_s: speed.iter().map(|v| v.to_degrees() as f32).collect(),
-            joint_acceleration_limits_deg_s2: gen3_lite::DEFAULT_ACCELERATION_RAD_S2
-                .iter()
-                .map(|v| v.to_degrees() as f32)
-                .collect(),
+            robot,
+            actuator_count: found.actuators,
+            model: found.model,
+            joint_speed_limits_deg_s: deg(robot.urdf_velocity_rad_s()),
+            joint_acceleration_limits_deg_s2: deg(&robot.limits().max_acceleration_rad_s2),
             firmware_version: 0x02_03_00,
-            mock: MockConfig::default(),
+            mock: MockConfig::for_robot(robot),
             cyclic_port: None,
             cyclic_timeout: Duration::from_millis(50),
             cyclic_misread: None,
@@ -288,19 +312,19 @@ impl FakeRequest {
     }
 }
 
-/// What the fake robot looks like now.
+/// What the fake robot looks like now. Joint lists have one entry per joint of the profile.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FakeSnapshot {
     /// Joint angles (rad).
-    pub q_rad: [f64; gen3_lite::N_JOINTS],
+    pub q_rad: Vec<f64>,
     /// Joint speeds (rad/s).
-    pub qdot_rad_s: [f64; gen3_lite::N_JOINTS],
+    pub qdot_rad_s: Vec<f64>,
     /// Gripper position (0 open .. 1 closed).
     pub gripper: f64,
     /// The gripper's commanded position.
     pub gripper_target: f64,
     /// The joint speed command in force (rad/s).
-    pub command_in_force: [f64; gen3_lite::N_JOINTS],
+    pub command_in_force: Vec<f64>,
     /// A session exists.
     pub session_open: bool,
     /// Sessions open now (the bridge's and observing ones).
@@ -324,9 +348,9 @@ pub struct FakeSnapshot {
     /// The arm is in fault (until ClearFaults).
     pub in_fault: bool,
     /// The joint positions of the first Refresh of the last low-level entry (rad).
-    pub first_position_command: Option<[f64; gen3_lite::N_JOINTS]>,
+    pub first_position_command: Option<Vec<f64>>,
     /// The joint positions of the last Refresh (rad).
-    pub last_position_command: Option<[f64; gen3_lite::N_JOINTS]>,
+    pub last_position_command: Option<Vec<f64>>,
     /// A cyclic (UDP) session exists.
     pub cyclic_session_open: bool,
 }
@@ -355,6 +379,19 @@ pub enum FakeError {
     /// A thread could not be started.
     #[error("fake Kortex robot: cannot start a thread: {0}")]
     Thread(std::io::Error),
+    /// The cyclic misread names a joint the arm does not have.
+    #[error(
+        "fake Kortex robot: the cyclic misread names joint {joint} (0-based), but a {robot} has \
+         {n} joints"
+    )]
+    MisreadJoint {
+        /// The joint named.
+        joint: usize,
+        /// The profile's arm, as people call it.
+        robot: String,
+        /// Its joint count.
+        n: usize,
+    },
 }
 
 struct Session {
@@ -372,6 +409,8 @@ struct Session {
 }
 
 struct State {
+    /// Joints of the profile's arm.
+    n: usize,
     arm: MockArm,
     reading: Reading,
     last_step: Instant,
@@ -383,7 +422,7 @@ struct State {
     faults: VecDeque<(Option<Function>, Fault)>,
     stats: FakeStats,
     last_timeout_gap: Option<Duration>,
-    log: VecDeque<[f64; gen3_lite::N_JOINTS]>,
+    log: VecDeque<[f64; MAX_JOINTS]>,
     requests: VecDeque<FakeRequest>,
     /// (connection, session) inactivity timeouts (ms) of the last CreateSession that opened a
     /// session.
@@ -399,8 +438,8 @@ struct State {
     /// Joint speeds implied by the last two Refreshes (rad/s).
     cyclic_qdot: [f64; MAX_JOINTS],
     arm_blocked: bool,
-    first_cmd: Option<[f64; gen3_lite::N_JOINTS]>,
-    last_cmd: Option<[f64; gen3_lite::N_JOINTS]>,
+    first_cmd: Option<[f64; MAX_JOINTS]>,
+    last_cmd: Option<[f64; MAX_JOINTS]>,
 }
 
 struct Shared {
@@ -449,7 +488,17 @@ impl std::fmt::Debug for FakeKortex {
 impl FakeKortex {
     /// Starts the fake robot on `127.0.0.1:cfg.port`.
     pub fn start(cfg: FakeConfig) -> Result<Self, FakeError> {
-        let mut arm = MockArm::new(cfg.mock.clone())?;
+        let n = cfg.robot.n_joints();
+        if let Some(CyclicMisread::Offset { joint, .. }) = cfg.cyclic_misread
+            && joint >= n
+        {
+            return Err(FakeError::MisreadJoint {
+                joint,
+                robot: cfg.robot.description().to_owned(),
+                n,
+            });
+        }
+        let mut arm = MockArm::for_robot(cfg.robot, cfg.mock.clone())?;
         let reading = arm.step(1e-9);
         let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, cfg.port)).map_err(|source| {
             FakeError::Bind {
@@ -483,6 +532,7 @@ impl FakeKortex {
             stop: AtomicBool::new(false),
             next_conn: AtomicU64::new(1),
             state: Mutex::new(State {
+                n,
                 arm,
                 reading,
                 last_step: Instant::now(),
@@ -519,7 +569,11 @@ impl FakeKortex {
         fake.spawn("fake-kortex-cyclic", move || cyclic_loop(sh, udp))?;
         let sh = fake.shared.clone();
         fake.spawn("fake-kortex-accept", move || accept_loop(sh, listener))?;
-        tracing::info!(address = %addr, "fake Kortex robot listening");
+        tracing::info!(
+            address = %addr,
+            robot = fake.shared.cfg.robot.name(),
+            "fake Kortex robot listening"
+        );
         Ok(fake)
     }
 
@@ -579,13 +633,13 @@ impl FakeKortex {
     /// The arm and the counters now.
     pub fn snapshot(&self) -> FakeSnapshot {
         let st = self.shared.state();
-        let n = gen3_lite::N_JOINTS;
-        let mut s = FakeSnapshot {
-            q_rad: [0.0; gen3_lite::N_JOINTS],
-            qdot_rad_s: [0.0; gen3_lite::N_JOINTS],
+        let n = st.n;
+        FakeSnapshot {
+            q_rad: st.reading.q_rad[..n].to_vec(),
+            qdot_rad_s: st.reading.qdot_rad_s[..n].to_vec(),
             gripper: st.reading.gripper,
             gripper_target: st.arm.gripper_target(),
-            command_in_force: [0.0; gen3_lite::N_JOINTS],
+            command_in_force: st.arm.command_in_force()[..n].to_vec(),
             session_open: !st.sessions.is_empty(),
             open_sessions: st.sessions.len(),
             stats: st.stats,
@@ -596,21 +650,22 @@ impl FakeKortex {
             single_level_servoing: st.single_level_servoing,
             low_level_servoing: st.low_level_servoing,
             in_fault: st.in_fault,
-            first_position_command: st.first_cmd,
-            last_position_command: st.last_cmd,
+            first_position_command: st.first_cmd.map(|q| q[..n].to_vec()),
+            last_position_command: st.last_cmd.map(|q| q[..n].to_vec()),
             cyclic_session_open: st.cyclic.is_some(),
-        };
-        s.q_rad.copy_from_slice(&st.reading.q_rad[..n]);
-        s.qdot_rad_s.copy_from_slice(&st.reading.qdot_rad_s[..n]);
-        s.command_in_force
-            .copy_from_slice(&st.arm.command_in_force()[..n]);
-        s
+        }
     }
 
-    /// The joint speed commands executed, oldest first (rad/s, as decoded from deg/s), up to
-    /// the last 20 000.
-    pub fn joint_speed_log(&self) -> Vec<[f64; gen3_lite::N_JOINTS]> {
-        self.shared.state().log.iter().copied().collect()
+    /// The arm it plays.
+    pub fn robot(&self) -> &'static RobotProfile {
+        self.shared.cfg.robot
+    }
+
+    /// The joint speed commands executed, oldest first (rad/s, as decoded from deg/s; one
+    /// entry per joint), up to the last 20 000.
+    pub fn joint_speed_log(&self) -> Vec<Vec<f64>> {
+        let st = self.shared.state();
+        st.log.iter().map(|v| v[..st.n].to_vec()).collect()
     }
 
     /// The requests received, oldest first (every connection, whatever the fake answered, up
@@ -1048,7 +1103,7 @@ fn execute(
     if !read_only(function) {
         st.sessions[si].controls = true;
     }
-    let n = gen3_lite::N_JOINTS;
+    let n = st.n;
     match function {
         Function::CreateSession | Function::KeepAlive => Ok(Vec::new()),
         Function::ClearFaults => {
@@ -1119,7 +1174,12 @@ fn execute(
             },
         }
         .encode_to_vec()),
-        Function::GetProductConfiguration => Ok(Vec::new()),
+        Function::GetProductConfiguration => Ok(msg::CompleteProductConfiguration {
+            kin: String::new(),
+            model: cfg.model,
+            degree_of_freedom: u32::try_from(n).unwrap_or(u32::MAX),
+        }
+        .encode_to_vec()),
         Function::GetArmState => Ok(msg::ArmStateInformation {
             active_state: msg::arm_state::SERVOING_READY,
         }
@@ -1186,12 +1246,10 @@ fn execute(
             st.arm.set_command(&v[..n], 0.0);
             st.command_from = Some(st.sessions[si].id);
             st.stats.joint_speed_commands += 1;
-            let mut entry = [0.0; gen3_lite::N_JOINTS];
-            entry.copy_from_slice(&v[..n]);
             if st.log.len() == LOG_CAPACITY {
                 st.log.pop_front();
             }
-            st.log.push_back(entry);
+            st.log.push_back(v);
             Ok(Vec::new())
         }
         Function::SendGripperCommand => {
@@ -1220,7 +1278,7 @@ fn state_feedback(st: &State) -> msg::Feedback {
     if st.low_level_servoing {
         r.qdot_rad_s = st.cyclic_qdot;
     }
-    let mut fb = feedback(&r, gen3_lite::N_JOINTS);
+    let mut fb = feedback(&r, st.n);
     if st.in_fault
         && let Some(b) = fb.base.as_mut()
     {
@@ -1247,7 +1305,7 @@ fn refresh(cfg: &FakeConfig, st: &mut State, frame: &Frame) -> CallResult {
         ));
     }
     let m: msg::Command = decode_req(frame, "Command")?;
-    let n = gen3_lite::N_JOINTS;
+    let n = st.n;
     if m.actuators.len() != n {
         return Err((
             3,
@@ -1263,12 +1321,18 @@ fn refresh(cfg: &FakeConfig, st: &mut State, frame: &Frame) -> CallResult {
         }
         q[j] = super::angle_deg_to_rad(p);
     }
-    let mut cmd = [0.0; gen3_lite::N_JOINTS];
-    cmd.copy_from_slice(&q[..n]);
-    if st.first_cmd.is_none() {
-        st.first_cmd = Some(cmd);
+    // The arm's continuous joints turn past a half turn: the commanded angle nearest to where
+    // each is (the wire carries angles in [0, 360)).
+    let at = st.reading.q_rad;
+    for (j, c) in cfg.robot.continuous_joints().iter().enumerate() {
+        if *c {
+            q[j] = at[j] + super::wrap_deg((q[j] - at[j]).to_degrees()).to_radians();
+        }
     }
-    st.last_cmd = Some(cmd);
+    if st.first_cmd.is_none() {
+        st.first_cmd = Some(q);
+    }
+    st.last_cmd = Some(q);
     let now = Instant::now();
     let dt = now.duration_since(st.last_refresh).as_secs_f64().max(1e-4);
     st.last_refresh = now;
@@ -1468,6 +1532,44 @@ fn feedback(r: &Reading, n: usize) -> msg::Feedback {
 mod tests {
     use super::*;
 
+    /// The fake plays the profile's arm; a misread naming a joint the arm lacks is refused.
+    #[test]
+    fn the_fake_plays_the_profiles_arm_and_refuses_a_misread_past_its_joints() {
+        for name in RobotProfile::names() {
+            let robot = RobotProfile::by_name(name).unwrap();
+            let n = robot.n_joints();
+            let cfg = FakeConfig::for_robot(robot);
+            assert_eq!(cfg.actuator_count as usize, n);
+            assert_eq!(cfg.joint_speed_limits_deg_s.len(), n);
+            assert_eq!(cfg.joint_acceleration_limits_deg_s2.len(), n);
+            assert_eq!(cfg.model, FoundRobot::of_profile(robot).model);
+            assert_ne!(cfg.model, msg::model_id::UNSPECIFIED, "{name}");
+            let fake = FakeKortex::start(cfg.clone()).unwrap();
+            let s = fake.snapshot();
+            assert_eq!((s.q_rad.len(), s.command_in_force.len()), (n, n));
+            let home = robot.named_pose("home").unwrap();
+            assert!(
+                s.q_rad.iter().zip(home).all(|(a, b)| (a - b).abs() < 1e-9),
+                "{name}: {:?}",
+                s.q_rad
+            );
+            drop(fake);
+            let misread = |joint| FakeConfig {
+                cyclic_misread: Some(CyclicMisread::Offset {
+                    joint,
+                    offset_rad: 0.1,
+                }),
+                ..cfg.clone()
+            };
+            let e = FakeKortex::start(misread(n)).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("joint {n}")) && e.contains(&format!("has {n} joints")),
+                "{e}"
+            );
+            FakeKortex::start(misread(n - 1)).unwrap();
+        }
+    }
+
     #[test]
     fn cyclic_misreads_parse_and_apply() {
         assert_eq!(
@@ -1492,7 +1594,7 @@ mod tests {
             "zeros",
             "offset",
             "offset:3",
-            "offset:6:0.1",
+            "offset:8:0.1",
             "offset:x:0.1",
             "offset:1:nan",
             "offset:1:0.1:2",

@@ -1,5 +1,7 @@
-//! The Kortex backend: a clean-room client of Kinova's Kortex API for the Gen3 lite, written
-//! from the protocol facts in `shared/reference/kortex-protocol.md`.
+//! The Kortex backend: a clean-room client of Kinova's Kortex API for the Kinova arm of the
+//! graph's robot profile (the Gen3 lite, the 7-joint Gen3), written from the protocol facts in
+//! `shared/reference/kortex-protocol.md`. At connect it checks that the arm is the profile's
+//! ([`FoundRobot`], [`KortexModel`]).
 //!
 //! * [`wire`]: TCP framing and the protobuf envelope (`Frame`, `Header`), the streaming
 //!   decoder that resynchronises on a wrong magic.
@@ -15,7 +17,8 @@
 //!   held for `entry_hold_ms` before the graph's commands apply), the following-error check;
 //!   where the cyclic command's layout comes from and what is still assumed is listed there.
 //! * [`fake::FakeKortex`]: a fake robot on loopback speaking the same protocol (the cyclic
-//!   channel included), for tests and for trying the bridge without an arm.
+//!   channel included), playing the arm of a robot profile, for tests and for trying the
+//!   bridge without an arm.
 //!
 //! Units at this boundary: the stack speaks radians and rad/s; the wire speaks degrees and
 //! deg/s, angles in `[0, 360)` ([`wrap_deg`] brings them to `(-180, 180]`).
@@ -97,9 +100,9 @@ pub enum Function {
     /// Kinova's own tools ask on connect). Not in the protocol reference: the UID follows
     /// SetServoingMode's in Kinova's published client sources (BaseClientRpc.h, KortexAPI 2.x).
     GetServoingMode,
-    /// `Base.GetProductConfiguration` (never sent by the bridge; the fake robot answers it
-    /// with an empty `CompleteProductConfiguration`). UID from Kinova's published client
-    /// sources (BaseClientRpc.h, KortexAPI 2.x), not the protocol reference.
+    /// `Base.GetProductConfiguration` (the arm's model, read at connect: see
+    /// [`KortexModel`]). UID from Kinova's published client sources (BaseClientRpc.h,
+    /// KortexAPI 2.x), not the protocol reference.
     GetProductConfiguration,
 }
 
@@ -531,15 +534,21 @@ pub enum KortexError {
         /// What was wrong.
         reason: String,
     },
-    /// The robot is not the arm of the graph's robot profile.
-    #[error("the robot reports {found} actuators; a {robot} has {expected}")]
-    ActuatorCount {
+    /// The robot is not the arm of the graph's robot profile: its actuator count, or the
+    /// model it reports, is another arm's.
+    #[error(
+        "wrong robot: the robot found is {found}, but the configured robot profile `{profile}` \
+         is {expected}; set [graph] robot to the arm's profile, or connect to the arm the \
+         profile describes"
+    )]
+    WrongRobot {
         /// What the robot reported.
-        found: u32,
-        /// What the bridge drives.
-        expected: usize,
-        /// The profile's robot, as people call it.
-        robot: String,
+        found: FoundRobot,
+        /// The configured profile's name (`[graph] robot`).
+        profile: String,
+        /// The profile's arm, as [`FoundRobot`] would say it (`a Gen3 (Kortex model L53, 7
+        /// actuators)`).
+        expected: String,
     },
     /// The robot's kinematic hard limits are unusable.
     #[error("the robot's kinematic hard limits are unusable: {reason}")]
@@ -627,6 +636,128 @@ impl KortexError {
                 | Self::Truncated { .. }
                 | Self::SessionClosed
         )
+    }
+}
+
+/// A Kinova arm model as the Kortex API names it (`CompleteProductConfiguration.model`,
+/// [`msg::model_id`]), with the product name Kinova sells it under.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KortexModel {
+    /// The `ModelId` value.
+    pub id: i32,
+    /// Kinova's code for it (`L53`).
+    pub code: &'static str,
+    /// The product name (`Gen3`): a robot profile whose description is this name is this
+    /// model.
+    pub product: &'static str,
+}
+
+/// The Kortex models the bridge knows (see [`msg::model_id`] for the source of the values).
+pub const KORTEX_MODELS: [KortexModel; 3] = [
+    KortexModel {
+        id: msg::model_id::L53,
+        code: "L53",
+        product: "Gen3",
+    },
+    KortexModel {
+        id: msg::model_id::L31,
+        code: "L31",
+        product: "Gen3 lite",
+    },
+    KortexModel {
+        id: msg::model_id::HDK,
+        code: "HDK",
+        product: "hardware development kit",
+    },
+];
+
+impl KortexModel {
+    /// The model of a `ModelId` value, if the bridge knows it (`None` for 0, not reported).
+    pub fn from_id(id: i32) -> Option<Self> {
+        KORTEX_MODELS.into_iter().find(|m| m.id == id)
+    }
+
+    /// The model of the arm `robot` describes: the one whose product name is the profile's
+    /// description (`None`: not a Kinova arm the bridge knows).
+    pub fn of_profile(robot: &kinematics::RobotProfile) -> Option<Self> {
+        KORTEX_MODELS
+            .into_iter()
+            .find(|m| m.product == robot.description())
+    }
+}
+
+/// What a robot says it is at connect: `Base.GetActuatorCount` and the model of
+/// `Base.GetProductConfiguration`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FoundRobot {
+    /// `CompleteProductConfiguration.model` ([`msg::model_id`]; 0: not reported).
+    pub model: i32,
+    /// Actuators reported.
+    pub actuators: u32,
+}
+
+impl FoundRobot {
+    /// The model, if reported and known.
+    pub fn kortex_model(&self) -> Option<KortexModel> {
+        KortexModel::from_id(self.model)
+    }
+
+    /// What the arm of `robot` would report (its model 0 if it is not a Kinova arm the
+    /// bridge knows).
+    pub fn of_profile(robot: &kinematics::RobotProfile) -> Self {
+        Self {
+            model: KortexModel::of_profile(robot).map_or(msg::model_id::UNSPECIFIED, |m| m.id),
+            actuators: u32::try_from(robot.n_joints()).unwrap_or(u32::MAX),
+        }
+    }
+
+    /// Whether this is the arm of `robot`: the actuator count always; the model where the arm
+    /// reports one the bridge knows (a Kinova model found where the profile describes another
+    /// arm, or none the bridge knows, is a mismatch).
+    pub fn check(&self, robot: &kinematics::RobotProfile) -> Result<(), KortexError> {
+        let count_ok = self.actuators as usize == robot.n_joints();
+        let model_ok = match self.kortex_model() {
+            None => true,
+            Some(m) => KortexModel::of_profile(robot).is_some_and(|p| p.id == m.id),
+        };
+        if count_ok && model_ok {
+            return Ok(());
+        }
+        let expected = FoundRobot::of_profile(robot);
+        let expected = match expected.kortex_model() {
+            Some(_) => expected.to_string(),
+            None => format!(
+                "a {} ({} joints; not a Kortex model the bridge knows)",
+                robot.description(),
+                robot.n_joints()
+            ),
+        };
+        Err(KortexError::WrongRobot {
+            found: *self,
+            profile: robot.name().to_owned(),
+            expected,
+        })
+    }
+}
+
+impl std::fmt::Display for FoundRobot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let n = self.actuators;
+        match self.kortex_model() {
+            Some(m) => write!(
+                f,
+                "a {} (Kortex model {}, {n} actuators)",
+                m.product, m.code
+            ),
+            None if self.model == msg::model_id::UNSPECIFIED => {
+                write!(f, "an arm of {n} actuators (model not reported)")
+            }
+            None => write!(
+                f,
+                "an arm of {n} actuators (Kortex model {}, unknown to the bridge)",
+                self.model
+            ),
+        }
     }
 }
 

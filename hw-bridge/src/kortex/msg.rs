@@ -166,6 +166,41 @@ pub struct ActuatorInformation {
     pub count: u32,
 }
 
+// `Base.GetProductConfiguration` (Empty -> `ProductConfiguration.CompleteProductConfiguration`):
+// not in the protocol reference. The field numbers and the `ModelId` values below are those of
+// Kinova's published `ProductConfiguration.proto` (KortexAPI 2.x), as its generated C++ header
+// states them (`kortex_api/include/messages/ProductConfiguration.pb.h` in Kinova's ros2_kortex
+// repository: `string kin = 1`, `ModelId model = 2`, `uint32 degree_of_freedom = 6`), and
+// Kinova's API reference (`api_cpp/doc/markdown/enums/ProductConfiguration/ModelId.md` in
+// Kinova-kortex2_Gen3_G3L: L53 the Gen3, L31 the Gen3 lite, called PICO there; Kinova's
+// examples test `MODEL_ID_L31` to detect a Gen3 lite).
+
+/// `CompleteProductConfiguration.model` values ([`CompleteProductConfiguration`]).
+pub mod model_id {
+    /// Not reported (older firmware, or a robot that does not say).
+    pub const UNSPECIFIED: i32 = 0;
+    /// `MODEL_ID_L53`: the Gen3 (6 or 7 actuators).
+    pub const L53: i32 = 1;
+    /// `MODEL_ID_L31`: the Gen3 lite.
+    pub const L31: i32 = 2;
+    /// `MODEL_ID_HDK`: the hardware development kit.
+    pub const HDK: i32 = 3;
+}
+
+/// `Base.GetProductConfiguration` reply: what the robot says it is. Only the fields the bridge
+/// reads are declared.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct CompleteProductConfiguration {
+    /// Kinova Identification Number of the device.
+    #[prost(string, tag = "1")]
+    pub kin: String,
+    /// The model, see [`model_id`].
+    #[prost(int32, tag = "2")]
+    pub model: i32,
+    /// Degrees of freedom of the device.
+    #[prost(uint32, tag = "6")]
+    pub degree_of_freedom: u32,
+}
 /// `ArmStateInformation.active_state` and `BaseFeedback.active_state` values the bridge uses.
 pub mod arm_state {
     /// Idle.

@@ -1,5 +1,6 @@
-//! `scl fake-kortex`: a fake Gen3 lite speaking the Kortex protocol on 127.0.0.1, for trying
-//! the bridge without an arm ([`hw_bridge::kortex::FakeKortex`]). It accepts the robot's
+//! `scl fake-kortex`: a fake Kinova arm (the Gen3 lite, or the arm of the robot profile
+//! `--robot` names) speaking the Kortex protocol on 127.0.0.1, for trying the bridge without
+//! an arm ([`hw_bridge::kortex::FakeKortex`]). It accepts the robot's
 //! default credentials (admin / admin), simulates the arm, and stops it when the bridge's
 //! connection inactivity timeout passes without a frame. It also serves the low-level cyclic
 //! channel over UDP on the same port number (`[bridge.kortex] mode = "low-level"`,
@@ -14,27 +15,29 @@
 use std::io::Write;
 use std::time::Duration;
 
-use hw_bridge::kortex::{CyclicMisread, FakeConfig, FakeKortex};
+use hw_bridge::kortex::{FakeConfig, FakeKortex};
 
 use crate::BridgeNodeError;
 use transport::signals;
 
-/// Runs the fake robot on `127.0.0.1:port` (0: a free port) until SIGINT / SIGTERM, reading
-/// the cyclic command wrongly if `misread` says how. The first line on stdout is
-/// `listening on 127.0.0.1:PORT`.
-pub fn run(port: u16, misread: Option<CyclicMisread>) -> Result<(), BridgeNodeError> {
-    let fake = FakeKortex::start(FakeConfig {
-        port,
-        cyclic_misread: misread,
-        ..FakeConfig::default()
-    })?;
+/// Runs the fake robot of `cfg` (its arm [`FakeConfig::robot`], on `127.0.0.1:cfg.port`, 0: a
+/// free port) until SIGINT / SIGTERM, reading the cyclic command wrongly if
+/// `cfg.cyclic_misread` says how. The first line on stdout is `listening on 127.0.0.1:PORT`.
+pub fn run(cfg: FakeConfig) -> Result<(), BridgeNodeError> {
+    let robot = cfg.robot;
+    let misread = cfg.cyclic_misread;
+    let fake = FakeKortex::start(cfg)?;
     let mut out = std::io::stdout();
     let _ = writeln!(out, "listening on {}", fake.addr());
     let _ = out.flush();
     eprintln!(
-        "scl fake-kortex: a fake Gen3 lite on {addr} (user admin, password admin). Try:\n  \
+        "scl fake-kortex: a fake {desc} (robot profile {name}, {n} actuators) on {addr} (user \
+         admin, password admin). Try, with [graph] robot = \"{name}\":\n  \
          SCL_KORTEX_USER=admin SCL_KORTEX_PASSWORD=admin scl bridge --robot kortex \
          --address 127.0.0.1 --port {port}",
+        desc = robot.description(),
+        name = robot.name(),
+        n = robot.n_joints(),
         addr = fake.addr(),
         port = fake.addr().port()
     );

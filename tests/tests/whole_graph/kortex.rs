@@ -2,6 +2,8 @@
 //! real processes over real shared memory, the bridge talking TCP on loopback to a fake
 //! Gen3 lite that runs inside the test (`hw_bridge::kortex::FakeKortex`, a free port of
 //! 127.0.0.1), so the test sees both sides: what the graph published and what the robot did.
+//! The Gen3 (`[graph] robot = "gen3"`) runs against `scl fake-kortex --robot gen3`, a process
+//! of its own, and a Gen3 lite fake is refused by it.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
 use std::path::{Path, PathBuf};
@@ -184,7 +186,7 @@ fn the_graph_drives_the_fake_kortex_arm_for_400_ticks_without_a_miss() {
         })
         .collect();
     assert!(executed.len() >= 399);
-    let same = |got: &[f64; 6], sent: &ipc_types::SafeCommand| {
+    let same = |got: &[f64], sent: &ipc_types::SafeCommand| {
         (0..6).all(|j| (got[j] - sent.qdot_rad_s[j]).abs() < 1e-6)
     };
     let mut at = 0;
@@ -482,7 +484,7 @@ fn a_robot_error_stops_the_arm_and_ends_the_graph_with_its_name() {
 /// `scl up --for RUN_FOR --script circle` on it at 1 kHz with `mode = "low-level"`.
 struct LowLevelRun {
     fake: FakeKortex,
-    start_q: [f64; 6],
+    start_q: Vec<f64>,
     dir: TempDir,
     log: PathBuf,
     prefix: ipc_types::Prefix,
@@ -585,7 +587,7 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
     eprintln!("low-level graph at 1 kHz: {summary}");
     let s = fake.snapshot();
     // The first command was the measured position (the arm at rest at its start pose).
-    let first = s.first_position_command.unwrap();
+    let first = s.first_position_command.clone().unwrap();
     for j in 0..6 {
         assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
     }
@@ -709,8 +711,8 @@ fn a_robot_that_misreads_the_cyclic_command_fails_the_entry_check_and_ends_the_g
     assert!(!s.session_open && !s.cyclic_session_open, "{s:?}");
     assert!(!s.commanded_to_move(), "{s:?}");
     let (first, last) = (
-        s.first_position_command.unwrap(),
-        s.last_position_command.unwrap(),
+        s.first_position_command.clone().unwrap(),
+        s.last_position_command.clone().unwrap(),
     );
     for j in 0..6 {
         assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
@@ -935,4 +937,174 @@ fn a_restarted_bridge_that_finds_the_arm_moving_stops_it_first_then_waits_for_ne
         wait_clean(&prefix, Duration::from_secs(5)),
         Vec::<String>::new()
     );
+}
+
+/// `scl fake-kortex --robot ROBOT --port 0` as a child: its guard and the TCP port from its
+/// first line on stdout.
+fn fake_kortex_process(robot: &str) -> (ChildGuard, u16) {
+    use std::io::BufRead;
+    let mut guard = ChildGuard(Some(
+        Command::new(scl_binary())
+            .args(["fake-kortex", "--robot", robot, "--port", "0"])
+            .env("SCL_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    ));
+    let stdout = guard.child().stdout.take().unwrap();
+    let mut line = String::new();
+    std::io::BufReader::new(stdout)
+        .read_line(&mut line)
+        .unwrap();
+    let port = line
+        .trim()
+        .strip_prefix("listening on 127.0.0.1:")
+        .unwrap_or_else(|| panic!("scl fake-kortex said {line:?}"))
+        .parse()
+        .unwrap();
+    (guard, port)
+}
+
+/// The graph config of a Gen3 (`[graph] robot = "gen3"`) on the Kortex robot at `port`.
+fn write_gen3_config(dir: &Path, port: u16) -> PathBuf {
+    let p = dir.join("graph.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "[graph]\nrobot = \"gen3\"\n\n[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\n\
+             address = \"127.0.0.1\"\nport = {port}\nreply_timeout_ms = 1000\n"
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// `scl up --config FILE --for 60s --json --model modeswitch` (no bundled Gen3 model yet),
+/// credentials `user` / `password` in the environment.
+fn up_gen3(
+    prefix: &ipc_types::Prefix,
+    config: &Path,
+    log: &Path,
+    user: &str,
+    password: &str,
+) -> ChildGuard {
+    ChildGuard(Some(
+        Command::new(scl_binary())
+            .args(["up", "--config", config.to_str().unwrap()])
+            .args(["--for", "60s", "--json", "--model", "modeswitch"])
+            .env("SCL_PREFIX", prefix.as_str())
+            .env("SCL_LOG", "info")
+            .env("SCL_KORTEX_USER", user)
+            .env("SCL_KORTEX_PASSWORD", password)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(log).unwrap())
+            .spawn()
+            .unwrap(),
+    ))
+}
+
+/// A Gen3 graph on `scl fake-kortex --robot gen3`: 200 ticks in a row without a miss, seven
+/// joints in every state, the arm moved and stopped at the end.
+#[test]
+fn a_gen3_graph_drives_scl_fake_kortex_gen3_for_200_ticks_without_a_miss() {
+    let _serial = serial();
+    let (mut fake, port) = fake_kortex_process("gen3");
+    let dir = TempDir::new("gen3");
+    let config = write_gen3_config(&dir.0, port);
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxgen3");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up_gen3(&prefix, &config, &log, "admin", "admin");
+    let clean = rec.poll_until(Duration::from_secs(60), |r| {
+        clean_run_at_end(&running_states(r)) >= 200
+    });
+    scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    let misses = miss_report(&log_text);
+    assert!(
+        clean,
+        "no 200 ticks in a row without a miss:\n{misses}\n{log_text}"
+    );
+    assert!(out.status.success(), "scl up failed: {log_text}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(summary["failure"].is_null(), "{summary}");
+    assert_misses_only_held_up(&summary, &log_text, "kortex gen3 graph");
+    assert!(
+        log_text.contains("Kortex session open; a Gen3 (Kortex model L53, 7 actuators)"),
+        "{log_text}"
+    );
+    let states = running_states(&rec);
+    assert!(states.len() >= 200);
+    for s in &states {
+        assert_eq!(s.flags & state_flags::MOCK, 0);
+        assert!(s.q_rad[..7].iter().all(|q| q.is_finite()));
+        assert_eq!(s.q_rad[7], 0.0, "an eighth joint: {:?}", s.q_rad);
+    }
+    let moved = states
+        .iter()
+        .any(|s| (0..7).any(|j| (s.q_rad[j] - states[0].q_rad[j]).abs() > 1e-3));
+    assert!(moved, "the Gen3 never moved");
+    let last = rec.robot_states.last().unwrap();
+    assert!(last.flags & state_flags::SHUTDOWN != 0);
+    assert!(
+        last.qdot_rad_s[..7].iter().all(|v| v.abs() < 1e-6),
+        "{:?}",
+        last.qdot_rad_s
+    );
+    eprintln!(
+        "kortex gen3 graph: {} ticks, {} missed",
+        summary["ticks"], summary["missed"]
+    );
+    scl_tests::send_signal(fake.child().id(), Signal::SIGTERM);
+    let status = fake.take().wait().unwrap();
+    assert!(status.success(), "scl fake-kortex: {status}");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+/// A Gen3 graph on a Gen3 lite: the bridge refuses the arm at connect, before commanding
+/// anything, naming the robot found and the profile configured; the graph does not start.
+#[test]
+fn a_gen3_graph_refuses_a_gen3_lite_naming_both() {
+    let _serial = serial();
+    let fake = fake();
+    let dir = TempDir::new("gen3-lite");
+    let config = write_gen3_config(&dir.0, fake.addr().port());
+    let log = dir.0.join("up.log");
+    let prefix = unique_prefix("kxwrong");
+    let _domain = DomainGuard(prefix.clone());
+    let mut rec = Recorder::join(&prefix);
+    let mut guard = up_gen3(&prefix, &config, &log, USER, PASSWORD);
+    let out = wait_for_exit(&mut rec, &mut guard);
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_ne!(out.status.code(), Some(0), "{log_text}");
+    assert!(
+        log_text.contains(
+            "wrong robot: the robot found is a Gen3 lite (Kortex model L31, 6 actuators), but \
+             the configured robot profile `gen3` is a Gen3 (Kortex model L53, 7 actuators)"
+        ),
+        "{log_text}"
+    );
+    assert!(running_states(&rec).is_empty(), "the graph ticked");
+    let s = fake.snapshot();
+    assert!(!s.single_level_servoing && !s.commanded_to_move(), "{s:?}");
+    assert_eq!(s.stats.joint_speed_commands, 0);
+    assert_eq!((s.stats.sessions_opened, s.stats.sessions_closed), (1, 1));
+    assert_no_credentials_at_all(&log_text);
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
+fn assert_no_credentials_at_all(log: &str) {
+    assert!(!log.contains(PASSWORD), "the password is in the logs");
+    assert!(!log.contains(USER), "the user name is in the logs");
 }
