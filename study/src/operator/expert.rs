@@ -335,7 +335,9 @@ impl Expert {
                     aim = run.aim(&tool, q[n.saturating_sub(1)]);
                     let done = run.subgoals_done() - before;
                     bonus += done as f64 * SUBGOAL_M * (2.0 - i as f64 / h as f64);
-                    aim.map_or(0.0, |g| aim_error(&g, &p, tilt(&tool.rotation), tilt_weight))
+                    aim.map_or(0.0, |g| {
+                        aim_error(&g, &p, tilt(&tool.rotation), tilt_weight)
+                    })
                 }
                 (None, Target::Point(w)) => (w - p).norm(),
                 (None, Target::Task) => 0.0,
@@ -516,7 +518,12 @@ impl Operate for Expert {
             let target = self.progress(seen, &aim, rng);
             let cur = seen.mode.unwrap_or(0).min(self.modes - 1);
             let (best, rest) = self.optimise(make, cur, cur, seen, target, rng);
-            choice = self.plans.get(cur).and_then(|p| p.first()).copied().unwrap_or([0.0; 2]);
+            choice = self
+                .plans
+                .get(cur)
+                .and_then(|p| p.first())
+                .copied()
+                .unwrap_or([0.0; 2]);
             let check = ((self.ex.mode_check_s / self.dt).round() as u64).max(1);
             // Within the tolerance of a position (a grip, the end of a reach) there is nothing
             // to switch for.

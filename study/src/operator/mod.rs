@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use crate::simulate::{ModelFactory, SimError, SimParams};
 
 /// Which simulated operator runs the attempts (`[simulation] operator`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum OperatorKind {
     /// One tick ahead through the served map, the best of a few sampled inputs (the default,
@@ -49,6 +49,25 @@ impl OperatorKind {
             Self::Greedy => "greedy",
             Self::Expert => "expert",
         }
+    }
+
+    /// The kind the study file names `name`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Greedy, Self::Expert]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
+}
+
+impl<'de> Deserialize<'de> for OperatorKind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Self::from_name(&name).ok_or_else(|| {
+            serde::de::Error::custom(format!(
+                "`simulation.operator`: no operator `{name}`; the operators: {}",
+                Self::NAMES.join(", ")
+            ))
+        })
     }
 }
 
