@@ -528,7 +528,7 @@ impl Operate for Expert {
             // Within the tolerance of a position (a grip, the end of a reach) there is nothing
             // to switch for.
             let settled = aim.tilt.is_none() && (aim.position - p).norm() <= self.tol.position_m;
-            if self.modes > 1 && !settled && self.ticks % check == 0 {
+            if self.modes > 1 && !settled && self.ticks.is_multiple_of(check) {
                 let gain = rest - best;
                 let mut other: Option<(usize, f64)> = None;
                 for m in (0..self.modes).filter(|&m| m != cur) {
