@@ -26,8 +26,9 @@ use kinematics::RobotProfile;
 use learning::goals::{Aim, GoalRun, Tolerances, tilt};
 use mapper::LoadedModel;
 use mapper::rng::Rng;
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex};
 
 use super::{Hand, Operate, Seen};
 use crate::simulate::{ModelFactory, SimError, SimParams};
@@ -161,6 +162,8 @@ pub(crate) struct Expert {
     seqs: Vec<Vec<[f64; 2]>>,
     costs: Vec<f64>,
     out: [f64; MAX_JOINTS],
+    /// A scripted map's aim ([`crate::simulate::AttemptSetup::aim_out`]).
+    aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
 }
 
 impl Expert {
@@ -170,6 +173,7 @@ impl Expert {
         tol: Tolerances,
         dt: f64,
         make: &ModelFactory<'_>,
+        aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
     ) -> Result<Self, SimError> {
         let ex = params.expert.clone();
         let first = make()?;
@@ -217,6 +221,7 @@ impl Expert {
             seqs: Vec::new(),
             costs: Vec::new(),
             out: [0.0; MAX_JOINTS],
+            aim_out,
             ex,
         })
     }
@@ -296,7 +301,8 @@ impl Expert {
         let mut q = [0.0; MAX_JOINTS];
         q[..n].copy_from_slice(&seen.state.q()[..n]);
         let mut c = seen.state.gripper;
-        let mut p = seen.tool.translation.vector;
+        let mut tool: Isometry3<f64> = *seen.tool;
+        let mut p = tool.translation.vector;
         let mut run: Option<GoalRun> = matches!(target, Target::Task).then(|| seen.run.clone());
         let mut aim = seen.aim;
         let mut a = stick;
@@ -317,6 +323,20 @@ impl Expert {
             {
                 c = (c + if close { step } else { -step }).clamp(0.0, 1.0);
             }
+            if let Some(cell) = &self.aim_out {
+                let g = match target {
+                    Target::Task => aim,
+                    Target::Point(w) => Some(Aim {
+                        position: w,
+                        tilt: None,
+                        grip: None,
+                        down: false,
+                    }),
+                };
+                if let (Some(g), Ok(mut e)) = (g, cell.lock()) {
+                    *e = g.error(&tool);
+                }
+            }
             model.map.eval(&q[..n], c, &a, &mut self.out[..n]);
             for (qj, v) in q[..n].iter_mut().zip(&self.out[..n]) {
                 if v.is_finite() {
@@ -324,9 +344,10 @@ impl Expert {
                 }
             }
             chain.clamp_to_limits(&mut q[..n]);
-            let Ok(tool) = chain.fk(&q[..n]) else {
+            let Ok(next) = chain.fk(&q[..n]) else {
                 return f64::INFINITY;
             };
+            tool = next;
             p = tool.translation.vector;
             let e = match (&mut run, target) {
                 (Some(run), _) => {
@@ -502,6 +523,10 @@ impl Operate for Expert {
         let mut buttons_now = buttons::DEADMAN;
         let mut gripper = 0.0f32;
         let mut choice = [0.0; 2];
+        let found = self
+            .aim_out
+            .as_ref()
+            .and_then(|c| c.lock().ok().map(|e| *e));
         self.shift_plans();
         if self.button_down {
             self.button_down = false;
@@ -552,6 +577,11 @@ impl Operate for Expert {
             {
                 gripper = if close { 1.0 } else { -1.0 };
             }
+        }
+        if let (Some(cell), Some(found)) = (&self.aim_out, found)
+            && let Ok(mut e) = cell.lock()
+        {
+            *e = found;
         }
         self.ticks += 1;
         let resting = self.presses_left > 0 || self.button_down || self.rest_ticks > 0;

@@ -16,12 +16,13 @@ pub mod expert;
 pub mod greedy;
 
 use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
 
 use ipc_types::{JoystickInput, RobotState};
 use kinematics::{Jacobian, RobotProfile};
 use learning::goals::{Aim, GoalRun, Tolerances};
 use mapper::rng::Rng;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use crate::simulate::{ModelFactory, SimError, SimParams};
@@ -100,13 +101,17 @@ pub trait Operate: Send {
     fn presses(&self) -> u32;
 }
 
-/// The operator of one attempt of kind `params.operator`.
+/// The operator of one attempt of kind `params.operator`. `aim_out` is the attempt's
+/// [`AttemptSetup::aim_out`](crate::simulate::AttemptSetup::aim_out): a scripted map that
+/// moves straight to the operator's aim reads it, so the expert writes its predicted aims
+/// there while it predicts (and puts back what it found).
 pub fn operator(
     params: &SimParams,
     robot: &'static RobotProfile,
     tol: Tolerances,
     dt: f64,
     make: &ModelFactory<'_>,
+    aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
 ) -> Result<Box<dyn Operate>, SimError> {
     Ok(match params.operator {
         OperatorKind::Greedy => Box::new(greedy::Greedy::new(
@@ -115,7 +120,9 @@ pub fn operator(
             dt,
             greedy::Probes::new(make)?,
         )),
-        OperatorKind::Expert => Box::new(expert::Expert::new(params, robot, tol, dt, make)?),
+        OperatorKind::Expert => {
+            Box::new(expert::Expert::new(params, robot, tol, dt, make, aim_out)?)
+        }
     })
 }
 
