@@ -232,6 +232,7 @@ impl<'a> AttemptDriver<'a> {
             op: operator(
                 s.params,
                 s.sim.robot,
+                &s.sim.safety,
                 s.goals.tol,
                 dt,
                 s.model,

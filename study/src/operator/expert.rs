@@ -27,6 +27,7 @@ use learning::goals::{Aim, GoalRun, Tolerances, tilt};
 use mapper::LoadedModel;
 use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector3, Vector6};
+use safety::clearance::WholeArm;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
 
@@ -166,12 +167,19 @@ pub(crate) struct Expert {
     out: [f64; MAX_JOINTS],
     /// A scripted map's aim ([`crate::simulate::AttemptSetup::aim_out`]).
     aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    /// The arm's collision model in the safety configuration's scene, and its stop
+    /// distance: a predicted step that brings a pair closer than that is not taken (the
+    /// safety filter stops it).
+    whole_arm: Option<(WholeArm, f64)>,
+    /// The closest pair's distance now (m).
+    clearance_now: f64,
 }
 
 impl Expert {
     pub(crate) fn new(
         params: &SimParams,
         robot: &'static RobotProfile,
+        safety: &safety::SafetyConfig,
         tol: Tolerances,
         dt: f64,
         make: &ModelFactory<'_>,
@@ -224,6 +232,13 @@ impl Expert {
             costs: Vec::new(),
             out: [0.0; MAX_JOINTS],
             aim_out,
+            whole_arm: safety
+                .scene
+                .scene()
+                .ok()
+                .and_then(|scene| WholeArm::new(robot, scene))
+                .map(|a| (a, safety.stop_distance_m)),
+            clearance_now: f64::INFINITY,
             ex,
         })
     }
@@ -303,6 +318,7 @@ impl Expert {
         let mut q = [0.0; MAX_JOINTS];
         q[..n].copy_from_slice(&seen.state.q()[..n]);
         let mut c = seen.state.gripper;
+        let mut clearance = self.clearance_now;
         let mut tool: Isometry3<f64> = *seen.tool;
         let mut p = tool.translation.vector;
         let mut run: Option<GoalRun> = matches!(target, Target::Task).then(|| seen.run.clone());
@@ -340,12 +356,25 @@ impl Expert {
                 }
             }
             model.map.eval(&q[..n], c, &a, &mut self.out[..n]);
+            let before = q;
             for (qj, v) in q[..n].iter_mut().zip(&self.out[..n]) {
                 if v.is_finite() {
                     *qj += v * self.speed_scale * step;
                 }
             }
             chain.clamp_to_limits(&mut q[..n]);
+            // The whole-arm stop: a step that brings a pair of the collision model closer
+            // than the stop distance is not taken.
+            if let Some((arm, stop)) = self.whole_arm.as_mut()
+                && arm.update(&q[..n], c)
+                && let Some((d, _)) = arm.closest()
+            {
+                if d < *stop && d < clearance {
+                    q = before;
+                } else {
+                    clearance = d;
+                }
+            }
             let Ok(next) = chain.fk(&q[..n]) else {
                 return f64::INFINITY;
             };
@@ -541,6 +570,14 @@ impl Operate for Expert {
             self.rest_ticks -= 1;
         } else if let Some(aim) = seen.aim {
             self.switching_to = None;
+            let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
+            self.clearance_now = f64::INFINITY;
+            if let Some((arm, _)) = self.whole_arm.as_mut()
+                && arm.update(&seen.state.q()[..n], seen.state.gripper)
+                && let Some((d, _)) = arm.closest()
+            {
+                self.clearance_now = d;
+            }
             let p = seen.tool.translation.vector;
             let target = self.progress(seen, &aim, rng);
             let cur = seen.mode.unwrap_or(0).min(self.modes - 1);

@@ -101,13 +101,15 @@ pub trait Operate: Send {
     fn presses(&self) -> u32;
 }
 
-/// The operator of one attempt of kind `params.operator`. `aim_out` is the attempt's
+/// The operator of one attempt of kind `params.operator` on `robot` (`safety`: the graph's
+/// safety configuration, whose whole-arm stop the expert foresees). `aim_out` is the attempt's
 /// [`AttemptSetup::aim_out`](crate::simulate::AttemptSetup::aim_out): a scripted map that
 /// moves straight to the operator's aim reads it, so the expert writes its predicted aims
 /// there while it predicts (and puts back what it found).
 pub fn operator(
     params: &SimParams,
     robot: &'static RobotProfile,
+    safety: &safety::SafetyConfig,
     tol: Tolerances,
     dt: f64,
     make: &ModelFactory<'_>,
@@ -120,9 +122,9 @@ pub fn operator(
             dt,
             greedy::Probes::new(make)?,
         )),
-        OperatorKind::Expert => {
-            Box::new(expert::Expert::new(params, robot, tol, dt, make, aim_out)?)
-        }
+        OperatorKind::Expert => Box::new(expert::Expert::new(
+            params, robot, safety, tol, dt, make, aim_out,
+        )?),
     })
 }
 
