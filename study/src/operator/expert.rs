@@ -38,6 +38,9 @@ use crate::simulate::{ModelFactory, SimError, SimParams};
 /// distance in the workspace, so finishing a subgoal always beats staying near it.
 const SUBGOAL_M: f64 = 1.0;
 
+/// A mode switch must gain at least this much (m of mean distance over the horizon).
+const SWITCH_MIN_M: f64 = 0.001;
+
 /// Progress smaller than this (m) does not count against being stuck.
 const PROGRESS_M: f64 = 0.005;
 
@@ -589,10 +592,9 @@ impl Operate for Expert {
                 .copied()
                 .unwrap_or([0.0; 2]);
             let check = ((self.ex.mode_check_s / self.dt).round() as u64).max(1);
-            // Within the tolerance of a position (a grip, the end of a reach) there is nothing
-            // to switch for.
-            let settled = aim.tilt.is_none() && (aim.position - p).norm() <= self.tol.position_m;
-            if self.modes > 1 && !settled && self.ticks.is_multiple_of(check) {
+            // Unlike the greedy operator it also weighs a switch within the position
+            // tolerance: table cleaning's pushes start from a point 1.5 cm behind the object.
+            if self.modes > 1 && self.ticks.is_multiple_of(check) {
                 let gain = rest - best;
                 let mut other: Option<(usize, f64)> = None;
                 for m in (0..self.modes).filter(|&m| m != cur) {
@@ -602,7 +604,7 @@ impl Operate for Expert {
                     }
                 }
                 if let Some((m, g)) = other
-                    && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + 1e-4
+                    && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + SWITCH_MIN_M
                 {
                     self.presses_left = ((m + self.modes - cur) % self.modes) as u32;
                     self.rest_ticks = (self.params.mode_switch_s / self.dt).round() as u32;
