@@ -1004,6 +1004,15 @@ model = "modeswitch"
     }
 
     #[test]
+    fn the_feasibility_study_loads_and_runs_the_expert() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/study/feasibility.toml");
+        let s = Study::load(&path, RobotProfile::default_robot()).unwrap();
+        assert_eq!(s.file.simulation.operator, OperatorKind::Expert);
+        assert_eq!(s.file.tasks.len(), 3);
+        assert_eq!(study_goals(&s).unwrap().len(), 3);
+    }
+
+    #[test]
     fn a_bad_expert_setting_is_refused_naming_the_key() {
         let e = parse("operator = \"expert\"\n[simulation.expert]\nsamples = 0\n")
             .unwrap_err()
