@@ -182,7 +182,7 @@ pub struct AttemptSetup<'a> {
     /// The random stream's seed.
     pub seed: u64,
     /// For scripted maps that move straight to the goal: each tick the pose error to the
-    /// operator's current aim ([`Aim::error`]) is written here before the map is evaluated.
+    /// operator's current aim ([`learning::goals::Aim::error`]) is written here before the map is evaluated.
     pub aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
 }
 

@@ -11,6 +11,11 @@
 //! switch takes) and presses the mode button when another mode's plan gains more than
 //! [`SimParams::mode_switch_margin`] over the current one's.
 //!
+//! The prediction knows one rule of the safety filter, as a person sees the arm stop: a step
+//! that brings a pair of the arm's collision model closer than the safety configuration's
+//! stop distance is not taken. A scripted map that reads the operator's aim
+//! ([`crate::simulate::AttemptSetup::aim_out`]) is given the predicted aim while predicting.
+//!
 //! It has the person's limits of the greedy operator: the plan starts after the reaction
 //! delay (what the hand still has to carry out is part of the prediction), the stick's rate
 //! is bounded, the mode button takes [`SimParams::mode_switch_s`] with the stick let go, the

@@ -8,7 +8,7 @@
 //!   map allows at best ("can this map do the task at all?").
 //!
 //! Every operator sees what a person sees ([`Seen`]: the tool's pose, the gripper, the map's
-//! mode, the task's scene and next subgoal) and acts through the same hand ([`Hand`]: a
+//! mode, the task's scene and next subgoal) and acts through the same hand (`Hand`: a
 //! reaction delay, a bounded stick rate, input noise). An operator that learns the map from
 //! practice joins as another [`OperatorKind`] and another implementation of [`Operate`].
 
