@@ -836,6 +836,29 @@ mod tests {
         expert_succeeds(GoalTask::Pouring, Map::ModeSwitch, 120.0);
     }
 
+    /// Two attempts with mode switching that the expert once failed (the seeds of
+    /// `examples/study/feasibility.toml`'s attempts): pouring (seed 1, P02, attempt 1: the
+    /// return upright blocked by the safety filter's clearance rule, which its predictions
+    /// did not know then: a timeout at 83 % with 53 presses; the whole-arm stop in the
+    /// predictions has its own test, `the_prediction_stops_at_the_whole_arm_stop_distance`)
+    /// and table cleaning (seed 2, P04, attempt 2: 2.4 cm from the point behind an object in
+    /// the z-yaw mode, within the position tolerance, where it did not weigh switching back
+    /// to x-y: a timeout at 60 % with 13 presses).
+    #[test]
+    fn the_expert_succeeds_in_the_attempts_it_once_failed() {
+        for (task, seed, limit) in [
+            (GoalTask::Pouring, attempt_seed(1, &[2, 2, 0, 1]), 120.0),
+            (
+                GoalTask::TableCleaning,
+                attempt_seed(2, &[4, 0, 0, 2]),
+                60.0,
+            ),
+        ] {
+            let r = attempt_with(task, Map::ModeSwitch, &expert(), seed, limit);
+            assert_eq!(r.outcome, Outcome::Success, "{task:?}: {r:?}");
+        }
+    }
+
     #[test]
     fn the_expert_never_succeeds_with_the_zero_map() {
         for task in [

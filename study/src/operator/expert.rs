@@ -181,6 +181,8 @@ pub(crate) struct Expert {
     whole_arm: Option<(WholeArm, f64)>,
     /// The closest pair's distance now (m).
     clearance_now: f64,
+    /// The joint angles at the end of the last prediction.
+    predicted_q: [f64; MAX_JOINTS],
 }
 
 impl Expert {
@@ -247,6 +249,7 @@ impl Expert {
                 .and_then(|scene| WholeArm::new(robot, scene))
                 .map(|a| (a, safety.stop_distance_m)),
             clearance_now: f64::INFINITY,
+            predicted_q: [0.0; MAX_JOINTS],
             ex,
         })
     }
@@ -404,6 +407,7 @@ impl Expert {
             };
             cost += e;
         }
+        self.predicted_q = q;
         cost / h as f64 - bonus
     }
 
@@ -646,5 +650,80 @@ impl Operate for Expert {
 
     fn presses(&self) -> u32 {
         self.presses
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ipc_types::RobotState;
+    use kinematics::Jacobian;
+    use learning::goals::TaskGoals;
+    use learning::tasks::Task;
+
+    /// The prediction stops the arm where the safety filter's whole-arm rule stops it: mode
+    /// switching's z axis (z-yaw's second) held down from 7.5 cm over the table (table cleaning's start)
+    /// keeps every pair of the collision model at the stop distance or more, where the map
+    /// alone would take the gripper into the table.
+    #[test]
+    fn the_prediction_stops_at_the_whole_arm_stop_distance() {
+        let robot = RobotProfile::default_robot();
+        let safety = safety::SafetyConfig::for_robot(robot);
+        let make = || {
+            LoadedModel::load_for("modeswitch", robot)
+                .map(|m| m.at_period(0.025))
+                .map_err(|e| SimError::Setup(e.to_string()))
+        };
+        let goals = TaskGoals::of(Task::TableCleaning, Tolerances::default()).unwrap();
+        let run = GoalRun::new(&goals);
+        let n = robot.n_joints();
+        let q0 = [-0.124, -0.703, 1.511, 1.571, 0.928, -0.124];
+        let mut state = RobotState::at_rest(0, 25_000_000, n as u32);
+        state.q_rad[..n].copy_from_slice(&q0);
+        let mut jac = Jacobian::zeros(n);
+        let tool = robot.arm().fk_jacobian(&q0, &mut jac).unwrap();
+        let seen = Seen {
+            state: &state,
+            tool: &tool,
+            jac: &jac,
+            aim: None,
+            run: &run,
+            mode: Some(1),
+            t_ns: 0,
+        };
+        let down = Target::Point(tool.translation.vector - Vector3::z());
+        let mut lowest = Vec::new();
+        for with_rule in [true, false] {
+            let mut ex = Expert::new(
+                &SimParams::default(),
+                robot,
+                &safety,
+                Tolerances::default(),
+                0.025,
+                &make,
+                None,
+            )
+            .unwrap();
+            assert_eq!(ex.modes, 3);
+            if !with_rule {
+                ex.whole_arm = None;
+            }
+            let plan = vec![[0.0, -1.0]; ex.knots];
+            let j = ex.rollout(&make, 1, &[], &plan, [0.0; 2], &seen, down);
+            assert!(j.is_finite());
+            let q = &ex.predicted_q[..n];
+            let mut arm = WholeArm::new(robot, safety.scene.scene().unwrap()).unwrap();
+            assert!(arm.update(q, 0.0));
+            let (d, _) = arm.closest().unwrap();
+            lowest.push((robot.arm().fk(q).unwrap().translation.z, d));
+        }
+        let [(z_rule, d_rule), (z_map, d_map)] = lowest[..] else {
+            unreachable!()
+        };
+        assert!(d_rule >= safety.stop_distance_m - 1e-9, "{lowest:?}");
+        assert!(
+            d_map < safety.stop_distance_m && z_map < z_rule,
+            "{lowest:?}"
+        );
     }
 }
