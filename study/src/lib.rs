@@ -5,7 +5,8 @@
 //! * [`plan`]: the study file and each participant's order (a balanced Latin square);
 //! * [`data`]: `trials.csv` and `questionnaire.csv`, append-only, and where to resume;
 //! * [`report`] and [`figures`]: the merged data's tables, rank tests and figures;
-//! * [`simulate`]: simulated participants running the protocol on the mock arm.
+//! * [`simulate`]: simulated participants running the protocol on the mock arm, with the
+//!   operators of [`operator`].
 //!
 //! The experimenter's screen that runs a study on the live graph is `scl-study`
 //! (`scl study run`).
@@ -14,6 +15,7 @@
 
 pub mod data;
 pub mod figures;
+pub mod operator;
 pub mod plan;
 pub mod report;
 pub mod simulate;

@@ -1309,8 +1309,9 @@ pub fn simulate(
     let report = out.join("report");
     study::report::write(&r, &report)?;
     println!(
-        "{participants} simulated participants, {rows} attempts in {wall:.1} s (seed {seed}); \
-         data in {}/P*, report in {}",
+        "{participants} simulated participants ({} operator), {rows} attempts in {wall:.1} s \
+         (seed {seed}); data in {}/P*, report in {}",
+        s.file.simulation.operator.name(),
         out.display(),
         report.display()
     );

@@ -1,0 +1,729 @@
+//! The expert operator (`operator = "expert"`): what a map allows at best. It plans with the
+//! served map itself as its forward model: from the state it sees, it predicts where stick
+//! sequences of [`ExpertParams::horizon_s`] take the tool (`q += s map(q, c, a) dt` at knots
+//! [`ExpertParams::step_s`] apart, the joints kept within their limits, the gripper closing
+//! where the operator would close it) and scores each prediction by the task's own progress
+//! (a copy of the attempt's [`GoalRun`]: subgoals done along the way, the distance to each
+//! next subgoal). It re-plans every tick by one step of model-predictive path integral
+//! control (MPPI): [`ExpertParams::samples`] sequences drawn around its last plan and as
+//! constant deflections, weighted by their cost. With a map that has modes it plans in each
+//! mode every [`ExpertParams::mode_check_s`] (starting with the presses and the rest a
+//! switch takes) and presses the mode button when another mode's plan gains more than
+//! [`SimParams::mode_switch_margin`] over the current one's.
+//!
+//! The prediction knows one rule of the safety filter, as a person sees the arm stop: a step
+//! that brings a pair of the arm's collision model closer than the safety configuration's
+//! stop distance is not taken. A scripted map that reads the operator's aim
+//! ([`crate::simulate::AttemptSetup::aim_out`]) is given the predicted aim while predicting.
+//!
+//! It has the person's limits of the greedy operator: the plan starts after the reaction
+//! delay (what the hand still has to carry out is part of the prediction), the stick's rate
+//! is bounded, the mode button takes [`SimParams::mode_switch_s`] with the stick let go, the
+//! input is noisy. When it makes no progress for [`ExpertParams::stuck_s`] it backs off:
+//! for [`ExpertParams::back_off_s`] it plans to a point [`ExpertParams::back_off_m`] away in a
+//! random direction (upwards), then goes back to the task.
+//!
+//! Everything it draws comes from the attempt's random stream: the same seed gives the same
+//! attempt.
+
+use ipc_types::{JoystickInput, MAX_JOINTS, buttons};
+use kinematics::RobotProfile;
+use learning::goals::{Aim, GoalRun, Tolerances, tilt};
+use mapper::LoadedModel;
+use mapper::rng::Rng;
+use nalgebra::{Isometry3, Vector3, Vector6};
+use safety::clearance::WholeArm;
+use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex};
+
+use super::{Hand, Operate, Seen};
+use crate::simulate::{ModelFactory, SimError, SimParams};
+
+/// What a subgoal done is worth, in metres of mean distance over the horizon: more than any
+/// distance in the workspace, so finishing a subgoal always beats staying near it.
+const SUBGOAL_M: f64 = 1.0;
+
+/// A mode switch must gain at least this much (m of mean distance over the horizon).
+const SWITCH_MIN_M: f64 = 0.001;
+
+/// Progress smaller than this (m) does not count against being stuck.
+const PROGRESS_M: f64 = 0.005;
+
+/// The expert operator's planner: `[simulation.expert]` of the study file. The same for
+/// every condition.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExpertParams {
+    /// Stick sequences tried per plan (in each mode considered), besides the last plan and
+    /// rest. Default 16.
+    pub samples: usize,
+    /// How far ahead it plans (s). Default 1.5.
+    pub horizon_s: f64,
+    /// The plan's knots: the stick is held this long between them (s). Default 0.1.
+    pub step_s: f64,
+    /// Standard deviation of the sequences drawn around the last plan (fraction of full
+    /// deflection). Default 0.3.
+    pub spread: f64,
+    /// How sharply the plan follows the best sequences: the weights are
+    /// `exp(-(J - J_min) / (temperature (J_mean - J_min)))`. Default 0.02: close to
+    /// following the best sequence, which reached the goals sooner than 0.1 with mode
+    /// switching.
+    pub temperature: f64,
+    /// Maps with modes: how often the other modes are planned in too (s). Default 0.25.
+    pub mode_check_s: f64,
+    /// No progress (5 mm closer, or a subgoal done) for this long: back off (s). Default 3.
+    pub stuck_s: f64,
+    /// How long it backs off (s). Default 1.
+    pub back_off_s: f64,
+    /// How far it backs off (m). Default 0.08.
+    pub back_off_m: f64,
+}
+
+impl Default for ExpertParams {
+    fn default() -> Self {
+        Self {
+            samples: 16,
+            horizon_s: 1.5,
+            step_s: 0.1,
+            spread: 0.3,
+            temperature: 0.02,
+            mode_check_s: 0.25,
+            stuck_s: 3.0,
+            back_off_s: 1.0,
+            back_off_m: 0.08,
+        }
+    }
+}
+
+impl ExpertParams {
+    /// Checks the values; the error names the key (within `[simulation.expert]`).
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let bad = |k: &str, r: &str| Err((k.to_owned(), r.to_owned()));
+        if self.samples == 0 || self.samples > 1000 {
+            return bad("samples", "must be 1 to 1000");
+        }
+        for (k, v) in [
+            ("step_s", self.step_s),
+            ("temperature", self.temperature),
+            ("mode_check_s", self.mode_check_s),
+            ("stuck_s", self.stuck_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(k, "must be positive");
+            }
+        }
+        for (k, v) in [
+            ("spread", self.spread),
+            ("back_off_s", self.back_off_s),
+            ("back_off_m", self.back_off_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(k, "must be 0 or more");
+            }
+        }
+        if !(self.horizon_s.is_finite() && self.horizon_s >= self.step_s && self.horizon_s <= 10.0)
+        {
+            return bad("horizon_s", "must be one step_s to 10 s");
+        }
+        if self.horizon_s / self.step_s > 200.0 {
+            return bad("horizon_s", "must be at most 200 steps of step_s");
+        }
+        Ok(())
+    }
+}
+
+/// What a prediction is scored against.
+#[derive(Debug, Clone, Copy)]
+enum Target {
+    /// The task's subgoals.
+    Task,
+    /// A point to back off to.
+    Point(Vector3<f64>),
+}
+
+/// The expert operator of one attempt.
+pub(crate) struct Expert {
+    params: SimParams,
+    ex: ExpertParams,
+    robot: &'static RobotProfile,
+    tol: Tolerances,
+    dt: f64,
+    hand: Hand,
+    /// The map's copies, one per mode, for a map without memory; empty for a map with
+    /// memory (its twist ramps): each prediction then starts from a fresh copy, at rest.
+    copies: Vec<LoadedModel>,
+    modes: usize,
+    speed_scale: f64,
+    /// Knots per plan.
+    knots: usize,
+    /// Ticks per knot.
+    ticks_per_knot: f64,
+    /// The plan in each mode (the stick at each knot after the lead).
+    plans: Vec<Vec<[f64; 2]>>,
+    presses_left: u32,
+    rest_ticks: u32,
+    button_down: bool,
+    presses: u32,
+    /// The mode being switched to (its plan waits).
+    switching_to: Option<usize>,
+    ticks: u64,
+    best_progress: f64,
+    stale_ticks: u32,
+    back_off: Option<(Vector3<f64>, u32)>,
+    seqs: Vec<Vec<[f64; 2]>>,
+    costs: Vec<f64>,
+    out: [f64; MAX_JOINTS],
+    /// A scripted map's aim ([`crate::simulate::AttemptSetup::aim_out`]).
+    aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    /// The arm's collision model in the safety configuration's scene, and its stop
+    /// distance: a predicted step that brings a pair closer than that is not taken (the
+    /// safety filter stops it).
+    whole_arm: Option<(WholeArm, f64)>,
+    /// The closest pair's distance now (m).
+    clearance_now: f64,
+    /// The joint angles at the end of the last prediction.
+    predicted_q: [f64; MAX_JOINTS],
+}
+
+impl Expert {
+    pub(crate) fn new(
+        params: &SimParams,
+        robot: &'static RobotProfile,
+        safety: &safety::SafetyConfig,
+        tol: Tolerances,
+        dt: f64,
+        make: &ModelFactory<'_>,
+        aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    ) -> Result<Self, SimError> {
+        let ex = params.expert.clone();
+        let first = make()?;
+        let speed_scale = first.header.speed_scale_rad_s;
+        let (copies, modes) = if first.map.mode().is_none() {
+            let mut first = first;
+            first.map.set_period(ex.step_s);
+            (vec![first], 1)
+        } else {
+            let mut modes = 1;
+            for k in 1..8u32 {
+                let mut m = make()?;
+                for _ in 0..k {
+                    m.map.press(buttons::MODE);
+                }
+                if m.map.mode().is_some_and(|x| x.index == 0) {
+                    break;
+                }
+                modes += 1;
+            }
+            (Vec::new(), modes)
+        };
+        let knots = ((ex.horizon_s / ex.step_s).round() as usize).max(1);
+        Ok(Self {
+            hand: Hand::new(params, dt),
+            params: params.clone(),
+            robot,
+            tol,
+            dt,
+            copies,
+            modes,
+            speed_scale,
+            knots,
+            ticks_per_knot: (ex.step_s / dt).max(1e-9),
+            plans: vec![vec![[0.0; 2]; knots]; modes],
+            presses_left: 0,
+            rest_ticks: 0,
+            button_down: false,
+            presses: 0,
+            switching_to: None,
+            ticks: 0,
+            best_progress: f64::NEG_INFINITY,
+            stale_ticks: 0,
+            back_off: None,
+            seqs: Vec::new(),
+            costs: Vec::new(),
+            out: [0.0; MAX_JOINTS],
+            aim_out,
+            whole_arm: safety
+                .scene
+                .scene()
+                .ok()
+                .and_then(|scene| WholeArm::new(robot, scene))
+                .map(|a| (a, safety.stop_distance_m)),
+            clearance_now: f64::INFINITY,
+            predicted_q: [0.0; MAX_JOINTS],
+            ex,
+        })
+    }
+
+    fn error(&self, aim: &Aim, p: &Vector3<f64>, t: f64) -> f64 {
+        aim_error(aim, p, t, self.params.tilt_weight_m_per_rad)
+    }
+
+    /// The knots before the plan starts in mode `m` (`cur` the mode now): what the hand still
+    /// carries out; after a switch, the presses and the rest with the stick let go, then the
+    /// reaction delay.
+    fn lead(&self, m: usize, cur: usize) -> Vec<[f64; 2]> {
+        let tpk = self.ticks_per_knot;
+        if m == cur {
+            let pending: Vec<[f64; 2]> = self.hand.pending().copied().collect();
+            let n = (pending.len() as f64 / tpk).ceil() as usize;
+            (0..n)
+                .map(|k| {
+                    let lo = (k as f64 * tpk).round() as usize;
+                    let hi = (((k + 1) as f64) * tpk).round() as usize;
+                    let part = &pending[lo.min(pending.len())..hi.min(pending.len())];
+                    if part.is_empty() {
+                        return [0.0; 2];
+                    }
+                    let s = part
+                        .iter()
+                        .fold([0.0; 2], |a, x| [a[0] + x[0], a[1] + x[1]]);
+                    [s[0] / part.len() as f64, s[1] / part.len() as f64]
+                })
+                .collect()
+        } else {
+            let presses = (m + self.modes - cur) % self.modes;
+            let ticks = 2 * presses
+                + (self.params.mode_switch_s / self.dt).round() as usize
+                + self.hand.pending().len();
+            vec![[0.0; 2]; (ticks as f64 / tpk).ceil() as usize]
+        }
+    }
+
+    /// The cost of the stick sequence `lead` then `plan` in mode `m` from what is seen now,
+    /// the stick at `stick` (lower is better; infinite if the map could not be evaluated).
+    #[allow(clippy::too_many_arguments)]
+    fn rollout(
+        &mut self,
+        make: &ModelFactory<'_>,
+        m: usize,
+        lead: &[[f64; 2]],
+        plan: &[[f64; 2]],
+        stick: [f64; 2],
+        seen: &Seen<'_>,
+        target: Target,
+    ) -> f64 {
+        let mut fresh = None;
+        if self.copies.is_empty() {
+            let Ok(mut copy) = make() else {
+                return f64::INFINITY;
+            };
+            for _ in 0..m {
+                copy.map.press(buttons::MODE);
+            }
+            copy.map.set_period(self.ex.step_s);
+            fresh = Some(copy);
+        }
+        let model = match fresh.as_mut() {
+            Some(c) => c,
+            None => match self.copies.get_mut(m) {
+                Some(c) => c,
+                None => return f64::INFINITY,
+            },
+        };
+        let chain = self.robot.arm();
+        let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
+        let h = self.knots;
+        let step = self.ex.step_s;
+        let rate = self.params.stick_rate_per_s * step;
+        let tilt_weight = self.params.tilt_weight_m_per_rad;
+        let mut q = [0.0; MAX_JOINTS];
+        q[..n].copy_from_slice(&seen.state.q()[..n]);
+        let mut c = seen.state.gripper;
+        let mut clearance = self.clearance_now;
+        let mut tool: Isometry3<f64> = *seen.tool;
+        let mut p = tool.translation.vector;
+        let mut run: Option<GoalRun> = matches!(target, Target::Task).then(|| seen.run.clone());
+        let mut aim = seen.aim;
+        let mut a = stick;
+        let (mut cost, mut bonus) = (0.0, 0.0);
+        for i in 0..h {
+            let u = lead
+                .get(i)
+                .or_else(|| plan.get(i - lead.len().min(i)))
+                .copied()
+                .unwrap_or([0.0; 2]);
+            let d = [u[0] - a[0], u[1] - a[1]];
+            let dn = d[0].hypot(d[1]);
+            let k = if dn > rate { rate / dn } else { 1.0 };
+            a = [a[0] + d[0] * k, a[1] + d[1] * k];
+            if let Some(g) = aim
+                && let Some(close) = g.grip
+                && (g.position - p).norm() <= self.tol.position_m
+            {
+                c = (c + if close { step } else { -step }).clamp(0.0, 1.0);
+            }
+            if let Some(cell) = &self.aim_out {
+                let g = match target {
+                    Target::Task => aim,
+                    Target::Point(w) => Some(Aim {
+                        position: w,
+                        tilt: None,
+                        grip: None,
+                        down: false,
+                    }),
+                };
+                if let (Some(g), Ok(mut e)) = (g, cell.lock()) {
+                    *e = g.error(&tool);
+                }
+            }
+            model.map.eval(&q[..n], c, &a, &mut self.out[..n]);
+            let before = q;
+            for (qj, v) in q[..n].iter_mut().zip(&self.out[..n]) {
+                if v.is_finite() {
+                    *qj += v * self.speed_scale * step;
+                }
+            }
+            chain.clamp_to_limits(&mut q[..n]);
+            // The whole-arm stop: a step that brings a pair of the collision model closer
+            // than the stop distance is not taken.
+            if let Some((arm, stop)) = self.whole_arm.as_mut()
+                && arm.update(&q[..n], c)
+                && let Some((d, _)) = arm.closest()
+            {
+                if d < *stop && d < clearance {
+                    q = before;
+                } else {
+                    clearance = d;
+                }
+            }
+            let Ok(next) = chain.fk(&q[..n]) else {
+                return f64::INFINITY;
+            };
+            tool = next;
+            p = tool.translation.vector;
+            let e = match (&mut run, target) {
+                (Some(run), _) => {
+                    let before = run.subgoals_done();
+                    run.update(&tool, c, step);
+                    aim = run.aim(&tool, q[n.saturating_sub(1)]);
+                    let done = run.subgoals_done() - before;
+                    bonus += done as f64 * SUBGOAL_M * (2.0 - i as f64 / h as f64);
+                    aim.map_or(0.0, |g| {
+                        aim_error(&g, &p, tilt(&tool.rotation), tilt_weight)
+                    })
+                }
+                (None, Target::Point(w)) => (w - p).norm(),
+                (None, Target::Task) => 0.0,
+            };
+            cost += e;
+        }
+        self.predicted_q = q;
+        cost / h as f64 - bonus
+    }
+
+    /// One MPPI step of the plan in mode `m`: the best cost among the sequences tried and the
+    /// cost of rest.
+    fn optimise(
+        &mut self,
+        make: &ModelFactory<'_>,
+        m: usize,
+        cur: usize,
+        seen: &Seen<'_>,
+        target: Target,
+        rng: &mut Rng,
+    ) -> (f64, f64) {
+        let lead = self.lead(m, cur);
+        let free = self.knots.saturating_sub(lead.len());
+        let stick = if m == cur { self.hand.stick } else { [0.0; 2] };
+        let plan = self.plans.get(m).cloned().unwrap_or_default();
+        let s = self.ex.spread;
+        self.seqs.clear();
+        self.seqs.push(plan[..free.min(plan.len())].to_vec());
+        self.seqs.push(vec![[0.0; 2]; free]);
+        for k in 0..self.ex.samples {
+            let seq: Vec<[f64; 2]> = if k % 2 == 0 {
+                let off = [s * rng.normal(), s * rng.normal()];
+                (0..free)
+                    .map(|i| {
+                        let base = plan.get(i).copied().unwrap_or([0.0; 2]);
+                        disc([
+                            base[0] + off[0] + 0.5 * s * rng.normal(),
+                            base[1] + off[1] + 0.5 * s * rng.normal(),
+                        ])
+                    })
+                    .collect()
+            } else {
+                let r = rng.uniform().sqrt();
+                let th = rng.range(0.0, std::f64::consts::TAU);
+                vec![[r * th.cos(), r * th.sin()]; free]
+            };
+            self.seqs.push(seq);
+        }
+        let seqs = std::mem::take(&mut self.seqs);
+        self.costs.clear();
+        for seq in &seqs {
+            let j = self.rollout(make, m, &lead, seq, stick, seen, target);
+            self.costs.push(j);
+        }
+        let rest = self.costs.get(1).copied().unwrap_or(f64::INFINITY);
+        let finite = self.costs.iter().copied().filter(|j| j.is_finite());
+        let (min, sum, count) = finite.fold((f64::INFINITY, 0.0, 0usize), |(lo, s, n), j| {
+            (lo.min(j), s + j, n + 1)
+        });
+        if count > 0 && free > 0 {
+            let mean = sum / count as f64;
+            let lambda = (self.ex.temperature * (mean - min)).max(1e-12);
+            let mut acc = vec![[0.0; 2]; free];
+            let mut total = 0.0;
+            for (seq, j) in seqs.iter().zip(&self.costs) {
+                if !j.is_finite() {
+                    continue;
+                }
+                let w = (-(j - min) / lambda).exp();
+                total += w;
+                for (a, u) in acc.iter_mut().zip(seq) {
+                    a[0] += w * u[0];
+                    a[1] += w * u[1];
+                }
+            }
+            if total > 0.0
+                && let Some(plan) = self.plans.get_mut(m)
+            {
+                for (pk, a) in plan.iter_mut().zip(&acc) {
+                    *pk = disc([a[0] / total, a[1] / total]);
+                }
+            }
+        }
+        self.seqs = seqs;
+        (min, rest)
+    }
+
+    /// Moves every plan (but the one of a mode being switched to) one tick on.
+    fn shift_plans(&mut self) {
+        let f = (1.0 / self.ticks_per_knot).min(1.0);
+        for (m, plan) in self.plans.iter_mut().enumerate() {
+            if self.switching_to == Some(m) {
+                continue;
+            }
+            let n = plan.len();
+            for i in 0..n {
+                let next = plan.get(i + 1).copied().unwrap_or(plan[i]);
+                plan[i] = [
+                    plan[i][0] * (1.0 - f) + next[0] * f,
+                    plan[i][1] * (1.0 - f) + next[1] * f,
+                ];
+            }
+        }
+    }
+
+    /// Tracks progress; backs off when there has been none for a while. The target to plan
+    /// for.
+    fn progress(&mut self, seen: &Seen<'_>, aim: &Aim, rng: &mut Rng) -> Target {
+        let p = seen.tool.translation.vector;
+        let now = seen.run.subgoals_done() as f64 * SUBGOAL_M
+            - self.error(aim, &p, tilt(&seen.tool.rotation));
+        if let Some((w, left)) = self.back_off {
+            if left > 1 {
+                self.back_off = Some((w, left - 1));
+                return Target::Point(w);
+            }
+            self.back_off = None;
+            self.best_progress = now;
+            self.stale_ticks = 0;
+        }
+        if now > self.best_progress + PROGRESS_M {
+            self.best_progress = now;
+            self.stale_ticks = 0;
+        } else {
+            self.stale_ticks += 1;
+        }
+        let back_off_ticks = (self.ex.back_off_s / self.dt).round() as u32;
+        if f64::from(self.stale_ticks) * self.dt >= self.ex.stuck_s && back_off_ticks > 0 {
+            let d = Vector3::new(rng.normal(), rng.normal(), rng.normal().abs());
+            let d = if d.norm() > 1e-9 {
+                d / d.norm()
+            } else {
+                Vector3::z()
+            };
+            let w = p + d * self.ex.back_off_m;
+            tracing::trace!(at = ?p.as_slice(), to = ?w.as_slice(), "the expert operator backs off");
+            self.back_off = Some((w, back_off_ticks));
+            self.stale_ticks = 0;
+            return Target::Point(w);
+        }
+        Target::Task
+    }
+}
+
+/// The distance to `aim` at `p` with the tilt `t` (a tilt error weighs `tilt_weight` m per
+/// rad).
+fn aim_error(aim: &Aim, p: &Vector3<f64>, t: f64, tilt_weight: f64) -> f64 {
+    let e = (aim.position - p).norm();
+    match aim.tilt {
+        Some(goal) => e + tilt_weight * (goal - t).abs(),
+        None => e,
+    }
+}
+
+/// `u` brought into the stick's disc.
+fn disc(u: [f64; 2]) -> [f64; 2] {
+    let n = u[0].hypot(u[1]);
+    if n > 1.0 { [u[0] / n, u[1] / n] } else { u }
+}
+
+impl Operate for Expert {
+    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
+        let mut buttons_now = buttons::DEADMAN;
+        let mut gripper = 0.0f32;
+        let mut choice = [0.0; 2];
+        let found = self
+            .aim_out
+            .as_ref()
+            .and_then(|c| c.lock().ok().map(|e| *e));
+        self.shift_plans();
+        if self.button_down {
+            self.button_down = false;
+        } else if self.presses_left > 0 {
+            self.presses_left -= 1;
+            self.presses += 1;
+            self.button_down = true;
+            buttons_now |= buttons::MODE;
+        } else if self.rest_ticks > 0 {
+            self.rest_ticks -= 1;
+        } else if let Some(aim) = seen.aim {
+            self.switching_to = None;
+            let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
+            self.clearance_now = f64::INFINITY;
+            if let Some((arm, _)) = self.whole_arm.as_mut()
+                && arm.update(&seen.state.q()[..n], seen.state.gripper)
+                && let Some((d, _)) = arm.closest()
+            {
+                self.clearance_now = d;
+            }
+            let p = seen.tool.translation.vector;
+            let target = self.progress(seen, &aim, rng);
+            let cur = seen.mode.unwrap_or(0).min(self.modes - 1);
+            let (best, rest) = self.optimise(make, cur, cur, seen, target, rng);
+            choice = self
+                .plans
+                .get(cur)
+                .and_then(|p| p.first())
+                .copied()
+                .unwrap_or([0.0; 2]);
+            let check = ((self.ex.mode_check_s / self.dt).round() as u64).max(1);
+            // Unlike the greedy operator it also weighs a switch within the position
+            // tolerance: table cleaning's pushes start from a point 1.5 cm behind the object.
+            if self.modes > 1 && self.ticks.is_multiple_of(check) {
+                let gain = rest - best;
+                let mut other: Option<(usize, f64)> = None;
+                for m in (0..self.modes).filter(|&m| m != cur) {
+                    let (bm, _) = self.optimise(make, m, cur, seen, target, rng);
+                    if other.is_none_or(|(_, g)| rest - bm > g) {
+                        other = Some((m, rest - bm));
+                    }
+                }
+                if let Some((m, g)) = other
+                    && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + SWITCH_MIN_M
+                {
+                    self.presses_left = ((m + self.modes - cur) % self.modes) as u32;
+                    self.rest_ticks = (self.params.mode_switch_s / self.dt).round() as u32;
+                    self.switching_to = Some(m);
+                    self.hand.let_go();
+                    choice = [0.0; 2];
+                }
+            }
+            if let Some(close) = aim.grip
+                && (aim.position - p).norm() <= self.tol.position_m
+            {
+                gripper = if close { 1.0 } else { -1.0 };
+            }
+        }
+        if let (Some(cell), Some(found)) = (&self.aim_out, found)
+            && let Ok(mut e) = cell.lock()
+        {
+            *e = found;
+        }
+        self.ticks += 1;
+        let resting = self.presses_left > 0 || self.button_down || self.rest_ticks > 0;
+        self.hand.sample(
+            &self.params,
+            self.dt,
+            choice,
+            resting,
+            seen.state,
+            seen.t_ns,
+            gripper,
+            buttons_now,
+            rng,
+        )
+    }
+
+    fn presses(&self) -> u32 {
+        self.presses
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ipc_types::RobotState;
+    use kinematics::Jacobian;
+    use learning::goals::TaskGoals;
+    use learning::tasks::Task;
+
+    /// The prediction stops the arm where the safety filter's whole-arm rule stops it: mode
+    /// switching's z axis (z-yaw's second) held down from 7.5 cm over the table (table cleaning's start)
+    /// keeps every pair of the collision model at the stop distance or more, where the map
+    /// alone would take the gripper into the table.
+    #[test]
+    fn the_prediction_stops_at_the_whole_arm_stop_distance() {
+        let robot = RobotProfile::default_robot();
+        let safety = safety::SafetyConfig::for_robot(robot);
+        let make = || {
+            LoadedModel::load_for("modeswitch", robot)
+                .map(|m| m.at_period(0.025))
+                .map_err(|e| SimError::Setup(e.to_string()))
+        };
+        let goals = TaskGoals::of(Task::TableCleaning, Tolerances::default()).unwrap();
+        let run = GoalRun::new(&goals);
+        let n = robot.n_joints();
+        let q0 = [-0.124, -0.703, 1.511, 1.571, 0.928, -0.124];
+        let mut state = RobotState::at_rest(0, 25_000_000, n as u32);
+        state.q_rad[..n].copy_from_slice(&q0);
+        let mut jac = Jacobian::zeros(n);
+        let tool = robot.arm().fk_jacobian(&q0, &mut jac).unwrap();
+        let seen = Seen {
+            state: &state,
+            tool: &tool,
+            jac: &jac,
+            aim: None,
+            run: &run,
+            mode: Some(1),
+            t_ns: 0,
+        };
+        let down = Target::Point(tool.translation.vector - Vector3::z());
+        let mut lowest = Vec::new();
+        for with_rule in [true, false] {
+            let mut ex = Expert::new(
+                &SimParams::default(),
+                robot,
+                &safety,
+                Tolerances::default(),
+                0.025,
+                &make,
+                None,
+            )
+            .unwrap();
+            assert_eq!(ex.modes, 3);
+            if !with_rule {
+                ex.whole_arm = None;
+            }
+            let plan = vec![[0.0, -1.0]; ex.knots];
+            let j = ex.rollout(&make, 1, &[], &plan, [0.0; 2], &seen, down);
+            assert!(j.is_finite());
+            let q = &ex.predicted_q[..n];
+            let mut arm = WholeArm::new(robot, safety.scene.scene().unwrap()).unwrap();
+            assert!(arm.update(q, 0.0));
+            let (d, _) = arm.closest().unwrap();
+            lowest.push((robot.arm().fk(q).unwrap().translation.z, d));
+        }
+        let [(z_rule, d_rule), (z_map, d_map)] = lowest[..] else {
+            unreachable!()
+        };
+        assert!(d_rule >= safety.stop_distance_m - 1e-9, "{lowest:?}");
+        assert!(
+            d_map < safety.stop_distance_m && z_map < z_rule,
+            "{lowest:?}"
+        );
+    }
+}

@@ -1,0 +1,204 @@
+//! The simulated participants' operators, one interface ([`Operate`]) chosen in the study
+//! file's `[simulation] operator` ([`OperatorKind`]), the same for every condition:
+//!
+//! * [`OperatorKind::Greedy`] ([`greedy`]): each tick the stick input whose tool pose one tick
+//!   ahead through the served map is closest to the subgoal; the lower bound.
+//! * [`OperatorKind::Expert`] ([`expert`]): plans stick sequences of about 1.5 s with the served
+//!   map itself as its forward model, mode presses included, re-planned each tick: what the
+//!   map allows at best ("can this map do the task at all?").
+//!
+//! Every operator sees what a person sees ([`Seen`]: the tool's pose, the gripper, the map's
+//! mode, the task's scene and next subgoal) and acts through the same hand (`Hand`: a
+//! reaction delay, a bounded stick rate, input noise). An operator that learns the map from
+//! practice joins as another [`OperatorKind`] and another implementation of [`Operate`].
+
+pub mod expert;
+pub mod greedy;
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+use ipc_types::{JoystickInput, RobotState};
+use kinematics::{Jacobian, RobotProfile};
+use learning::goals::{Aim, GoalRun, Tolerances};
+use mapper::rng::Rng;
+use nalgebra::{Isometry3, Vector6};
+use serde::{Deserialize, Serialize};
+
+use crate::simulate::{ModelFactory, SimError, SimParams};
+
+/// Which simulated operator runs the attempts (`[simulation] operator`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OperatorKind {
+    /// One tick ahead through the served map, the best of a few sampled inputs (the default,
+    /// the lower bound).
+    #[default]
+    Greedy,
+    /// Plans with the served map as its forward model (sampling-based model-predictive
+    /// control over stick sequences and mode presses): what the map allows at best.
+    Expert,
+}
+
+impl OperatorKind {
+    /// Every kind, as the study file spells it.
+    pub const NAMES: [&'static str; 2] = ["greedy", "expert"];
+
+    /// Its name in the study file.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Greedy => "greedy",
+            Self::Expert => "expert",
+        }
+    }
+
+    /// The kind the study file names `name`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Greedy, Self::Expert]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
+}
+
+impl<'de> Deserialize<'de> for OperatorKind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Self::from_name(&name).ok_or_else(|| {
+            serde::de::Error::custom(format!(
+                "`simulation.operator`: no operator `{name}`; the operators: {}",
+                Self::NAMES.join(", ")
+            ))
+        })
+    }
+}
+
+/// What the operator sees at one tick: what the experimenter's screen and the scene show a
+/// person, never the map's internals.
+#[derive(Debug, Clone, Copy)]
+pub struct Seen<'a> {
+    /// The robot state (joint angles, the gripper).
+    pub state: &'a RobotState,
+    /// The tool's pose.
+    pub tool: &'a Isometry3<f64>,
+    /// The arm's Jacobian at the state (the greedy operator's one-tick prediction).
+    pub jac: &'a Jacobian,
+    /// What the next subgoal asks for (`None` once every subgoal is done).
+    pub aim: Option<Aim>,
+    /// The task's progress and scene (the objects on the table, the subgoals to come).
+    pub run: &'a GoalRun,
+    /// The map's mode as the screen shows it (0 the first), for maps that have modes.
+    pub mode: Option<usize>,
+    /// The sample's time (ns).
+    pub t_ns: u64,
+}
+
+/// A simulated operator: answers each robot state with a joystick sample.
+pub trait Operate: Send {
+    /// This tick's joystick sample. `make` gives fresh instances of the served model (the
+    /// operators that predict with it), `rng` is the attempt's random stream.
+    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput;
+    /// Mode presses so far.
+    fn presses(&self) -> u32;
+}
+
+/// The operator of one attempt of kind `params.operator` on `robot` (`safety`: the graph's
+/// safety configuration, whose whole-arm stop the expert foresees). `aim_out` is the attempt's
+/// [`AttemptSetup::aim_out`](crate::simulate::AttemptSetup::aim_out): a scripted map that
+/// moves straight to the operator's aim reads it, so the expert writes its predicted aims
+/// there while it predicts (and puts back what it found).
+pub fn operator(
+    params: &SimParams,
+    robot: &'static RobotProfile,
+    safety: &safety::SafetyConfig,
+    tol: Tolerances,
+    dt: f64,
+    make: &ModelFactory<'_>,
+    aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+) -> Result<Box<dyn Operate>, SimError> {
+    Ok(match params.operator {
+        OperatorKind::Greedy => Box::new(greedy::Greedy::new(
+            params,
+            tol,
+            dt,
+            greedy::Probes::new(make)?,
+        )),
+        OperatorKind::Expert => Box::new(expert::Expert::new(
+            params, robot, safety, tol, dt, make, aim_out,
+        )?),
+    })
+}
+
+/// The hand between what the operator chose and the stick: a reaction delay (the stick
+/// carries out what was chosen that long ago), a bounded rate of change of the stick,
+/// Gaussian noise on each axis.
+pub(crate) struct Hand {
+    delay: VecDeque<[f64; 2]>,
+    /// The stick's position (before the noise).
+    pub(crate) stick: [f64; 2],
+    seq: u64,
+}
+
+impl Hand {
+    pub(crate) fn new(params: &SimParams, dt: f64) -> Self {
+        let delay_ticks = (params.reaction_delay_s / dt).round() as usize;
+        Self {
+            delay: std::iter::repeat_n([0.0; 2], delay_ticks).collect(),
+            stick: [0.0; 2],
+            seq: 0,
+        }
+    }
+
+    /// What was chosen and is still to be carried out, oldest first.
+    pub(crate) fn pending(&self) -> impl ExactSizeIterator<Item = &[f64; 2]> {
+        self.delay.iter()
+    }
+
+    /// Lets go of the stick (a mode press): nothing chosen is carried out.
+    pub(crate) fn let_go(&mut self) {
+        self.delay.iter_mut().for_each(|d| *d = [0.0; 2]);
+        self.stick = [0.0; 2];
+    }
+
+    /// The sample that carries out `choice` (after the delay); `resting`: the stick is let
+    /// go (around a mode press).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn sample(
+        &mut self,
+        params: &SimParams,
+        dt: f64,
+        choice: [f64; 2],
+        resting: bool,
+        state: &RobotState,
+        t_ns: u64,
+        gripper: f32,
+        buttons: u32,
+        rng: &mut Rng,
+    ) -> JoystickInput {
+        self.delay.push_back(choice);
+        let intended = self.delay.pop_front().unwrap_or([0.0; 2]);
+        let intended = if resting { [0.0; 2] } else { intended };
+        let step = params.stick_rate_per_s * dt;
+        let d = [intended[0] - self.stick[0], intended[1] - self.stick[1]];
+        let dn = d[0].hypot(d[1]);
+        let k = if dn > step { step / dn } else { 1.0 };
+        self.stick = [self.stick[0] + d[0] * k, self.stick[1] + d[1] * k];
+        let mut a = self.stick;
+        if !resting && params.input_noise > 0.0 {
+            a[0] += params.input_noise * rng.normal();
+            a[1] += params.input_noise * rng.normal();
+        }
+        let an = a[0].hypot(a[1]);
+        if an > 1.0 {
+            a = [a[0] / an, a[1] / an];
+        }
+        self.seq += 1;
+        JoystickInput {
+            tick: state.tick,
+            t_ns,
+            seq: self.seq,
+            axes: [a[0] as f32, a[1] as f32],
+            gripper,
+            buttons,
+        }
+    }
+}
