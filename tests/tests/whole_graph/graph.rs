@@ -327,15 +327,19 @@ fn a_command_late_for_want_of_cpu_is_counted_as_held_up() {
 /// have commanded a stop within two ticks of the kill (for the bridge itself: the mock arm
 /// dies with it and no tick follows).
 fn kill_child_and_check(role: NodeRole) {
+    kill_child_and_check_with(role, &[]);
+}
+
+/// [`kill_child_and_check`] with more arguments for `scl up` (another robot's config).
+fn kill_child_and_check_with(role: NodeRole, up_args: &[&str]) {
     let _serial = serial();
     let prefix = unique_prefix(role.name());
     let _domain = DomainGuard(prefix.clone());
     let mut rec = Recorder::join(&prefix);
+    let mut args = vec!["--for", "60s"];
+    args.extend_from_slice(up_args);
     let mut guard = ChildGuard(Some(
-        up(&prefix, &["--for", "60s"])
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+        up(&prefix, &args).stderr(Stdio::piped()).spawn().unwrap(),
     ));
     assert!(
         rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 40),
@@ -415,6 +419,21 @@ fn killing_the_joystick_stops_the_arm_and_fails_up() {
 #[test]
 fn killing_the_bridge_fails_up() {
     kill_child_and_check(NodeRole::Bridge);
+}
+
+/// The kill drill on the Gen3's mock arm (seven joints, mode switching: no Gen3 model is
+/// bundled yet): a killed mapper stops the arm within two ticks and fails `scl up`.
+#[test]
+fn killing_the_mapper_of_a_gen3_graph_stops_the_arm_and_fails_up() {
+    let dir = scl_tests::temp_dir("gen3-kill");
+    let cfg = dir.join("graph.toml");
+    std::fs::write(&cfg, "[graph]\nrobot = \"gen3\"\n").unwrap();
+    let cfg = cfg.display().to_string();
+    kill_child_and_check_with(
+        NodeRole::Mapper,
+        &["--config", &cfg, "--model", "modeswitch"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -279,6 +279,115 @@ fn twenty_live_swaps_miss_no_tick() {
     );
 }
 
+/// The Gen3 (seven joints) under the same supervision: its mock arm at 40 Hz with mode
+/// switching (no Gen3 model is bundled yet), four live swaps to the go-to map and back, no
+/// miss the machine did not take, seven joints in every state and command, the Gen3's
+/// acceleration limit per tick on each, and the bridge first at the stop.
+#[test]
+fn a_gen3_graph_swaps_maps_live_and_stops_in_order() {
+    let _serial = serial();
+    let prefix = unique_prefix("gen3swap");
+    let _domain = DomainGuard(prefix.clone());
+    let dir = temp_dir("gen3swap");
+    let cfg = dir.join("graph.toml");
+    std::fs::write(&cfg, "[graph]\nrobot = \"gen3\"\n").unwrap();
+    let accel = kinematics::RobotProfile::by_name("gen3")
+        .unwrap()
+        .limits()
+        .max_acceleration_rad_s2
+        .clone();
+    assert_eq!(accel.len(), 7);
+
+    let mut rec = Recorder::join(&prefix);
+    let mut up = scl(&prefix);
+    up.arg("up").arg("--config").arg(&cfg).args([
+        "--for",
+        "120s",
+        "--json",
+        "--model",
+        "modeswitch",
+    ]);
+    let log = dir.join("up.log");
+    up.stderr(std::fs::File::create(&log).unwrap());
+    let guard = ChildGuard(Some(up.stdout(Stdio::piped()).spawn().unwrap()));
+    assert!(rec.poll_until(Duration::from_secs(30), |r| r.robot_states.len() > 40));
+
+    let mut expected_old = 1;
+    let mut missed_in_swaps = 0;
+    let mut switches: Vec<(u64, u32)> = Vec::new();
+    for i in 0..4 {
+        let model = if i % 2 == 0 {
+            "goto:pose=retract"
+        } else {
+            "modeswitch"
+        };
+        let mut c = scl(&prefix);
+        c.args(["swap", model]);
+        let out = run_polling(c, &mut rec);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "swap {i} to {model}: {text} {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let (old, new, tick, _, missed) = parse_swap(&text);
+        assert_eq!(old, expected_old);
+        expected_old = new;
+        missed_in_swaps += missed;
+        switches.push((tick, new));
+        // Some ticks of each map.
+        let until = tick + 20;
+        assert!(rec.poll_until(Duration::from_secs(10), |r| {
+            r.robot_states.last().is_some_and(|s| s.tick > until)
+        }));
+    }
+    let summary = stop_up(guard, &mut rec);
+    let missed = summary["missed"].as_u64().unwrap();
+    assert!(missed_in_swaps <= missed, "{summary}");
+    scl_tests::assert_misses_only_held_up(
+        &summary,
+        &std::fs::read_to_string(&log).unwrap(),
+        "Gen3 swaps",
+    );
+    assert_eq!(summary["swaps"], 4);
+    assert!(
+        summary["joint_travel_rad"].as_f64().unwrap() > 0.0,
+        "{summary}"
+    );
+
+    assert!(rec.robot_states.iter().all(|s| s.n_joints == 7));
+    let active_at = |tick: u64| {
+        switches
+            .iter()
+            .rev()
+            .find(|(t, _)| *t <= tick)
+            .map_or(1, |(_, id)| *id)
+    };
+    for c in &rec.safe_commands {
+        assert_eq!(c.n_joints, 7, "tick {}", c.tick);
+        assert_eq!(c.mapper_id, active_at(c.tick), "tick {}", c.tick);
+    }
+    for w in rec.safe_commands.windows(2) {
+        if w[1].tick != w[0].tick + 1 {
+            continue;
+        }
+        for j in 0..7 {
+            let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
+            assert!(
+                dv <= accel[j] * DT * (1.0 + 1e-9),
+                "tick {} joint {j}: {dv}",
+                w[1].tick
+            );
+        }
+    }
+    drop(rec);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
+
 /// The robot states published after `t_ns`.
 fn states_after(rec: &Recorder, t_ns: u64) -> Vec<RobotState> {
     rec.robot_states
