@@ -7,7 +7,8 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use ipc_types::{
-    NO_TICK, NodeRole, Prefix, RobotState, phase, safe_flags, state_flags, time::now_ns,
+    NO_TICK, NodeRole, Prefix, RobotState, SafeCommand, phase, safe_flags, state_flags,
+    time::now_ns,
 };
 use kinematics::gen3_lite::DEFAULT_ACCELERATION_RAD_S2;
 use scl_tests::{
@@ -34,6 +35,49 @@ fn parse_swap(stdout: &str) -> (u32, u32, u64, f64, u64) {
         num(w[8]).parse().unwrap(),
         num(w[13]).parse().unwrap(),
     )
+}
+
+/// `scl swap MODEL` on the running graph, which must succeed; its parsed answer
+/// ([`parse_swap`]).
+fn swap(prefix: &Prefix, rec: &mut Recorder, model: &str) -> (u32, u32, u64, f64, u64) {
+    let mut c = scl(prefix);
+    c.args(["swap", model]);
+    let out = run_polling(c, rec);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "swap to {model}: {text} {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    parse_swap(&text)
+}
+
+/// The mapper active at `tick`, from the swaps' `(switch tick, new mapper)` in order (mapper 1
+/// before the first).
+fn active_at(switches: &[(u64, u32)], tick: u64) -> u32 {
+    switches
+        .iter()
+        .rev()
+        .find(|(t, _)| *t <= tick)
+        .map_or(1, |(_, id)| *id)
+}
+
+/// A change of map never jumps beyond the acceleration limit: consecutive executed commands
+/// differ by at most `accel[j] * DT` on each joint `j` of `accel`.
+fn assert_acceleration_limited(commands: &[SafeCommand], accel: &[f64]) {
+    for w in commands.windows(2) {
+        if w[1].tick != w[0].tick + 1 {
+            continue;
+        }
+        for (j, a) in accel.iter().enumerate() {
+            let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
+            assert!(
+                dv <= a * DT * (1.0 + 1e-9),
+                "tick {} joint {j}: {dv}",
+                w[1].tick
+            );
+        }
+    }
 }
 
 fn status_json(prefix: &Prefix, rec: &mut Recorder) -> serde_json::Value {
@@ -196,16 +240,7 @@ fn twenty_live_swaps_miss_no_tick() {
         } else {
             "bundled".to_owned()
         };
-        let mut c = scl(&prefix);
-        c.args(["swap", &model]);
-        let out = run_polling(c, &mut rec);
-        let text = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "swap {i}: {text} {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let (old, new, tick, ms, missed) = parse_swap(&text);
+        let (old, new, tick, ms, missed) = swap(&prefix, &mut rec, &model);
         assert_eq!(old, expected_old);
         missed_in_swaps += missed;
         expected_old = new;
@@ -239,16 +274,9 @@ fn twenty_live_swaps_miss_no_tick() {
     }
     // Every executed command came from the mapper active at its tick.
     let first = switches[0].0;
-    let active_at = |tick: u64| {
-        switches
-            .iter()
-            .rev()
-            .find(|(t, _)| *t <= tick)
-            .map_or(1, |(_, id)| *id)
-    };
     let mut seen = std::collections::BTreeSet::new();
     for c in &rec.safe_commands {
-        assert_eq!(c.mapper_id, active_at(c.tick), "tick {}", c.tick);
+        assert_eq!(c.mapper_id, active_at(&switches, c.tick), "tick {}", c.tick);
         seen.insert(c.mapper_id);
     }
     assert_eq!(
@@ -257,20 +285,7 @@ fn twenty_live_swaps_miss_no_tick() {
         "commands of every mapper executed: {seen:?}"
     );
     assert!(rec.safe_commands.iter().any(|c| c.tick < first));
-    // A change of map never jumps beyond the acceleration limit.
-    for w in rec.safe_commands.windows(2) {
-        if w[1].tick != w[0].tick + 1 {
-            continue;
-        }
-        for j in 0..6 {
-            let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
-            assert!(
-                dv <= DEFAULT_ACCELERATION_RAD_S2[j] * DT * (1.0 + 1e-9),
-                "tick {} joint {j}: {dv}",
-                w[1].tick
-            );
-        }
-    }
+    assert_acceleration_limited(&rec.safe_commands, &DEFAULT_ACCELERATION_RAD_S2);
     drop(rec);
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(
@@ -321,16 +336,7 @@ fn a_gen3_graph_swaps_maps_live_and_stops_in_order() {
         } else {
             "modeswitch"
         };
-        let mut c = scl(&prefix);
-        c.args(["swap", model]);
-        let out = run_polling(c, &mut rec);
-        let text = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "swap {i} to {model}: {text} {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let (old, new, tick, _, missed) = parse_swap(&text);
+        let (old, new, tick, _, missed) = swap(&prefix, &mut rec, model);
         assert_eq!(old, expected_old);
         expected_old = new;
         missed_in_swaps += missed;
@@ -356,30 +362,11 @@ fn a_gen3_graph_swaps_maps_live_and_stops_in_order() {
     );
 
     assert!(rec.robot_states.iter().all(|s| s.n_joints == 7));
-    let active_at = |tick: u64| {
-        switches
-            .iter()
-            .rev()
-            .find(|(t, _)| *t <= tick)
-            .map_or(1, |(_, id)| *id)
-    };
     for c in &rec.safe_commands {
         assert_eq!(c.n_joints, 7, "tick {}", c.tick);
-        assert_eq!(c.mapper_id, active_at(c.tick), "tick {}", c.tick);
+        assert_eq!(c.mapper_id, active_at(&switches, c.tick), "tick {}", c.tick);
     }
-    for w in rec.safe_commands.windows(2) {
-        if w[1].tick != w[0].tick + 1 {
-            continue;
-        }
-        for j in 0..7 {
-            let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
-            assert!(
-                dv <= accel[j] * DT * (1.0 + 1e-9),
-                "tick {} joint {j}: {dv}",
-                w[1].tick
-            );
-        }
-    }
+    assert_acceleration_limited(&rec.safe_commands, &accel);
     drop(rec);
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(
