@@ -36,7 +36,7 @@ use safety::clearance::WholeArm;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
 
-use super::{Hand, Operate, Seen};
+use super::{Hand, ModeButton, Operate, Seen};
 use crate::simulate::{ModelFactory, SimError, SimParams};
 
 /// What a subgoal done is worth, in metres of mean distance over the horizon: more than any
@@ -160,10 +160,8 @@ pub(crate) struct Expert {
     ticks_per_knot: f64,
     /// The plan in each mode (the stick at each knot after the lead).
     plans: Vec<Vec<[f64; 2]>>,
-    presses_left: u32,
-    rest_ticks: u32,
-    button_down: bool,
-    presses: u32,
+    /// The mode button, pressed as a person does.
+    button: ModeButton,
     /// The mode being switched to (its plan waits).
     switching_to: Option<usize>,
     ticks: u64,
@@ -229,10 +227,7 @@ impl Expert {
             knots,
             ticks_per_knot: (ex.step_s / dt).max(1e-9),
             plans: vec![vec![[0.0; 2]; knots]; modes],
-            presses_left: 0,
-            rest_ticks: 0,
-            button_down: false,
-            presses: 0,
+            button: ModeButton::default(),
             switching_to: None,
             ticks: 0,
             best_progress: f64::NEG_INFINITY,
@@ -571,15 +566,8 @@ impl Operate for Expert {
             .as_ref()
             .and_then(|c| c.lock().ok().map(|e| *e));
         self.shift_plans();
-        if self.button_down {
-            self.button_down = false;
-        } else if self.presses_left > 0 {
-            self.presses_left -= 1;
-            self.presses += 1;
-            self.button_down = true;
-            buttons_now |= buttons::MODE;
-        } else if self.rest_ticks > 0 {
-            self.rest_ticks -= 1;
+        if let Some(b) = self.button.tick() {
+            buttons_now |= b;
         } else if let Some(aim) = seen.aim {
             self.switching_to = None;
             let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
@@ -615,8 +603,8 @@ impl Operate for Expert {
                 if let Some((m, g)) = other
                     && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + SWITCH_MIN_M
                 {
-                    self.presses_left = ((m + self.modes - cur) % self.modes) as u32;
-                    self.rest_ticks = (self.params.mode_switch_s / self.dt).round() as u32;
+                    self.button
+                        .switch(cur, m, self.modes, self.params.mode_switch_s, self.dt);
                     self.switching_to = Some(m);
                     self.hand.let_go();
                     choice = [0.0; 2];
@@ -634,7 +622,7 @@ impl Operate for Expert {
             *e = found;
         }
         self.ticks += 1;
-        let resting = self.presses_left > 0 || self.button_down || self.rest_ticks > 0;
+        let resting = self.button.busy();
         self.hand.sample(
             &self.params,
             self.dt,
@@ -649,7 +637,7 @@ impl Operate for Expert {
     }
 
     fn presses(&self) -> u32 {
-        self.presses
+        self.button.presses()
     }
 }
 

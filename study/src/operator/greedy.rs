@@ -15,7 +15,7 @@ use mapper::LoadedModel;
 use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector3, Vector6};
 
-use super::{Hand, Operate, Seen};
+use super::{Hand, ModeButton, Operate, Seen};
 use crate::simulate::{ModelFactory, SimError, SimParams};
 
 /// The operator's copies of the served map, one per mode, to try candidates on. A map with
@@ -86,12 +86,8 @@ pub(crate) struct Greedy {
     hand: Hand,
     /// What the operator chose last.
     chosen: [f64; 2],
-    /// Mode presses still to make.
-    presses_left: u32,
-    /// Ticks the stick rests around a mode press.
-    rest_ticks: u32,
-    button_down: bool,
-    presses: u32,
+    /// The mode button, pressed as a person does.
+    button: ModeButton,
     cands: Vec<[f64; 2]>,
     out: [f64; MAX_JOINTS],
 }
@@ -105,10 +101,7 @@ impl Greedy {
             probes,
             hand: Hand::new(params, dt),
             chosen: [0.0; 2],
-            presses_left: 0,
-            rest_ticks: 0,
-            button_down: false,
-            presses: 0,
+            button: ModeButton::default(),
             cands: Vec::with_capacity(params.candidates + 2),
             out: [0.0; MAX_JOINTS],
         }
@@ -183,15 +176,8 @@ impl Greedy {
         let mut buttons_now = buttons::DEADMAN;
         let mut gripper = 0.0f32;
         let mut choice = [0.0; 2];
-        if self.button_down {
-            self.button_down = false;
-        } else if self.presses_left > 0 {
-            self.presses_left -= 1;
-            self.presses += 1;
-            self.button_down = true;
-            buttons_now |= buttons::MODE;
-        } else if self.rest_ticks > 0 {
-            self.rest_ticks -= 1;
+        if let Some(b) = self.button.tick() {
+            buttons_now |= b;
         } else if let Some(aim) = aim {
             let p = tool.translation.vector;
             let now = self.error(&p, tilt(&tool.rotation), &aim);
@@ -223,8 +209,8 @@ impl Greedy {
                     && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + 1e-5
                 {
                     // Let go of the stick, press until the mode comes round, rest.
-                    self.presses_left = ((m + modes - cur) % modes) as u32;
-                    self.rest_ticks = (self.params.mode_switch_s / self.dt).round() as u32;
+                    self.button
+                        .switch(cur, m, modes, self.params.mode_switch_s, self.dt);
                     self.hand.let_go();
                     choice = [0.0; 2];
                 }
@@ -236,7 +222,7 @@ impl Greedy {
             }
         }
         self.chosen = choice;
-        let resting = self.presses_left > 0 || self.button_down || self.rest_ticks > 0;
+        let resting = self.button.busy();
         self.hand.sample(
             &self.params,
             self.dt,
@@ -259,6 +245,6 @@ impl Operate for Greedy {
     }
 
     fn presses(&self) -> u32 {
-        self.presses
+        self.button.presses()
     }
 }

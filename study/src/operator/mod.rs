@@ -18,7 +18,7 @@ pub mod greedy;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
-use ipc_types::{JoystickInput, RobotState};
+use ipc_types::{JoystickInput, RobotState, buttons};
 use kinematics::{Jacobian, RobotProfile};
 use learning::goals::{Aim, GoalRun, Tolerances};
 use mapper::rng::Rng;
@@ -126,6 +126,55 @@ pub fn operator(
             params, robot, safety, tol, dt, make, aim_out,
         )?),
     })
+}
+
+/// The mode button as a person presses it: to switch modes, one press (a tick down, a tick
+/// up) until the wanted mode comes round, then a rest with the stick let go; the presses
+/// are counted for the attempt's figures.
+#[derive(Debug, Default)]
+pub(crate) struct ModeButton {
+    presses_left: u32,
+    rest_ticks: u32,
+    down: bool,
+    presses: u32,
+}
+
+impl ModeButton {
+    /// Starts a switch from mode `from` to mode `to` of `modes` (the button steps forward),
+    /// then `rest_s` of rest at ticks of `dt`.
+    pub(crate) fn switch(&mut self, from: usize, to: usize, modes: usize, rest_s: f64, dt: f64) {
+        self.presses_left = ((to + modes - from) % modes) as u32;
+        self.rest_ticks = (rest_s / dt).round() as u32;
+    }
+
+    /// This tick's part of a switch under way: `Some(buttons)` (the mode bit at a press) while
+    /// the switch lasts, `None` once the operator is free to steer.
+    pub(crate) fn tick(&mut self) -> Option<u32> {
+        if self.down {
+            self.down = false;
+            Some(0)
+        } else if self.presses_left > 0 {
+            self.presses_left -= 1;
+            self.presses += 1;
+            self.down = true;
+            Some(buttons::MODE)
+        } else if self.rest_ticks > 0 {
+            self.rest_ticks -= 1;
+            Some(0)
+        } else {
+            None
+        }
+    }
+
+    /// A switch is under way (the stick is let go).
+    pub(crate) fn busy(&self) -> bool {
+        self.presses_left > 0 || self.down || self.rest_ticks > 0
+    }
+
+    /// Presses so far.
+    pub(crate) fn presses(&self) -> u32 {
+        self.presses
+    }
 }
 
 /// The hand between what the operator chose and the stick: a reaction delay (the stick
