@@ -33,6 +33,9 @@ pub enum SclError {
     /// The bridge process or the fake Kortex robot.
     #[error(transparent)]
     BridgeNode(#[from] scl_bridge_node::BridgeNodeError),
+    /// The network gateway.
+    #[error(transparent)]
+    Gateway(#[from] scl_gateway::GatewayError),
     /// The supervisor (`up`).
     #[error(transparent)]
     Supervisor(#[from] scl_supervisor::SupervisorError),

@@ -47,7 +47,8 @@ impl Cmd {
             | Cmd::Joystick { graph, .. }
             | Cmd::Mapper { graph, .. }
             | Cmd::Safety { graph }
-            | Cmd::Bridge { graph, .. } => Some(graph),
+            | Cmd::Bridge { graph, .. }
+            | Cmd::Gateway { graph } => Some(graph),
             _ => None,
         }
     }
@@ -257,6 +258,15 @@ enum Cmd {
         #[command(flatten)]
         graph: GraphArgs,
     },
+    /// The network gateway (`scl up` starts it when `[network] enabled`): the graph's topics
+    /// out to other machines through Zenoh for remote observers, and with `[network]
+    /// accept_joystick` a remote operator's joystick in (`scl joystick --remote`),
+    /// authenticated, its link watched: a lost link or stale input stops the arm. See
+    /// docs/network.md.
+    Gateway {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
     /// The hardware bridge: the robot and the graph's clock.
     Bridge {
         #[command(flatten)]
@@ -414,6 +424,11 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             let _log = graph_log(&prefix, "bridge");
             cmd::nodes::bridge(&prefix, cfg, args)
         }
+        Cmd::Gateway { graph } => {
+            let (prefix, cfg) = graph.load()?;
+            let _log = graph_log(&prefix, "gateway");
+            cmd::nodes::gateway(&prefix, &cfg)
+        }
         Cmd::FakeKortex(args) => cmd::nodes::fake_kortex(args),
         Cmd::Demos(args) => cmd::learn::demos(args),
         Cmd::Plot(args) => cmd::learn::plot(args),
@@ -437,6 +452,7 @@ fn main() -> ExitCode {
         Cmd::Mapper { .. } => "mapper",
         Cmd::Safety { .. } => "safety",
         Cmd::Bridge { .. } => "bridge",
+        Cmd::Gateway { .. } => "gateway",
         Cmd::FakeKortex(_) => "fake-kortex",
         Cmd::Demos(_) => "demos",
         Cmd::Plot(_) => "plot",
@@ -551,9 +567,9 @@ mod tests {
     #[test]
     fn prefix_and_config_only_where_they_are_used() {
         use clap::CommandFactory;
-        const GRAPH: [&str; 13] = [
+        const GRAPH: [&str; 14] = [
             "up", "record", "study", "live", "top", "swap", "estop", "reset", "status", "joystick",
-            "mapper", "safety", "bridge",
+            "mapper", "safety", "bridge", "gateway",
         ];
         const CONFIG_ONLY: [&str; 3] = ["bench", "doctor", "eval"];
         const OFFLINE: [&str; 8] = [

@@ -41,6 +41,8 @@ pub struct GraphConfig {
     pub supervisor: SupervisorConfig,
     /// `[faults]`: fault injection for tests and drills; all off by default.
     pub faults: FaultConfig,
+    /// `[network]`: the Zenoh gateway to other machines; off by default.
+    pub network: crate::NetworkConfig,
 }
 
 impl Default for GraphConfig {
@@ -91,6 +93,9 @@ pub struct RestartPolicies {
     pub safety: RestartPolicy,
     /// The bridge (a restarted bridge resumes the tick count and starts from a stop).
     pub bridge: RestartPolicy,
+    /// The network gateway (`[network] enabled`; a restarted one makes a remote operator
+    /// join anew: a new session, then neutral input).
+    pub gateway: RestartPolicy,
 }
 
 impl Default for RestartPolicies {
@@ -100,6 +105,7 @@ impl Default for RestartPolicies {
             mapper: RestartPolicy::Never,
             safety: RestartPolicy::Never,
             bridge: RestartPolicy::Never,
+            gateway: RestartPolicy::Never,
         }
     }
 }
@@ -112,6 +118,7 @@ impl RestartPolicies {
             ipc_types::NodeRole::Mapper => self.mapper,
             ipc_types::NodeRole::Safety => self.safety,
             ipc_types::NodeRole::Bridge => self.bridge,
+            ipc_types::NodeRole::Gateway => self.gateway,
             // A recorder is not restarted (its file is not reopened): if it dies, the graph
             // stops, so no run goes unrecorded.
             ipc_types::NodeRole::Recorder => RestartPolicy::Never,
@@ -482,6 +489,7 @@ impl GraphConfig {
             bridge: BridgeConfig::for_robot(robot),
             supervisor: SupervisorConfig::default(),
             faults: FaultConfig::default(),
+            network: crate::NetworkConfig::default(),
         }
     }
 
@@ -588,6 +596,9 @@ impl GraphConfig {
             {
                 cfg.mapper.model = dir.join(p).display().to_string();
             }
+        }
+        if let Some(dir) = path.parent() {
+            cfg.network.resolve_paths(dir);
         }
         let creds = &mut cfg.bridge.kortex.credentials_file;
         if !creds.is_empty() {
@@ -738,7 +749,7 @@ impl GraphConfig {
                 "must be at least 1".into(),
             ));
         }
-        Ok(())
+        self.network.validate()
     }
 
     /// The tick period (s).

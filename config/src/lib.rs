@@ -4,8 +4,10 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 mod config;
+mod network;
 
 pub use config::*;
+pub use network::*;
 
 /// The `[joystick] source` of a graph whose operator is outside it: `scl up` starts no
 /// joystick process and the mapper takes `JoystickInput` from whoever publishes it on the

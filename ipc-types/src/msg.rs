@@ -474,6 +474,9 @@ pub enum NodeRole {
     Bridge = 4,
     /// The recorder (`scl record`): an observer that publishes nothing but its heartbeat.
     Recorder = 5,
+    /// The network gateway (`scl gateway`): the graph's topics out through Zenoh and, when
+    /// accepted, a remote operator's joystick in.
+    Gateway = 6,
 }
 
 impl NodeRole {
@@ -485,6 +488,7 @@ impl NodeRole {
             3 => Some(Self::Safety),
             4 => Some(Self::Bridge),
             5 => Some(Self::Recorder),
+            6 => Some(Self::Gateway),
             _ => None,
         }
     }
@@ -497,6 +501,7 @@ impl NodeRole {
             Self::Safety => "safety",
             Self::Bridge => "bridge",
             Self::Recorder => "recorder",
+            Self::Gateway => "gateway",
         }
     }
 }
@@ -522,6 +527,41 @@ pub mod safety_state {
     pub const AWAITING_NEUTRAL: u32 = 1 << 2;
     /// Short names of the bits, in bit order.
     pub const NAMES: [&str; 3] = ["e-stop", "hold", "awaiting-neutral"];
+}
+
+/// Indices of a gateway's counts in [`NodeStatus::rule_counts`] (saturating at `u32::MAX`);
+/// its `handled` counts ticks, its `faults` the operator samples it refused.
+pub mod gateway_counts {
+    /// Operator samples forwarded to the graph.
+    pub const FORWARDED: usize = 0;
+    /// Times the driving operator's session ended or its link was lost.
+    pub const LINK_LOSSES: usize = 1;
+    /// Times the driving operator's input went stale.
+    pub const STALE_STOPS: usize = 2;
+    /// Ticks the gateway stood in with a neutral "device gone" sample (no operator drove).
+    pub const STOOD_IN: usize = 3;
+    /// Observer messages dropped because the network side was behind.
+    pub const OUTBOUND_DROPPED: usize = 4;
+    /// Inbound messages dropped because the gateway's loop was behind.
+    pub const INBOUND_DROPPED: usize = 5;
+    /// E-stop requests passed to safety.
+    pub const ESTOPS: usize = 6;
+    /// Resets passed to safety.
+    pub const RESETS: usize = 7;
+    /// The operator link's state (`scl_net::wire::link_state`).
+    pub const LINK: usize = 8;
+    /// Short names, by index.
+    pub const NAMES: [&str; 9] = [
+        "forwarded",
+        "link-losses",
+        "stale-stops",
+        "stood-in",
+        "outbound-dropped",
+        "inbound-dropped",
+        "estops",
+        "resets",
+        "link",
+    ];
 }
 
 /// Heartbeat of one process, published once per tick it handled (and once when ready).
@@ -566,7 +606,8 @@ pub struct NodeStatus {
     /// Safety: [`safety_state`] bits.
     #[cfg_attr(feature = "json", schemars(extend("x-bit-names" = safety_state::NAMES)))]
     pub safety_state: u32,
-    /// Safety: how many ticks each rule of [`safe_flags`] acted, by bit.
+    /// Safety: how many ticks each rule of [`safe_flags`] acted, by bit. Gateway: its
+    /// counts, by [`gateway_counts`] index.
     #[cfg_attr(feature = "json", schemars(extend("x-item-names" = safe_flags::NAMES)))]
     pub rule_counts: [u32; 16],
     /// Mapper: the map's current mode plus one (mode switching: 1 x-y, 2 z-yaw,
@@ -776,6 +817,7 @@ mod tests {
             NodeRole::Safety,
             NodeRole::Bridge,
             NodeRole::Recorder,
+            NodeRole::Gateway,
         ] {
             assert_eq!(NodeRole::from_u32(r as u32), Some(r));
         }

@@ -141,7 +141,7 @@ BITS: Dict[str, Type[_Bits]] = {
 }
 
 #: :attr:`NodeStatus.role` values.
-ROLES = {1: "joystick", 2: "mapper", 3: "safety", 4: "bridge", 5: "recorder"}
+ROLES = {1: "joystick", 2: "mapper", 3: "safety", 4: "bridge", 5: "recorder", 6: "gateway"}
 #: :attr:`NodeStatus.phase` values.
 PHASES = {1: "ready", 2: "running", 3: "stopping"}
 #: :attr:`EstopCommand.action` values.

@@ -764,6 +764,41 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Wakeable for Topic
     }
 }
 
+/// An eventfd that a thread rings after handing something over (through a channel) to a loop
+/// that waits on it beside its subscribers ([`wait_any`]): the joystick's reader threads, the
+/// gateway's network callbacks.
+#[derive(Debug)]
+pub struct Waker {
+    fd: nix::sys::eventfd::EventFd,
+}
+
+impl Waker {
+    /// A new, unsignalled waker.
+    pub fn new() -> std::io::Result<Self> {
+        use nix::sys::eventfd::{EfdFlags, EventFd};
+        let fd = EventFd::from_value_and_flags(0, EfdFlags::EFD_NONBLOCK | EfdFlags::EFD_CLOEXEC)?;
+        Ok(Self { fd })
+    }
+
+    /// Wakes the loop.
+    pub fn notify(&self) {
+        // A full counter (never in practice) only means the loop is already due to wake.
+        let _ = self.fd.arm();
+    }
+}
+
+impl Wakeable for Waker {
+    fn fd(&self) -> Option<i32> {
+        use std::os::fd::AsRawFd as _;
+        Some(self.fd.as_raw_fd())
+    }
+
+    fn consume_wake(&self) {
+        // Non-blocking: nothing pending (EAGAIN) is fine.
+        let _ = self.fd.read();
+    }
+}
+
 /// Waits until one of `subs` fires or `timeout` passes; returns a bit per subscriber (bit
 /// `i` for `subs[i]`) that fired, consuming their notifications. Subscribers without a
 /// wake-up never fire. A signal ends the wait early with no bit set.

@@ -16,4 +16,4 @@ pub mod graph;
 pub mod signals;
 pub mod uds;
 
-pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber, wait_any};
+pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber, Waker, wait_any};

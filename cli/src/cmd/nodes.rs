@@ -116,6 +116,12 @@ pub(crate) fn safety(prefix: &Prefix, cfg: &GraphConfig) -> Result<ExitCode, Scl
     Ok(ExitCode::SUCCESS)
 }
 
+/// `scl gateway`.
+pub(crate) fn gateway(prefix: &Prefix, cfg: &GraphConfig) -> Result<ExitCode, SclError> {
+    scl_gateway::run(prefix, cfg)?;
+    Ok(ExitCode::SUCCESS)
+}
+
 /// `scl bridge`.
 pub(crate) fn bridge(
     prefix: &Prefix,

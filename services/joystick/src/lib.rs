@@ -26,15 +26,13 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod device;
+mod endpoint;
 pub mod keyboard;
 pub mod mapping;
 pub mod pad;
 pub mod replay;
 pub mod script;
 
-use std::os::fd::AsRawFd;
-
-use nix::sys::eventfd::{EfdFlags, EventFd};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -45,11 +43,12 @@ use ipc_types::{
     JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, phase, time::now_ns,
 };
 use transport::Graph;
-use transport::graph::Wakeable;
 
 use scl_config::{ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole};
 use transport::signals;
 
+use endpoint::Endpoint;
+pub use endpoint::RemoteOptions;
 pub use script::Script;
 
 /// The sources `[joystick] source` accepts.
@@ -88,6 +87,21 @@ pub enum JoystickError {
     /// Shared-memory transport failure.
     #[error(transparent)]
     Ipc(#[from] transport::IpcError),
+    /// The remote operator's session to the graph's gateway.
+    #[error(transparent)]
+    Session(#[from] scl_net::SessionError),
+    /// The remote operator's credentials file.
+    #[error(transparent)]
+    Credentials(#[from] scl_net::CredentialsError),
+    /// A sample could not be handed to the network.
+    #[error("cannot publish on `{key}`: {source}")]
+    Network {
+        /// The key expression.
+        key: String,
+        /// Zenoh's error.
+        #[source]
+        source: scl_net::zenoh::Error,
+    },
     /// A file could not be read or written.
     #[error("{action} {path}: {source}")]
     File {
@@ -146,37 +160,9 @@ pub enum JoystickError {
     },
 }
 
-/// An eventfd the source threads ring after handing something over; the loop waits on it
+/// The eventfd the source threads ring after handing something over; the loop waits on it
 /// beside the robot state's event ([`transport::wait_any`]).
-#[derive(Debug)]
-pub struct Waker {
-    fd: EventFd,
-}
-
-impl Waker {
-    /// A new, unsignalled waker.
-    pub fn new() -> std::io::Result<Self> {
-        let fd = EventFd::from_value_and_flags(0, EfdFlags::EFD_NONBLOCK | EfdFlags::EFD_CLOEXEC)?;
-        Ok(Self { fd })
-    }
-
-    /// Wakes the loop.
-    pub fn notify(&self) {
-        // A full counter (never in practice) only means the loop is already due to wake.
-        let _ = self.fd.arm();
-    }
-}
-
-impl Wakeable for Waker {
-    fn fd(&self) -> Option<i32> {
-        Some(self.fd.as_raw_fd())
-    }
-
-    fn consume_wake(&self) {
-        // Non-blocking: nothing pending (EAGAIN) is fine.
-        let _ = self.fd.read();
-    }
-}
+pub use transport::Waker;
 
 /// Decides what the process publishes: a sample on every new robot tick (answering it) and on
 /// every change of the input in between; numbers them.
@@ -487,9 +473,36 @@ impl ReplaySource {
     }
 }
 
+/// Where a script's time starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Origin {
+    /// At the graph's tick 0.
+    Graph,
+    /// At the first tick seen (`None` before it).
+    FirstSeen(Option<u64>),
+}
+
+impl Origin {
+    /// `tick` counted from the origin (fixing it at the first tick seen).
+    fn relative(&mut self, tick: u64) -> u64 {
+        match self {
+            Self::Graph => tick,
+            Self::FirstSeen(_) if tick == NO_TICK => NO_TICK,
+            Self::FirstSeen(first) => tick.saturating_sub(*first.get_or_insert(tick)),
+        }
+    }
+}
+
 /// The configured source.
 enum Source {
-    Script { script: Script, period_s: f64 },
+    Script {
+        script: Script,
+        period_s: f64,
+        /// The script's tick 0: 0 on the graph's own machine (a scripted run is a function
+        /// of the graph's tick), the first tick seen for a remote operator, who joins a
+        /// running graph and must start from the script's neutral rest like a local one.
+        origin: Origin,
+    },
     Device(Box<DeviceSource>),
     Keyboard(Box<KeyboardSource>),
     Replay(ReplaySource),
@@ -517,6 +530,7 @@ impl Source {
                     })
                 })?,
                 period_s,
+                origin: Origin::Graph,
             },
         })
     }
@@ -554,8 +568,12 @@ impl Source {
 
     fn input(&mut self, now: Instant, tick: u64, gripper: Option<f64>) -> Input {
         match self {
-            Self::Script { script, period_s } => Input {
-                axes: script.sample(tick, *period_s, 0, 0).axes,
+            Self::Script {
+                script,
+                period_s,
+                origin,
+            } => Input {
+                axes: script.sample(origin.relative(tick), *period_s, 0, 0).axes,
                 ..Input::NEUTRAL
             },
             Self::Device(d) => d.input(),
@@ -566,11 +584,7 @@ impl Source {
 }
 
 /// Runs the joystick process until a shutdown is requested (or, at a terminal of its own,
-/// the keyboard source's quit key).
-///
-/// Each turn of the loop: wait for a robot state or the source's thread, take the newest
-/// state, read the source, send an e-stop press and the sample (unless a fault injection
-/// silenced the joystick), show the input, and on a new state send the heartbeat.
+/// the keyboard source's quit key), publishing on the graph `prefix` on this machine.
 pub fn run(
     prefix: &Prefix,
     graph_cfg: &GraphSection,
@@ -578,29 +592,57 @@ pub fn run(
     faults: &FaultConfig,
     period_s: f64,
 ) -> Result<(), JoystickError> {
-    let mut source = Source::open(cfg, period_s)?;
-    let recorder = if cfg.record_input.is_empty() {
-        None
-    } else {
-        Some(replay::InputRecorder::create(Path::new(&cfg.record_input))?)
-    };
+    let source = Source::open(cfg, period_s)?;
     let graph = Graph::join_with(prefix, "joystick", graph_cfg.transport)?;
-    let samples = graph.joystick_publisher()?;
-    // Kept for the process's life: a sample of a publisher that is gone is not delivered.
-    let estop = graph.estop_publisher()?;
-    let states = graph.robot_state_subscriber(true)?;
-    let status = graph.status_publisher()?;
     let heartbeats = if matches!(source, Source::Keyboard(_)) {
         Some(graph.status_subscriber()?)
     } else {
         None
     };
+    let mut local = endpoint::Local {
+        prefix,
+        samples: graph.joystick_publisher()?,
+        estop: graph.estop_publisher()?,
+        states: graph.robot_state_subscriber(true)?,
+        status: graph.status_publisher()?,
+        heartbeats,
+    };
     node_rt::rt::elevate(graph_cfg, RtRole::Joystick);
+    drive(source, &mut local, cfg, faults)
+}
+
+/// Runs the joystick as a remote operator of a graph on another machine, through its gateway
+/// (`scl joystick --remote`): the same loop as [`run`], over Zenoh.
+pub fn run_remote(
+    remote: &RemoteOptions,
+    cfg: &JoystickConfig,
+    faults: &FaultConfig,
+    period_s: f64,
+) -> Result<(), JoystickError> {
+    let mut source = Source::open(cfg, period_s)?;
+    if let Source::Script { origin, .. } = &mut source {
+        *origin = Origin::FirstSeen(None);
+    }
+    let mut ep = endpoint::Remote::open(remote)?;
+    drive(source, &mut ep, cfg, faults)
+}
+
+/// The loop. Each turn: wait for a robot state or the source's thread, take the newest
+/// state, read the source, send an e-stop press and the sample (unless a fault injection
+/// silenced the joystick), show the input, and on a new state send the heartbeat.
+fn drive(
+    mut source: Source,
+    ep: &mut dyn Endpoint,
+    cfg: &JoystickConfig,
+    faults: &FaultConfig,
+) -> Result<(), JoystickError> {
+    let recorder = if cfg.record_input.is_empty() {
+        None
+    } else {
+        Some(replay::InputRecorder::create(Path::new(&cfg.record_input))?)
+    };
     let t0 = Instant::now();
     let mut out = Outputs {
-        prefix,
-        samples,
-        estop,
         estop_button: EstopButton::default(),
         outbox: Outbox::default(),
         recorder,
@@ -609,30 +651,31 @@ pub fn run(
     let mut tick = NO_TICK;
     let mut gripper = None;
     let input = source.input(t0, tick, gripper);
-    out.send_estop(&input)?;
+    out.send_estop(ep, &input)?;
     if source.has_input_before_a_tick() {
-        out.publish(input, tick, true, t0)?;
+        out.publish(ep, input, tick, true, t0)?;
     }
-    status.send(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
-    tracing::info!(source = %cfg.source, "publishing on {}", out.samples.service());
+    ep.send_status(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
+    tracing::info!(source = %cfg.source, "publishing on {}", ep.describe());
     let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
+    let mut screen = StatusScreen::new(matches!(source, Source::Keyboard(_)));
     while !signals::stop_requested() && !source.quit() {
-        wait_for_input(&source, &states)?;
-        let new_state = states.latest()?;
+        ep.wait(source.waker(), source.timeout(Instant::now()))?;
+        let new_state = ep.latest_state()?;
         if let Some(s) = &new_state {
             tick = s.tick;
             gripper = Some(s.gripper);
         }
-        if let (Some(hb), Source::Keyboard(k)) = (&heartbeats, &mut source) {
-            hb.drain(|s| k.heartbeat(s))?;
+        if let Source::Keyboard(k) = &mut source {
+            ep.heartbeats(&mut |s| k.heartbeat(s))?;
         }
         let now = Instant::now();
         let input = source.input(now, tick, gripper);
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
-            out.send_estop(&input)?;
+            out.send_estop(ep, &input)?;
             if tick != NO_TICK || source.has_input_before_a_tick() {
-                out.publish(input, tick, new_state.is_some(), now)?;
+                out.publish(ep, input, tick, new_state.is_some(), now)?;
             }
         } else if st.handled == silent && new_state.is_some() {
             tracing::warn!(tick, "fault injection: the joystick goes silent");
@@ -640,12 +683,14 @@ pub fn run(
         if let Source::Keyboard(k) = &mut source {
             k.show(&input);
         }
+        screen.show(ep, now);
         if let Some(s) = new_state {
             count_tick(&mut st, s.tick, &input);
-            status.send(st)?;
+            ep.send_status(st)?;
         }
     }
     drop(source);
+    screen.finish();
     if let Some(r) = out.recorder.take() {
         let file = cfg.record_input.clone();
         let rows = r.finish(t0.elapsed().as_secs_f64())?;
@@ -653,15 +698,64 @@ pub fn run(
     }
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
-    status.send(st)?;
+    ep.send_status(st)?;
     Ok(())
 }
 
-/// Where the joystick's samples go: the sample topic, the e-stop topic, the input file.
-struct Outputs<'a> {
-    prefix: &'a Prefix,
-    samples: transport::TopicPublisher<JoystickInput>,
-    estop: transport::control::EstopPublisher,
+/// The endpoint's own line (a remote operator's link): on a terminal redrawn in place twice a
+/// second, otherwise logged every five seconds; not beside the keyboard source, which draws
+/// its own.
+struct StatusScreen {
+    terminal: bool,
+    off: bool,
+    last: Option<Instant>,
+    drawn: bool,
+}
+
+impl StatusScreen {
+    fn new(keyboard: bool) -> Self {
+        Self {
+            terminal: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            off: keyboard,
+            last: None,
+            drawn: false,
+        }
+    }
+
+    fn show(&mut self, ep: &mut dyn Endpoint, now: Instant) {
+        let every = if self.terminal {
+            Duration::from_millis(500)
+        } else {
+            Duration::from_secs(5)
+        };
+        if self.off || self.last.is_some_and(|t| now.duration_since(t) < every) {
+            return;
+        }
+        let Some(line) = ep.status_line() else {
+            self.off = true;
+            return;
+        };
+        self.last = Some(now);
+        if self.terminal {
+            use std::io::Write as _;
+            let mut e = std::io::stderr().lock();
+            let _ = write!(e, "\r\x1b[2K{line}");
+            let _ = e.flush();
+            self.drawn = true;
+        } else {
+            tracing::info!("{line}");
+        }
+    }
+
+    fn finish(&self) {
+        if self.drawn {
+            eprintln!();
+        }
+    }
+}
+
+/// What the joystick decides to send: e-stop presses, samples when due, the input file.
+struct Outputs {
     estop_button: EstopButton,
     outbox: Outbox,
     recorder: Option<replay::InputRecorder>,
@@ -669,24 +763,16 @@ struct Outputs<'a> {
     t0: Instant,
 }
 
-impl Outputs<'_> {
+impl Outputs {
     /// Sends an E-STOP to safety when `input` presses the e-stop button.
-    fn send_estop(&mut self, input: &Input) -> Result<(), JoystickError> {
+    fn send_estop(&mut self, ep: &mut dyn Endpoint, input: &Input) -> Result<(), JoystickError> {
         if self.estop_button.pressed(input.buttons) {
             tracing::warn!("e-stop button pressed: E-STOP sent to safety");
-            self.estop
-                .send_copy(ipc_types::control::EstopCommand {
-                    t_ns: now_ns(),
-                    action: ipc_types::control::estop_action::ESTOP,
-                    source_pid: std::process::id(),
-                })
-                .map_err(|e| {
-                    JoystickError::Ipc(transport::IpcError::Io {
-                        service: self.prefix.service(ipc_types::control::ESTOP),
-                        op: "send",
-                        source: e.into(),
-                    })
-                })?;
+            ep.send_estop(ipc_types::control::EstopCommand {
+                t_ns: now_ns(),
+                action: ipc_types::control::estop_action::ESTOP,
+                source_pid: std::process::id(),
+            })?;
         }
         Ok(())
     }
@@ -695,38 +781,20 @@ impl Outputs<'_> {
     /// (a change, or a `new_state` to answer), and records it as read at `at`.
     fn publish(
         &mut self,
+        ep: &mut dyn Endpoint,
         input: Input,
         tick: u64,
         new_state: bool,
         at: Instant,
     ) -> Result<(), JoystickError> {
         if let Some(sample) = self.outbox.next(input, tick, new_state, now_ns()) {
-            self.samples.send(sample)?;
+            ep.send_sample(sample)?;
             if let Some(r) = self.recorder.as_mut() {
                 r.record(at.duration_since(self.t0).as_secs_f64(), &input);
             }
         }
         Ok(())
     }
-}
-
-/// Waits for a robot state or, for a threaded source, its thread's wake-up (at most the
-/// source's timeout).
-fn wait_for_input(
-    source: &Source,
-    states: &transport::TopicSubscriber<ipc_types::RobotState>,
-) -> Result<(), JoystickError> {
-    let timeout = source.timeout(Instant::now());
-    match source.waker() {
-        Some(w) => {
-            let wakes: [&dyn Wakeable; 2] = [states, w];
-            transport::wait_any(&wakes, timeout);
-        }
-        None => {
-            states.wait(timeout)?;
-        }
-    }
-    Ok(())
 }
 
 /// Counts the answer to robot tick `tick` in the heartbeat `st` (a fault while the device is
@@ -855,6 +923,20 @@ pub struct JoystickArgs {
     /// exists), from any source.
     #[arg(long, value_name = "FILE")]
     pub record_input: Option<PathBuf>,
+    /// Drive a graph on another machine through its gateway (`[network] accept_joystick` on
+    /// the robot PC): its Zenoh endpoint, e.g. `tcp/192.0.2.10:7447`. The samples answer the
+    /// robot states that arrive from there; a lost link or late samples stop the arm, which
+    /// moves again only after a new session and neutral input.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub remote: Option<String>,
+    /// With `--remote`: the credentials file (`user:password`, mode 0600; default
+    /// `[network] credentials`). Never a password on the command line.
+    #[arg(long, value_name = "FILE", requires = "remote")]
+    pub credentials: Option<PathBuf>,
+    /// With `--remote`: the graph's namespace (default `[network] namespace`, else
+    /// `scl/<prefix>`).
+    #[arg(long, value_name = "KEY", requires = "remote")]
+    pub namespace: Option<String>,
 }
 
 /// `scl joystick`: lists the devices, or runs the process with the options applied over the
@@ -894,6 +976,37 @@ pub fn main(
     }
     validate(j)?;
     let period_s = cfg.period_s();
+    if let Some(endpoint) = &args.remote {
+        let credentials = match &args.credentials {
+            Some(p) => p.clone(),
+            None if !cfg.network.credentials.is_empty() => PathBuf::from(&cfg.network.credentials),
+            None => {
+                return Err(JoystickError::Config(ConfigError::Value {
+                    key: "--credentials".into(),
+                    reason: "a remote operator must log in: give --credentials FILE (or \
+                             [network] credentials), a file of `user:password` with mode 0600"
+                        .into(),
+                }));
+            }
+        };
+        let namespace = args
+            .namespace
+            .clone()
+            .unwrap_or_else(|| cfg.network.namespace_for(prefix.as_str()));
+        scl_config::check_namespace(&namespace).map_err(|reason| {
+            JoystickError::Config(ConfigError::Value {
+                key: "--namespace".into(),
+                reason,
+            })
+        })?;
+        let opts = RemoteOptions {
+            endpoint: endpoint.clone(),
+            credentials,
+            namespace,
+            lease_ms: cfg.network.lease_ms,
+        };
+        return run_remote(&opts, &cfg.joystick, &cfg.faults, period_s);
+    }
     run(prefix, &cfg.graph, &cfg.joystick, &cfg.faults, period_s)
 }
 
@@ -901,6 +1014,16 @@ pub fn main(
 mod tests {
     use super::*;
     use pad::tests::{parse_evtest, xbox_snapshot};
+
+    #[test]
+    fn a_remote_script_starts_at_the_first_tick_it_sees() {
+        let mut graph = Origin::Graph;
+        assert_eq!(graph.relative(120), 120);
+        let mut remote = Origin::FirstSeen(None);
+        assert_eq!(remote.relative(NO_TICK), NO_TICK);
+        assert_eq!(remote.relative(120), 0);
+        assert_eq!(remote.relative(125), 5);
+    }
 
     /// A synthetic session in `evtest`'s output format (written for this test, not captured
     /// from hardware): an Xbox pad's stick pushed right then up-left with jitter inside the

@@ -19,6 +19,9 @@ pub enum SupervisorError {
     /// The model file is unusable.
     #[error(transparent)]
     Model(#[from] mapper::ModelError),
+    /// The network gateway's credentials file is unusable.
+    #[error(transparent)]
+    Credentials(#[from] scl_net::CredentialsError),
     /// A recording cannot be made (`--record` over an existing file).
     #[error(transparent)]
     Record(#[from] recording::RecordError),

@@ -725,11 +725,14 @@ impl<'a> Supervisor<'a> {
         self.publish_control()
     }
 
-    /// Holds the arm while the joystick process is down or restarting (not yet ready): the
-    /// mapper would otherwise keep acting on its last sample until safety found it stale.
+    /// Holds the arm while the joystick process (or the gateway that stands for a remote
+    /// operator) is down or restarting (not yet ready): the mapper would otherwise keep
+    /// acting on its last sample until safety found it stale.
     fn update_hold(&mut self) -> Result<(), SupervisorError> {
+        let remote_joystick =
+            self.opts.config.network.enabled && self.opts.config.network.accept_joystick;
         let down = self.procs.iter().any(|p| {
-            p.role == NodeRole::Joystick
+            (p.role == NodeRole::Joystick || (remote_joystick && p.role == NodeRole::Gateway))
                 && !p.retiring
                 && (p.child.is_none() || !self.tel.is_ready(p.role, p.pid))
         });
@@ -1045,6 +1048,11 @@ fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }
+    let net = &cfg.network;
+    if net.enabled && !net.credentials.is_empty() {
+        // Refused here, naming the file and its mode, rather than by the gateway child.
+        scl_net::Credentials::load(std::path::Path::new(&net.credentials))?;
+    }
     Ok(())
 }
 
@@ -1093,7 +1101,8 @@ impl Ports {
 type StartPlan = Vec<(NodeRole, u32, Vec<String>)>;
 
 /// The children to start, in order: the recorder (if recording), the joystick (unless the
-/// source is external), the mapper, safety, and the bridge (the clock) last.
+/// source is external or a remote operator's), the gateway (`[network] enabled`), the mapper,
+/// safety, and the bridge (the clock) last.
 fn start_plan(sv: &Supervisor<'_>) -> StartPlan {
     let (opts, cfg) = (sv.opts, &sv.opts.config);
     let mut plan = Vec::new();
@@ -1103,7 +1112,14 @@ fn start_plan(sv: &Supervisor<'_>) -> StartPlan {
         args.extend(["--out".to_owned(), path.display().to_string()]);
         plan.push((NodeRole::Recorder, 0, args));
     }
-    if cfg.joystick.source == scl_config::EXTERNAL_JOYSTICK {
+    let net = &cfg.network;
+    if net.enabled && net.accept_joystick {
+        // The gateway is the joystick: a remote operator's samples, or a neutral "device
+        // gone" sample on every tick while none drives.
+        tracing::info!(
+            "[network] accept_joystick: the joystick is a remote operator's, through the gateway"
+        );
+    } else if cfg.joystick.source == scl_config::EXTERNAL_JOYSTICK {
         // No joystick process: the operator publishes from outside (nothing to hold for).
         tracing::info!(
             "joystick source `external`: the input comes from whoever publishes on `{}`",
@@ -1116,6 +1132,9 @@ fn start_plan(sv: &Supervisor<'_>) -> StartPlan {
             a.extend(["--script".to_owned(), cfg.joystick.script.clone()]);
             a
         }));
+    }
+    if net.enabled {
+        plan.push((NodeRole::Gateway, 0, sv.child_args("gateway")));
     }
     plan.extend([
         (
@@ -1288,6 +1307,7 @@ impl<'a> Supervisor<'a> {
             NodeRole::Safety,
             NodeRole::Mapper,
             NodeRole::Joystick,
+            NodeRole::Gateway,
             NodeRole::Recorder,
         ] {
             for p in self.procs.iter_mut().filter(|p| p.role == role) {
@@ -1335,6 +1355,7 @@ mod tests {
                 mapper: policy,
                 safety: policy,
                 bridge: policy,
+                gateway: policy,
             },
             ..SupervisorConfig::default()
         }

@@ -1,0 +1,184 @@
+//! The messages on the wire: each graph message travels as its own bytes (the `#[repr(C)]`
+//! layout `scl layout` prints, little-endian on every machine this runs on), tagged with its
+//! stable type name as the Zenoh encoding's schema, so a reader checks what it got before it
+//! reads a field. [`GatewayStatus`] is the gateway's own message.
+
+use ipc_types::control::EstopCommand;
+use ipc_types::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, TickReport};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
+
+/// A message that travels through Zenoh: fixed size, every bit pattern valid, a stable name.
+pub trait Wire: IntoBytes + FromBytes + Immutable + KnownLayout + Copy {
+    /// The type name, as the graph's services and `scl layout` spell it.
+    const TYPE_NAME: &'static str;
+}
+
+macro_rules! wire {
+    ($($t:ty => $name:literal),* $(,)?) => {
+        $(impl Wire for $t {
+            const TYPE_NAME: &'static str = $name;
+        })*
+    };
+}
+
+wire! {
+    JoystickInput => "scl::JoystickInput",
+    RobotState => "scl::RobotState",
+    MapperCommand => "scl::MapperCommand",
+    SafeCommand => "scl::SafeCommand",
+    NodeStatus => "scl::NodeStatus",
+    TickReport => "scl::TickReport",
+    EstopCommand => "scl::EstopCommand",
+    GatewayStatus => "scl::GatewayStatus",
+}
+
+/// Why a payload was refused.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DecodeError {
+    /// The encoding names another type (or none).
+    #[error("a payload of type `{got}` where `{want}` was expected")]
+    Type {
+        /// The expected type name.
+        want: &'static str,
+        /// The encoding the sample carried.
+        got: String,
+    },
+    /// The payload's length is not the type's size.
+    #[error("a {want} payload of {got} bytes; it has {size}")]
+    Size {
+        /// The type name.
+        want: &'static str,
+        /// The type's size.
+        size: usize,
+        /// The payload's length.
+        got: usize,
+    },
+}
+
+/// The message's bytes.
+pub fn encode<T: Wire>(m: &T) -> &[u8] {
+    m.as_bytes()
+}
+
+/// The encoding every message travels with: `application/octet-stream;<type name>`.
+pub fn encoding_of<T: Wire>() -> String {
+    format!("{OCTET_STREAM};{}", T::TYPE_NAME)
+}
+
+const OCTET_STREAM: &str = "application/octet-stream";
+
+/// Reads a `T` from `bytes` whose encoding (as Zenoh writes it) is `encoding`.
+pub fn decode<T: Wire>(bytes: &[u8], encoding: &str) -> Result<T, DecodeError> {
+    let schema = encoding
+        .split_once(';')
+        .filter(|(id, _)| *id == OCTET_STREAM)
+        .map(|(_, s)| s);
+    if schema != Some(T::TYPE_NAME) {
+        return Err(DecodeError::Type {
+            want: T::TYPE_NAME,
+            got: encoding.to_owned(),
+        });
+    }
+    T::read_from_bytes(bytes).map_err(|_| DecodeError::Size {
+        want: T::TYPE_NAME,
+        size: std::mem::size_of::<T>(),
+        got: bytes.len(),
+    })
+}
+
+/// [`GatewayStatus::link`] values: where the remote operator's link stands.
+pub mod link_state {
+    /// No operator has joined (or the gateway takes no joystick).
+    pub const NONE: u32 = 0;
+    /// An operator is joined; its input is held until it passes through neutral.
+    pub const AWAITING_NEUTRAL: u32 = 1;
+    /// The operator's input drives the graph.
+    pub const LIVE: u32 = 2;
+    /// The operator's session ended (its liveliness token went) or its input went stale:
+    /// the arm was stopped; a new session (after an ended one) and neutral input resume.
+    pub const LOST: u32 = 3;
+    /// Names, by value.
+    pub const NAMES: [&str; 4] = ["none", "awaiting-neutral", "live", "lost"];
+}
+
+/// The gateway's account, published on `<namespace>/gateway` at every tick and on every
+/// forwarded operator sample (its acknowledgement: the operator's round trip).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
+pub struct GatewayStatus {
+    /// When it was published (the robot PC's monotonic ns).
+    pub t_ns: u64,
+    /// Newest robot tick the gateway saw.
+    pub tick: u64,
+    /// `seq` of the operator's newest forwarded sample (`u64::MAX`: none).
+    pub acked_seq: u64,
+    /// Operator samples forwarded to the graph.
+    pub forwarded: u64,
+    /// Operator samples refused (stale, from the future, not neutral when it had to be,
+    /// non-finite, from an ended session or a second operator, undecodable).
+    pub refused: u64,
+    /// Times the operator's link was lost (its liveliness token went while it drove).
+    pub link_losses: u64,
+    /// Times the operator's input went stale (older than one tick) while it drove.
+    pub stale_stops: u64,
+    /// Observer messages dropped because the network side was behind.
+    pub outbound_dropped: u64,
+    /// [`link_state`] value.
+    pub link: u32,
+    /// Padding, always 0.
+    pub reserved: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_message_round_trips_and_a_wrong_type_or_size_is_refused() {
+        let s = JoystickInput {
+            tick: 7,
+            t_ns: 9,
+            seq: 3,
+            axes: [0.5, -0.25],
+            gripper: 0.0,
+            buttons: 1,
+        };
+        let b = encode(&s);
+        let enc = encoding_of::<JoystickInput>();
+        assert_eq!(enc, "application/octet-stream;scl::JoystickInput");
+        assert_eq!(decode::<JoystickInput>(b, &enc), Ok(s));
+        for other in [
+            "application/octet-stream;scl::RobotState",
+            "application/octet-stream",
+            "text/plain;scl::JoystickInput",
+        ] {
+            assert!(matches!(
+                decode::<JoystickInput>(b, other),
+                Err(DecodeError::Type { .. })
+            ));
+        }
+        let e = decode::<JoystickInput>(&b[..b.len() - 1], &enc);
+        assert!(matches!(e, Err(DecodeError::Size { .. })), "{e:?}");
+    }
+
+    #[test]
+    fn the_type_names_are_the_graphs() {
+        use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
+        // SAFETY: `type_name` only returns the name the derive attached.
+        let names = unsafe {
+            [
+                (JoystickInput::type_name(), JoystickInput::TYPE_NAME),
+                (RobotState::type_name(), RobotState::TYPE_NAME),
+                (MapperCommand::type_name(), MapperCommand::TYPE_NAME),
+                (SafeCommand::type_name(), SafeCommand::TYPE_NAME),
+                (NodeStatus::type_name(), NodeStatus::TYPE_NAME),
+                (TickReport::type_name(), TickReport::TYPE_NAME),
+                (EstopCommand::type_name(), EstopCommand::TYPE_NAME),
+            ]
+        };
+        for (graph, wire) in names {
+            assert_eq!(graph, wire);
+        }
+    }
+}

@@ -1,0 +1,507 @@
+//! The gateway process (`scl gateway`; `scl up` starts it when `[network] enabled`): the
+//! graph's link to other machines through Zenoh ([`scl_net`]).
+//!
+//! * **Out**, for observers, read-only: every robot state, mapper and executed command,
+//!   heartbeat and tick report, handed from the loop to a network thread through a bounded
+//!   queue: when the network is behind, the newest messages are dropped and counted
+//!   ([`ipc_types::gateway_counts::OUTBOUND_DROPPED`]); the loop never waits on the network.
+//! * **In**, only with `[network] accept_joystick` / `accept_reset` and only from peers the
+//!   credentials file lists (Zenoh's user/password authentication refuses the others before
+//!   they can publish anything): a remote operator's joystick samples, which the gateway
+//!   publishes as the graph's one joystick, and e-stop (and, if accepted, reset) requests,
+//!   which go straight to safety's e-stop topic, so they act while a mapper is dead.
+//!
+//! The remote operator's link is judged by [`scl_net::OperatorLink`]: it drives only with a
+//! live liveliness token, after neutral input; a lost session or stale input stops the arm
+//! at once (the gateway stands in with a neutral sample flagged `NO_DEVICE`, as an unplugged
+//! joystick, so safety's restart prevention then waits for neutral input).
+#![cfg_attr(test, allow(clippy::unwrap_used))]
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use ipc_types::control::{EstopCommand, estop_action};
+use ipc_types::{
+    JoystickInput, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand,
+    TickReport, gateway_counts, phase, time::now_ns,
+};
+use scl_config::GraphConfig;
+use scl_net::link::{Refusal, Stop};
+use scl_net::ports::{self, Out, Urgency};
+use scl_net::session::{self, SessionSpec};
+use scl_net::wire::DecodeError;
+use scl_net::{Credentials, GatewayStatus, Keys, OperatorLink};
+use transport::graph::Wakeable;
+use transport::{Graph, Waker, signals};
+
+/// Inbound messages queued for the loop before the newest are dropped (and counted).
+const INBOUND_QUEUE: usize = 256;
+
+/// Why the gateway could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum GatewayError {
+    /// The configuration is unusable.
+    #[error(transparent)]
+    Config(#[from] scl_config::ConfigError),
+    /// The credentials file is unusable.
+    #[error(transparent)]
+    Credentials(#[from] scl_net::CredentialsError),
+    /// The Zenoh session or one of its ports.
+    #[error(transparent)]
+    Session(#[from] scl_net::SessionError),
+    /// Shared memory.
+    #[error(transparent)]
+    Ipc(#[from] transport::IpcError),
+    /// The wake-up or the network thread could not be created.
+    #[error("cannot start the {what}: {source}")]
+    Thread {
+        /// Which.
+        what: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// A message for the network thread.
+#[derive(Debug, Clone, Copy)]
+enum Outbound {
+    State(RobotState),
+    Mapper(MapperCommand),
+    Safe(SafeCommand),
+    Status(NodeStatus),
+    Report(TickReport),
+    Gateway(GatewayStatus),
+}
+
+/// A message from the network callbacks.
+#[derive(Debug)]
+enum Inbound {
+    Sample(String, Result<JoystickInput, DecodeError>),
+    Token(String, bool),
+    Estop(Result<EstopCommand, DecodeError>),
+}
+
+/// The callbacks' side of the inbound queue.
+#[derive(Clone)]
+struct InboundTx {
+    tx: Sender<Inbound>,
+    waker: Arc<Waker>,
+    dropped: Arc<AtomicU64>,
+}
+
+impl InboundTx {
+    fn send(&self, m: Inbound) {
+        match self.tx.try_send(m) {
+            Ok(()) => self.waker.notify(),
+            Err(_) => {
+                self.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+/// The Zenoh side: the session, its inbound subscribers and the network thread's queue.
+struct Network {
+    /// Kept for the process's life (the subscribers and the thread's publishers use it).
+    _session: scl_net::zenoh::Session,
+    _subscribers: Vec<scl_net::zenoh::pubsub::Subscriber<()>>,
+    out: Sender<Outbound>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Network {
+    fn open(
+        cfg: &GraphConfig,
+        keys: &Keys,
+        creds: Option<&Credentials>,
+        inbound: &InboundTx,
+    ) -> Result<Self, GatewayError> {
+        let net = &cfg.network;
+        let spec = SessionSpec {
+            mode: net.mode,
+            listen: &net.listen,
+            connect: &net.connect,
+            lease_ms: net.lease_ms,
+            multicast_scouting: net.multicast_scouting,
+            credentials: creds,
+            accept_listed_only: creds.is_some(),
+        };
+        let session = session::open(&spec)?;
+        let mut subscribers = Vec::new();
+        if net.accept_joystick {
+            let (tx, k) = (inbound.clone(), keys.clone());
+            subscribers.push(ports::subscribe::<JoystickInput, _>(
+                &session,
+                keys.joystick_all(),
+                move |key, s| {
+                    if let Some(zid) = k.session_of(key) {
+                        tx.send(Inbound::Sample(zid.to_owned(), s));
+                    }
+                },
+            )?);
+            let (tx, k) = (inbound.clone(), keys.clone());
+            subscribers.push(ports::watch_liveliness(
+                &session,
+                keys.operator_all(),
+                move |key, alive| {
+                    if let Some(zid) = k.session_of(key) {
+                        tx.send(Inbound::Token(zid.to_owned(), alive));
+                    }
+                },
+            )?);
+        }
+        if net.inbound() {
+            let tx = inbound.clone();
+            subscribers.push(ports::subscribe::<EstopCommand, _>(
+                &session,
+                keys.estop(),
+                move |_, c| tx.send(Inbound::Estop(c)),
+            )?);
+        }
+        let (out, rx) = crossbeam_channel::bounded(net.outbound_queue);
+        let publishers = Publishers::declare(&session, keys)?;
+        let thread = std::thread::Builder::new()
+            .name("gateway-out".into())
+            .spawn(move || publishers.run(&rx))
+            .map_err(|source| GatewayError::Thread {
+                what: "network thread",
+                source,
+            })?;
+        Ok(Self {
+            _session: session,
+            _subscribers: subscribers,
+            out,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for Network {
+    fn drop(&mut self) {
+        // Closing the queue ends the thread once it has sent what is queued.
+        let (closed, _) = crossbeam_channel::bounded(0);
+        self.out = closed;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The network thread's publishers, one per outbound key.
+struct Publishers {
+    state: Out<RobotState>,
+    mapper: Out<MapperCommand>,
+    safe: Out<SafeCommand>,
+    status: Out<NodeStatus>,
+    report: Out<TickReport>,
+    gateway: Out<GatewayStatus>,
+}
+
+impl Publishers {
+    fn declare(session: &scl_net::zenoh::Session, keys: &Keys) -> Result<Self, GatewayError> {
+        use ipc_types::topics;
+        let o = Urgency::Observe;
+        Ok(Self {
+            // Robot states reach a remote operator, whose samples answer them.
+            state: ports::publisher(
+                session,
+                keys.topic(topics::ROBOT_STATE.name),
+                Urgency::Control,
+            )?,
+            mapper: ports::publisher(session, keys.topic(topics::MAPPER_COMMAND.name), o)?,
+            safe: ports::publisher(session, keys.topic(topics::SAFE_COMMAND.name), o)?,
+            status: ports::publisher(session, keys.topic(topics::STATUS.name), o)?,
+            report: ports::publisher(session, keys.topic(topics::TICK_REPORT.name), o)?,
+            gateway: ports::publisher(session, keys.gateway(), Urgency::Control)?,
+        })
+    }
+
+    fn run(&self, rx: &Receiver<Outbound>) {
+        let mut failures = 0u64;
+        while let Ok(m) = rx.recv() {
+            let r = match &m {
+                Outbound::State(s) => self.state.put(s),
+                Outbound::Mapper(c) => self.mapper.put(c),
+                Outbound::Safe(c) => self.safe.put(c),
+                Outbound::Status(s) => self.status.put(s),
+                Outbound::Report(r) => self.report.put(r),
+                Outbound::Gateway(g) => self.gateway.put(g),
+            };
+            if let Err(e) = r {
+                failures += 1;
+                if failures.is_power_of_two() {
+                    tracing::warn!(failures, "cannot publish to the network: {e}");
+                }
+            }
+        }
+    }
+}
+
+/// The loop's state: the link, the counts, the graph's ports.
+struct Gateway<'a> {
+    cfg: &'a GraphConfig,
+    link: OperatorLink,
+    joystick: Option<transport::TopicPublisher<JoystickInput>>,
+    estop: Option<transport::control::EstopPublisher>,
+    prefix: &'a Prefix,
+    seq: u64,
+    st: NodeStatus,
+    outbound_dropped: u64,
+    inbound_dropped: Arc<AtomicU64>,
+}
+
+impl Gateway<'_> {
+    fn count(&mut self, index: usize) {
+        let c = &mut self.st.rule_counts[index];
+        *c = c.saturating_add(1);
+    }
+
+    fn publish_sample(&mut self, mut s: JoystickInput) -> Result<(), GatewayError> {
+        if let Some(p) = &self.joystick {
+            // The operator's clock is not this machine's: the sample is stamped on arrival,
+            // so safety's age check measures from here.
+            s.t_ns = now_ns();
+            s.seq = self.seq;
+            self.seq += 1;
+            p.send(s)?;
+        }
+        Ok(())
+    }
+
+    fn inbound(&mut self, m: Inbound, net: &Network) -> Result<(), GatewayError> {
+        match m {
+            Inbound::Token(zid, alive) => {
+                tracing::info!(operator = %zid, "operator session {}", if alive { "joined" } else { "ended" });
+                if let Some(stop) = self.link.token(&zid, alive) {
+                    self.stopped(stop, &zid)?;
+                }
+            }
+            Inbound::Sample(zid, Err(e)) => {
+                self.st.faults += 1;
+                tracing::warn!(operator = %zid, "operator sample refused: {e}");
+            }
+            Inbound::Sample(zid, Ok(s)) => match self.link.sample(&zid, &s) {
+                Ok(s) => {
+                    self.publish_sample(s)?;
+                    self.count(gateway_counts::FORWARDED);
+                    self.send_out(net, Outbound::Gateway(self.gateway_status()));
+                }
+                Err(r) => {
+                    self.st.faults += 1;
+                    self.refused(&zid, r);
+                }
+            },
+            Inbound::Estop(c) => self.estop_request(c)?,
+        }
+        Ok(())
+    }
+
+    fn refused(&self, zid: &str, r: Refusal) {
+        // Refusals come at the sample rate: log the first of each kind in a run of them.
+        let n = self.st.faults;
+        if n.is_power_of_two() {
+            tracing::warn!(operator = %zid, refused = n, "operator sample refused: {}", r.name());
+        }
+    }
+
+    fn stopped(&mut self, stop: Stop, zid: &str) -> Result<(), GatewayError> {
+        match stop {
+            Stop::LinkLost => {
+                tracing::warn!(operator = %zid, "operator link lost: the arm stops; a new session and neutral input resume");
+                self.count(gateway_counts::LINK_LOSSES);
+                // Stand in at once, answering the newest tick: the arm stops at the next one.
+                let tick = self.st.tick;
+                if tick != ipc_types::NO_TICK {
+                    self.publish_sample(OperatorLink::placeholder(tick, 0))?;
+                }
+            }
+            Stop::Stale => {
+                tracing::warn!(operator = %zid, "operator input stale: the arm stops; neutral input resumes");
+                self.count(gateway_counts::STALE_STOPS);
+            }
+        }
+        Ok(())
+    }
+
+    fn estop_request(&mut self, c: Result<EstopCommand, DecodeError>) -> Result<(), GatewayError> {
+        let c = match c {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::warn!("e-stop request refused: {e}");
+                return Ok(());
+            }
+        };
+        let refusal = match c.action {
+            estop_action::ESTOP => None,
+            estop_action::RESET if self.cfg.network.accept_reset => None,
+            estop_action::RESET => Some(Refusal::ResetNotAccepted),
+            _ => Some(Refusal::UnknownAction),
+        };
+        if let Some(r) = refusal {
+            tracing::warn!("network e-stop request refused: {}", r.name());
+            return Ok(());
+        }
+        let Some(p) = &self.estop else {
+            return Ok(());
+        };
+        let reset = c.action == estop_action::RESET;
+        tracing::warn!(
+            "{} from the network: sent to safety",
+            if reset { "reset" } else { "E-STOP" }
+        );
+        p.send_copy(EstopCommand {
+            t_ns: now_ns(),
+            action: c.action,
+            source_pid: std::process::id(),
+        })
+        .map_err(|e| transport::IpcError::Io {
+            service: self.prefix.service(ipc_types::control::ESTOP),
+            op: "send",
+            source: e.into(),
+        })?;
+        self.count(if reset {
+            gateway_counts::RESETS
+        } else {
+            gateway_counts::ESTOPS
+        });
+        Ok(())
+    }
+
+    fn tick(&mut self, s: &RobotState, net: &Network) -> Result<(), GatewayError> {
+        self.st.tick = s.tick;
+        if self.cfg.network.accept_joystick {
+            let (stop, stand_in) = self.link.tick(s.tick);
+            if let Some(stop) = stop {
+                self.stopped(stop, "driving")?;
+            }
+            if stand_in {
+                self.publish_sample(OperatorLink::placeholder(s.tick, 0))?;
+                self.count(gateway_counts::STOOD_IN);
+            }
+        }
+        self.st.handled += 1;
+        self.st.t_ns = now_ns();
+        self.st.rule_counts[gateway_counts::OUTBOUND_DROPPED] =
+            u32::try_from(self.outbound_dropped).unwrap_or(u32::MAX);
+        self.st.rule_counts[gateway_counts::INBOUND_DROPPED] =
+            u32::try_from(self.inbound_dropped.load(Ordering::Relaxed)).unwrap_or(u32::MAX);
+        self.st.rule_counts[gateway_counts::LINK] = self.link.status().link;
+        self.send_out(net, Outbound::Gateway(self.gateway_status()));
+        Ok(())
+    }
+
+    fn gateway_status(&self) -> GatewayStatus {
+        GatewayStatus {
+            t_ns: now_ns(),
+            outbound_dropped: self.outbound_dropped,
+            ..self.link.status()
+        }
+    }
+
+    fn send_out(&mut self, net: &Network, m: Outbound) {
+        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = net.out.try_send(m) {
+            self.outbound_dropped += 1;
+        }
+    }
+}
+
+/// Runs the gateway of graph `prefix` until a shutdown is requested.
+pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
+    cfg.network.validate()?;
+    let net_cfg = &cfg.network;
+    let creds = if net_cfg.credentials.is_empty() {
+        None
+    } else {
+        Some(Credentials::load(Path::new(&net_cfg.credentials))?)
+    };
+    let keys = Keys::new(&net_cfg.namespace_for(prefix.as_str()));
+    let graph = Graph::join_with(prefix, "gateway", cfg.graph.transport)?;
+    let states = graph.robot_state_subscriber(true)?;
+    let mappers = graph.mapper_command_subscriber(false)?;
+    let safes = graph.safe_command_subscriber(false)?;
+    let statuses = graph.status_subscriber()?;
+    let reports = graph.tick_report_subscriber()?;
+    let heartbeat = graph.status_publisher()?;
+    let joystick = if net_cfg.accept_joystick {
+        Some(graph.joystick_publisher()?)
+    } else {
+        None
+    };
+    let estop = if net_cfg.inbound() {
+        Some(graph.estop_publisher()?)
+    } else {
+        None
+    };
+    let waker = Arc::new(Waker::new().map_err(|source| GatewayError::Thread {
+        what: "inbound wake-up",
+        source,
+    })?);
+    let (in_tx, in_rx) = crossbeam_channel::bounded(INBOUND_QUEUE);
+    let inbound_dropped = Arc::new(AtomicU64::new(0));
+    let inbound = InboundTx {
+        tx: in_tx,
+        waker: Arc::clone(&waker),
+        dropped: Arc::clone(&inbound_dropped),
+    };
+    let net = Network::open(cfg, &keys, creds.as_ref(), &inbound)?;
+    let mut gw = Gateway {
+        cfg,
+        link: OperatorLink::new(),
+        joystick,
+        estop,
+        prefix,
+        seq: 0,
+        st: NodeStatus::new(NodeRole::Gateway, phase::READY, now_ns()),
+        outbound_dropped: 0,
+        inbound_dropped,
+    };
+    heartbeat.send(gw.st)?;
+    gw.st.phase = phase::RUNNING;
+    tracing::info!(
+        namespace = keys.namespace(),
+        listen = ?net_cfg.listen,
+        connect = ?net_cfg.connect,
+        joystick = net_cfg.accept_joystick,
+        reset = net_cfg.accept_reset,
+        "gateway up"
+    );
+    while !signals::stop_requested() {
+        let wakes: [&dyn Wakeable; 2] = [&states, &*waker];
+        transport::wait_any(&wakes, Duration::from_millis(100));
+        let mut newest = None;
+        states.drain(|s| {
+            newest = Some(*s);
+            gw.send_out(&net, Outbound::State(*s));
+        })?;
+        if let Some(s) = newest {
+            gw.tick(&s, &net)?;
+            heartbeat.send(gw.st)?;
+        }
+        while let Ok(m) = in_rx.try_recv() {
+            gw.inbound(m, &net)?;
+        }
+        mappers.drain(|c| gw.send_out(&net, Outbound::Mapper(*c)))?;
+        safes.drain(|c| gw.send_out(&net, Outbound::Safe(*c)))?;
+        statuses.drain(|s| gw.send_out(&net, Outbound::Status(*s)))?;
+        reports.drain(|r| gw.send_out(&net, Outbound::Report(*r)))?;
+    }
+    gw.st.phase = phase::STOPPING;
+    gw.st.t_ns = now_ns();
+    let _ = heartbeat.send(gw.st);
+    drop(net);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn neutral_is_safetys_neutral() {
+        assert_eq!(
+            scl_net::link::NEUTRAL_MAX_ACTION,
+            safety::restart::NEUTRAL_MAX_ACTION
+        );
+    }
+}
