@@ -405,7 +405,9 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
         Cmd::Layout => cmd::layout(),
         Cmd::Joystick { graph, args } => {
             let (prefix, mut cfg) = graph.load()?;
-            let _log = (!args.list).then(|| graph_log(&prefix, "joystick"));
+            // A remote operator is on another machine than the graph: no log topic there.
+            let _log =
+                (!args.list && args.remote.is_none()).then(|| graph_log(&prefix, "joystick"));
             cmd::nodes::joystick(&prefix, &mut cfg, &args)
         }
         Cmd::Mapper { graph, args } => {

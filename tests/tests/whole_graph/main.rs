@@ -15,6 +15,7 @@ mod live;
 mod live_log;
 mod live_port;
 mod modeswitch;
+mod network;
 mod rate;
 mod recording;
 mod replay;

@@ -1,0 +1,594 @@
+//! The graph reached from another machine through its Zenoh gateway, on real network stacks:
+//! two network namespaces (the robot PC and the operator's laptop) joined by a veth pair. CI
+//! runs as root; a test that cannot make its namespaces fails, it does not skip.
+//!
+//! This project's machines run a kernel built without `netem` (`CONFIG_NET_SCH_NETEM` is not
+//! set: `tc qdisc ... netem` answers "Specified qdisc kind is unknown"), so a cut is the
+//! operator's interface taken down (`ip link set down`: the same loss of every packet), and
+//! added delay is a TCP relay in the operator's namespace ([`DelayLine`]) that holds every
+//! chunk, both ways, for a set time before passing it on.
+
+use std::io::{Read as _, Write as _};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use ipc_types::{
+    JoystickInput, NodeRole, NodeStatus, SafeCommand, buttons, gateway_counts, safe_flags,
+};
+use scl_tests::{
+    ChildGuard, Recorder, assert_misses_only_held_up, assert_stop_within_two_ticks, scl_binary,
+    serial, temp_dir, unique_prefix, wait_clean,
+};
+
+/// Two namespaces joined by a veth pair: `robot` holds 10.213.X.1, `op` 10.213.X.2.
+struct Netns {
+    robot: String,
+    op: String,
+    robot_ip: String,
+    op_dev: String,
+}
+
+fn ip(args: &[&str]) {
+    let out = Command::new("ip").args(args).output().unwrap_or_else(|e| {
+        panic!("`ip` (iproute2) is needed for the network tests (.ci/run installs it): {e}")
+    });
+    assert!(
+        out.status.success(),
+        "ip {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+impl Netns {
+    fn new(tag: &str) -> Self {
+        // Short names: interface names hold 15 bytes.
+        let id = std::process::id() % 10_000;
+        let n = format!("{tag}{id}");
+        let (robot, op) = (format!("sclr-{n}"), format!("sclo-{n}"));
+        let (rdev, odev) = (format!("vr{n}"), format!("vo{n}"));
+        let subnet = 1 + id % 250;
+        let ns = Self {
+            robot: robot.clone(),
+            op: op.clone(),
+            robot_ip: format!("10.213.{subnet}.1"),
+            op_dev: odev.clone(),
+        };
+        ip(&["netns", "add", &robot]);
+        ip(&["netns", "add", &op]);
+        ip(&["link", "add", &rdev, "type", "veth", "peer", "name", &odev]);
+        ip(&["link", "set", &rdev, "netns", &robot]);
+        ip(&["link", "set", &odev, "netns", &op]);
+        ip(&[
+            "-n",
+            &robot,
+            "addr",
+            "add",
+            &format!("10.213.{subnet}.1/30"),
+            "dev",
+            &rdev,
+        ]);
+        ip(&[
+            "-n",
+            &op,
+            "addr",
+            "add",
+            &format!("10.213.{subnet}.2/30"),
+            "dev",
+            &odev,
+        ]);
+        for (n, d) in [(&robot, &rdev), (&op, &odev)] {
+            ip(&["-n", n, "link", "set", "lo", "up"]);
+            ip(&["-n", n, "link", "set", d, "up"]);
+        }
+        ns
+    }
+
+    /// `scl ARGS` inside namespace `ns`, for graph `prefix`.
+    fn scl(&self, ns: &str, prefix: &ipc_types::Prefix) -> Command {
+        let mut c = Command::new("ip");
+        c.args(["netns", "exec", ns])
+            .arg(scl_binary())
+            .env("SCL_PREFIX", prefix.as_str())
+            .env("SCL_LOG", "warn");
+        c
+    }
+
+    /// Cuts the link (`up == false`: the operator's interface down) or restores it.
+    fn link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        ip(&["-n", &self.op, "link", "set", &self.op_dev, state]);
+    }
+
+    fn endpoint(&self) -> String {
+        format!("tcp/{}:7447", self.robot_ip)
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        // Deleting a namespace deletes its end of the pair, and with it the other.
+        for n in [&self.robot, &self.op] {
+            let _ = Command::new("ip").args(["netns", "del", n]).output();
+        }
+    }
+}
+
+/// A TCP relay in the operator's namespace, listening on its loopback and connecting to the
+/// gateway: every chunk, both ways, is held `delay` before it is passed on (in order).
+struct DelayLine {
+    port: u16,
+    delay_us: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+}
+
+impl DelayLine {
+    fn start(ns: &Netns) -> Self {
+        let (port_tx, port_rx) = std::sync::mpsc::channel();
+        let delay_us = Arc::new(AtomicU64::new(0));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (netns, target) = (ns.op.clone(), format!("{}:7447", ns.robot_ip));
+        let (d, st) = (Arc::clone(&delay_us), Arc::clone(&stop));
+        std::thread::spawn(move || {
+            // This thread (and the threads it starts) live in the operator's namespace.
+            let f = std::fs::File::open(format!("/var/run/netns/{netns}")).unwrap();
+            nix::sched::setns(f, nix::sched::CloneFlags::CLONE_NEWNET).unwrap();
+            let l = TcpListener::bind("127.0.0.1:0").unwrap();
+            l.set_nonblocking(true).unwrap();
+            port_tx.send(l.local_addr().unwrap().port()).unwrap();
+            while !st.load(Ordering::Relaxed) {
+                match l.accept() {
+                    Ok((a, _)) => {
+                        // The gateway gone (the graph stopped): the operator's retry fails.
+                        let Ok(b) = TcpStream::connect(&target) else {
+                            continue;
+                        };
+                        // As Zenoh's own sockets: no Nagle (it would hold small samples
+                        // for the peer's delayed acknowledgement, ~40 ms).
+                        let _ = a.set_nodelay(true).and(b.set_nodelay(true));
+                        let _ = a.set_nonblocking(false);
+                        for (from, to) in [(&a, &b), (&b, &a)] {
+                            pipe(from.try_clone().unwrap(), to.try_clone().unwrap(), &d, &st);
+                        }
+                    }
+                    Err(_) => std::thread::sleep(Duration::from_millis(5)),
+                }
+            }
+        });
+        let port = port_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+        Self {
+            port,
+            delay_us,
+            stop,
+        }
+    }
+
+    fn set_delay(&self, d: Duration) {
+        self.delay_us.store(d.as_micros() as u64, Ordering::Relaxed);
+    }
+
+    fn endpoint(&self) -> String {
+        format!("tcp/127.0.0.1:{}", self.port)
+    }
+}
+
+impl Drop for DelayLine {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
+/// One direction of the relay: a reader stamps each chunk with when it is due, a writer
+/// sends it then.
+fn pipe(mut from: TcpStream, mut to: TcpStream, delay_us: &Arc<AtomicU64>, stop: &Arc<AtomicBool>) {
+    let (tx, rx) = std::sync::mpsc::channel::<(Instant, Vec<u8>)>();
+    let d = Arc::clone(delay_us);
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 65536];
+        while let Ok(n) = from.read(&mut buf) {
+            let due = Instant::now() + Duration::from_micros(d.load(Ordering::Relaxed));
+            if n == 0 || tx.send((due, buf[..n].to_vec())).is_err() {
+                break;
+            }
+        }
+    });
+    let st = Arc::clone(stop);
+    std::thread::spawn(move || {
+        while let Ok((due, bytes)) = rx.recv() {
+            std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            if st.load(Ordering::Relaxed) || to.write_all(&bytes).is_err() {
+                break;
+            }
+        }
+        let _ = to.shutdown(std::net::Shutdown::Both);
+    });
+}
+
+/// A credentials file of `text` with mode 0600.
+fn credentials(dir: &Path, name: &str, text: &str) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt as _;
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
+    p
+}
+
+/// The robot PC's configuration: the gateway on the veth address, taking the joystick.
+fn graph_config(dir: &Path, ns: &Netns, script: &str) -> PathBuf {
+    let creds = credentials(dir, "robot.creds", "operator:right-one\n");
+    let p = dir.join("graph.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "[joystick]\nscript = \"{script}\"\nstep_hold_s = 1.0\nstep_rest_s = 0.5\n\
+             [network]\nenabled = true\naccept_joystick = true\nlease_ms = 500\n\
+             listen = [\"{}\"]\ncredentials = \"{}\"\n",
+            ns.endpoint(),
+            creds.display()
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// The gateway's newest heartbeat.
+fn gateway(rec: &Recorder) -> Option<NodeStatus> {
+    rec.statuses
+        .iter()
+        .rev()
+        .find(|s| s.role == NodeRole::Gateway as u32)
+        .copied()
+}
+
+fn count(rec: &Recorder, i: usize) -> u32 {
+    gateway(rec).map_or(0, |g| g.rule_counts[i])
+}
+
+/// Whether the arm moved in the newest state.
+fn moving(rec: &Recorder) -> bool {
+    rec.robot_states
+        .last()
+        .is_some_and(|s| s.qdot().iter().any(|v| v.abs() > 1e-6))
+}
+
+/// No executed command changed a joint's speed by more than its acceleration limit allows
+/// in one period (the default limits of the Gen3 lite, 40 Hz).
+fn assert_acceleration_limited(cmds: &[SafeCommand], what: &str) {
+    let limits = [1.0, 0.5, 0.4, 1.0, 10.0, 10.0];
+    for w in cmds.windows(2).filter(|w| w[1].tick == w[0].tick + 1) {
+        for (j, a) in limits.iter().enumerate() {
+            let dv = (w[1].qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
+            assert!(
+                dv <= a * 0.025 + 1e-6,
+                "{what}: joint {j} changed speed by {dv} rad/s at tick {}",
+                w[1].tick
+            );
+        }
+    }
+}
+
+/// Starts `scl joystick --remote` in the operator's namespace.
+fn remote_operator(
+    ns: &Netns,
+    endpoint: &str,
+    prefix: &ipc_types::Prefix,
+    cfg: &Path,
+    creds: &Path,
+    script: &str,
+    stderr: Stdio,
+) -> ChildGuard {
+    let mut c = ns.scl(&ns.op, prefix);
+    c.args(["joystick", "--config"])
+        .arg(cfg)
+        .args([
+            "--source", "script", "--script", script, "--remote", endpoint,
+        ])
+        .arg("--credentials")
+        .arg(creds)
+        .stdout(Stdio::null())
+        .stderr(stderr);
+    ChildGuard(Some(c.spawn().unwrap()))
+}
+
+fn up(ns: &Netns, prefix: &ipc_types::Prefix, cfg: &Path, secs: u32) -> ChildGuard {
+    let mut c = ns.scl(&ns.robot, prefix);
+    c.args(["up", "--json", "--config"])
+        .arg(cfg)
+        .arg("--for")
+        .arg(format!("{secs}s"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    ChildGuard(Some(c.spawn().unwrap()))
+}
+
+/// Waits for `scl up`, returns its JSON summary and log.
+fn finish(mut g: ChildGuard) -> (serde_json::Value, String) {
+    let out = g.take().wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "scl up failed:\n{log}");
+    let summary =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("scl up --json: {e}\n{log}"));
+    (summary, log)
+}
+
+/// The first forwarded operator sample (not the gateway's stand-in) after tick `t`.
+fn first_forwarded_after(samples: &[JoystickInput], t: u64) -> Option<JoystickInput> {
+    samples
+        .iter()
+        .find(|s| s.tick > t && s.buttons & buttons::NO_DEVICE == 0)
+        .copied()
+}
+
+#[test]
+fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_session() {
+    let _serial = serial();
+    let ns = Netns::new("c");
+    let prefix = unique_prefix("netcut");
+    let dir = temp_dir("netcut");
+    let cfg = graph_config(&dir, &ns, "circle");
+    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
+    let mut rec = Recorder::join(&prefix);
+    let graph = up(&ns, &prefix, &cfg, 30);
+    assert!(
+        rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5),
+        "the graph did not start"
+    );
+    let op = remote_operator(
+        &ns,
+        &ns.endpoint(),
+        &prefix,
+        &cfg,
+        &op_creds,
+        "circle",
+        Stdio::null(),
+    );
+    assert!(
+        rec.poll_until(Duration::from_secs(10), |r| moving(r)
+            && count(r, gateway_counts::FORWARDED) > 40),
+        "the remote operator never drove the arm"
+    );
+    // Cut the link: samples stop reaching the robot PC.
+    ns.link(false);
+    assert!(
+        rec.poll_until(Duration::from_secs(5), |r| count(
+            r,
+            gateway_counts::STALE_STOPS
+        ) >= 1),
+        "the gateway never found the input stale"
+    );
+    let detected = gateway(&rec).unwrap().tick;
+    let last_forwarded = rec
+        .joystick_samples
+        .iter()
+        .rfind(|s| s.buttons & buttons::NO_DEVICE == 0)
+        .unwrap()
+        .tick;
+    rec.poll_for(Duration::from_millis(200));
+    let after: Vec<_> = rec
+        .robot_states
+        .iter()
+        .filter(|s| s.tick >= detected)
+        .copied()
+        .collect();
+    assert_stop_within_two_ticks(&after, "a cut link");
+    eprintln!(
+        "cut: the last forwarded sample answered tick {last_forwarded}; the gateway found the \
+         input stale at tick {detected} ({} ticks later)",
+        detected - last_forwarded
+    );
+    // Past the lease (500 ms) the session is gone: its liveliness token with it.
+    assert!(
+        rec.poll_until(Duration::from_secs(5), |r| count(
+            r,
+            gateway_counts::LINK_LOSSES
+        ) >= 1),
+        "the gateway never declared the link lost"
+    );
+    assert!(
+        rec.poll_until(Duration::from_secs(5), |r| !moving(r)),
+        "the arm did not come to rest"
+    );
+    // Restored: the old session's samples are refused, the arm stays at rest.
+    ns.link(true);
+    let restored = rec.robot_states.last().unwrap().tick;
+    rec.poll_for(Duration::from_secs(2));
+    assert!(
+        rec.robot_states
+            .iter()
+            .filter(|s| s.tick > restored)
+            .all(|s| s.qdot().iter().all(|v| v.abs() < 1e-9)),
+        "the arm moved on the ended session's input"
+    );
+    drop(op);
+    // A new session (its script starts at rest: neutral first) drives again.
+    let op2 = remote_operator(
+        &ns,
+        &ns.endpoint(),
+        &prefix,
+        &cfg,
+        &op_creds,
+        "circle",
+        Stdio::null(),
+    );
+    let rejoined = rec.robot_states.last().unwrap().tick;
+    assert!(
+        rec.poll_until(Duration::from_secs(10), moving),
+        "a new session never drove the arm"
+    );
+    let first = first_forwarded_after(&rec.joystick_samples, rejoined).unwrap();
+    assert!(
+        first.axes.iter().all(|a| a.abs() <= 0.05),
+        "the first forwarded sample of the new session was not neutral: {first:?}"
+    );
+    assert_acceleration_limited(&rec.safe_commands, "cut and rejoin");
+    drop(op2);
+    let (summary, log) = finish(graph);
+    assert_misses_only_held_up(&summary, &log, "a cut link");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn fifty_ms_of_delay_makes_the_input_stale_and_the_arm_stops_without_a_jerk() {
+    let _serial = serial();
+    let ns = Netns::new("d");
+    let prefix = unique_prefix("netdelay");
+    let dir = temp_dir("netdelay");
+    let cfg = graph_config(&dir, &ns, "step");
+    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
+    let mut rec = Recorder::join(&prefix);
+    let graph = up(&ns, &prefix, &cfg, 25);
+    assert!(rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5));
+    let line = DelayLine::start(&ns);
+    let _op = remote_operator(
+        &ns,
+        &line.endpoint(),
+        &prefix,
+        &cfg,
+        &op_creds,
+        "step",
+        Stdio::null(),
+    );
+    assert!(
+        rec.poll_until(Duration::from_secs(10), moving),
+        "the remote operator never drove the arm"
+    );
+    line.set_delay(Duration::from_millis(50));
+    assert!(
+        rec.poll_until(Duration::from_secs(5), |r| count(
+            r,
+            gateway_counts::STALE_STOPS
+        ) >= 1),
+        "50 ms of delay did not make the input stale"
+    );
+    let stale_at = gateway(&rec).unwrap().tick;
+    rec.poll_for(Duration::from_secs(3));
+    assert!(!moving(&rec), "the arm still moves with 50 ms of delay");
+    assert!(
+        rec.safe_commands
+            .iter()
+            .any(|c| c.tick >= stale_at && c.flags & safe_flags::STOP != 0)
+    );
+    // Back to a fast link: the first sample the gateway passes on is neutral.
+    line.set_delay(Duration::ZERO);
+    let restored = rec.robot_states.last().unwrap().tick;
+    assert!(
+        rec.poll_until(Duration::from_secs(10), moving),
+        "the arm never moved again after the link recovered"
+    );
+    let first = first_forwarded_after(&rec.joystick_samples, restored).unwrap();
+    assert!(
+        first.axes.iter().all(|a| a.abs() <= 0.05),
+        "motion resumed without neutral input: {first:?}"
+    );
+    assert_acceleration_limited(&rec.safe_commands, "50 ms delay");
+    let (summary, log) = finish(graph);
+    assert_misses_only_held_up(&summary, &log, "50 ms delay");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
+    let _serial = serial();
+    let ns = Netns::new("a");
+    let prefix = unique_prefix("netauth");
+    let dir = temp_dir("netauth");
+    let cfg = graph_config(&dir, &ns, "circle");
+    let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
+    let mut rec = Recorder::join(&prefix);
+    let graph = up(&ns, &prefix, &cfg, 8);
+    assert!(rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5));
+    let mut op = remote_operator(
+        &ns,
+        &ns.endpoint(),
+        &prefix,
+        &cfg,
+        &wrong,
+        "circle",
+        Stdio::piped(),
+    );
+    let out = op.take().wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the wrong password was let in");
+    assert!(err.contains("cannot open a Zenoh session"), "{err}");
+    // A world-readable credentials file is refused before any connection, naming its mode.
+    let open = dir.join("open.creds");
+    std::fs::write(&open, "operator:right-one\n").unwrap();
+    let mut c = ns.scl(&ns.op, &prefix);
+    let out = c
+        .args(["joystick", "--source", "script", "--remote"])
+        .arg(ns.endpoint())
+        .arg("--credentials")
+        .arg(&open)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("chmod 600"), "{err}");
+    rec.poll_for(Duration::from_secs(1));
+    let (summary, log) = finish(graph);
+    rec.poll();
+    assert_eq!(count(&rec, gateway_counts::FORWARDED), 0);
+    assert!(
+        rec.robot_states
+            .iter()
+            .all(|s| s.qdot().iter().all(|v| *v == 0.0)),
+        "the arm moved"
+    );
+    assert_eq!(summary["missed"], summary["held_up"], "{log}");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn inbound_without_credentials_or_with_an_open_file_refuses_the_graph_naming_it() {
+    let dir = temp_dir("netrefuse");
+    let prefix = unique_prefix("netrefuse");
+    let p = dir.join("graph.toml");
+    std::fs::write(&p, "[network]\nenabled = true\naccept_joystick = true\n").unwrap();
+    let out = scl_tests::scl(&prefix)
+        .args(["up", "--for", "1s", "--config"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("network.credentials"),
+        "{err}"
+    );
+    let creds = dir.join("open.creds");
+    std::fs::write(&creds, "operator:pw\n").unwrap();
+    std::fs::write(
+        &p,
+        format!(
+            "[network]\nenabled = true\naccept_joystick = true\ncredentials = \"{}\"\n",
+            creds.display()
+        ),
+    )
+    .unwrap();
+    let out = scl_tests::scl(&prefix)
+        .args(["up", "--for", "1s", "--config"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("mode 0644"), "{err}");
+    assert!(wait_clean(&prefix, Duration::from_secs(5)).is_empty());
+    std::fs::remove_dir_all(dir).unwrap();
+}
