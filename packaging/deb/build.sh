@@ -46,7 +46,8 @@ install -m 0600 "$root/packaging/kortex.env" "$pkg/etc/scl/kortex.env"
 install -m 0644 "$root/packaging/scl-graph.service" "$pkg/lib/systemd/system/scl-graph.service"
 install -m 0644 "$root"/robots/* "$pkg/usr/share/scl/robots/"
 install -m 0644 "$root/models/default.safetensors" "$pkg/usr/share/scl/models/bundled.safetensors"
-install -m 0644 "$root/README.md" "$root/examples/graph.toml" "$pkg/usr/share/doc/scl-teleop/"
+install -m 0644 "$root/README.md" "$root/examples/graph.toml" "$root/docs/network.md" \
+  "$pkg/usr/share/doc/scl-teleop/"
 for s in postinst prerm postrm; do
     install -m 0755 "$root/packaging/deb/$s" "$pkg/DEBIAN/$s"
 done

@@ -8,12 +8,12 @@
 //! * **services**: the crates under `services/`, one per process or tool of the `scl`
 //!   command (`scl-joystick`, `scl-mapper-node`, `scl-safety-node`, `scl-bridge-node`,
 //!   `scl-supervisor`, `scl-recorder`, `scl-live`, `scl-dashboard`, `scl-bench`,
-//!   `scl-study`).
+//!   `scl-study`, `scl-gateway`).
 //! * **the whole-graph tests**: `tests/` (package `scl-tests`): beside the top; it runs the
 //!   `scl` binary and links libraries only.
 //! * **libraries**: every other crate (`ipc-types`, `transport`, `scl-config`, `node-rt`,
-//!   `graph-client`, `kinematics`, `mapper`, `safety`, `hw-bridge`, `recording`, `replay`,
-//!   `viz`, `learning`, `study`, `test-support`).
+//!   `graph-client`, `scl-net`, `kinematics`, `mapper`, `safety`, `hw-bridge`, `recording`,
+//!   `replay`, `viz`, `learning`, `study`, `test-support`).
 //!
 //! The rules (every kind of dependency counts: normal, build and dev):
 //!
@@ -26,6 +26,8 @@
 //!    transport.
 //! 5. `ipc-types`, `recording` and `viz` do not link `iceoryx2`: no crate they depend on
 //!    (directly or not, normal dependencies) depends on it or on `transport`.
+//! 6. The control path's crates (`mapper`, `safety`, `hw-bridge` and their three loops) do
+//!    not link `zenoh`: the network reaches the graph through the gateway only.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -50,6 +52,17 @@ struct Krate {
 
 /// The crates that must not link iceoryx2.
 const NO_ICEORYX2: &[&str] = &["ipc-types", "recording", "viz"];
+
+/// The control path's crates, which must not link the network (zenoh): only the gateway, a
+/// remote joystick and what starts them reach another machine.
+const NO_ZENOH: &[&str] = &[
+    "mapper",
+    "safety",
+    "hw-bridge",
+    "scl-mapper-node",
+    "scl-safety-node",
+    "scl-bridge-node",
+];
 
 fn workspace() -> BTreeMap<String, Krate> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
@@ -98,7 +111,7 @@ fn workspace() -> BTreeMap<String, Krate> {
             .iter()
             .filter_map(|d| {
                 let dep = d["name"].as_str()?;
-                (names.contains(dep) || dep == "iceoryx2").then(|| {
+                (names.contains(dep) || dep == "iceoryx2" || dep == "zenoh").then(|| {
                     let kind = d["kind"].as_str().unwrap_or("normal").to_owned();
                     (dep.to_owned(), kind)
                 })
@@ -115,6 +128,9 @@ fn forbidden_edges(crates: &BTreeMap<String, Krate>) -> Vec<String> {
     for (name, k) in crates {
         for (dep, kind) in &k.deps {
             let edge = format!("{name} -> {dep} ({kind})");
+            if dep == "zenoh" {
+                continue;
+            }
             if dep == "iceoryx2" {
                 if name == "ipc-types" {
                     bad.push(format!(
@@ -207,6 +223,29 @@ fn messages_recording_and_viz_do_not_link_iceoryx2() {
                 .collect::<Vec<_>>()
         );
     }
+}
+
+#[test]
+fn the_control_path_does_not_link_the_network() {
+    let crates = workspace();
+    for name in NO_ZENOH {
+        assert!(crates.contains_key(*name), "no crate {name}");
+        let through: Vec<_> = links(&crates, name)
+            .into_iter()
+            .filter(|c| {
+                crates.get(c).is_some_and(|k| {
+                    k.deps
+                        .iter()
+                        .any(|(d, kind)| d == "zenoh" && kind == "normal")
+                })
+            })
+            .collect();
+        assert!(through.is_empty(), "{name} links zenoh through {through:?}");
+    }
+    assert!(
+        links(&crates, "scl-gateway").contains("scl-net"),
+        "the rule looks at the crates that do link zenoh"
+    );
 }
 
 #[test]
