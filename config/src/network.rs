@@ -51,6 +51,13 @@ pub struct NetworkConfig {
     /// Zenoh's multicast scouting (finding peers on the LAN by themselves); off, so a graph
     /// joins only the endpoints named here.
     pub multicast_scouting: bool,
+    /// Also speak rmw_zenoh's wire format: `/joint_states` and `/scl/safety_status` for a
+    /// ROS 2 graph on Zenoh, with liveliness tokens so `ros2 topic list` sees them.
+    pub ros2: bool,
+    /// The ROS 2 domain id (`ROS_DOMAIN_ID`).
+    pub ros2_domain_id: u32,
+    /// The ROS 2 node name the gateway appears as.
+    pub ros2_node: String,
 }
 
 impl Default for NetworkConfig {
@@ -67,6 +74,9 @@ impl Default for NetworkConfig {
             lease_ms: 1000,
             outbound_queue: 256,
             multicast_scouting: false,
+            ros2: false,
+            ros2_domain_id: 0,
+            ros2_node: "scl_gateway".into(),
         }
     }
 }
@@ -135,6 +145,30 @@ impl NetworkConfig {
             return Err(err(
                 "lease_ms",
                 format!("{} is outside 100..=60000", self.lease_ms),
+            ));
+        }
+        if self.ros2_domain_id > 232 {
+            return Err(err(
+                "ros2_domain_id",
+                format!(
+                    "{} is outside 0..=232 (ROS 2's domain ids)",
+                    self.ros2_domain_id
+                ),
+            ));
+        }
+        if self.ros2_node.is_empty()
+            || !self
+                .ros2_node
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_')
+            || self.ros2_node.starts_with(|c: char| c.is_ascii_digit())
+        {
+            return Err(err(
+                "ros2_node",
+                format!(
+                    "`{}` is not a ROS 2 node name (letters, digits and `_`, not starting with a digit)",
+                    self.ros2_node
+                ),
             ));
         }
         if !(1..=65_536).contains(&self.outbound_queue) {

@@ -17,6 +17,7 @@ pub mod credentials;
 pub mod keys;
 pub mod link;
 pub mod ports;
+pub mod ros2;
 pub mod session;
 pub mod wire;
 

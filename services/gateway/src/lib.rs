@@ -162,7 +162,7 @@ impl Network {
             )?);
         }
         let (out, rx) = crossbeam_channel::bounded(net.outbound_queue);
-        let publishers = Publishers::declare(&session, keys)?;
+        let publishers = Publishers::declare(&session, keys, cfg)?;
         let thread = std::thread::Builder::new()
             .name("gateway-out".into())
             .spawn(move || publishers.run(&rx))
@@ -198,13 +198,147 @@ struct Publishers {
     status: Out<NodeStatus>,
     report: Out<TickReport>,
     gateway: Out<GatewayStatus>,
+    ros2: Option<Ros2Out>,
+}
+
+/// The ROS 2 side ([`scl_net::ros2`]): `/joint_states` every tick, `/scl/safety_status` when
+/// safety's flags change, and the liveliness tokens that make the node and its publishers
+/// visible to `ros2 node list` / `ros2 topic list`.
+struct Ros2Out {
+    joint_states: scl_net::zenoh::pubsub::Publisher<'static>,
+    safety: scl_net::zenoh::pubsub::Publisher<'static>,
+    names: Vec<String>,
+    gids: [[u8; 16]; 2],
+    seq: u64,
+    last_flags: Option<u32>,
+    _tokens: Vec<scl_net::zenoh::liveliness::LivelinessToken>,
+}
+
+/// The ROS 2 topics the gateway publishes.
+const JOINT_STATES: &str = "/joint_states";
+const SAFETY_STATUS: &str = "/scl/safety_status";
+
+impl Ros2Out {
+    fn declare(session: &scl_net::zenoh::Session, cfg: &GraphConfig) -> Result<Self, GatewayError> {
+        use scl_net::ros2::{EntityKind, JOINT_STATE, Ros2Node, STRING};
+        use scl_net::zenoh::Wait as _;
+        let node = Ros2Node {
+            domain: cfg.network.ros2_domain_id,
+            zid: session::session_id(session),
+            name: cfg.network.ros2_node.clone(),
+        };
+        let declare = |key: String| {
+            session
+                .declare_publisher(key.clone())
+                .wait()
+                .map_err(|source| scl_net::SessionError::Declare {
+                    what: "ROS 2 publisher",
+                    key,
+                    source,
+                })
+        };
+        let joint_states = declare(node.topic_key(JOINT_STATES, JOINT_STATE))?;
+        let safety = declare(node.topic_key(SAFETY_STATUS, STRING))?;
+        let tokens = vec![
+            ports::token(session, node.node_token())?,
+            ports::token(
+                session,
+                node.entity_token(1, EntityKind::Publisher, JOINT_STATES, JOINT_STATE),
+            )?,
+            ports::token(
+                session,
+                node.entity_token(2, EntityKind::Publisher, SAFETY_STATUS, STRING),
+            )?,
+        ];
+        Ok(Self {
+            joint_states,
+            safety,
+            names: cfg.profile()?.joint_names().to_vec(),
+            gids: [node.gid(1), node.gid(2)],
+            seq: 0,
+            last_flags: None,
+            _tokens: tokens,
+        })
+    }
+
+    fn put(&mut self, which: usize, bytes: Vec<u8>) -> Result<(), scl_net::zenoh::Error> {
+        use scl_net::zenoh::Wait as _;
+        self.seq += 1;
+        let now = wall_ns();
+        let att = scl_net::ros2::attachment(self.seq, now as u64, &self.gids[which]);
+        let p = if which == 0 {
+            &self.joint_states
+        } else {
+            &self.safety
+        };
+        p.put(bytes).attachment(att).wait()
+    }
+
+    fn state(&mut self, s: &RobotState) -> Result<(), scl_net::zenoh::Error> {
+        use scl_net::ros2::{Header, JointState, Time};
+        let n = self.names.len().min(s.q().len());
+        let m = JointState {
+            header: Header {
+                stamp: Time::from_ns(wall_ns()),
+                frame_id: String::new(),
+            },
+            name: self.names[..n].to_vec(),
+            position: s.q()[..n].to_vec(),
+            velocity: s.qdot()[..n].to_vec(),
+            effort: Vec::new(),
+        };
+        let bytes = scl_net::ros2::encode(&m, "sensor_msgs/msg/JointState")?;
+        self.put(0, bytes)
+    }
+
+    fn safe(&mut self, c: &SafeCommand) -> Result<(), scl_net::zenoh::Error> {
+        if self.last_flags == Some(c.flags) {
+            return Ok(());
+        }
+        self.last_flags = Some(c.flags);
+        let rules: Vec<&str> = ipc_types::safe_flags::NAMES
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| c.flags & (1 << i) != 0)
+            .map(|(_, n)| *n)
+            .collect();
+        let data = format!(
+            "tick {}: {}",
+            c.tick,
+            if rules.is_empty() {
+                "ok".to_owned()
+            } else {
+                rules.join(", ")
+            }
+        );
+        let bytes =
+            scl_net::ros2::encode(&scl_net::ros2::RosString { data }, "std_msgs/msg/String")?;
+        self.put(1, bytes)
+    }
+}
+
+/// The wall clock (ns since the epoch): ROS 2's header stamps.
+fn wall_ns() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos())
 }
 
 impl Publishers {
-    fn declare(session: &scl_net::zenoh::Session, keys: &Keys) -> Result<Self, GatewayError> {
+    fn declare(
+        session: &scl_net::zenoh::Session,
+        keys: &Keys,
+        cfg: &GraphConfig,
+    ) -> Result<Self, GatewayError> {
         use ipc_types::topics;
         let o = Urgency::Observe;
+        let ros2 = if cfg.network.ros2 {
+            Some(Ros2Out::declare(session, cfg)?)
+        } else {
+            None
+        };
         Ok(Self {
+            ros2,
             // Robot states reach a remote operator, whose samples answer them.
             state: ports::publisher(
                 session,
@@ -219,9 +353,20 @@ impl Publishers {
         })
     }
 
-    fn run(&self, rx: &Receiver<Outbound>) {
+    fn run(mut self, rx: &Receiver<Outbound>) {
         let mut failures = 0u64;
         while let Ok(m) = rx.recv() {
+            let ros2 = match (&mut self.ros2, &m) {
+                (Some(r), Outbound::State(s)) => r.state(s),
+                (Some(r), Outbound::Safe(c)) => r.safe(c),
+                _ => Ok(()),
+            };
+            if let Err(e) = ros2 {
+                failures += 1;
+                if failures.is_power_of_two() {
+                    tracing::warn!(failures, "cannot publish to ROS 2: {e}");
+                }
+            }
             let r = match &m {
                 Outbound::State(s) => self.state.put(s),
                 Outbound::Mapper(c) => self.mapper.put(c),

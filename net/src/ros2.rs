@@ -1,0 +1,331 @@
+//! ROS 2 without ROS: the gateway speaks rmw_zenoh's wire format (ros2/rmw_zenoh,
+//! `docs/design.md`), so a ROS 2 graph on Zenoh sees the arm: `ros2 topic list` and `ros2
+//! node list` read the liveliness tokens, RViz and rosbag2 take `/joint_states`.
+//!
+//! * A topic's key is `<domain>/<name>/<DDS type name>/<type hash>`; the hash is the one ROS 2
+//!   computes from the type's description (REP-2016's `RIHS01_` form), written here and
+//!   checked against an independent computation (`rosbags`, in `python/tests`).
+//! * Liveliness tokens: `@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<kind>/<enclave>/
+//!   <namespace>/<node>[/<topic>/<type>/<hash>/<qos>]`, with `/` inside a name written `%`
+//!   (kinds `NN` node, `MP` publisher, `MS` subscription).
+//! * Payloads are CDR, little-endian, with the 4-byte encapsulation header (the `cdr`
+//!   crate); every publication carries rmw_zenoh's attachment: sequence number and source
+//!   timestamp (8 bytes each, little-endian), then the publisher's 16-byte id, length-prefixed.
+
+use serde::{Deserialize, Serialize};
+
+/// `sensor_msgs/msg/JointState`.
+pub const JOINT_STATE: RosType = RosType {
+    name: "sensor_msgs::msg::dds_::JointState_",
+    hash: "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
+};
+
+/// `sensor_msgs/msg/Joy`.
+pub const JOY: RosType = RosType {
+    name: "sensor_msgs::msg::dds_::Joy_",
+    hash: "RIHS01_0d356c79cad3401e35ffeb75a96a96e08be3ef896b8b83841d73e890989372c5",
+};
+
+/// `std_msgs/msg/String` (the safety status, one line).
+pub const STRING: RosType = RosType {
+    name: "std_msgs::msg::dds_::String_",
+    hash: "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+};
+
+/// The QoS of every endpoint here: ROS 2's default (reliable, volatile, keep last 10), in
+/// the token's compact form (fields equal to the default left empty).
+pub const DEFAULT_QOS: &str = "::,10:,:,:,,";
+
+/// A ROS 2 message type as rmw_zenoh names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RosType {
+    /// The DDS type name (`pkg::msg::dds_::Type_`).
+    pub name: &'static str,
+    /// The type hash.
+    pub hash: &'static str,
+}
+
+/// `builtin_interfaces/msg/Time`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds.
+    pub sec: i32,
+    /// Nanoseconds, below 1e9.
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// The time `ns` nanoseconds after the epoch.
+    pub fn from_ns(ns: u128) -> Self {
+        Self {
+            sec: i32::try_from(ns / 1_000_000_000).unwrap_or(i32::MAX),
+            nanosec: (ns % 1_000_000_000) as u32,
+        }
+    }
+}
+
+/// `std_msgs/msg/Header`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Header {
+    /// When.
+    pub stamp: Time,
+    /// The frame.
+    pub frame_id: String,
+}
+
+/// `sensor_msgs/msg/JointState`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct JointState {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Joint names.
+    pub name: Vec<String>,
+    /// Positions (rad).
+    pub position: Vec<f64>,
+    /// Velocities (rad/s).
+    pub velocity: Vec<f64>,
+    /// Efforts (none here: empty).
+    pub effort: Vec<f64>,
+}
+
+/// `sensor_msgs/msg/Joy`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Joy {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Axes, each in `[-1, 1]`.
+    pub axes: Vec<f32>,
+    /// Buttons, 1 pressed.
+    pub buttons: Vec<i32>,
+}
+
+/// `std_msgs/msg/String`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct RosString {
+    /// The text.
+    pub data: String,
+}
+
+/// The largest ROS 2 payload accepted (a `Joy` of a few dozen axes is under 1 KiB).
+pub const MAX_PAYLOAD: u64 = 64 * 1024;
+
+/// Why a ROS 2 payload was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum CdrError {
+    /// Not CDR of the expected type, or over [`MAX_PAYLOAD`].
+    #[error("not a {what} in CDR ({len} bytes): {source}")]
+    Decode {
+        /// The type.
+        what: &'static str,
+        /// The payload's length.
+        len: usize,
+        /// The decoder's error.
+        #[source]
+        source: cdr::Error,
+    },
+    /// The message could not be encoded.
+    #[error("cannot encode a {what} in CDR: {source}")]
+    Encode {
+        /// The type.
+        what: &'static str,
+        /// The encoder's error.
+        #[source]
+        source: cdr::Error,
+    },
+}
+
+/// `m` in CDR, little-endian, with its encapsulation header.
+pub fn encode<T: Serialize>(m: &T, what: &'static str) -> Result<Vec<u8>, CdrError> {
+    cdr::serialize::<_, _, cdr::CdrLe>(m, cdr::Infinite)
+        .map_err(|source| CdrError::Encode { what, source })
+}
+
+/// A `Joy` from CDR (either byte order), at most [`MAX_PAYLOAD`] bytes.
+pub fn decode_joy(bytes: &[u8]) -> Result<Joy, CdrError> {
+    let err = |source| CdrError::Decode {
+        what: "sensor_msgs/msg/Joy",
+        len: bytes.len(),
+        source,
+    };
+    if bytes.len() as u64 > MAX_PAYLOAD {
+        return Err(err(cdr::Error::SizeLimit));
+    }
+    cdr::deserialize_from(bytes, cdr::Bounded(MAX_PAYLOAD)).map_err(err)
+}
+
+/// rmw_zenoh's attachment of a publication.
+pub fn attachment(seq: u64, source_timestamp_ns: u64, gid: &[u8; 16]) -> Vec<u8> {
+    let mut a = Vec::with_capacity(8 + 8 + 1 + 16);
+    a.extend_from_slice(&seq.to_le_bytes());
+    a.extend_from_slice(&source_timestamp_ns.to_le_bytes());
+    a.push(16);
+    a.extend_from_slice(gid);
+    a
+}
+
+/// One node's names in a ROS 2 domain.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Ros2Node {
+    /// The domain id.
+    pub domain: u32,
+    /// The Zenoh session's id (hex).
+    pub zid: String,
+    /// The node's name (no namespace).
+    pub name: String,
+}
+
+/// What an endpoint does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EntityKind {
+    /// A publisher (`MP`).
+    Publisher,
+    /// A subscription (`MS`).
+    Subscription,
+}
+
+impl Ros2Node {
+    /// The node's own id (0) and its entities' ids (from 1).
+    const NODE_ID: u32 = 0;
+
+    /// The data key of topic `topic` (`/joint_states`) of type `ty`.
+    pub fn topic_key(&self, topic: &str, ty: RosType) -> String {
+        format!(
+            "{}/{}/{}/{}",
+            self.domain,
+            topic.trim_start_matches('/'),
+            ty.name,
+            ty.hash
+        )
+    }
+
+    /// The node's liveliness token.
+    pub fn node_token(&self) -> String {
+        format!(
+            "@ros2_lv/{}/{}/{id}/{id}/NN/%/%/{}",
+            self.domain,
+            self.zid,
+            mangle(&self.name),
+            id = Self::NODE_ID,
+        )
+    }
+
+    /// The liveliness token of entity `id` (from 1) on `topic`.
+    pub fn entity_token(&self, id: u32, kind: EntityKind, topic: &str, ty: RosType) -> String {
+        let kind = match kind {
+            EntityKind::Publisher => "MP",
+            EntityKind::Subscription => "MS",
+        };
+        format!(
+            "@ros2_lv/{}/{}/{}/{id}/{kind}/%/%/{}/{}/{}/{}/{DEFAULT_QOS}",
+            self.domain,
+            self.zid,
+            Self::NODE_ID,
+            mangle(&self.name),
+            mangle(topic),
+            ty.name,
+            ty.hash
+        )
+    }
+
+    /// The publisher id of entity `id`: the session id's 16 bytes with the entity's in the
+    /// last four, so every publisher of the session has its own.
+    pub fn gid(&self, id: u32) -> [u8; 16] {
+        let z = u128::from_str_radix(&self.zid, 16).unwrap_or_default();
+        let mut g = z.to_le_bytes();
+        g[12..].copy_from_slice(&id.to_le_bytes());
+        g
+    }
+}
+
+/// A name in a liveliness token: `/` written `%` (`%` alone for the root).
+pub fn mangle(name: &str) -> String {
+    if name.is_empty() || name == "/" {
+        "%".into()
+    } else {
+        name.replace('/', "%")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_joint_state_is_cdr_with_its_alignment() {
+        let m = JointState {
+            header: Header {
+                stamp: Time { sec: 1, nanosec: 2 },
+                frame_id: String::new(),
+            },
+            name: vec!["j1".into()],
+            position: vec![0.5],
+            velocity: vec![],
+            effort: vec![],
+        };
+        let b = encode(&m, "JointState").unwrap();
+        // Encapsulation (CDR_LE), sec, nanosec, frame_id "" (length 1: the NUL), names: one,
+        // "j1\0" (length 3) + 1 byte of padding, positions: one, the f64 at body offset 32
+        // (8-aligned as it is), velocity and effort: none.
+        let mut want = vec![0, 1, 0, 0];
+        want.extend_from_slice(&1i32.to_le_bytes());
+        want.extend_from_slice(&2u32.to_le_bytes());
+        want.extend_from_slice(&1u32.to_le_bytes());
+        want.extend_from_slice(&[0, 0, 0, 0]);
+        want.extend_from_slice(&1u32.to_le_bytes());
+        want.extend_from_slice(&3u32.to_le_bytes());
+        want.extend_from_slice(b"j1\0\0");
+        want.extend_from_slice(&1u32.to_le_bytes());
+        want.extend_from_slice(&0.5f64.to_le_bytes());
+        want.extend_from_slice(&0u32.to_le_bytes());
+        want.extend_from_slice(&0u32.to_le_bytes());
+        assert_eq!(b, want);
+    }
+
+    #[test]
+    fn a_joy_round_trips_and_garbage_or_a_huge_length_is_an_error() {
+        let j = Joy {
+            header: Header::default(),
+            axes: vec![0.5, -1.0],
+            buttons: vec![0, 1],
+        };
+        let b = encode(&j, "Joy").unwrap();
+        assert_eq!(decode_joy(&b).unwrap(), j);
+        assert!(decode_joy(&b[..b.len() - 3]).is_err());
+        assert!(decode_joy(&[1, 2, 3]).is_err());
+        let mut huge = vec![0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0];
+        huge.extend_from_slice(&u32::MAX.to_le_bytes());
+        assert!(
+            decode_joy(&huge).is_err(),
+            "a sequence longer than the payload"
+        );
+    }
+
+    #[test]
+    fn keys_and_tokens_follow_rmw_zenoh() {
+        let n = Ros2Node {
+            domain: 0,
+            zid: "a1b2".into(),
+            name: "scl_gateway".into(),
+        };
+        assert_eq!(
+            n.topic_key("/joint_states", JOINT_STATE),
+            format!(
+                "0/joint_states/sensor_msgs::msg::dds_::JointState_/{}",
+                JOINT_STATE.hash
+            )
+        );
+        assert_eq!(n.node_token(), "@ros2_lv/0/a1b2/0/0/NN/%/%/scl_gateway");
+        assert_eq!(
+            n.entity_token(3, EntityKind::Subscription, "/joy", JOY),
+            format!(
+                "@ros2_lv/0/a1b2/0/3/MS/%/%/scl_gateway/%joy/sensor_msgs::msg::dds_::Joy_/{}/::,10:,:,:,,",
+                JOY.hash
+            )
+        );
+        let a = attachment(7, 9, &n.gid(1));
+        assert_eq!(a.len(), 33);
+        assert_eq!(&a[..8], &7u64.to_le_bytes());
+        assert_eq!(a[16], 16);
+        assert_ne!(n.gid(1), n.gid(2));
+    }
+}
