@@ -58,6 +58,22 @@ pub struct NetworkConfig {
     pub ros2_domain_id: u32,
     /// The ROS 2 node name the gateway appears as.
     pub ros2_node: String,
+    /// Take `/joy` (`sensor_msgs/msg/Joy`, e.g. ROS 2's `joy` node) as the joystick; needs
+    /// `ros2` and `accept_joystick`.
+    pub ros2_joy: bool,
+    /// The `/joy` axes that are the stick's x and y.
+    pub ros2_joy_axes: [u32; 2],
+    /// Each axis's factor (`-1.0` turns it round).
+    pub ros2_joy_scale: [f64; 2],
+    /// The `/joy` buttons that are the deadman, the mode switch and the e-stop (`-1`: none).
+    pub ros2_joy_deadman: i32,
+    /// See `ros2_joy_deadman`.
+    pub ros2_joy_mode: i32,
+    /// See `ros2_joy_deadman`.
+    pub ros2_joy_estop: i32,
+    /// A `/joy` input older than this (ms) is stale and stops the arm (the `joy` node repeats
+    /// its last message at `autorepeat_rate`, 20 Hz by default).
+    pub ros2_joy_timeout_ms: u64,
 }
 
 impl Default for NetworkConfig {
@@ -77,6 +93,13 @@ impl Default for NetworkConfig {
             ros2: false,
             ros2_domain_id: 0,
             ros2_node: "scl_gateway".into(),
+            ros2_joy: false,
+            ros2_joy_axes: [0, 1],
+            ros2_joy_scale: [1.0, 1.0],
+            ros2_joy_deadman: -1,
+            ros2_joy_mode: -1,
+            ros2_joy_estop: -1,
+            ros2_joy_timeout_ms: 150,
         }
     }
 }
@@ -169,6 +192,40 @@ impl NetworkConfig {
                     "`{}` is not a ROS 2 node name (letters, digits and `_`, not starting with a digit)",
                     self.ros2_node
                 ),
+            ));
+        }
+        if self.ros2_joy && !(self.ros2 && self.accept_joystick) {
+            return Err(err(
+                "ros2_joy",
+                "needs network.ros2 and network.accept_joystick (with its credentials)".into(),
+            ));
+        }
+        if !self
+            .ros2_joy_scale
+            .iter()
+            .all(|s| s.is_finite() && *s != 0.0)
+        {
+            return Err(err(
+                "ros2_joy_scale",
+                format!(
+                    "{:?}: each must be a finite number other than 0",
+                    self.ros2_joy_scale
+                ),
+            ));
+        }
+        for (key, b) in [
+            ("ros2_joy_deadman", self.ros2_joy_deadman),
+            ("ros2_joy_mode", self.ros2_joy_mode),
+            ("ros2_joy_estop", self.ros2_joy_estop),
+        ] {
+            if b < -1 {
+                return Err(err(key, format!("{b}: a button index, or -1 for none")));
+            }
+        }
+        if !(20..=1000).contains(&self.ros2_joy_timeout_ms) {
+            return Err(err(
+                "ros2_joy_timeout_ms",
+                format!("{} is outside 20..=1000", self.ros2_joy_timeout_ms),
             ));
         }
         if !(1..=65_536).contains(&self.outbound_queue) {

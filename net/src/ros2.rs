@@ -153,6 +153,64 @@ pub fn decode_joy(bytes: &[u8]) -> Result<Joy, CdrError> {
     cdr::deserialize_from(bytes, cdr::Bounded(MAX_PAYLOAD)).map_err(err)
 }
 
+/// How a `Joy` becomes the operator's input (`[network] ros2_joy_*`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JoyMapping {
+    /// The axes that are x and y.
+    pub axes: [usize; 2],
+    /// Their factors.
+    pub scale: [f32; 2],
+    /// The deadman, mode and e-stop buttons, if any.
+    pub deadman: Option<usize>,
+    /// See `deadman`.
+    pub mode: Option<usize>,
+    /// See `deadman`.
+    pub estop: Option<usize>,
+}
+
+impl JoyMapping {
+    /// The mapping `[network]` describes.
+    pub fn from_config(n: &scl_config::NetworkConfig) -> Self {
+        let button = |b: i32| usize::try_from(b).ok();
+        Self {
+            axes: n.ros2_joy_axes.map(|a| a as usize),
+            scale: n.ros2_joy_scale.map(|s| s as f32),
+            deadman: button(n.ros2_joy_deadman),
+            mode: button(n.ros2_joy_mode),
+            estop: button(n.ros2_joy_estop),
+        }
+    }
+
+    /// The stick's axes and the `ipc_types::buttons` bits of `joy`, or which index it lacks.
+    pub fn apply(&self, joy: &Joy) -> Result<([f32; 2], u32), String> {
+        let mut axes = [0.0; 2];
+        for (i, (&a, s)) in self.axes.iter().zip(self.scale).enumerate() {
+            axes[i] = joy
+                .axes
+                .get(a)
+                .ok_or_else(|| format!("axis {a} missing ({} axes)", joy.axes.len()))?
+                * s;
+        }
+        let mut bits = 0;
+        for (b, bit) in [
+            (self.deadman, ipc_types::buttons::DEADMAN),
+            (self.mode, ipc_types::buttons::MODE),
+            (self.estop, ipc_types::buttons::ESTOP),
+        ] {
+            if let Some(b) = b {
+                let v = joy
+                    .buttons
+                    .get(b)
+                    .ok_or_else(|| format!("button {b} missing ({} buttons)", joy.buttons.len()))?;
+                if *v != 0 {
+                    bits |= bit;
+                }
+            }
+        }
+        Ok((axes, bits))
+    }
+}
+
 /// rmw_zenoh's attachment of a publication.
 pub fn attachment(seq: u64, source_timestamp_ns: u64, gid: &[u8; 16]) -> Vec<u8> {
     let mut a = Vec::with_capacity(8 + 8 + 1 + 16);
@@ -298,6 +356,30 @@ mod tests {
             decode_joy(&huge).is_err(),
             "a sequence longer than the payload"
         );
+    }
+
+    #[test]
+    fn a_joy_maps_through_its_indices_and_a_missing_one_is_named() {
+        let m = JoyMapping {
+            axes: [1, 0],
+            scale: [-1.0, 1.0],
+            deadman: Some(2),
+            mode: None,
+            estop: Some(0),
+        };
+        let j = Joy {
+            header: Header::default(),
+            axes: vec![0.25, 0.5],
+            buttons: vec![1, 0, 1],
+        };
+        let (a, b) = m.apply(&j).unwrap();
+        assert_eq!(a, [-0.5, 0.25]);
+        assert_eq!(b, ipc_types::buttons::DEADMAN | ipc_types::buttons::ESTOP);
+        let short = Joy {
+            buttons: vec![1],
+            ..j
+        };
+        assert!(m.apply(&short).unwrap_err().contains("button 2"));
     }
 
     #[test]

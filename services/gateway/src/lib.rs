@@ -82,6 +82,29 @@ enum Inbound {
     Sample(String, Result<JoystickInput, DecodeError>),
     Token(String, bool),
     Estop(Result<EstopCommand, DecodeError>),
+    /// A ROS 2 `/joy` message, or why it was refused.
+    Joy(Result<scl_net::ros2::Joy, String>),
+    /// A ROS 2 publisher of `/joy` appeared (`true`) or went.
+    JoyPublisher(bool),
+}
+
+/// A ROS 2 `/joy` operator: its publishers' liveliness is its session (a new one after the
+/// last publisher went), its last input answers every tick while younger than the timeout.
+struct JoyOperator {
+    map: scl_net::ros2::JoyMapping,
+    timeout: Duration,
+    publishers: usize,
+    generation: u64,
+    last: Option<(std::time::Instant, JoystickInput)>,
+    estop_held: bool,
+    seq: u64,
+}
+
+impl JoyOperator {
+    /// The session name the link knows the current `/joy` publishers by.
+    fn session(&self) -> String {
+        format!("ros2-joy-{}", self.generation)
+    }
 }
 
 /// The callbacks' side of the inbound queue.
@@ -108,6 +131,7 @@ struct Network {
     /// Kept for the process's life (the subscribers and the thread's publishers use it).
     _session: scl_net::zenoh::Session,
     _subscribers: Vec<scl_net::zenoh::pubsub::Subscriber<()>>,
+    _tokens: Vec<scl_net::zenoh::liveliness::LivelinessToken>,
     out: Sender<Outbound>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -161,6 +185,49 @@ impl Network {
                 move |_, c| tx.send(Inbound::Estop(c)),
             )?);
         }
+        let mut tokens = Vec::new();
+        if net.ros2_joy {
+            use scl_net::ros2::{EntityKind, JOY, Ros2Node};
+            use scl_net::zenoh::Wait as _;
+            let node = Ros2Node {
+                domain: net.ros2_domain_id,
+                zid: session::session_id(&session),
+                name: net.ros2_node.clone(),
+            };
+            let key = node.topic_key(JOY_TOPIC, JOY);
+            let tx = inbound.clone();
+            subscribers.push(
+                session
+                    .declare_subscriber(key.clone())
+                    .callback(move |s| {
+                        let bytes = s.payload().to_bytes();
+                        let joy = scl_net::ros2::decode_joy(&bytes).map_err(|e| e.to_string());
+                        tx.send(Inbound::Joy(joy));
+                    })
+                    .wait()
+                    .map_err(|source| scl_net::SessionError::Declare {
+                        what: "ROS 2 subscription",
+                        key,
+                        source,
+                    })?,
+            );
+            let tx = inbound.clone();
+            subscribers.push(ports::watch_liveliness(
+                &session,
+                format!(
+                    "@ros2_lv/{}/*/*/*/MP/*/*/*/{}/{}/{}/*",
+                    net.ros2_domain_id,
+                    scl_net::ros2::mangle(JOY_TOPIC),
+                    JOY.name,
+                    JOY.hash
+                ),
+                move |_, alive| tx.send(Inbound::JoyPublisher(alive)),
+            )?);
+            tokens.push(ports::token(
+                &session,
+                node.entity_token(3, EntityKind::Subscription, JOY_TOPIC, JOY),
+            )?);
+        }
         let (out, rx) = crossbeam_channel::bounded(net.outbound_queue);
         let publishers = Publishers::declare(&session, keys, cfg)?;
         let thread = std::thread::Builder::new()
@@ -173,6 +240,7 @@ impl Network {
         Ok(Self {
             _session: session,
             _subscribers: subscribers,
+            _tokens: tokens,
             out,
             thread: Some(thread),
         })
@@ -214,8 +282,9 @@ struct Ros2Out {
     _tokens: Vec<scl_net::zenoh::liveliness::LivelinessToken>,
 }
 
-/// The ROS 2 topics the gateway publishes.
+/// The ROS 2 topics the gateway publishes, and the one it takes.
 const JOINT_STATES: &str = "/joint_states";
+const JOY_TOPIC: &str = "/joy";
 const SAFETY_STATUS: &str = "/scl/safety_status";
 
 impl Ros2Out {
@@ -396,6 +465,7 @@ struct Gateway<'a> {
     st: NodeStatus,
     outbound_dropped: u64,
     inbound_dropped: Arc<AtomicU64>,
+    joy: Option<JoyOperator>,
 }
 
 impl Gateway<'_> {
@@ -428,20 +498,103 @@ impl Gateway<'_> {
                 self.st.faults += 1;
                 tracing::warn!(operator = %zid, "operator sample refused: {e}");
             }
-            Inbound::Sample(zid, Ok(s)) => match self.link.sample(&zid, &s) {
-                Ok(s) => {
-                    self.publish_sample(s)?;
-                    self.count(gateway_counts::FORWARDED);
-                    self.send_out(net, Outbound::Gateway(self.gateway_status()));
-                }
-                Err(r) => {
-                    self.st.faults += 1;
-                    self.refused(&zid, r);
-                }
-            },
+            Inbound::Sample(zid, Ok(s)) => {
+                self.operator_sample(&zid, &s, net)?;
+            }
             Inbound::Estop(c) => self.estop_request(c)?,
+            Inbound::JoyPublisher(alive) => self.joy_publisher(alive)?,
+            Inbound::Joy(Err(e)) => {
+                self.st.faults += 1;
+                tracing::warn!("/joy message refused: {e}");
+            }
+            Inbound::Joy(Ok(joy)) => self.joy(&joy, net)?,
         }
         Ok(())
+    }
+
+    fn joy_publisher(&mut self, alive: bool) -> Result<(), GatewayError> {
+        let Some(j) = self.joy.as_mut() else {
+            return Ok(());
+        };
+        if alive {
+            if j.publishers == 0 {
+                j.generation += 1;
+                j.last = None;
+                let id = j.session();
+                tracing::info!("a ROS 2 /joy publisher joined ({id})");
+                self.link.token(&id, true);
+            }
+            j.publishers += 1;
+        } else if j.publishers > 0 {
+            j.publishers -= 1;
+            if j.publishers == 0 {
+                j.last = None;
+                let id = j.session();
+                if let Some(stop) = self.link.token(&id, false) {
+                    self.stopped(stop, &id)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A `/joy` message: the operator's input now, answering the newest tick.
+    fn joy(&mut self, joy: &scl_net::ros2::Joy, net: &Network) -> Result<(), GatewayError> {
+        let Some(j) = self.joy.as_mut() else {
+            return Ok(());
+        };
+        let (axes, bits) = match j.map.apply(joy) {
+            Ok(m) => m,
+            Err(e) => {
+                self.st.faults += 1;
+                tracing::warn!("/joy message refused: {e}");
+                return Ok(());
+            }
+        };
+        let sample = JoystickInput {
+            tick: self.st.tick,
+            t_ns: 0,
+            seq: j.seq,
+            axes,
+            gripper: 0.0,
+            buttons: bits,
+        };
+        j.seq += 1;
+        j.last = Some((std::time::Instant::now(), sample));
+        let press = bits & ipc_types::buttons::ESTOP != 0 && !j.estop_held;
+        j.estop_held = bits & ipc_types::buttons::ESTOP != 0;
+        let id = j.session();
+        if press {
+            self.estop_request(Ok(EstopCommand {
+                t_ns: now_ns(),
+                action: estop_action::ESTOP,
+                source_pid: 0,
+            }))?;
+        }
+        self.operator_sample(&id, &sample, net)?;
+        Ok(())
+    }
+
+    /// Judges and, if it passes, forwards an operator's sample; true if forwarded.
+    fn operator_sample(
+        &mut self,
+        zid: &str,
+        s: &JoystickInput,
+        net: &Network,
+    ) -> Result<bool, GatewayError> {
+        match self.link.sample(zid, s) {
+            Ok(s) => {
+                self.publish_sample(s)?;
+                self.count(gateway_counts::FORWARDED);
+                self.send_out(net, Outbound::Gateway(self.gateway_status()));
+                Ok(true)
+            }
+            Err(r) => {
+                self.st.faults += 1;
+                self.refused(zid, r);
+                Ok(false)
+            }
+        }
     }
 
     fn refused(&self, zid: &str, r: Refusal) {
@@ -518,9 +671,24 @@ impl Gateway<'_> {
     fn tick(&mut self, s: &RobotState, net: &Network) -> Result<(), GatewayError> {
         self.st.tick = s.tick;
         if self.cfg.network.accept_joystick {
-            let (stop, stand_in) = self.link.tick(s.tick);
+            let (stop, mut stand_in) = self.link.tick(s.tick);
             if let Some(stop) = stop {
                 self.stopped(stop, "driving")?;
+            }
+            // A `/joy` operator's last input answers this tick while it is fresh.
+            let fresh = self.joy.as_ref().and_then(|j| {
+                j.last
+                    .filter(|(at, _)| at.elapsed() <= j.timeout)
+                    .map(|(_, last)| (j.session(), last))
+            });
+            if let Some((id, last)) = fresh {
+                let answer = JoystickInput {
+                    tick: s.tick,
+                    ..last
+                };
+                if self.operator_sample(&id, &answer, net)? {
+                    stand_in = false;
+                }
             }
             if stand_in {
                 self.publish_sample(OperatorLink::placeholder(s.tick, 0))?;
@@ -602,6 +770,15 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         st: NodeStatus::new(NodeRole::Gateway, phase::READY, now_ns()),
         outbound_dropped: 0,
         inbound_dropped,
+        joy: net_cfg.ros2_joy.then(|| JoyOperator {
+            map: scl_net::ros2::JoyMapping::from_config(net_cfg),
+            timeout: Duration::from_millis(net_cfg.ros2_joy_timeout_ms),
+            publishers: 0,
+            generation: 0,
+            last: None,
+            estop_held: false,
+            seq: 0,
+        }),
     };
     heartbeat.send(gw.st)?;
     gw.st.phase = phase::RUNNING;
