@@ -87,3 +87,43 @@ def test_an_eclipse_zenoh_peer_reads_states_and_drives_the_arm(tmp_path: Path) -
             zenoh.open(client(endpoint, ("operator", "wrong-one")))
     finally:
         finish(running)
+
+
+def test_the_package_drives_a_remote_graph_and_its_end_is_a_lost_link(tmp_path: Path) -> None:
+    from scl_teleop.remote import GatewayStatus, RemoteGraph
+
+    running, endpoint = network_graph(tmp_path)
+    creds = tmp_path / "op.creds"
+    creds.write_text("operator:right-one\n")
+    os.chmod(creds, 0o600)
+    try:
+        with RemoteGraph(endpoint, running.prefix, credentials=creds) as g:
+            states = g.robot_states()
+            gateway = g.gateway_status()
+            op = g.operator()
+            moved, n = False, 0
+            deadline = time.monotonic() + 20
+            while not moved and time.monotonic() < deadline:
+                s = states.next(2.0)
+                assert s is not None, "no robot state from the gateway"
+                op.publish((0.0, 0.0) if n < 20 else (0.6, 0.0))
+                n += 1
+                moved = any(abs(v) > 1e-6 for v in s.qdot())
+            assert moved, (n, gateway.latest())
+            st = gateway.latest()
+            assert st is not None and GatewayStatus.LINK_NAMES[st.link] == "live", st
+            assert st.forwarded > 0
+            op.close()
+            deadline = time.monotonic() + 10
+            lost = False
+            while not lost and time.monotonic() < deadline:
+                st = gateway.next(1.0)
+                lost = st is not None and st.link_losses >= 1
+            assert lost, "closing the operator was not a lost link"
+        open_creds = tmp_path / "open.creds"
+        open_creds.write_text("operator:right-one\n")
+        os.chmod(open_creds, 0o644)
+        with pytest.raises(Exception, match="chmod 600"):
+            RemoteGraph(endpoint, running.prefix, credentials=open_creds)
+    finally:
+        finish(running)
