@@ -320,8 +320,10 @@ fn init_logging() {
     use tracing_subscriber::Layer as _;
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
+    // Zenoh's own records (its session ids, its endpoints) only from warnings up, unless
+    // SCL_LOG asks for them.
     let filter = tracing_subscriber::EnvFilter::try_from_env("SCL_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn"));
     let stderr = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
@@ -384,6 +386,7 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             Ok(scl_dashboard::cli(
                 &prefix,
                 &args,
+                &cfg.network,
                 cfg.profile()?,
                 cfg.safety.scene.box_names(),
             )?)

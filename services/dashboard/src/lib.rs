@@ -57,6 +57,15 @@ pub struct TopArgs {
     /// Listen for a second, print one 80x24 frame as text and exit (no terminal needed).
     #[arg(long)]
     pub once: bool,
+    /// Watch a graph on another machine through its Zenoh gateway (`[network]` there): its
+    /// endpoint, e.g. `tcp/192.0.2.10:7447`. The keys' e-stop and reset go through the gateway
+    /// (which must accept them from this login).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub remote: Option<String>,
+    /// With `--remote`: a credentials file (`user:password`, mode 0600; default `[network]
+    /// credentials`, if any); without one, the view is read-only.
+    #[arg(long, value_name = "FILE", requires = "remote")]
+    pub credentials: Option<std::path::PathBuf>,
 }
 
 /// Why the dashboard could not run.
@@ -76,6 +85,12 @@ pub enum TopError {
     /// An e-stop or reset request failed.
     #[error(transparent)]
     Control(#[from] graph_client::ControlError),
+    /// The Zenoh session to a remote graph's gateway.
+    #[error(transparent)]
+    Session(#[from] scl_net::SessionError),
+    /// The credentials file.
+    #[error(transparent)]
+    Credentials(#[from] scl_net::CredentialsError),
 }
 
 /// One node as the dashboard shows it.
@@ -847,8 +862,190 @@ pub fn render_text(v: &View, width: u16, height: u16) -> Result<Vec<String>, Top
     Ok(buffer_lines(frame.buffer))
 }
 
+/// Where the dashboard's messages come from.
+enum Feed {
+    /// This machine's graph.
+    Local(Box<LocalFeed>),
+    /// A graph on another machine, through its gateway.
+    Remote(RemoteFeed),
+}
+
+impl Feed {
+    fn open(prefix: &Prefix, remote: Option<&RemoteOptions>) -> Result<Self, TopError> {
+        Ok(match remote {
+            Some(r) => Self::Remote(RemoteFeed::open(r)?),
+            None => Self::Local(Box::new(LocalFeed::open(prefix)?)),
+        })
+    }
+
+    fn poll(&mut self, m: &mut Model) -> Result<(), TopError> {
+        match self {
+            Self::Local(f) => f.poll(m),
+            Self::Remote(f) => {
+                f.poll(m);
+                Ok(())
+            }
+        }
+    }
+
+    fn alive(&self) -> Vec<u32> {
+        match self {
+            Self::Local(f) => f.alive(),
+            Self::Remote(f) => f.alive(),
+        }
+    }
+
+    fn send_estop(&self, prefix: &Prefix, action: u32) -> std::sync::mpsc::Receiver<String> {
+        match self {
+            Self::Local(_) => send_estop(prefix, action),
+            Self::Remote(f) => {
+                let (tx, rx) = std::sync::mpsc::channel();
+                let _ = tx.send(f.send_estop(action));
+                rx
+            }
+        }
+    }
+}
+
+/// `scl top --remote`: the gateway's endpoint, the login, the graph's namespace.
+#[derive(Debug, Clone)]
+pub struct RemoteOptions {
+    /// The gateway's endpoint.
+    pub endpoint: String,
+    /// The credentials file, if any.
+    pub credentials: Option<std::path::PathBuf>,
+    /// The graph's namespace.
+    pub namespace: String,
+    /// Zenoh's lease (ms).
+    pub lease_ms: u64,
+}
+
+/// A message from the gateway.
+enum Arrived {
+    Status(NodeStatus),
+    State(RobotState),
+    Joystick(JoystickInput),
+    Safe(SafeCommand),
+}
+
+/// The dashboard's subscriptions to a remote graph's gateway.
+struct RemoteFeed {
+    rx: crossbeam_channel::Receiver<Arrived>,
+    /// Each heartbeat's process and when it was last heard (the remote graph's processes
+    /// cannot be listed from here).
+    heard: std::collections::HashMap<u32, Instant>,
+    estop: Option<scl_net::ports::Out<ipc_types::control::EstopCommand>>,
+    _subscribers: Vec<scl_net::zenoh::pubsub::Subscriber<()>>,
+    _session: scl_net::zenoh::Session,
+}
+
+impl RemoteFeed {
+    fn open(o: &RemoteOptions) -> Result<Self, TopError> {
+        use ipc_types::topics;
+        use scl_net::ports::{self, Urgency};
+        scl_config::check_endpoint(&o.endpoint).map_err(|reason| {
+            TopError::Config(scl_config::ConfigError::Value {
+                key: "--remote".into(),
+                reason: format!("`{}`: {reason}", o.endpoint),
+            })
+        })?;
+        let creds = o
+            .credentials
+            .as_deref()
+            .map(scl_net::Credentials::load)
+            .transpose()?;
+        let connect = [o.endpoint.clone()];
+        let session = scl_net::session::open(&scl_net::SessionSpec {
+            mode: scl_config::NetworkMode::Client,
+            listen: &[],
+            connect: &connect,
+            lease_ms: o.lease_ms,
+            multicast_scouting: false,
+            credentials: creds.as_ref(),
+            accept_listed_only: false,
+        })?;
+        let keys = scl_net::Keys::new(&o.namespace);
+        let (tx, rx) = crossbeam_channel::bounded(4096);
+        let mut subs = Vec::new();
+        macro_rules! sub {
+            ($ty:ty, $topic:expr, $variant:ident) => {{
+                let tx = tx.clone();
+                subs.push(ports::subscribe::<$ty, _>(
+                    &session,
+                    keys.topic($topic.name),
+                    move |_, m| {
+                        if let Ok(m) = m {
+                            // A full queue drops: the view catches up on the next ones.
+                            let _ = tx.try_send(Arrived::$variant(m));
+                        }
+                    },
+                )?);
+            }};
+        }
+        sub!(NodeStatus, topics::STATUS, Status);
+        sub!(RobotState, topics::ROBOT_STATE, State);
+        sub!(JoystickInput, topics::JOYSTICK, Joystick);
+        sub!(SafeCommand, topics::SAFE_COMMAND, Safe);
+        let estop = if creds.is_some() {
+            Some(ports::publisher(&session, keys.estop(), Urgency::Control)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            rx,
+            heard: std::collections::HashMap::new(),
+            estop,
+            _subscribers: subs,
+            _session: session,
+        })
+    }
+
+    fn poll(&mut self, m: &mut Model) {
+        while let Ok(a) = self.rx.try_recv() {
+            match a {
+                Arrived::Status(s) => {
+                    self.heard.insert(s.pid, Instant::now());
+                    m.take_status(&s);
+                }
+                Arrived::State(s) => m.take_state(&s),
+                Arrived::Joystick(j) => m.take_joystick(&j),
+                Arrived::Safe(c) => m.take_safe(&c),
+            }
+        }
+    }
+
+    fn alive(&self) -> Vec<u32> {
+        self.heard
+            .iter()
+            .filter(|(_, t)| t.elapsed() < Duration::from_secs(1))
+            .map(|(p, _)| *p)
+            .collect()
+    }
+
+    fn send_estop(&self, action: u32) -> String {
+        let what = if action == ipc_types::control::estop_action::ESTOP {
+            "e-stop"
+        } else {
+            "reset"
+        };
+        let Some(p) = &self.estop else {
+            return format!("{what}: not sent: a remote view without --credentials is read-only");
+        };
+        match p.put(&ipc_types::control::EstopCommand {
+            t_ns: now_ns(),
+            action,
+            source_pid: std::process::id(),
+        }) {
+            Ok(()) => {
+                format!("{what} sent through the gateway; the title shows when safety has it")
+            }
+            Err(e) => format!("{what}: failed: {e}"),
+        }
+    }
+}
+
 /// The dashboard's read-only subscriptions.
-struct Feed {
+struct LocalFeed {
     status: transport::TopicSubscriber<NodeStatus>,
     states: transport::TopicSubscriber<RobotState>,
     joystick: transport::TopicSubscriber<JoystickInput>,
@@ -856,7 +1053,7 @@ struct Feed {
     graph: Graph,
 }
 
-impl Feed {
+impl LocalFeed {
     fn open(prefix: &Prefix) -> Result<Self, TopError> {
         let graph = Graph::join(prefix, &format!("top-{}", std::process::id()))?;
         Ok(Self {
@@ -939,12 +1136,13 @@ pub fn key_action(k: &ratatui::crossterm::event::KeyEvent) -> Option<Action> {
 
 fn run_terminal(
     prefix: &Prefix,
+    remote: Option<&RemoteOptions>,
     robot: &RobotProfile,
     box_names: Vec<String>,
 ) -> Result<(), TopError> {
     use ratatui::crossterm::event::{self, Event};
 
-    let feed = Feed::open(prefix)?;
+    let mut feed = Feed::open(prefix, remote)?;
     let mut model = Model::new(prefix.as_str(), robot.limits().clone()).with_box_names(box_names);
     let mut terminal = ratatui::try_init().map_err(TopError::Terminal)?;
     let mut pending: Vec<std::sync::mpsc::Receiver<String>> = Vec::new();
@@ -978,11 +1176,11 @@ fn run_terminal(
                 Some(Action::Quit) => return Ok(()),
                 Some(Action::Estop) => {
                     model.message = "e-stop sent, waiting for safety...".into();
-                    pending.push(send_estop(prefix, ipc_types::control::estop_action::ESTOP));
+                    pending.push(feed.send_estop(prefix, ipc_types::control::estop_action::ESTOP));
                 }
                 Some(Action::Reset) => {
                     model.message = "reset sent, waiting for safety...".into();
-                    pending.push(send_estop(prefix, ipc_types::control::estop_action::RESET));
+                    pending.push(feed.send_estop(prefix, ipc_types::control::estop_action::RESET));
                 }
                 None => {}
             }
@@ -999,12 +1197,24 @@ fn run_terminal(
 pub fn cli(
     prefix: &Prefix,
     args: &TopArgs,
+    network: &scl_config::NetworkConfig,
     robot: &RobotProfile,
     box_names: Vec<String>,
 ) -> Result<std::process::ExitCode, TopError> {
+    let remote = args.remote.as_ref().map(|endpoint| RemoteOptions {
+        endpoint: endpoint.clone(),
+        credentials: args.credentials.clone().or_else(|| {
+            (!network.credentials.is_empty())
+                .then(|| std::path::PathBuf::from(&network.credentials))
+        }),
+        namespace: network.namespace_for(prefix.as_str()),
+        lease_ms: network.lease_ms,
+    });
     if args.once {
-        graph_client::require_graph(prefix)?;
-        let feed = Feed::open(prefix)?;
+        if remote.is_none() {
+            graph_client::require_graph(prefix)?;
+        }
+        let mut feed = Feed::open(prefix, remote.as_ref())?;
         let mut model =
             Model::new(prefix.as_str(), robot.limits().clone()).with_box_names(box_names);
         let t0 = Instant::now();
@@ -1019,7 +1229,7 @@ pub fn cli(
         }
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    run_terminal(prefix, robot, box_names)?;
+    run_terminal(prefix, remote.as_ref(), robot, box_names)?;
     Ok(std::process::ExitCode::SUCCESS)
 }
 

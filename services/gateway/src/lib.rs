@@ -73,6 +73,7 @@ enum Outbound {
     Safe(SafeCommand),
     Status(NodeStatus),
     Report(TickReport),
+    Joystick(JoystickInput),
     Gateway(GatewayStatus),
 }
 
@@ -265,6 +266,7 @@ struct Publishers {
     safe: Out<SafeCommand>,
     status: Out<NodeStatus>,
     report: Out<TickReport>,
+    joystick: Out<JoystickInput>,
     gateway: Out<GatewayStatus>,
     ros2: Option<Ros2Out>,
 }
@@ -418,6 +420,7 @@ impl Publishers {
             safe: ports::publisher(session, keys.topic(topics::SAFE_COMMAND.name), o)?,
             status: ports::publisher(session, keys.topic(topics::STATUS.name), o)?,
             report: ports::publisher(session, keys.topic(topics::TICK_REPORT.name), o)?,
+            joystick: ports::publisher(session, keys.topic(topics::JOYSTICK.name), o)?,
             gateway: ports::publisher(session, keys.gateway(), Urgency::Control)?,
         })
     }
@@ -442,6 +445,7 @@ impl Publishers {
                 Outbound::Safe(c) => self.safe.put(c),
                 Outbound::Status(s) => self.status.put(s),
                 Outbound::Report(r) => self.report.put(r),
+                Outbound::Joystick(j) => self.joystick.put(j),
                 Outbound::Gateway(g) => self.gateway.put(g),
             };
             if let Err(e) = r {
@@ -737,6 +741,7 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     let safes = graph.safe_command_subscriber(false)?;
     let statuses = graph.status_subscriber()?;
     let reports = graph.tick_report_subscriber()?;
+    let joysticks = graph.joystick_subscriber(false)?;
     let heartbeat = graph.status_publisher()?;
     let joystick = if net_cfg.accept_joystick {
         Some(graph.joystick_publisher()?)
@@ -809,6 +814,7 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         safes.drain(|c| gw.send_out(&net, Outbound::Safe(*c)))?;
         statuses.drain(|s| gw.send_out(&net, Outbound::Status(*s)))?;
         reports.drain(|r| gw.send_out(&net, Outbound::Report(*r)))?;
+        joysticks.drain(|j| gw.send_out(&net, Outbound::Joystick(*j)))?;
     }
     gw.st.phase = phase::STOPPING;
     gw.st.t_ns = now_ns();

@@ -600,3 +600,58 @@ fn inbound_without_credentials_or_with_an_open_file_refuses_the_graph_naming_it(
     assert!(wait_clean(&prefix, Duration::from_secs(5)).is_empty());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn scl_top_watches_a_graph_through_its_gateway() {
+    let _serial = serial();
+    let dir = temp_dir("nettop");
+    let prefix = unique_prefix("nettop");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = dir.join("graph.toml");
+    std::fs::write(
+        &cfg,
+        format!("[network]\nenabled = true\nlisten = [\"tcp/127.0.0.1:{port}\"]\n"),
+    )
+    .unwrap();
+    let mut rec = Recorder::join(&prefix);
+    let mut c = scl_tests::scl(&prefix);
+    c.args(["up", "--json", "--for", "120s", "--config"])
+        .arg(&cfg)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let graph = ChildGuard(Some(c.spawn().unwrap()));
+    assert!(rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5));
+    let out = scl_tests::scl(&prefix)
+        .args(["top", "--once", "--config"])
+        .arg(&cfg)
+        .arg("--remote")
+        .arg(format!("tcp/127.0.0.1:{port}"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for node in ["joystick", "mapper", "safety", "bridge", "gateway"] {
+        assert!(
+            text.lines()
+                .any(|l| l.starts_with(node) && l.contains(" yes ")),
+            "{node} is not shown live:\n{text}"
+        );
+    }
+    assert!(text.contains(&format!("graph `{prefix}`")), "{text}");
+    let (summary, log) = finish(graph);
+    assert_misses_only_held_up(&summary, &log, "scl top --remote");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
