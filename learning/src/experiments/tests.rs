@@ -457,7 +457,11 @@ fn the_experiments_run_on_the_gen3() {
     )
     .unwrap();
     assert_eq!(o.entries.len(), Variant::ALL.len());
-    assert!(o.entries.iter().all(|e| e.val_mse.is_finite()), "{:?}", o.entries);
+    assert!(
+        o.entries.iter().all(|e| e.val_mse.is_finite()),
+        "{:?}",
+        o.entries
+    );
     for e in &o.entries {
         let m = load_model(&e.path).unwrap();
         assert_eq!(m.header().n_joints, 7, "{}", e.variant);
