@@ -518,6 +518,47 @@ mod tests {
         }
     }
 
+    /// `scl demos --robot` and `scl eval reconstruction|reversibility --robot` take a profile
+    /// by name (the default profile when absent); an unknown one is refused naming the flag.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn demos_and_eval_take_a_robot_profile_by_name() {
+        let demos = |extra: &[&str]| {
+            let mut argv = vec!["scl", "demos", "--task", "pouring", "--out", "d"];
+            argv.extend_from_slice(extra);
+            Cli::try_parse_from(argv).map(|c| match c.cmd {
+                Cmd::Demos(a) => a.robot.name().to_owned(),
+                _ => panic!("not demos"),
+            })
+        };
+        assert_eq!(
+            demos(&[]).unwrap(),
+            kinematics::RobotProfile::default_name()
+        );
+        assert_eq!(demos(&["--robot", "gen3"]).unwrap(), "gen3");
+        let e = demos(&["--robot", "ur5"]).unwrap_err().to_string();
+        assert!(
+            e.contains("--robot") && e.contains("`ur5` is not a known robot"),
+            "{e}"
+        );
+        for eval in ["reconstruction", "reversibility"] {
+            let c = Cli::try_parse_from(["scl", "eval", eval, "--out", "o", "--robot", "gen3"])
+                .unwrap();
+            let robot = match c.cmd {
+                Cmd::Eval {
+                    what: cmd::learn::EvalCmd::Reconstruction(a),
+                    ..
+                } => a.common.robot,
+                Cmd::Eval {
+                    what: cmd::learn::EvalCmd::Reversibility(a),
+                    ..
+                } => a.common.robot,
+                _ => panic!("not eval {eval}"),
+            };
+            assert_eq!(robot.name(), "gen3");
+        }
+    }
+
     /// `scl train` with nothing but the kind, the data and the output trains the paper's
     /// models: the same settings as the library's defaults.
     #[test]

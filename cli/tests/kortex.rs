@@ -32,10 +32,12 @@ fn probe(cfg: &GraphConfig, user: &str, password: &str) -> (checks::Finding, Dur
         addr: info.addr.to_string(),
         firmware: info.firmware(),
         actuators: info.actuators,
+        found: info.found,
         speed_limits_rad_s: info.speed_limits_rad_s,
     })
     .map_err(|e| e.to_string());
-    let f = checks::kortex(answer, 6, &cfg.safety.max_velocity_rad_s);
+    let robot = kinematics::RobotProfile::by_name(&cfg.graph.robot).unwrap();
+    let f = checks::kortex(answer, robot, &cfg.safety.max_velocity_rad_s);
     (f, t0.elapsed())
 }
 
@@ -65,10 +67,39 @@ fn a_read_only_session_reports_firmware_and_limits_and_commands_nothing() {
             Function::CreateSession,
             Function::GetFirmwareVersion,
             Function::GetActuatorCount,
+            Function::GetProductConfiguration,
             Function::GetKinematicHardLimits,
             Function::CloseSession,
         ],
         "the probe must only read"
+    );
+    assert!(!fake.snapshot().commanded_to_move());
+    fake.shutdown();
+}
+
+/// The probe reads the arm's model as the bridge does: a Gen3 passes with a `gen3` graph and
+/// fails with the Gen3 lite's, naming both.
+#[test]
+fn the_arms_model_is_read_and_checked_against_the_graphs_robot() {
+    let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
+    let fake = FakeKortex::start(FakeConfig::for_robot(gen3)).unwrap();
+    let mut cfg = config_for(fake.addr());
+    let (f, _) = probe(&cfg, "admin", "admin");
+    assert_eq!(f.level, Level::Fail, "{f:?}");
+    assert!(
+        f.detail.contains("a Gen3 (Kortex model L53, 7 actuators)")
+            && f.detail.contains("gen3_lite"),
+        "{}",
+        f.detail
+    );
+    cfg.graph.robot = "gen3".into();
+    cfg.safety.max_velocity_rad_s = gen3.limits().max_velocity_rad_s.clone();
+    let (f, _) = probe(&cfg, "admin", "admin");
+    assert_eq!(f.level, Level::Ok, "{f:?}");
+    assert!(
+        f.detail.contains("a Gen3 (Kortex model L53"),
+        "{}",
+        f.detail
     );
     assert!(!fake.snapshot().commanded_to_move());
     fake.shutdown();

@@ -168,7 +168,18 @@ pub fn capture<W: std::io::Write>(
                 let builtin = mapper::model::is_builtin(&spec);
                 m.insert("model_spec".to_owned(), spec.clone());
                 let bytes = if spec == mapper::model::BUNDLED_NAME {
-                    Some(Ok(mapper::model::BUNDLED.to_vec()))
+                    // The graph's robot's bundled model.
+                    let robot = cfg
+                        .as_ref()
+                        .map_or(Ok(kinematics::RobotProfile::default_robot()), |c| {
+                            kinematics::RobotProfile::by_name(&c.graph.robot)
+                        });
+                    Some(
+                        robot
+                            .map_err(|e| e.to_string())
+                            .and_then(|r| mapper::model::bundled(r).map_err(|e| e.to_string()))
+                            .map(<[u8]>::to_vec),
+                    )
                 } else if builtin {
                     None
                 } else {
@@ -245,6 +256,7 @@ mod tests {
             ]),
             cwd: None,
         };
+        let bundled = mapper::model::bundled(kinematics::RobotProfile::default_robot()).unwrap();
         let path = Path::new("p.mcap");
         let mut w = LogWriter::new(Vec::new(), path, None).unwrap();
         capture(&mut w, &p).unwrap();
@@ -265,17 +277,11 @@ mod tests {
         .unwrap();
         assert_eq!(
             att,
-            vec![(
-                "model/mapper-3/42/bundled".to_owned(),
-                mapper::model::BUNDLED.len()
-            )]
+            vec![("model/mapper-3/42/bundled".to_owned(), bundled.len())]
         );
         let m = &meta[0].1;
         assert_eq!(meta[0].0, recording::PROCESS_METADATA);
-        assert_eq!(
-            m["model_sha256"],
-            recording::sha256_hex(mapper::model::BUNDLED)
-        );
+        assert_eq!(m["model_sha256"], recording::sha256_hex(bundled));
         assert_eq!(m["model_spec"], "bundled");
         assert_eq!(m["robot"], "gen3_lite");
         assert!(!m.contains_key("error"), "{m:?}");

@@ -128,6 +128,12 @@ pub const CONTROL_RATE_HZ: f64 = 40.0;
 /// Gripper: time constant of the first-order lag used by the mock (s).
 pub const GRIPPER_TIME_CONSTANT_S: f64 = 0.25;
 
+/// The Gen3's bundled model, `models/gen3.safetensors`: SCL (d = 2, 2 x 128 tanh,
+/// Gram-Schmidt, L = 1, 200 epochs, best of 10 seeds) on the generated Gen3 pick-and-place
+/// demonstrations in `data/gen3-pick-and-place`, speed scale 0.6 rad/s
+/// (`scripts/regenerate-bundled-model.sh gen3`).
+pub const BUNDLED_MODEL: &[u8] = include_bytes!("../../models/gen3.safetensors");
+
 /// The collision model, `robots/gen3_collision.toml`, embedded at build time.
 pub const COLLISION_TOML: &str = include_str!("../../robots/gen3_collision.toml");
 

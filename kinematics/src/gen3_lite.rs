@@ -55,6 +55,11 @@ pub const CONTROL_RATE_HZ: f64 = 40.0;
 /// Gripper: time constant of the first-order lag used by the mock (s).
 pub const GRIPPER_TIME_CONSTANT_S: f64 = 0.15;
 
+/// The Gen3 lite's bundled model, `models/default.safetensors` (its name from before there
+/// were profiles): SCL with the paper's defaults on the generated pick-and-place
+/// demonstrations, speed scale 0.6 rad/s (`scripts/regenerate-bundled-model.sh`).
+pub const BUNDLED_MODEL: &[u8] = include_bytes!("../../models/default.safetensors");
+
 /// A named pose by name (`zero`, `home`, `retract`).
 pub fn named_pose(name: &str) -> Option<[f64; N_JOINTS]> {
     match name {

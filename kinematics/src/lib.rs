@@ -45,7 +45,7 @@ pub use chain::{Chain, Jacobian, JointAxis, JointKind, KinError, LinkId, MAX_DOF
 pub use collision::{Clearance, CollisionError, CollisionLink, CollisionModel, Scene};
 pub use dls::{Dls, DlsStep, Ik, IkReport, TaskMask, pose_error};
 pub use gen3_lite::Gen3Lite;
-pub use profile::{Gripper, GripperSpec, ProfileError, ProfileSpec, RobotProfile};
+pub use profile::{Gripper, GripperSpec, ModelBytes, ProfileError, ProfileSpec, RobotProfile};
 pub use robot::{JointSpec, JointType, Mimic, RobotModel, UrdfError};
 
 /// Per-joint limits of an arm, all in SI units.

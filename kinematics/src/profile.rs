@@ -65,6 +65,21 @@ pub struct ProfileSpec<'a> {
     pub continuous_limit_rad: Option<f64>,
     /// The gripper, if the arm carries one.
     pub gripper: Option<GripperSpec<'a>>,
+    /// The learned map built into `scl` for this arm (the bytes of a model file,
+    /// `models/<name>.safetensors`, embedded with `include_bytes!`): what `[mapper] model =
+    /// "bundled"`, the default, drives, so the graph runs on the arm with no training step.
+    /// The mapper checks it like any model file; `None` for an arm without one.
+    pub bundled_model: Option<ModelBytes>,
+}
+
+/// The bytes of a model file built into the binary; its `Debug` shows their number, not them.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct ModelBytes(pub &'static [u8]);
+
+impl std::fmt::Debug for ModelBytes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "ModelBytes({} bytes)", self.0.len())
+    }
 }
 
 /// A gripper the stack drives as one scalar `c` in `[0, 1]` (0 open, 1 closed): the joint of
@@ -151,6 +166,7 @@ pub struct RobotProfile {
     collision: Option<fn() -> &'static CollisionModel>,
     continuous: Vec<bool>,
     gripper: Option<Gripper>,
+    bundled_model: Option<ModelBytes>,
 }
 
 /// The built-in profiles, the default first. A new arm is a new function here.
@@ -160,7 +176,8 @@ const ROBOTS: [fn() -> ProfileSpec<'static>; 2] = [gen3_lite, gen3];
 static LOADED: [OnceLock<RobotProfile>; ROBOTS.len()] = [const { OnceLock::new() }; ROBOTS.len()];
 
 /// The spec of a Kinova arm from its module (`crate::gen3_lite`, `crate::gen3`), which names
-/// its URDF, links, joints, teleoperation limits, poses, rates and gripper joint alike; what
+/// its URDF, links, joints, teleoperation limits, poses, rates, gripper joint and bundled model
+/// alike; what
 /// differs between the arms is given: the collision model, the continuous joints' software
 /// limit and the gripper joint's open and closed positions (rad).
 macro_rules! kinova_spec {
@@ -192,6 +209,7 @@ macro_rules! kinova_spec {
                 open_rad: $open,
                 closed_rad: $closed,
             }),
+            bundled_model: Some(ModelBytes(g::BUNDLED_MODEL)),
         }
     }};
 }
@@ -243,6 +261,7 @@ impl ProfileSpec<'static> {
             collision: None,
             continuous_limit_rad: None,
             gripper: None,
+            bundled_model: None,
         }
     }
 }
@@ -415,6 +434,7 @@ impl RobotProfile {
             collision: spec.collision,
             continuous,
             gripper,
+            bundled_model: spec.bundled_model,
         })
     }
 
@@ -513,6 +533,11 @@ impl RobotProfile {
     /// The gripper, if the arm carries one: the joint the scalar state `c` sets.
     pub fn gripper(&self) -> Option<&Gripper> {
         self.gripper.as_ref()
+    }
+
+    /// The model file built into `scl` for this arm ([`ProfileSpec::bundled_model`]), if any.
+    pub fn bundled_model(&self) -> Option<&'static [u8]> {
+        self.bundled_model.map(|m| m.0)
     }
 
     /// The arm's collision model, if the profile has one (the Gen3 lite's is

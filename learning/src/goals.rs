@@ -147,10 +147,38 @@ pub struct TaskGoals {
     pub tol: Tolerances,
     /// Table cleaning: the objects' start positions (m, on the table); empty otherwise.
     pub objects: Vec<Vector2<f64>>,
+    /// Table cleaning: the middle of the patch the objects are pushed off (m, on the table;
+    /// [`TABLE_CENTRE`] on the Gen3 lite).
+    pub table_centre: Vector2<f64>,
 }
 
 impl TaskGoals {
-    /// The goals of `task` (none for the planar reaches: no scene).
+    /// The goals of `task` on `robot`'s arm: the Gen3 lite's scene ([`TaskGoals::of`]) moved
+    /// out along x as the demonstrations' scenes are ([`crate::tasks::scene_shift_m`]: 15 cm
+    /// on the Gen3). `None` for the planar reaches (no scene) or an arm whose home pose the
+    /// kinematics refuse.
+    pub fn on(task: Task, tol: Tolerances, robot: &kinematics::RobotProfile) -> Option<Self> {
+        let mut g = Self::of(task, tol)?;
+        let dx = crate::tasks::scene_shift_m(robot, task).ok()?;
+        let shift3 = Vector3::x() * dx;
+        let shift2 = Vector2::x() * dx;
+        for s in &mut g.subgoals {
+            match s {
+                Subgoal::Reach { at, .. }
+                | Subgoal::Grip { at, .. }
+                | Subgoal::Tilt { at, .. }
+                | Subgoal::Upright { at, .. } => *at += shift3,
+                Subgoal::PushOut { .. } => {}
+            }
+        }
+        for o in &mut g.objects {
+            *o += shift2;
+        }
+        g.table_centre += shift2;
+        Some(g)
+    }
+
+    /// The goals of `task` in the Gen3 lite's scene (none for the planar reaches: no scene).
     pub fn of(task: Task, tol: Tolerances) -> Option<Self> {
         let v = Vector3::<f64>::new;
         let mut objects = Vec::new();
@@ -253,6 +281,7 @@ impl TaskGoals {
             subgoals,
             tol,
             objects,
+            table_centre: Vector2::new(TABLE_CENTRE[0], TABLE_CENTRE[1]),
         })
     }
 }
@@ -431,7 +460,7 @@ impl GoalRun {
         if self.objects.is_empty() || p.z > CONTACT_HEIGHT_M {
             return;
         }
-        let centre = Vector2::new(TABLE_CENTRE[0], TABLE_CENTRE[1]);
+        let centre = self.goals.table_centre;
         for (o, out) in self.objects.iter_mut().zip(&mut self.out) {
             if *out {
                 continue;
@@ -491,7 +520,7 @@ impl GoalRun {
             },
             Subgoal::PushOut { index } => {
                 let o = self.objects.get(index).copied()?;
-                let centre = Vector2::new(TABLE_CENTRE[0], TABLE_CENTRE[1]);
+                let centre = self.goals.table_centre;
                 let out = o - centre;
                 let dir = if out.norm() > 1e-9 {
                     out / out.norm()

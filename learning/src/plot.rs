@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use crate::dataset::Dataset;
 use crate::tasks::{PLANAR_LINE_FROM, PLANAR_LINE_TO};
-use kinematics::{Chain, Gen3Lite, KinError, planar5};
+use kinematics::{Chain, KinError, planar5};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -35,7 +35,8 @@ pub const SIZE: (u32, u32) = (1400, 720);
 pub enum PlotError {
     /// No robot model has this many joints.
     #[error(
-        "the data has {0} joints; plots know the Gen3 lite (6 joints) and the planar arm (5 joints)"
+        "the data has {0} joints; plots know the robot profiles' arms (the Gen3 lite 6, the \
+         Gen3 7) and the planar arm (5 joints)"
     )]
     NoRobot(usize),
     /// Forward kinematics refused a row.
@@ -87,7 +88,7 @@ pub struct PathPoint {
 pub type TcpPath = Vec<PathPoint>;
 
 /// The TCP paths of every trajectory: (training, validation), through the forward kinematics
-/// of the robot with the data's joint count.
+/// of the robot with the data's joint count (a built-in profile's, or the planar arm's).
 pub fn tcp_paths(ds: &Dataset) -> Result<(Vec<TcpPath>, Vec<TcpPath>), PlotError> {
     let m = ds
         .train
@@ -96,10 +97,15 @@ pub fn tcp_paths(ds: &Dataset) -> Result<(Vec<TcpPath>, Vec<TcpPath>), PlotError
         .map(|t| t.n_joints())
         .find(|m| *m > 0)
         .unwrap_or(0);
-    let chain: &Chain = match m {
-        6 => Gen3Lite::get().arm(),
-        5 => planar5::get(),
-        other => return Err(PlotError::NoRobot(other)),
+    // The planar arm's five joints, else the first built-in profile with the data's joints
+    // (six: the Gen3 lite; seven: the Gen3).
+    let profile = kinematics::RobotProfile::names()
+        .filter_map(|name| kinematics::RobotProfile::by_name(name).ok())
+        .find(|p| p.n_joints() == m);
+    let chain: &Chain = match (m, profile) {
+        (5, _) => planar5::get(),
+        (_, Some(p)) => p.arm(),
+        (other, None) => return Err(PlotError::NoRobot(other)),
     };
     let paths = |trajs: &[crate::dataset::Trajectory]| -> Result<Vec<TcpPath>, PlotError> {
         trajs
@@ -443,6 +449,12 @@ mod tests {
             }
         }
         assert!(matches!(tcp_paths(&bad), Err(PlotError::NoRobot(8))));
+        // Seven joints: the Gen3's, from its home.
+        let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
+        let ds = crate::tasks::generate_for(Task::PickAndPlace, gen3, 1, 0, 3).unwrap();
+        let (train, _) = tcp_paths(&ds).unwrap();
+        let home = gen3.arm().fk(gen3.named_pose("home").unwrap()).unwrap();
+        assert!((train[0][0].p[0] - home.translation.x).abs() < 1e-9);
     }
 
     #[test]

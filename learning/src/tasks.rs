@@ -29,8 +29,8 @@
 //! reach the table. The safety filter scales a learned map's commands down to the
 //! teleoperation limits at run time either way.
 
-use kinematics::gen3_lite::{self, Gen3Lite};
-use kinematics::{Chain, Dls, Ik, Jacobian, MAX_DOF, TaskMask, planar5, pose_error};
+use kinematics::gen3_lite;
+use kinematics::{Chain, Dls, Ik, Jacobian, MAX_DOF, RobotProfile, TaskMask, planar5, pose_error};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use crate::dataset::{Dataset, Trajectory};
@@ -111,6 +111,16 @@ pub enum TaskError {
         joint: usize,
         /// The value it would have reached.
         value: f64,
+    },
+    /// The task is not made on this robot (the planar reach has its own arm).
+    #[error("{task} is not made on the {robot}: {reason}")]
+    Robot {
+        /// The task.
+        task: &'static str,
+        /// The robot profile's name.
+        robot: String,
+        /// Why not.
+        reason: &'static str,
     },
     /// The kinematics refused an input (a bug if it ever shows).
     #[error("{task}: kinematics: {0}", task = .1)]
@@ -196,8 +206,27 @@ impl std::str::FromStr for Task {
     }
 }
 
-/// Generates `n_train` + `n_val` demonstrations of `task`, deterministic for a seed.
+/// Generates `n_train` + `n_val` demonstrations of `task` on the Gen3 lite (the paper's
+/// arm; the default robot profile), deterministic for a seed: [`generate_for`].
 pub fn generate(task: Task, n_train: usize, n_val: usize, seed: u64) -> Result<Dataset, TaskError> {
+    generate_for(task, RobotProfile::default_robot(), n_train, n_val, seed)
+}
+
+/// Generates `n_train` + `n_val` demonstrations of `task` on `robot`'s arm (the planar reach
+/// only on its own 5-DOF arm, whatever `robot`), deterministic for a seed and robot.
+///
+/// The scenes are the Gen3 lite's (the paper's arm), in the base frame with the table at
+/// `z = 0`, moved out along x by [`scene_shift_m`] into the arm's workspace: each arm meets
+/// the objects as far ahead of its home as the Gen3 lite does. The grasping tasks start at
+/// the profile's `home` pose; table cleaning starts above the table at an IK solution from
+/// [`clean_seed`].
+pub fn generate_for(
+    task: Task,
+    robot: &'static RobotProfile,
+    n_train: usize,
+    n_val: usize,
+    seed: u64,
+) -> Result<Dataset, TaskError> {
     let mut rng = Rng::new(seed ^ (task as u64).wrapping_mul(0x5851_F42D_4C95_7F2D));
     let (mean_train, mean_val) = task.mean_lengths();
     let mut make = |n: usize, mean: f64, prefix: &str| -> Result<Vec<Trajectory>, TaskError> {
@@ -206,15 +235,16 @@ pub fn generate(task: Task, n_train: usize, n_val: usize, seed: u64) -> Result<D
         for (i, len) in lengths.into_iter().enumerate() {
             let name = format!("{prefix}_{i:02}.csv");
             let plan = match task {
-                Task::TableCleaning => table_cleaning(&name, len, &mut rng)?,
-                Task::PickAndPlace => pick_and_place(&mut rng)?,
-                Task::Pouring => pouring(&mut rng)?,
+                Task::TableCleaning => table_cleaning(robot, &name, len, &mut rng)?,
+                Task::PickAndPlace => pick_and_place(robot, &mut rng)?,
+                Task::Pouring => pouring(robot, &mut rng)?,
                 Task::PlanarReach => {
                     out.push(planar_reach(&name, &mut rng)?);
                     continue;
                 }
             };
-            let (traj, stats) = run_gen3(task, &name, &plan, len, TRACKING_LIMIT_M, &mut rng)?;
+            let (traj, stats) =
+                run_arm(task, robot, &name, &plan, len, TRACKING_LIMIT_M, &mut rng)?;
             tracing::debug!(
                 task = task.name(),
                 trajectory = %name,
@@ -653,7 +683,7 @@ fn start_at(
 // ------------------------------------------------------------------------------------------
 // The tasks.
 
-/// A Gen3 lite demonstration before it is run: where it starts and what it does.
+/// A demonstration before it is run: where it starts and what it does.
 #[derive(Debug, Clone)]
 struct Plan {
     q0: Vec<f64>,
@@ -667,21 +697,21 @@ struct RunStats {
     saturated_ticks: usize,
 }
 
-/// Runs a Gen3 lite plan for `ticks` ticks.
-fn run_gen3(
+/// Runs a plan on `robot`'s arm for `ticks` ticks.
+fn run_arm(
     task: Task,
+    robot: &RobotProfile,
     name: &str,
     plan: &Plan,
     ticks: usize,
     tracking_limit_m: f64,
     rng: &mut Rng,
 ) -> Result<(Trajectory, RunStats), TaskError> {
-    let g = Gen3Lite::get();
     let mut tr = Tracker::new(
         task,
         name,
-        g.arm(),
-        g.arm().velocity_limits(),
+        robot.arm(),
+        robot.arm().velocity_limits(),
         &plan.q0,
         TaskMask::POSE,
         NOISE_RAD_S,
@@ -695,12 +725,58 @@ fn run_gen3(
     Ok((tr.traj, stats))
 }
 
-/// Velocity noise of the Gen3 lite demonstrations (rad/s, before the low-pass filter).
+/// Velocity noise of the arms' demonstrations (rad/s, before the low-pass filter).
 const NOISE_RAD_S: f64 = 0.02;
 
-fn table_cleaning(name: &str, ticks: usize, rng: &mut Rng) -> Result<Plan, TaskError> {
-    let g = Gen3Lite::get();
-    let centre = Vector3::new(rng.range(0.35, 0.41), rng.range(-0.06, 0.06), 0.0);
+/// The IK seed of table cleaning's start above the table: for the Gen3 lite an elbow-up
+/// pose with the tool down (its home points the tool forward), for other arms their home.
+fn clean_seed(robot: &RobotProfile) -> Vec<f64> {
+    if robot.name() == "gen3_lite" {
+        vec![0.0, -0.7, 1.8, 1.57, 0.6, 0.0]
+    } else {
+        home_of(robot, Task::TableCleaning)
+            .map_or_else(|_| vec![0.0; robot.n_joints()], <[f64]>::to_vec)
+    }
+}
+
+/// The step [`scene_shift_m`] rounds up to (m).
+const SCENE_STEP_M: f64 = 0.05;
+
+/// How far the scenes lie further out along the base's x axis on `robot` than on the Gen3
+/// lite, the arm they were laid out for (m): the lead of the arm's home tool position over the
+/// Gen3 lite's along x, rounded up to whole 5 cm, so each arm meets the objects at least as far
+/// ahead of its home as the Gen3 lite does (the Gen3: 0.138 m, so 0.15 m; the Gen3 lite: 0).
+/// Without the rounding one Gen3 pouring in about a hundred brought joint 4 to its limit.
+pub fn scene_shift_m(robot: &RobotProfile, task: Task) -> Result<f64, TaskError> {
+    let lite = RobotProfile::default_robot();
+    let x = |r: &RobotProfile| -> Result<f64, TaskError> {
+        let q = home_of(r, task)?;
+        r.arm()
+            .fk(q)
+            .map(|p| p.translation.x)
+            .map_err(|e| TaskError::Kinematics(e, task.name()))
+    };
+    // Round numbers: up to whole 5 cm (the Gen3 lite's own 0 stays 0).
+    Ok(((x(robot)? - x(lite)?) / SCENE_STEP_M).ceil().max(0.0) * SCENE_STEP_M)
+}
+
+/// `robot`'s home pose (every profile has one: checked when it is built).
+fn home_of(robot: &RobotProfile, task: Task) -> Result<&[f64], TaskError> {
+    robot.named_pose("home").ok_or_else(|| TaskError::Robot {
+        task: task.name(),
+        robot: robot.name().to_owned(),
+        reason: "the profile has no home pose",
+    })
+}
+
+fn table_cleaning(
+    robot: &RobotProfile,
+    name: &str,
+    ticks: usize,
+    rng: &mut Rng,
+) -> Result<Plan, TaskError> {
+    let centre = Vector3::new(rng.range(0.35, 0.41), rng.range(-0.06, 0.06), 0.0)
+        + Vector3::x() * scene_shift_m(robot, Task::TableCleaning)?;
     let radius = rng.range(0.04, 0.06);
     let height = rng.range(0.015, 0.025);
     let phase = rng.range(0.0, std::f64::consts::TAU);
@@ -750,22 +826,24 @@ fn table_cleaning(name: &str, ticks: usize, rng: &mut Rng) -> Result<Plan, TaskE
             rng,
         ),
     ];
-    let seed = [0.0, -0.7, 1.8, 1.57, 0.6, 0.0];
-    let q0 = start_at(Task::TableCleaning, name, g.arm(), &start, &seed)?;
+    let seed = clean_seed(robot);
+    let q0 = start_at(Task::TableCleaning, name, robot.arm(), &start, &seed)?;
     Ok(Plan {
         q0,
         segments: segments.to_vec(),
     })
 }
 
-fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
-    let g = Gen3Lite::get();
-    let home = g
-        .tcp(&gen3_lite::HOME)
+fn pick_and_place(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError> {
+    let q_home = home_of(robot, Task::PickAndPlace)?;
+    let home = robot
+        .arm()
+        .fk(q_home)
         .map_err(|e| TaskError::Kinematics(e, Task::PickAndPlace.name()))?;
     // The bottle on the "x" mark, the second mark to its left.
-    let bottle = Vector3::new(rng.range(0.50, 0.55), rng.range(-0.16, -0.08), 0.0);
-    let mark = Vector3::new(rng.range(0.48, 0.53), rng.range(0.12, 0.20), 0.0);
+    let shift = Vector3::x() * scene_shift_m(robot, Task::PickAndPlace)?;
+    let bottle = Vector3::new(rng.range(0.50, 0.55), rng.range(-0.16, -0.08), 0.0) + shift;
+    let mark = Vector3::new(rng.range(0.48, 0.53), rng.range(0.12, 0.20), 0.0) + shift;
     let grasp_z = rng.range(0.06, 0.08);
     let heading = |p: &Vector3<f64>, rng: &mut Rng| p.y.atan2(p.x) + rng.range(-0.15, 0.15);
     let pitch = rng.range(5f64.to_radians(), 15f64.to_radians());
@@ -846,18 +924,20 @@ fn pick_and_place(rng: &mut Rng) -> Result<Plan, TaskError> {
         ),
     ];
     Ok(Plan {
-        q0: gen3_lite::HOME.to_vec(),
+        q0: q_home.to_vec(),
         segments: segments.to_vec(),
     })
 }
 
-fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
-    let g = Gen3Lite::get();
-    let home = g
-        .tcp(&gen3_lite::HOME)
+fn pouring(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError> {
+    let q_home = home_of(robot, Task::Pouring)?;
+    let home = robot
+        .arm()
+        .fk(q_home)
         .map_err(|e| TaskError::Kinematics(e, Task::Pouring.name()))?;
-    let cup = Vector3::new(rng.range(0.50, 0.55), rng.range(-0.18, -0.10), 0.0);
-    let bowl = Vector3::new(rng.range(0.50, 0.55), rng.range(0.06, 0.14), 0.0);
+    let shift = Vector3::x() * scene_shift_m(robot, Task::Pouring)?;
+    let cup = Vector3::new(rng.range(0.50, 0.55), rng.range(-0.18, -0.10), 0.0) + shift;
+    let bowl = Vector3::new(rng.range(0.50, 0.55), rng.range(0.06, 0.14), 0.0) + shift;
     let grasp_z = rng.range(0.05, 0.07);
     let pitch = rng.range(5f64.to_radians(), 15f64.to_radians());
     let r_grasp = side_grasp(cup.y.atan2(cup.x) + rng.range(-0.15, 0.15), pitch);
@@ -962,7 +1042,7 @@ fn pouring(rng: &mut Rng) -> Result<Plan, TaskError> {
         ),
     ];
     Ok(Plan {
-        q0: gen3_lite::HOME.to_vec(),
+        q0: q_home.to_vec(),
         segments,
     })
 }
@@ -1032,28 +1112,15 @@ fn planar_reach(name: &str, rng: &mut Rng) -> Result<Trajectory, TaskError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use kinematics::Gen3Lite;
 
     fn check_limits_and_consistency(task: Task, ds: &Dataset) {
-        let (lower, upper, vmax): (Vec<f64>, Vec<f64>, Vec<f64>) = match task {
-            Task::PlanarReach => {
-                let c = planar5::get();
-                (
-                    c.lower().to_vec(),
-                    c.upper().to_vec(),
-                    c.velocity_limits().to_vec(),
-                )
-            }
-            _ => {
-                let c = Gen3Lite::get().arm();
-                (
-                    c.lower().to_vec(),
-                    c.upper().to_vec(),
-                    c.velocity_limits().to_vec(),
-                )
-            }
-        };
+        check_on(task.n_joints(), limits_of(task), ds);
+    }
+
+    fn check_on(n_joints: usize, (lower, upper, vmax): Limits, ds: &Dataset) {
         for t in ds.train.iter().chain(&ds.val) {
-            assert_eq!(t.n_joints(), task.n_joints());
+            assert_eq!(t.n_joints(), n_joints);
             for k in 0..t.len() {
                 for j in 0..t.n_joints() {
                     let (q, v) = (t.q[k][j], t.qdot[k][j]);
@@ -1077,6 +1144,29 @@ mod tests {
                     assert!((t.c[k] + t.cdot[k] * DT - t.c[k + 1]).abs() < 1e-12);
                     assert!((t.t[k + 1] - t.t[k] - DT).abs() < 1e-12);
                 }
+            }
+        }
+    }
+
+    type Limits = (Vec<f64>, Vec<f64>, Vec<f64>);
+
+    fn limits_of(task: Task) -> Limits {
+        match task {
+            Task::PlanarReach => {
+                let c = planar5::get();
+                (
+                    c.lower().to_vec(),
+                    c.upper().to_vec(),
+                    c.velocity_limits().to_vec(),
+                )
+            }
+            _ => {
+                let c = Gen3Lite::get().arm();
+                (
+                    c.lower().to_vec(),
+                    c.upper().to_vec(),
+                    c.velocity_limits().to_vec(),
+                )
             }
         }
     }
@@ -1148,6 +1238,45 @@ mod tests {
             }
             check_limits_and_consistency(task, &ds);
         }
+    }
+
+    /// The Gen3 makes the three tasks at the paper's trajectory and tuple counts, within its
+    /// position and velocity limits, from its own home, in the scenes moved out by its home's
+    /// lead over the Gen3 lite's, 15 cm (the lite's own scenes stay where they were).
+    #[test]
+    fn the_gen3_makes_the_three_tasks_at_the_paper_counts_within_its_limits() {
+        let gen3 = RobotProfile::by_name("gen3").unwrap();
+        let arm = gen3.arm();
+        let limits = (
+            arm.lower().to_vec(),
+            arm.upper().to_vec(),
+            arm.velocity_limits().to_vec(),
+        );
+        for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
+            let (n_train, n_val) = task.default_counts();
+            let ds = generate_for(task, gen3, n_train, n_val, 1).unwrap();
+            assert_eq!((ds.train.len(), ds.val.len()), (n_train, n_val));
+            let (paper_train, paper_val) = task.paper_tuples();
+            assert_eq!(Some(ds.n_train()), paper_train, "{task:?}");
+            if let Some(v) = paper_val {
+                assert_eq!(ds.n_val(), v);
+            }
+            check_on(7, limits.clone(), &ds);
+            if task != Task::TableCleaning {
+                assert_eq!(ds.train[0].q[0], gen3.named_pose("home").unwrap());
+            }
+        }
+        for seed in 2..5 {
+            for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
+                let ds = generate_for(task, gen3, 2, 1, seed)
+                    .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+                check_on(7, limits.clone(), &ds);
+            }
+        }
+        let shift = scene_shift_m(gen3, Task::PickAndPlace).unwrap();
+        assert!((shift - 0.15).abs() < 1e-12, "{shift}");
+        let lite = RobotProfile::default_robot();
+        assert_eq!(scene_shift_m(lite, Task::PickAndPlace).unwrap(), 0.0);
     }
 
     #[test]

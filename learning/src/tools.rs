@@ -17,9 +17,12 @@ pub const DEMO_TASKS: &str = "joint-reach, table-cleaning, pick-and-place, pouri
 /// Generates the demonstrations of `task` into `out` (refusing to overwrite any file) and,
 /// with `plot`, draws their TCP paths to that PNG (refused up front if it exists).
 /// Trajectory counts default to the task's (the paper's for its tasks; 6 / 2 for
-/// joint-reach). Returns the data set written.
+/// joint-reach). The Cartesian tasks are made on `robot`'s arm; joint-reach and planar-reach
+/// have their own arms (the Gen3 lite, the planar 5-DOF arm), and refuse another `robot`.
+/// Returns the data set written.
 pub fn demos(
     task: &str,
+    robot: &'static kinematics::RobotProfile,
     out: &Path,
     seed: u64,
     (n_train, n_val): (Option<usize>, Option<usize>),
@@ -30,12 +33,27 @@ pub fn demos(
     {
         return Err(plot::PlotError::Exists(png.to_owned()).into());
     }
+    let own_arm = |task: &'static str| {
+        if robot.name() == kinematics::RobotProfile::default_name() {
+            Ok(())
+        } else {
+            Err(crate::tasks::TaskError::Robot {
+                task,
+                robot: robot.name().to_owned(),
+                reason: "it has its own arm; leave --robot out",
+            })
+        }
+    };
     let ds = if task == "joint-reach" {
+        own_arm("joint-reach")?;
         crate::demos::joint_reach(n_train.unwrap_or(6), n_val.unwrap_or(2), seed)
     } else {
         let t = Task::from_name(task)?;
+        if t == Task::PlanarReach {
+            own_arm(t.name())?;
+        }
         let (dt, dv) = t.default_counts();
-        crate::tasks::generate(t, n_train.unwrap_or(dt), n_val.unwrap_or(dv), seed)?
+        crate::tasks::generate_for(t, robot, n_train.unwrap_or(dt), n_val.unwrap_or(dv), seed)?
     };
     let files = dataset::write_dir(out, &ds)?;
     eprintln!(
@@ -198,6 +216,10 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, ToolError> {
 mod tests {
     use super::*;
 
+    fn lite() -> &'static kinematics::RobotProfile {
+        kinematics::RobotProfile::default_robot()
+    }
+
     fn tmp(name: &str) -> std::path::PathBuf {
         let d = std::env::temp_dir().join(format!("scl-tools-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
@@ -207,16 +229,24 @@ mod tests {
     #[test]
     fn demos_default_counts_per_task() {
         let d = tmp("defaults");
-        let ds = demos("joint-reach", &d.join("jr"), 1, (None, None), None).unwrap();
+        let ds = demos("joint-reach", lite(), &d.join("jr"), 1, (None, None), None).unwrap();
         assert_eq!((ds.train.len(), ds.val.len()), (6, 2));
-        let ds = demos("table-cleaning", &d.join("tc"), 1, (None, None), None).unwrap();
+        let ds = demos(
+            "table-cleaning",
+            lite(),
+            &d.join("tc"),
+            1,
+            (None, None),
+            None,
+        )
+        .unwrap();
         assert_eq!((ds.train.len(), ds.val.len()), (3, 2));
         assert_eq!(ds.n_train(), 509);
         // Read back through the loader: the same tuples.
         let back = dataset::load(&d.join("tc")).unwrap();
         assert_eq!(back.n_train(), 509);
         assert_eq!(back.train.len(), 3);
-        let e = demos("juggling", &d.join("x"), 1, (None, None), None).unwrap_err();
+        let e = demos("juggling", lite(), &d.join("x"), 1, (None, None), None).unwrap_err();
         assert!(e.to_string().starts_with("unknown task `juggling`"), "{e}");
         std::fs::remove_dir_all(&d).unwrap();
     }
@@ -227,6 +257,7 @@ mod tests {
         let png = d.join("p.png");
         demos(
             "planar-reach",
+            lite(),
             &d.join("pr"),
             2,
             (Some(3), Some(1)),
@@ -237,6 +268,7 @@ mod tests {
         // The PNG exists: refused before anything is generated or written.
         let e = demos(
             "planar-reach",
+            lite(),
             &d.join("pr2"),
             2,
             (Some(3), Some(1)),
@@ -249,7 +281,14 @@ mod tests {
         assert!(!d.join("pr2").exists());
         // The data exist: refused.
         assert!(matches!(
-            demos("planar-reach", &d.join("pr"), 2, (Some(3), Some(1)), None),
+            demos(
+                "planar-reach",
+                lite(),
+                &d.join("pr"),
+                2,
+                (Some(3), Some(1)),
+                None
+            ),
             Err(ToolError::Dataset(dataset::DatasetError::Exists(_)))
         ));
         // scl plot on the written data; --force replaces.

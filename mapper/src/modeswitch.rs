@@ -26,6 +26,13 @@
 //! tool's path, rarely acts; a hold along one axis stays on that axis from start to stop, and a
 //! release stops the tool on its path.
 //!
+//! On a redundant arm (more joints than the twist's six rows: the 7-joint Gen3) a secondary
+//! task runs in the Jacobian's null space: each limited joint is pushed back towards the
+//! middle of its range, the push projected so that the tool does not feel it
+//! ([`ModeSwitchParams::null_space_gain_rad_s`]), in proportion to the twist's speed, so the
+//! arm is still when the stick is released. It goes through the same ramp and limits as the
+//! twist's joint velocities, and allocates nothing.
+//!
 //! The map's output is already in rad/s: its header's speed scale is 1. It is served under
 //! the model spec [`SPEC`] (`modeswitch`, or `modeswitch:key=value,...` to set parameters, e.g.
 //! `modeswitch:max_linear_m_s=0.15`), or from a header-only model file of kind `modeswitch`
@@ -270,6 +277,15 @@ pub struct ModeSwitchParams {
     /// joints may follow, so the safety filter's joint-space acceleration limit, which would
     /// bend the tool's path, does not have to act.
     pub max_joint_acceleration_rad_s2: Vec<f64>,
+    /// The null-space secondary task on a redundant arm (more joints than the twist's six
+    /// rows; nothing on a 6-joint arm): the joint velocity (rad/s) with which a joint at its
+    /// limit is pushed back towards the middle of its range, at full twist speed. The push
+    /// grows with the cube of the joint's offset from the middle (an eighth of it half-way),
+    /// is projected into the Jacobian's null space (it does not change the tool's twist),
+    /// scales with the twist's speed (the arm stays still when the stick is released), and
+    /// leaves the continuous joints alone (they have no limits to keep away from). 0 turns it
+    /// off.
+    pub null_space_gain_rad_s: f64,
 }
 
 impl Default for ModeSwitchParams {
@@ -297,6 +313,7 @@ impl ModeSwitchParams {
             period_s: 1.0 / rate_hz,
             max_joint_velocity_rad_s: robot.limits().max_velocity_rad_s.clone(),
             max_joint_acceleration_rad_s2: robot.limits().max_acceleration_rad_s2.clone(),
+            null_space_gain_rad_s: 0.2,
         }
     }
 
@@ -332,6 +349,15 @@ impl ModeSwitchParams {
             if let Some(a) = values.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
                 return Err((key, format!("{a} must be a positive number")));
             }
+        }
+        if !(self.null_space_gain_rad_s.is_finite() && self.null_space_gain_rad_s >= 0.0) {
+            return Err((
+                "null_space_gain_rad_s",
+                format!(
+                    "{} must be a number of at least 0",
+                    self.null_space_gain_rad_s
+                ),
+            ));
         }
         if !(self.lookahead_s.is_finite() && (0.0..=1.0).contains(&self.lookahead_s)) {
             return Err((
@@ -400,12 +426,14 @@ impl ModeSwitchParams {
                 "dls_max_damping" => &mut self.dls_max_damping,
                 "lookahead_s" => &mut self.lookahead_s,
                 "period_s" => &mut self.period_s,
+                "null_space_gain_rad_s" => &mut self.null_space_gain_rad_s,
                 other => {
                     return Err(format!(
                         "`{other}` is not a parameter (max_linear_m_s, max_angular_rad_s, \
                          slowdown_start_condition, slowdown_full_condition, \
                          slowdown_min_fraction, dls_singular_threshold, dls_max_damping, \
-                         lookahead_s, period_s; the joint limits only in a model file)"
+                         lookahead_s, period_s, null_space_gain_rad_s; the joint limits only \
+                         in a model file)"
                     ));
                 }
             };
@@ -659,6 +687,44 @@ impl ModeSwitchMap {
         })
     }
 
+    /// The twist's speed as a fraction of full speed (in `[0, 1]`): what the null-space task
+    /// is scaled by.
+    fn speed_fraction(&self, twist: &Vector6<f64>) -> f64 {
+        (self.dot(twist, twist).sqrt() / self.params.max_linear_m_s).min(1.0)
+    }
+
+    /// The null-space secondary task at `q` at full twist speed, with the Jacobian at `q` in
+    /// `self.jac`, into `out[..n]`: the push of each limited joint back towards the middle of
+    /// its range ([`ModeSwitchParams::null_space_gain_rad_s`]), less what of it the tool
+    /// would feel, `g - J⁺ (J g)` with the damped pseudo-inverse. Zero on an arm with no more
+    /// joints than the task's rows, where the null space is empty.
+    fn null_motion(&self, q: &[f64], out: &mut [f64]) -> Option<()> {
+        let n = self.chain.n_joints();
+        let out = out.get_mut(..n)?;
+        out.fill(0.0);
+        let gain = self.params.null_space_gain_rad_s;
+        if gain == 0.0 || n <= self.dls.mask.dim() {
+            return Some(());
+        }
+        let limits = self.robot.limits();
+        let mut g = nalgebra::SVector::<f64, { kinematics::MAX_DOF }>::zeros();
+        for (j, continuous) in self.robot.continuous_joints().iter().enumerate().take(n) {
+            let (lo, hi) = (*limits.lower_rad.get(j)?, *limits.upper_rad.get(j)?);
+            if *continuous || hi <= lo {
+                continue;
+            }
+            let r = ((*q.get(j)? - 0.5 * (lo + hi)) / (0.5 * (hi - lo))).clamp(-1.0, 1.0);
+            g[j] = -gain * r * r * r;
+        }
+        let seen: Vector6<f64> = self.jac.padded() * g;
+        let mut back = [0.0; kinematics::MAX_DOF];
+        self.dls.step(&self.jac, &seen, &mut back[..n]).ok()?;
+        for ((o, gj), b) in out.iter_mut().zip(g.iter()).zip(back) {
+            *o = gj - b;
+        }
+        Some(())
+    }
+
     /// [`ActionMap::direction`]: the current mode's twist for a full deflection of `axis`
     /// (with the slowdown near singularities) through damped least squares at `q`.
     fn direction_inner(&mut self, q: &[f64], axis: usize, out: &mut [f64]) -> Option<()> {
@@ -713,6 +779,18 @@ impl ModeSwitchMap {
         let mut want = [0.0; kinematics::MAX_DOF];
         self.dls.step(&self.jac, &self.twist, &mut hold[..n]).ok()?;
         let mut step = self.dls.step(&self.jac, &target, &mut want[..n]).ok()?;
+        // On a redundant arm each twist's joint velocity carries the null-space task in
+        // proportion to its speed, so the limits below see the command as it will be.
+        let mut null = [0.0; kinematics::MAX_DOF];
+        self.null_motion(q, &mut null)?;
+        let (s_hold, s_want) = (
+            self.speed_fraction(&self.twist),
+            self.speed_fraction(&target),
+        );
+        for ((h, w), v) in hold.iter_mut().zip(want.iter_mut()).zip(null) {
+            *h += s_hold * v;
+            *w += s_want * v;
+        }
         let mut lim = [Limit::default(); kinematics::MAX_DOF];
         for (j, l) in lim.iter_mut().enumerate().take(n) {
             *l = Limit {
@@ -801,6 +879,11 @@ impl ModeSwitchMap {
             }
             self.jacobian(&mid[..n])?;
             step = self.dls.step(&self.jac, &twist, out).ok()?;
+            self.null_motion(&mid[..n], &mut null)?;
+            let s = self.speed_fraction(&twist);
+            for (o, v) in out.iter_mut().zip(null) {
+                *o += s * v;
+            }
         }
         // The acceleration limit holds exactly: a change still past it is scaled down whole.
         for (l, o) in lim.iter_mut().zip(out.iter()) {
@@ -1441,5 +1524,120 @@ mod tests {
             assert_eq!(d, [0.0; 6]);
             map.press(buttons::MODE);
         }
+    }
+
+    fn gen3() -> &'static RobotProfile {
+        RobotProfile::by_name("gen3").unwrap()
+    }
+
+    /// A Gen3 pose with joint 6 near its limit, where the elbow's self-motion turns it (at
+    /// home it hardly does: there the null space turns the continuous joints 1, 3, 5 and 7).
+    const NEAR_JOINT_6_LIMIT: [f64; 7] = [0.08, 0.68, 1.37, 1.73, -1.09, 1.91, -0.15];
+
+    /// The null-space task on the 7-joint Gen3: it changes no component of the tool's twist
+    /// (`J n ≈ 0`) at random poses, pushes a joint near its limit back, and is nothing on the
+    /// 6-joint Gen3 lite or with the gain at 0.
+    #[test]
+    fn the_null_space_task_leaves_the_tool_alone_and_pushes_away_from_a_limit() {
+        let robot = gen3();
+        let mut map =
+            ModeSwitchMap::new_for(robot, ModeSwitchParams::for_robot(robot), SPEC).unwrap();
+        let home = robot.named_pose("home").unwrap().to_vec();
+        let mut rng = crate::rng::Rng::new(7);
+        let limits = robot.limits().clone();
+        for trial in 0..50 {
+            let q: Vec<f64> = if trial == 0 {
+                home.clone()
+            } else {
+                home.iter()
+                    .enumerate()
+                    .map(|(j, h)| {
+                        (h + rng.range(-0.6, 0.6))
+                            .clamp(limits.lower_rad[j] + 0.05, limits.upper_rad[j] - 0.05)
+                    })
+                    .collect()
+            };
+            map.jacobian(&q).unwrap();
+            let mut n = [0.0; kinematics::MAX_DOF];
+            map.null_motion(&q, &mut n).unwrap();
+            let mut v = nalgebra::SVector::<f64, { kinematics::MAX_DOF }>::zeros();
+            v.as_mut_slice()[..7].copy_from_slice(&n[..7]);
+            let tool = map.jac.padded() * v;
+            assert!(
+                tool.norm() < 1e-6 * (1.0 + v.norm()),
+                "trial {trial}: J n = {tool:?} for n = {n:?}"
+            );
+            for (j, c) in robot.continuous_joints().iter().enumerate() {
+                if *c {
+                    // Moved only as the tool's constraint asks, never pushed by a limit.
+                    assert!(n[j].abs() < 0.2, "{j}: {}", n[j]);
+                }
+            }
+        }
+        // Where the elbow's self-motion turns joint 6 (index 5; 1.91 rad, 91 % of the way to
+        // its 2.10 rad limit), the task turns it back.
+        let near = NEAR_JOINT_6_LIMIT.to_vec();
+        map.jacobian(&near).unwrap();
+        let mut n = [0.0; kinematics::MAX_DOF];
+        map.null_motion(&near, &mut n).unwrap();
+        assert!(n[5] < -0.03, "{n:?}");
+        // Nothing on the Gen3 lite, and nothing with the gain at 0.
+        let mut lite = ModeSwitchMap::new(ModeSwitchParams::default(), SPEC).unwrap();
+        lite.jacobian(&gen3_lite::HOME).unwrap();
+        let mut n = [1.0; kinematics::MAX_DOF];
+        lite.null_motion(&gen3_lite::HOME, &mut n).unwrap();
+        assert_eq!(n[..6], [0.0; 6]);
+        let off = ModeSwitchParams {
+            null_space_gain_rad_s: 0.0,
+            ..ModeSwitchParams::for_robot(robot)
+        };
+        let mut map = ModeSwitchMap::new_for(robot, off, SPEC).unwrap();
+        map.jacobian(&home).unwrap();
+        map.null_motion(&home, &mut n).unwrap();
+        assert_eq!(n[..7], [0.0; 7]);
+    }
+
+    /// Driving the Gen3 along +x from a pose with joint 6 near its limit: with the null-space
+    /// task the tool moves as without it (within 1 %), joint 6 ends further from its limit,
+    /// and once the stick is released the arm comes to rest.
+    #[test]
+    fn on_the_gen3_the_null_space_task_turns_joint_6_off_its_limit_and_not_the_tool() {
+        let robot = gen3();
+        let arm = robot.arm();
+        let run = |gain: f64| {
+            let params = ModeSwitchParams {
+                null_space_gain_rad_s: gain,
+                ..ModeSwitchParams::for_robot(robot)
+            };
+            let mut map = ModeSwitchMap::new_for(robot, params, SPEC).unwrap();
+            let mut q = NEAR_JOINT_6_LIMIT.to_vec();
+            let start = arm.fk(&q).unwrap();
+            let mut qd = [0.0; 7];
+            let dt = 1.0 / robot.control_rate_hz();
+            for _ in 0..40 {
+                map.eval(&q, 0.0, &[1.0, 0.0], &mut qd);
+                for j in 0..7 {
+                    q[j] += qd[j] * dt;
+                }
+            }
+            // Released: the map ramps the twist and its null-space share to zero.
+            for _ in 0..40 {
+                map.eval(&q, 0.0, &[0.0, 0.0], &mut qd);
+                for j in 0..7 {
+                    q[j] += qd[j] * dt;
+                }
+            }
+            let end = arm.fk(&q).unwrap();
+            (q, end.translation.vector - start.translation.vector, qd)
+        };
+        let (q_off, moved_off, _) = run(0.0);
+        let (q_on, moved_on, rest) = run(0.2);
+        assert!(moved_off.x > 0.1, "{moved_off:?}");
+        assert!(
+            (moved_on - moved_off).norm() < 0.01 * moved_off.norm(),
+            "{moved_on:?} vs {moved_off:?}"
+        );
+        assert!(q_on[5] < q_off[5] - 0.01, "{} vs {}", q_on[5], q_off[5]);
+        assert!(rest.iter().all(|v| v.abs() < 1e-9), "{rest:?}");
     }
 }

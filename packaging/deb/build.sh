@@ -46,6 +46,8 @@ install -m 0600 "$root/packaging/kortex.env" "$pkg/etc/scl/kortex.env"
 install -m 0644 "$root/packaging/scl-graph.service" "$pkg/lib/systemd/system/scl-graph.service"
 install -m 0644 "$root"/robots/* "$pkg/usr/share/scl/robots/"
 install -m 0644 "$root/models/default.safetensors" "$pkg/usr/share/scl/models/bundled.safetensors"
+# The Gen3's bundled model (the binary embeds both; these copies are for reading and replay).
+install -m 0644 "$root/models/gen3.safetensors" "$pkg/usr/share/scl/models/gen3.safetensors"
 install -m 0644 "$root/README.md" "$root/examples/graph.toml" "$root/docs/network.md" \
   "$pkg/usr/share/doc/scl-teleop/"
 for s in postinst prerm postrm; do

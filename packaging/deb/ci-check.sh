@@ -33,7 +33,8 @@ check_mode /etc/scl/graph.toml 644
 check_mode /etc/scl/kortex.env 600
 check_mode /lib/systemd/system/scl-graph.service 644
 [ "$(stat -c %U /etc/scl/kortex.env)" = root ] || fail "/etc/scl/kortex.env not owned by root"
-for f in robots/gen3_lite.urdf robots/gen3_lite_collision.toml models/bundled.safetensors; do
+for f in robots/gen3_lite.urdf robots/gen3_lite_collision.toml models/bundled.safetensors \
+    models/gen3.safetensors; do
     [ -f "/usr/share/scl/$f" ] || fail "/usr/share/scl/$f missing"
 done
 getent passwd scl >/dev/null || fail "no scl user"

@@ -10,6 +10,11 @@ use recording::{LogWriter, Payload, Topic};
 
 use super::*;
 
+/// The default robot's bundled model (the Gen3 lite's).
+fn bundled() -> &'static [u8] {
+    mapper::model::bundled(kinematics::RobotProfile::default_robot()).unwrap()
+}
+
 const DT_NS: u64 = 25_000_000;
 
 /// A file in this process's temporary directory, removed (with the directory once empty)
@@ -102,10 +107,7 @@ fn make_as(path: &Path, ticks: u64, model: &[u8], old: bool) {
             ("t_ns", "1".into()),
             ("model_spec", "bundled".into()),
             ("model_attachment", "model/mapper-1/100/bundled".into()),
-            (
-                "model_sha256",
-                recording::sha256_hex(mapper::model::BUNDLED),
-            ),
+            ("model_sha256", recording::sha256_hex(bundled())),
         ]))
         .unwrap();
     }
@@ -188,7 +190,7 @@ fn toml_text(cfg: &scl_config::GraphConfig) -> String {
 #[test]
 fn a_recording_of_the_real_steps_replays_bit_for_bit() {
     let path = temp("same.mcap");
-    make(&path, 200, mapper::model::BUNDLED);
+    make(&path, 200, bundled());
     let rec = Recording::read(&path).unwrap();
     let (r, _) = replay(&rec, None).unwrap();
     assert_eq!(r.ticks, 200, "{r:?}");
@@ -215,8 +217,8 @@ fn a_recording_of_the_real_steps_replays_bit_for_bit() {
 #[test]
 fn an_altered_model_diverges_in_the_mapper_at_the_first_tick_it_moves() {
     let path = temp("altered.mcap");
-    let altered = edit::alter_one_weight(mapper::model::BUNDLED).unwrap();
-    assert_ne!(altered, mapper::model::BUNDLED);
+    let altered = edit::alter_one_weight(bundled()).unwrap();
+    assert_ne!(altered, bundled());
     make(&path, 60, &altered);
     let rec = Recording::read(&path).unwrap();
     let (r, _) = replay(&rec, None).unwrap();
@@ -237,7 +239,7 @@ fn an_altered_model_diverges_in_the_mapper_at_the_first_tick_it_moves() {
 #[test]
 fn a_truncated_or_foreign_file_is_a_clear_error() {
     let path = temp("whole.mcap");
-    make(&path, 40, mapper::model::BUNDLED);
+    make(&path, 40, bundled());
     let bytes = std::fs::read(&path).unwrap();
     let cut = temp("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
@@ -263,7 +265,7 @@ fn a_truncated_or_foreign_file_is_a_clear_error() {
 #[test]
 fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
     let path = temp("whatif-src.mcap");
-    make(&path, 120, mapper::model::BUNDLED);
+    make(&path, 120, bundled());
     let rec = Recording::read(&path).unwrap();
     let out = temp("whatif-same.mcap");
     let what = whatif::WhatIf {
@@ -306,7 +308,7 @@ fn the_counterfactual_with_the_recorded_model_differs_nowhere() {
 #[test]
 fn the_closed_loop_counterfactual_drives_a_mock_arm() {
     let path = temp("closed-src.mcap");
-    make(&path, 120, mapper::model::BUNDLED);
+    make(&path, 120, bundled());
     let rec = Recording::read(&path).unwrap();
     // The same model on a mock arm retraces the recorded run (up to the rounding of the
     // mock's integration).
@@ -346,7 +348,7 @@ fn the_closed_loop_counterfactual_drives_a_mock_arm() {
 #[test]
 fn an_older_recording_replays_what_it_can_and_says_so() {
     let path = temp("old.mcap");
-    make_as(&path, 150, mapper::model::BUNDLED, true);
+    make_as(&path, 150, bundled(), true);
     let rec = Recording::read(&path).unwrap();
     let (r, _) = replay(&rec, None).unwrap();
     let notes = r.notes.join("\n");
@@ -394,7 +396,7 @@ fn args(file: &Path, partial: bool) -> ReplayArgs {
 #[test]
 fn a_corrupt_chunk_in_the_middle_fails_the_replay_unless_partial() {
     let path = temp("corrupt-middle.mcap");
-    make(&path, 200, mapper::model::BUNDLED);
+    make(&path, 200, bundled());
     assert_eq!(
         cli(&args(&path, false)).unwrap(),
         std::process::ExitCode::SUCCESS

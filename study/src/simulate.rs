@@ -379,8 +379,9 @@ pub fn attempt_seed(seed: u64, parts: &[u64]) -> u64 {
     h
 }
 
-/// The goals of each task of `study` (its `goals` key, else its name, with its tolerances).
-pub fn study_goals(study: &Study) -> Result<Vec<TaskGoals>, SimError> {
+/// The goals of each task of `study` (its `goals` key, else its name, with its tolerances) on
+/// `robot`'s arm, in the scene its demonstrations use ([`TaskGoals::on`]).
+pub fn study_goals(study: &Study, robot: &RobotProfile) -> Result<Vec<TaskGoals>, SimError> {
     study
         .file
         .tasks
@@ -399,7 +400,7 @@ pub fn study_goals(study: &Study) -> Result<Vec<TaskGoals>, SimError> {
                     t.name
                 ))
             })?;
-            TaskGoals::of(task, t.tolerances())
+            TaskGoals::on(task, t.tolerances(), robot)
                 .ok_or_else(|| bad(format!("`{which}` has no scene to simulate")))
         })
         .collect()
@@ -545,7 +546,7 @@ pub fn simulate_participant_with(
     runner: &AttemptRunner<'_>,
 ) -> Result<Vec<TrialRow>, StudyError> {
     only.check(study)?;
-    let goals = study_goals(study)?;
+    let goals = study_goals(study, sim.robot)?;
     let params = study.file.simulation.clone();
     let trials = dir.join(TRIALS);
     if trials.exists() {
@@ -1032,7 +1033,72 @@ model = "modeswitch"
         let s = Study::load(&path, RobotProfile::default_robot()).unwrap();
         assert_eq!(s.file.simulation.operator, OperatorKind::Expert);
         assert_eq!(s.file.tasks.len(), 3);
-        assert_eq!(study_goals(&s).unwrap().len(), 3);
+        assert_eq!(
+            study_goals(&s, RobotProfile::default_robot())
+                .unwrap()
+                .len(),
+            3
+        );
+    }
+
+    /// `examples/study/gen3.toml` on the Gen3: its goals lie in the Gen3's scene (15 cm
+    /// further out than the Gen3 lite's, as its demonstrations), the Gen3 lite refuses it (its
+    /// table-cleaning start has seven joints), and a participant's pick-and-place with mode
+    /// switching succeeds with the expert operator.
+    #[test]
+    fn the_gen3_study_runs_on_the_gen3() {
+        let gen3 = RobotProfile::by_name("gen3").unwrap();
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/study/gen3.toml");
+        let s = Study::load(&path, gen3).unwrap();
+        assert_eq!(s.file.tasks.len(), 3);
+        let goals = study_goals(&s, gen3).unwrap();
+        let lite = TaskGoals::of(
+            GoalTask::PickAndPlace,
+            learning::goals::Tolerances::default(),
+        )
+        .unwrap();
+        let at = |g: &Subgoal| match g {
+            Subgoal::Reach { at, .. } => *at,
+            other => panic!("{other:?}"),
+        };
+        let d = at(&goals[1].subgoals[0]) - at(&lite.subgoals[0]);
+        assert!(
+            (d.x - 0.15).abs() < 1e-9 && d.y == 0.0 && d.z == 0.0,
+            "{d:?}"
+        );
+        assert!((goals[0].table_centre.x - 0.53).abs() < 1e-9);
+        assert!(Study::load(&path, RobotProfile::default_robot()).is_err());
+        let dir = std::env::temp_dir().join(format!("scl-study-gen3-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let sim = Loop {
+            robot: gen3,
+            safety: safety::SafetyConfig::for_robot(gen3),
+            period_s: 0.025,
+        };
+        let only = Selection {
+            task: Some("pick-and-place".into()),
+            condition: Some("A".into()),
+        };
+        let rows = simulate_participant_with(
+            &s,
+            &sim,
+            Participant(1),
+            1,
+            &dir,
+            &only,
+            &|| {},
+            &|| false,
+            &|setup, _| run_attempt(setup),
+        )
+        .unwrap();
+        assert_eq!(rows.len(), 1);
+        assert_eq!(
+            rows[0].outcome,
+            crate::data::Outcome::Success,
+            "{:?}",
+            rows[0]
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

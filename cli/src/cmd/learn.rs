@@ -33,6 +33,11 @@ pub(crate) struct DemosArgs {
     /// Also draw the TCP paths to this PNG (as `scl plot` does).
     #[arg(long, value_name = "FILE.png")]
     pub(crate) plot: Option<PathBuf>,
+    /// The arm of the Cartesian tasks (table-cleaning, pick-and-place, pouring): a robot
+    /// profile, by the name `[graph] robot` takes; the same scenes, started from its home.
+    #[arg(long, value_name = "NAME", default_value = kinematics::RobotProfile::default_name(),
+          value_parser = super::nodes::robot_profile)]
+    pub(crate) robot: &'static kinematics::RobotProfile,
 }
 
 /// `scl plot`'s options.
@@ -261,8 +266,9 @@ pub(crate) fn demos(args: DemosArgs) -> Result<ExitCode, SclError> {
         n_train,
         n_val,
         plot,
+        robot,
     } = args;
-    learning::tools::demos(&task, &out, seed, (n_train, n_val), plot.as_deref())?;
+    learning::tools::demos(&task, robot, &out, seed, (n_train, n_val), plot.as_deref())?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -77,7 +77,7 @@ pub(crate) struct FakeKortexArgs {
 }
 
 /// `--robot`: a robot profile by name; an unknown name is refused with the known ones.
-fn robot_profile(name: &str) -> Result<&'static kinematics::RobotProfile, String> {
+pub(crate) fn robot_profile(name: &str) -> Result<&'static kinematics::RobotProfile, String> {
     kinematics::RobotProfile::by_name(name).map_err(|e| e.to_string())
 }
 

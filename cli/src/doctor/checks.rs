@@ -446,19 +446,23 @@ pub struct KortexAnswer {
     pub firmware: String,
     /// Actuators reported.
     pub actuators: u32,
+    /// What the arm says it is (its actuator count and Kortex model).
+    pub found: hw_bridge::kortex::FoundRobot,
     /// The arm's joint speed hard limits (rad/s).
     pub speed_limits_rad_s: Vec<f64>,
 }
 
 /// The arm, for a configuration with `[bridge] robot = "kortex"`: reachable, a session
-/// opened and closed, its firmware and its limits against the robot profile's (`expected`
-/// joints, `profile_speed_rad_s` the speeds the graph may command).
+/// opened and closed, the arm the bridge would accept for `robot` (its actuator count and
+/// Kortex model, [`hw_bridge::kortex::FoundRobot::check`]), its firmware and its limits against
+/// the robot profile's (`profile_speed_rad_s` the speeds the graph may command).
 pub fn kortex(
     answer: Result<KortexAnswer, String>,
-    expected_joints: usize,
+    robot: &kinematics::RobotProfile,
     profile_speed_rad_s: &[f64],
 ) -> Finding {
     const ITEM: &str = "Kortex arm";
+    let expected_joints = robot.n_joints();
     let a = match answer {
         Ok(a) => a,
         Err(e) => {
@@ -471,13 +475,10 @@ pub fn kortex(
             return Finding::fail(ITEM, e, fix);
         }
     };
-    if a.actuators as usize != expected_joints {
+    if let Err(e) = a.found.check(robot) {
         return Finding::fail(
             ITEM,
-            format!(
-                "{}: firmware {}, {} actuators; the robot profile has {expected_joints} joints",
-                a.addr, a.firmware, a.actuators
-            ),
+            format!("{}: firmware {}; {e}", a.addr, a.firmware),
             "set [graph] robot to this arm's profile",
         );
     }
@@ -515,9 +516,8 @@ pub fn kortex(
     Finding::ok(
         ITEM,
         format!(
-            "{}: session opened and closed; firmware {}, {} actuators, speed limits within the \
-             arm's",
-            a.addr, a.firmware, a.actuators
+            "{}: session opened and closed; {}, firmware {}, speed limits within the arm's",
+            a.addr, a.found, a.firmware
         ),
     )
 }
@@ -789,31 +789,60 @@ mod tests {
         assert!(f.detail.contains("m.safetensors"));
     }
 
+    fn lite() -> &'static kinematics::RobotProfile {
+        kinematics::RobotProfile::by_name("gen3_lite").unwrap()
+    }
+
     fn answer() -> KortexAnswer {
         KortexAnswer {
             addr: "127.0.0.1:10000".into(),
             firmware: "2.3.0".into(),
             actuators: 6,
+            found: hw_bridge::kortex::FoundRobot::of_profile(lite()),
             speed_limits_rad_s: vec![1.6; 6],
         }
     }
 
     #[test]
     fn kortex_answers() {
-        assert_eq!(kortex(Ok(answer()), 6, &[1.0; 6]).level, Level::Ok);
-        let f = kortex(Ok(answer()), 6, &[1.0, 1.0, 2.0, 1.0, 1.0, 1.0]);
+        let f = kortex(Ok(answer()), lite(), &[1.0; 6]);
+        assert_eq!(f.level, Level::Ok);
+        assert!(
+            f.detail
+                .contains("a Gen3 lite (Kortex model L31, 6 actuators)"),
+            "{}",
+            f.detail
+        );
+        let f = kortex(Ok(answer()), lite(), &[1.0, 1.0, 2.0, 1.0, 1.0, 1.0]);
         assert_eq!(f.level, Level::Warn);
         assert!(f.detail.contains("joint 3 2.00 > 1.60"), "{}", f.detail);
+        // Another arm: its actuator count and model, or its model alone, fail naming both.
+        let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
         let mut a = answer();
-        a.actuators = 7;
-        assert_eq!(kortex(Ok(a), 6, &[1.0; 6]).level, Level::Fail);
+        a.found = hw_bridge::kortex::FoundRobot::of_profile(gen3);
+        let f = kortex(Ok(a), lite(), &[1.0; 6]);
+        assert_eq!(f.level, Level::Fail);
+        assert!(
+            f.detail.contains("a Gen3 (Kortex model L53, 7 actuators)")
+                && f.detail.contains("gen3_lite"),
+            "{}",
+            f.detail
+        );
+        let mut a = answer();
+        a.found.model = hw_bridge::kortex::FoundRobot::of_profile(gen3).model;
+        let f = kortex(Ok(a), lite(), &[1.0; 6]);
+        assert_eq!(f.level, Level::Fail, "{}", f.detail);
         let mut a = answer();
         a.speed_limits_rad_s.pop();
-        assert_eq!(kortex(Ok(a), 6, &[1.0; 6]).level, Level::Fail);
-        let f = kortex(Err("wrong user name or password".into()), 6, &[1.0; 6]);
+        assert_eq!(kortex(Ok(a), lite(), &[1.0; 6]).level, Level::Fail);
+        let f = kortex(Err("wrong user name or password".into()), lite(), &[1.0; 6]);
         assert_eq!(f.level, Level::Fail);
         assert!(f.fix.contains("SCL_KORTEX_PASSWORD"));
-        let f = kortex(Err("cannot connect to 10.0.0.1:10000".into()), 6, &[1.0; 6]);
+        let f = kortex(
+            Err("cannot connect to 10.0.0.1:10000".into()),
+            lite(),
+            &[1.0; 6],
+        );
         assert!(f.fix.contains("powered"));
     }
 

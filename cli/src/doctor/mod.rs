@@ -134,11 +134,7 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
             .map_err(|e| e.to_string()),
     ));
     out.push(if cfg.bridge.robot == "kortex" {
-        checks::kortex(
-            kortex_answer(cfg),
-            robot.n_joints(),
-            &cfg.safety.max_velocity_rad_s,
-        )
+        checks::kortex(kortex_answer(cfg), robot, &cfg.safety.max_velocity_rad_s)
     } else {
         checks::kortex_not_used(&cfg.bridge.robot)
     });
@@ -161,6 +157,7 @@ pub fn kortex_answer(cfg: &GraphConfig) -> Result<KortexAnswer, String> {
         addr: info.addr.to_string(),
         firmware: info.firmware(),
         actuators: info.actuators,
+        found: info.found,
         speed_limits_rad_s: info.speed_limits_rad_s,
     })
 }

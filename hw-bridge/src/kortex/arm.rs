@@ -79,6 +79,9 @@ pub struct ArmInfo {
     pub firmware_version: u32,
     /// Actuators reported by `Base.GetActuatorCount`.
     pub actuators: u32,
+    /// What the arm says it is: its actuator count and the Kortex model of
+    /// `Base.GetProductConfiguration` ([`super::FoundRobot::check`] against a profile).
+    pub found: super::FoundRobot,
     /// The joint speed hard limits (rad/s).
     pub speed_limits_rad_s: Vec<f64>,
 }
@@ -247,8 +250,9 @@ impl KortexArm {
     }
 
     /// A read-only look at the arm of `cfg` for `scl doctor`: connects within `timeout`,
-    /// opens a session with `credentials`, reads the firmware version, the actuator count and
-    /// the joint speed hard limits, and closes the session. Nothing is commanded: no servoing
+    /// opens a session with `credentials`, reads the firmware version, the actuator count, the
+    /// Kortex model (as the bridge's start-up does) and the joint speed hard limits, and closes
+    /// the session. Nothing is commanded: no servoing
     /// mode, no fault clearing, no Stop (each reply is awaited at most `timeout` too).
     pub fn probe(
         cfg: &KortexConfig,
@@ -289,14 +293,14 @@ impl KortexArm {
         self.session_open = true;
         let reply = self.call(Function::GetFirmwareVersion, Vec::new())?;
         let fw: msg::FirmwareVersion = decode(Function::GetFirmwareVersion, &reply)?;
-        let reply = self.call(Function::GetActuatorCount, Vec::new())?;
-        let count: msg::ActuatorInformation = decode(Function::GetActuatorCount, &reply)?;
+        let found = self.identify()?;
         let reply = self.call(Function::GetKinematicHardLimits, Vec::new())?;
         let limits: msg::KinematicLimits = decode(Function::GetKinematicHardLimits, &reply)?;
         Ok(ArmInfo {
             addr: self.addr,
             firmware_version: fw.firmware_version,
-            actuators: count.count,
+            actuators: found.actuators,
+            found,
             speed_limits_rad_s: limits
                 .joint_speed_limits
                 .iter()

@@ -146,6 +146,16 @@ pub struct CommonArgs {
     /// Hidden layer widths of the networks, comma-separated (the paper's 256,256).
     #[arg(long, default_value = "256,256")]
     pub hidden: String,
+    /// The arm: a robot profile by the name `[graph] robot` takes. Its demonstrations are
+    /// generated for the tasks (`scl demos --robot`) and its mock arm runs the rollouts.
+    #[arg(long, value_name = "NAME", default_value = kinematics::RobotProfile::default_name(),
+          value_parser = robot_profile)]
+    pub robot: &'static kinematics::RobotProfile,
+}
+
+/// `--robot`: a robot profile by name; an unknown name is refused with the known ones.
+pub fn robot_profile(name: &str) -> Result<&'static kinematics::RobotProfile, String> {
+    kinematics::RobotProfile::by_name(name).map_err(|e| e.to_string())
 }
 
 /// One experiment's run: its output directory, settings and progress bar.
@@ -165,6 +175,8 @@ pub struct Run {
     pub hidden: Vec<usize>,
     /// The `--data` directory, if given.
     pub data: Option<PathBuf>,
+    /// The arm (`--robot`).
+    pub robot: &'static kinematics::RobotProfile,
     /// The command line, for the summary and the model headers.
     pub command: String,
     bar: indicatif::ProgressBar,
@@ -239,6 +251,7 @@ impl Run {
             threads,
             hidden,
             data: args.data.clone(),
+            robot: args.robot,
             command: command.to_owned(),
             bar,
         })
@@ -309,10 +322,11 @@ impl Run {
                 let d = self.out.join("data").join(task.name());
                 if !d.exists() {
                     let (n_train, n_val) = task.default_counts();
+                    let robot = self.robot.name();
                     self.bar.suspend(|| {
-                        tracing::info!(task = task.name(), dir = %d.display(), "generating demonstrations (seed 1)");
+                        tracing::info!(task = task.name(), robot, dir = %d.display(), "generating demonstrations (seed 1)");
                     });
-                    let ds = crate::tasks::generate(task, n_train, n_val, 1)?;
+                    let ds = crate::tasks::generate_for(task, self.robot, n_train, n_val, 1)?;
                     dataset::write_dir(&d, &ds)?;
                 }
                 d

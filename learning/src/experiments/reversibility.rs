@@ -1,5 +1,5 @@
 //! `scl eval reversibility`: the paper's proportionality and soft-reversibility figure on the
-//! mock Gen3 lite.
+//! mock Gen3 lite (or the mock arm of `--robot`, on that arm's demonstrations).
 //!
 //! For every model (10 per kind: SCL, CAE, PCA), start state (10, from the validation
 //! demonstrations) and `alpha` on a grid in `[0, 1]`, with `theta` uniform: the mock arm
@@ -32,7 +32,7 @@ pub struct ReversibilityArgs {
     /// Shared experiment options.
     #[command(flatten)]
     pub common: CommonArgs,
-    /// Gen3 lite task whose validation demonstrations give the start states (and whose
+    /// Task (table-cleaning, pick-and-place, pouring) whose validation demonstrations give the start states (and whose
     /// training demonstrations train the models).
     #[arg(long, default_value = "pick-and-place")]
     pub task: String,
@@ -157,7 +157,7 @@ impl Outcome {
     }
 }
 
-/// The mock Gen3 lite as a rollout plant.
+/// The robot's mock arm as a rollout plant.
 struct MockPlant {
     arm: MockArm,
     q: Vec<f64>,
@@ -166,8 +166,8 @@ struct MockPlant {
 }
 
 impl MockPlant {
-    fn at(q0: &[f64], c0: f64) -> Result<Self, ToolError> {
-        let mut arm = MockArm::new(MockConfig::default())
+    fn at(robot: &kinematics::RobotProfile, q0: &[f64], c0: f64) -> Result<Self, ToolError> {
+        let mut arm = MockArm::for_robot(robot, MockConfig::for_robot(robot))
             .map_err(|e| ToolError::Graph(format!("mock arm: {e}")))?;
         arm.resume(q0, c0);
         let mut q = q0.to_vec();
@@ -216,13 +216,17 @@ const KINDS: [(ModelKind, Variant); 3] = [
 pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Outcome, ToolError> {
     let run = Run::new("reversibility", &args.common, DEFAULT_EPOCHS, command)?;
     let task = Task::from_name(&args.task)?;
-    if task.n_joints() != kinematics::gen3_lite::N_JOINTS {
+    if task == Task::PlanarReach {
         return Err(ExperimentError::Option {
             option: "--task",
-            reason: format!("`{}` is not a Gen3 lite task", args.task),
+            reason: format!(
+                "`{}` is the planar arm's; the rollouts run on the mock arm of --robot",
+                args.task
+            ),
         }
         .into());
     }
+    let robot = run.robot;
     if args.states == 0 || args.alphas < 2 {
         return Err(ExperimentError::Option {
             option: "--states / --alphas",
@@ -271,12 +275,15 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
     };
     for m in &models {
         let h = m.model.header();
-        if h.n_joints != kinematics::gen3_lite::N_JOINTS || h.latent_dim != 2 {
+        if h.n_joints != robot.n_joints() || h.latent_dim != 2 {
             return Err(ExperimentError::Model {
                 path: m.path.clone(),
                 reason: format!(
-                    "drives {} joints from a {}-D action; the mock Gen3 lite needs 6 from 2",
-                    h.n_joints, h.latent_dim
+                    "drives {} joints from a {}-D action; the mock {} needs {} from 2",
+                    h.n_joints,
+                    h.latent_dim,
+                    robot.description(),
+                    robot.n_joints()
                 ),
             }
             .into());
@@ -309,7 +316,7 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
         for (i, (q0, c0)) in states.iter().enumerate() {
             for (j, &alpha) in alphas.iter().enumerate() {
                 let theta = thetas[(m.index * states.len() + i) * alphas.len() + j];
-                let mut plant = MockPlant::at(q0, *c0)?;
+                let mut plant = MockPlant::at(robot, q0, *c0)?;
                 let r = rollout::forward_reverse(
                     map.as_mut(),
                     s,
@@ -486,8 +493,12 @@ fn summary(
     o: &Outcome,
 ) -> String {
     let given = !args.common.models.is_empty();
+    let title = format!(
+        "Proportionality and soft reversibility on the mock {}",
+        run.robot.description()
+    );
     let mut s = run.summary_head(
-        "Proportionality and soft reversibility on the mock Gen3 lite",
+        &title,
         &[
             ("task (start states: its validation split)", args.task.clone()),
             ("data", data_dir.display().to_string()),

@@ -54,6 +54,7 @@ fn common(out: &Path, seeds: usize, epochs: usize) -> CommonArgs {
         data: Some(data().to_owned()),
         models: Vec::new(),
         hidden: "16,16".into(),
+        robot: kinematics::RobotProfile::default_robot(),
     }
 }
 
@@ -433,4 +434,63 @@ fn a_file_in_place_of_the_output_directory_is_refused() {
         .to_string();
     assert!(e.contains("--out") && e.contains("not a directory"), "{e}");
     std::fs::remove_file(&f).unwrap();
+}
+
+/// `--robot gen3`: reconstruction and reversibility on the Gen3, its demonstrations generated
+/// into the output directory (`scl demos --robot gen3`), every kind trained on seven joints,
+/// the rollouts on its mock arm; a planar task is refused for the mock arm.
+#[test]
+fn the_experiments_run_on_the_gen3() {
+    let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
+    let out = out_dir("gen3");
+    let on_gen3 = |seeds, epochs| CommonArgs {
+        data: None,
+        robot: gen3,
+        ..common(&out, seeds, epochs)
+    };
+    let o = reconstruction::run(
+        &ReconstructionArgs {
+            common: on_gen3(1, 3),
+            tasks: "pick-and-place".into(),
+        },
+        "test",
+    )
+    .unwrap();
+    assert_eq!(o.entries.len(), Variant::ALL.len());
+    assert!(
+        o.entries.iter().all(|e| e.val_mse.is_finite()),
+        "{:?}",
+        o.entries
+    );
+    for e in &o.entries {
+        let m = load_model(&e.path).unwrap();
+        assert_eq!(m.header().n_joints, 7, "{}", e.variant);
+    }
+    let data = dataset::load_dir(&out.join("data/pick-and-place")).unwrap();
+    assert_eq!((data.n_train(), data.n_val()), (2001, 667));
+    let args = ReversibilityArgs {
+        common: on_gen3(1, 3),
+        task: "pick-and-place".into(),
+        states: 2,
+        alphas: 3,
+        seed: 1,
+    };
+    let r = reversibility::run(&args, 0.025, "test").unwrap();
+    let pca = r.curve(ModelKind::Pca).unwrap();
+    assert!(pca.iter().all(|p| p.reverse_max_inside < 1e-9), "{pca:?}");
+    assert!(pca[2].forward_mean > 0.01, "{pca:?}");
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(summary.contains("on the mock Gen3\n"), "{summary}");
+    let e = reversibility::run(
+        &ReversibilityArgs {
+            task: "planar-reach".into(),
+            ..args
+        },
+        0.025,
+        "test",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("planar"), "{e}");
+    std::fs::remove_dir_all(&out).unwrap();
 }

@@ -1230,7 +1230,7 @@ pub fn simulate(
         period_s: graph.period_s(),
     };
     // Refuse a bad task before anything runs.
-    study::simulate::study_goals(&s).map_err(study::StudyError::from)?;
+    study::simulate::study_goals(&s, robot).map_err(study::StudyError::from)?;
     only.check(&s)?;
     let attempts = only.attempts(&s) * u64::from(participants);
     let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {

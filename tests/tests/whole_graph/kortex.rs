@@ -980,7 +980,8 @@ fn write_gen3_config(dir: &Path, port: u16) -> PathBuf {
     p
 }
 
-/// `scl up --config FILE --for 60s --json --model modeswitch` (no bundled Gen3 model yet),
+/// `scl up --config FILE --for 60s --json --model modeswitch` (the Cartesian map: its motion
+/// does not depend on a trained model),
 /// credentials `user` / `password` in the environment.
 fn up_gen3(
     prefix: &ipc_types::Prefix,

@@ -1,8 +1,8 @@
-//! The rate is a setting: the whole graph at 500 Hz on the mock arm (`[graph] rate_hz`), with
-//! the period-tied rules following the period. It checks the logic, not the timing: the
-//! bridge's grid steps by the configured period, every executed command is its own tick's,
-//! safety's acceleration limit holds per 2 ms tick, the mock arm integrates over 2 ms, and no
-//! miss is the graph's own.
+//! The rate is a setting: the whole graph at 500 Hz on the mock Gen3 lite and at 1 kHz on the
+//! mock Gen3 (`[graph] rate_hz`, `[graph] robot`), with the period-tied rules following the
+//! period. It checks the logic, not the timing: the bridge's grid steps by the configured
+//! period, every executed command is its own tick's, safety's acceleration limit holds per
+//! tick (2 ms, 1 ms), the mock arm integrates over one period, and no miss is the graph's own.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop, missing_docs)]
 
 use std::process::{Command, Stdio};
@@ -12,16 +12,31 @@ use ipc_types::{TickReport, state_flags};
 use scl_tests::{ChildGuard, DomainGuard, Recorder, scl_binary, serial, unique_prefix, wait_clean};
 use transport::Graph;
 
-const RATE_HZ: f64 = 500.0;
-const PERIOD_NS: u64 = 2_000_000;
-const DT: f64 = 1.0 / RATE_HZ;
-
 #[test]
 fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
+    run_at(500, "gen3_lite");
+}
+
+/// The Gen3's seven joints at 1 kHz: the same checks per 1 ms tick.
+#[test]
+fn a_gen3_graph_runs_at_1khz_with_the_period_tied_rules_following_the_rate() {
+    run_at(1000, "gen3");
+}
+
+/// The whole graph on `robot`'s mock arm at `rate` Hz for 4 s, its bundled model driven by the
+/// step script.
+fn run_at(rate: u32, robot: &str) {
+    let rate_hz = f64::from(rate);
+    let period_ns = 1_000_000_000 / u64::from(rate);
+    let dt = 1.0 / rate_hz;
+    let period_ms = 1000.0 / rate_hz;
+    let profile = kinematics::RobotProfile::by_name(robot).unwrap();
+    let n = profile.n_joints();
     let _serial = serial();
-    let prefix = unique_prefix("rate500");
+    let tag = format!("rate{rate}");
+    let prefix = unique_prefix(&tag);
     let _domain = DomainGuard(prefix.clone());
-    let dir = scl_tests::temp_dir("rate500");
+    let dir = scl_tests::temp_dir(&tag);
     let cfg = dir.join("graph.toml");
     // The step script comes back to rest every 0.3 s: at 500 Hz a debug build's wake-up can
     // pass the 1.6 ms state age (80 % of the period), a stale-state stop, and restart
@@ -29,7 +44,7 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
     std::fs::write(
         &cfg,
         format!(
-            "[graph]\nrate_hz = {RATE_HZ}\n[joystick]\nscript = \"step\"\nstep_hold_s = 0.2\nstep_rest_s = 0.1\n"
+            "[graph]\nrate_hz = {rate_hz}\nrobot = \"{robot}\"\n[joystick]\nscript = \"step\"\nstep_hold_s = 0.2\nstep_rest_s = 0.1\n"
         ),
     )
     .unwrap();
@@ -37,10 +52,7 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
         let text = std::fs::read_to_string(&cfg).unwrap();
         // The accelerations the filter enforces: the profile's defaults (the file sets none).
         assert!(!text.contains("max_acceleration"));
-        kinematics::RobotProfile::default_robot()
-            .limits()
-            .max_acceleration_rad_s2
-            .clone()
+        profile.limits().max_acceleration_rad_s2.clone()
     };
     let mut rec = Recorder::join(&prefix);
     let observer = Graph::join(&prefix, "test-ticks").unwrap();
@@ -71,19 +83,19 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
     assert!(out.status.success(), "scl up failed: {log_text}");
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
 
-    // The bridge's clock runs on the 2 ms grid: consecutive ticks' ideal times are whole
+    // The bridge's clock runs on the period's grid: consecutive ticks' ideal times are whole
     // periods apart (more than one only where the machine held the bridge up).
     assert!(ticks.len() > 200, "{} tick reports", ticks.len());
     let mut one_period = 0;
     for w in ticks.windows(2).filter(|w| w[1].tick == w[0].tick + 1) {
         let d = w[1].ideal_ns - w[0].ideal_ns;
         assert!(
-            d > 0 && d % PERIOD_NS == 0,
+            d > 0 && d % period_ns == 0,
             "ticks {} -> {}: {d} ns",
             w[0].tick,
             w[1].tick
         );
-        one_period += usize::from(d == PERIOD_NS);
+        one_period += usize::from(d == period_ns);
     }
     assert!(one_period > 100, "{one_period} single-period steps");
 
@@ -102,7 +114,7 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
     );
     assert_eq!(scl_tests::held_up_skips(&log_text), held_up);
     if missed > 0 {
-        eprintln!("500 Hz graph: the machine held it up, {missed} tick(s) lost");
+        eprintln!("{rate} Hz graph: the machine held it up, {missed} tick(s) lost");
     }
     assert!(
         summary["joint_travel_rad"].as_f64().unwrap() > 0.0,
@@ -124,21 +136,22 @@ fn graph_runs_at_500hz_with_the_period_tied_rules_following_the_rate() {
             continue;
         }
         let Some(c) = cmd_at(w[0].tick) else { continue };
-        // Safety: the command changes the arm's velocity by at most max_acceleration * 2 ms.
-        for j in 0..6 {
+        // Safety: the command changes the arm's velocity by at most max_acceleration * period.
+        assert_eq!(c.n_joints as usize, n);
+        for j in 0..n {
             let dv = (c.qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
             assert!(
-                dv <= defaults[j] * DT + 1e-9,
-                "tick {} joint {j}: velocity change {dv} rad/s in one 2 ms tick",
+                dv <= defaults[j] * dt + 1e-9,
+                "tick {} joint {j}: velocity change {dv} rad/s in one {period_ms} ms tick",
                 w[0].tick
             );
         }
         // The mock arm: one period of the command (no joint near its limit in this run).
-        for j in 0..6 {
+        for j in 0..n {
             let moved = w[1].q_rad[j] - w[0].q_rad[j];
             assert!(
-                (moved - c.qdot_rad_s[j] * DT).abs() < 1e-9,
-                "tick {} joint {j}: moved {moved}, commanded {} over 2 ms",
+                (moved - c.qdot_rad_s[j] * dt).abs() < 1e-9,
+                "tick {} joint {j}: moved {moved}, commanded {} over {period_ms} ms",
                 w[0].tick,
                 c.qdot_rad_s[j]
             );

@@ -295,7 +295,7 @@ fn twenty_live_swaps_miss_no_tick() {
 }
 
 /// The Gen3 (seven joints) under the same supervision: its mock arm at 40 Hz with mode
-/// switching (no Gen3 model is bundled yet), four live swaps to the go-to map and back, no
+/// switching, four live swaps to the go-to map and back, no
 /// miss the machine did not take, seven joints in every state and command, the Gen3's
 /// acceleration limit per tick on each, and the bridge first at the stop.
 #[test]
