@@ -4,6 +4,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 mod config;
+pub mod placement;
 
 pub use config::*;
 
