@@ -82,6 +82,20 @@ pub fn check_rt_cpus(g: &GraphSection) -> Result<(), ConfigError> {
     Ok(())
 }
 
+/// A CPU for each control-path process on a machine with `online_cpus` CPUs, so that as
+/// many as can poll (`rt_cpus` in [`RT_CPU_ORDER`]): with four or more, one each from the
+/// last CPU down; with three, the mapper and the joystick share the first; with two, the
+/// bridge has the first and the rest share the last; with one, all share it.
+pub fn spread_cpus(online_cpus: usize) -> Vec<i32> {
+    let n = online_cpus as i32;
+    match online_cpus {
+        0 | 1 => vec![0; 4],
+        2 => vec![0, 1, 1, 1],
+        3 => vec![2, 1, 0, 0],
+        _ => vec![n - 1, n - 2, n - 3, n - 4],
+    }
+}
+
 impl GraphSection {
     /// The CPU `role` is pinned to with `realtime` (`rt_cpus`, else `rt_cpu`), if any.
     pub fn cpu_of(&self, role: RtRole) -> Option<usize> {
@@ -108,7 +122,7 @@ impl GraphSection {
             }),
             notes: Vec::new(),
         };
-        if !(self.realtime && self.rt_fifo) || !self.wait.polls() {
+        if !(self.realtime && self.rt_fifo && self.wait.polls()) {
             return Ok(p);
         }
         let shares = |a: usize, b: usize| match (p.cpus[a], p.cpus[b]) {
@@ -247,6 +261,31 @@ mod tests {
         let p = graph(Predictive, -1, &[0, 1, 2, 3]).placement(4).unwrap();
         assert_eq!(p.waits, [Predictive, Predictive, Predictive, Event]);
         assert!(p.notes.is_empty());
+    }
+
+    /// The spread placement lets the bridge and the mapper poll on two CPUs (safety waits
+    /// for the mapper beside it on events), and everyone from three CPUs on; spin needs four.
+    #[test]
+    fn spread_cpus_let_as_many_poll_as_the_machine_allows() {
+        let waits = |n: usize, w| {
+            let cpus = spread_cpus(n);
+            graph(w, -1, &cpus).placement(n).map(|p| p.waits)
+        };
+        assert_eq!(
+            waits(2, Predictive).unwrap(),
+            [Predictive, Event, Predictive, Event]
+        );
+        assert_eq!(
+            waits(3, Predictive).unwrap(),
+            [Predictive, Predictive, Predictive, Event]
+        );
+        assert_eq!(
+            waits(1, Predictive).unwrap(),
+            [Event, Event, Predictive, Event]
+        );
+        assert!(waits(3, Spin).is_err());
+        assert_eq!(waits(8, Spin).unwrap(), [Spin, Spin, Spin, Event]);
+        assert_eq!(spread_cpus(8), [7, 6, 5, 4]);
     }
 
     #[test]

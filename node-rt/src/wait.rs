@@ -26,8 +26,18 @@ pub const MIN_SAMPLES: usize = 8;
 /// Fixed part of the guard (ns): the wake-up's own latency on the absolute clock.
 pub const MARGIN_NS: u64 = 20_000;
 
-/// The poll budget is at most this share of a period.
+/// The poll budget is at most this share of a period ...
 pub const BUDGET_SHARE: f64 = 0.125;
+
+/// ... and at most this long (ns): an input whose arrival spreads wider is not worth polling
+/// for, the event wait takes it.
+pub const MAX_BUDGET_NS: u64 = 1_000_000;
+
+/// The quantiles of the offsets that place the window: it opens a guard before the low one
+/// and covers up to the high one (a stray early or late arrival does not stretch it).
+pub const LOW_Q: f64 = 0.1;
+/// See [`LOW_Q`].
+pub const HIGH_Q: f64 = 0.9;
 
 /// A poll window on the monotonic clock (ns).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,16 +49,19 @@ pub struct Window {
 }
 
 /// The arrival phase of one input relative to the tick grid, learned from the messages'
-/// stamps: each message names its tick and carries the tick's state stamp (`state_t_ns`);
-/// the grid is the newest such stamp plus whole periods.
+/// stamps: each message names its tick `k` and carries its state's stamp `t_k`. The bridge's
+/// ticks start on an ideal grid `origin + k·P` and are stamped when it wakes, a little late,
+/// so the grid's origin is the least `t_k − k·P` of the recent ticks; an input's offset is
+/// its publication stamp less its tick's start on that grid.
 #[derive(Debug, Clone)]
 pub struct Phase {
     period_ns: u64,
     offsets: [i64; WINDOW],
+    origins: [i64; WINDOW],
     len: usize,
     next: usize,
-    /// The newest tick seen and its state's stamp: the grid's anchor.
-    anchor: Option<(u64, u64)>,
+    /// The newest tick seen.
+    last_tick: Option<u64>,
 }
 
 impl Phase {
@@ -57,28 +70,42 @@ impl Phase {
         Self {
             period_ns: period_ns.max(1),
             offsets: [0; WINDOW],
+            origins: [0; WINDOW],
             len: 0,
             next: 0,
-            anchor: None,
+            last_tick: None,
         }
+    }
+
+    fn grid(&self, tick: u64) -> i64 {
+        (tick as i64).wrapping_mul(self.period_ns as i64)
+    }
+
+    /// The grid's origin: the least `t_k − k·P` kept.
+    fn origin(&self) -> Option<i64> {
+        self.origins[..self.len].iter().copied().min()
     }
 
     /// Takes a message of `tick`, whose state was stamped `state_t_ns`, published at
-    /// `sent_ns`: its offset after the tick's start as the grid predicted it (the previous
-    /// anchor plus whole periods), so the offsets include the clock's own jitter.
+    /// `sent_ns`. An older tick than the newest seen changes nothing.
     pub fn observe(&mut self, tick: u64, state_t_ns: u64, sent_ns: u64) {
-        match self.anchor {
-            Some((k0, t0)) if tick > k0 => {
-                let start = t0.saturating_add((tick - k0).saturating_mul(self.period_ns));
-                self.observe_offset(sent_ns as i64 - start as i64);
-                self.anchor = Some((tick, state_t_ns));
-            }
-            Some(_) => {}
-            None => self.anchor = Some((tick, state_t_ns)),
+        if self.last_tick.is_some_and(|k| tick <= k) {
+            return;
         }
+        self.last_tick = Some(tick);
+        self.origins[self.next] = state_t_ns as i64 - self.grid(tick);
+        let origin = self.origins[..self.len.max(self.next + 1)]
+            .iter()
+            .copied()
+            .min()
+            .unwrap_or(0);
+        self.offsets[self.next] = sent_ns as i64 - (origin + self.grid(tick));
+        self.next = (self.next + 1) % WINDOW;
+        self.len = (self.len + 1).min(WINDOW);
     }
 
-    /// Takes one offset (ns) of an input after its tick's start.
+    /// Takes one offset (ns) of an input after its own tick's start, where the caller knows
+    /// that start (the bridge, from its own state); the grid is not used.
     pub fn observe_offset(&mut self, offset_ns: i64) {
         self.offsets[self.next] = offset_ns;
         self.next = (self.next + 1) % WINDOW;
@@ -86,9 +113,10 @@ impl Phase {
     }
 
     /// The window relative to a tick's start: (open offset, budget) in ns, once enough
-    /// offsets are known. The guard is the spread of the lower half (median less minimum)
-    /// plus [`MARGIN_NS`]; the budget covers the whole spread and the guard on both sides,
-    /// at most [`BUDGET_SHARE`] of a period.
+    /// offsets are known. With `lo`, `mid`, `hi` the [`LOW_Q`], median and [`HIGH_Q`]
+    /// offsets: the guard is `mid − lo` plus [`MARGIN_NS`], the window opens a guard before
+    /// `lo` and lasts until a guard after `hi`, at most [`BUDGET_SHARE`] of a period and
+    /// [`MAX_BUDGET_NS`].
     pub fn relative(&self) -> Option<(i64, u64)> {
         if self.len < MIN_SAMPLES {
             return None;
@@ -96,9 +124,10 @@ impl Phase {
         let mut s = self.offsets;
         let s = &mut s[..self.len];
         s.sort_unstable();
-        let (lo, mid, hi) = (s[0], s[s.len() / 2], s[s.len() - 1]);
+        let at = |q: f64| s[((s.len() - 1) as f64 * q).round() as usize];
+        let (lo, mid, hi) = (at(LOW_Q), at(0.5), at(HIGH_Q));
         let guard = (mid - lo) as u64 + MARGIN_NS;
-        let cap = (self.period_ns as f64 * BUDGET_SHARE) as u64;
+        let cap = ((self.period_ns as f64 * BUDGET_SHARE) as u64).min(MAX_BUDGET_NS);
         let budget = ((hi - lo) as u64 + 2 * guard).min(cap);
         Some((lo - guard as i64, budget))
     }
@@ -113,10 +142,12 @@ impl Phase {
         })
     }
 
-    /// The next window that has not closed by `now_ns`, on the grid of the newest tick seen.
+    /// The window of the tick after the newest seen, on the grid; if it has closed by
+    /// `now_ns`, the first one after that has not.
     pub fn next_window(&self, now_ns: u64) -> Option<Window> {
-        let (_, t0) = self.anchor?;
-        let w = self.window_at(t0.saturating_add(self.period_ns))?;
+        let k = self.last_tick?;
+        let start = self.origin()? + self.grid(k + 1);
+        let w = self.window_at(start.max(0) as u64)?;
         if w.close_ns > now_ns {
             return Some(w);
         }
@@ -353,48 +384,69 @@ mod tests {
     }
 
     #[test]
-    fn the_window_opens_a_guard_before_the_earliest_offset_and_its_budget_is_bounded() {
+    fn the_window_opens_a_guard_before_the_early_offsets_and_its_budget_is_bounded() {
         assert_eq!(learned(&[50_000; 7]).relative(), None);
         let ph = learned(&[50_000; 8]);
         // No spread: the margin alone, on both sides.
         assert_eq!(ph.relative(), Some((30_000, 40_000)));
         let w = ph.window_at(10_000_000).unwrap();
         assert_eq!((w.open_ns, w.close_ns), (10_030_000, 10_070_000));
-        // Spread 40..=80 µs (median 60): the guard is 20 + 20 µs, the budget 40 + 80 µs.
+        // Offsets 40..=80 µs: the 10 % one 40, the median 60, the 90 % one 80; the guard is
+        // 20 + 20 µs, the budget 40 + 80 µs.
         let ph = learned(&[
-            40_000, 50_000, 60_000, 60_000, 70_000, 80_000, 60_000, 50_000,
+            40_000, 50_000, 60_000, 60_000, 70_000, 80_000, 60_000, 50_000, 40_000, 80_000, 60_000,
         ]);
         assert_eq!(ph.relative(), Some((0, 120_000)));
-        // A wild spread is cut at an eighth of the period; only the newest WINDOW count.
+        // One stray arrival does not move the window.
+        let mut stray = vec![50_000; 15];
+        stray.push(-5_000_000);
+        assert_eq!(learned(&stray).relative(), Some((30_000, 40_000)));
+        // A wild spread is cut at an eighth of the period (and at 1 ms); only the newest
+        // WINDOW count.
         let mut ph = learned(&[0, 900_000, 0, 900_000, 0, 900_000, 0, 900_000]);
         assert_eq!(ph.relative().unwrap().1, P / 8);
+        let mut slow = Phase::new(25_000_000);
+        for o in [0, 9_000_000, 0, 9_000_000, 0, 9_000_000, 0, 9_000_000] {
+            slow.observe_offset(o);
+        }
+        assert_eq!(slow.relative().unwrap().1, MAX_BUDGET_NS);
         for _ in 0..WINDOW {
             ph.observe_offset(100_000);
         }
         assert_eq!(ph.relative(), Some((80_000, 40_000)));
     }
 
-    /// The offsets come from the messages' stamps against the grid of the previous tick's
-    /// state stamp; the next window follows the newest tick, past windows roll on by periods.
+    /// The offsets come from the messages' stamps against the bridge's ideal grid, whose
+    /// origin is the least `t_k − k·P`: a late tick stamp (its state published late) does
+    /// not shift the next window; the next window follows the newest tick, and one that has
+    /// closed rolls on by whole periods.
     #[test]
-    fn the_phase_is_learned_from_the_stamps_on_the_grid_of_the_previous_tick() {
+    fn the_phase_is_learned_from_the_stamps_on_the_ideal_grid() {
         let mut ph = Phase::new(P);
         let t0 = 5_000_000;
         for k in 0..10u64 {
-            // The state of tick k stamped 3 µs late; its message sent 60 µs after that.
-            let state = t0 + k * P + 3_000;
+            // Tick k stamped 3 µs after its ideal start (tick 4: 700 µs); its message sent
+            // 60 µs after the stamp.
+            let late = if k == 4 { 700_000 } else { 3_000 };
+            let state = t0 + k * P + late;
             ph.observe(k, state, state + 60_000);
         }
-        // Nine offsets of 60 µs against the predicted starts.
+        // The grid's origin is t0 + 3 µs: nine offsets of 60 µs, one of 757 µs (not
+        // counted: above the 90 % one).
         assert_eq!(ph.relative(), Some((40_000, 40_000)));
         // An older tick changes nothing.
+        let before = ph.clone().relative();
         ph.observe(3, 0, 0);
-        let last = t0 + 9 * P + 3_000;
-        let w = ph.next_window(last + 100_000).unwrap();
-        assert_eq!(w.open_ns, last + P + 40_000);
-        let later = ph.next_window(last + 3 * P).unwrap();
-        assert_eq!(later.open_ns, last + 3 * P + 40_000);
-        assert!(later.close_ns > last + 3 * P);
+        assert_eq!(ph.relative(), before);
+        let start10 = t0 + 10 * P;
+        let w = ph.next_window(start10 - 500_000).unwrap();
+        assert_eq!(
+            (w.open_ns, w.close_ns),
+            (start10 + 43_000, start10 + 83_000)
+        );
+        let later = ph.next_window(start10 + 2 * P).unwrap();
+        assert_eq!(later.open_ns, start10 + 2 * P + 43_000);
+        assert!(later.close_ns > start10 + 2 * P);
     }
 
     #[test]

@@ -22,3 +22,4 @@ mod restart;
 mod safety;
 mod study;
 mod supervision;
+mod wait;
