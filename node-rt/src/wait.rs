@@ -6,9 +6,10 @@
 //!   from the messages' own stamps when the input is published relative to its tick's start
 //!   (the robot state's `t_ns`), keeps the last [`WINDOW`] offsets, and gives a poll window:
 //!   it opens a guard before the earliest offset and lasts a budget derived from their spread
-//!   (at most [`BUDGET_SHARE`] of a period). [`wait_input`] sleeps on the absolute clock until
-//!   the window opens, polls the subscriber in a bounded busy loop until it closes, then falls
-//!   back to the event wait.
+//!   (at most [`BUDGET_SHARE`] of a period). [`wait_input`] sleeps until the window opens (with
+//!   the input's event armed and a nanosecond timeout, so an early input still wakes it),
+//!   polls the subscriber in a bounded busy loop until the window closes, then falls back to
+//!   the event wait.
 //! * `spin`: [`wait_input`] polls until the input comes or the wait's deadline.
 //!
 //! Whatever the strategy, a wait never lasts past its deadline: an input that does not come
@@ -164,28 +165,15 @@ impl Phase {
 pub trait WaitClock {
     /// Now (ns).
     fn now_ns(&mut self) -> u64;
-    /// Sleeps until `ns` on the absolute clock (returns early on a signal).
-    fn sleep_until(&mut self, ns: u64);
 }
 
-/// `CLOCK_MONOTONIC` with `clock_nanosleep(TIMER_ABSTIME)`.
+/// `CLOCK_MONOTONIC`.
 #[derive(Debug, Default, Clone, Copy)]
 pub struct Monotonic;
 
 impl WaitClock for Monotonic {
     fn now_ns(&mut self) -> u64 {
         ipc_types::time::now_ns()
-    }
-    fn sleep_until(&mut self, ns: u64) {
-        use nix::sys::time::TimeSpec;
-        use nix::time::{ClockId, ClockNanosleepFlags, clock_nanosleep};
-        let ts = TimeSpec::from(std::time::Duration::from_nanos(ns));
-        // EINTR: the caller's loop checks its stop flag.
-        let _ = clock_nanosleep(
-            ClockId::CLOCK_MONOTONIC,
-            ClockNanosleepFlags::TIMER_ABSTIME,
-            &ts,
-        );
     }
 }
 
@@ -224,16 +212,21 @@ pub struct Waited {
     pub by_poll: bool,
     /// Whether the wait fell back to the event wait (a poll window passed without input).
     pub fell_back: bool,
+    /// Whether the input came before the window opened (its event woke the sleep).
+    pub early: bool,
 }
 
-/// Waits for an input until `deadline_ns`: `ready` polls the subscriber (non-zero: what
-/// came), `event(until_ns)` is the loop's own event wait until `until_ns` (non-zero: what
-/// woke it). Never waits past the deadline: an input that has not come by then is the
-/// caller's miss.
+/// Waits for an input until `deadline_ns`: `sleep(until_ns)` sleeps until the window opens
+/// (a `ppoll` on the input's event with a nanosecond timeout, so an input earlier than
+/// predicted still wakes the process at once; non-zero: it came), `ready` polls the
+/// subscriber (non-zero: what came), `event(until_ns)` is the loop's own event wait, here
+/// until the deadline. Never waits past the deadline: an input that has not come by then is
+/// the caller's miss.
 pub fn wait_input(
     poll: Poll,
     deadline_ns: u64,
     clock: &mut impl WaitClock,
+    mut sleep: impl FnMut(u64) -> u64,
     mut ready: impl FnMut() -> u64,
     mut event: impl FnMut(u64) -> u64,
 ) -> Waited {
@@ -247,7 +240,12 @@ pub fn wait_input(
         && open < close
     {
         if clock.now_ns() < open {
-            clock.sleep_until(open);
+            let r = sleep(open);
+            if r != 0 {
+                w.ready = r;
+                w.early = true;
+                return w;
+            }
         }
         let t0 = clock.now_ns();
         let mut now = t0;
@@ -285,6 +283,8 @@ pub struct SpinStats {
     pub polled: u64,
     /// Poll windows that passed without the input (the event wait took over).
     pub fell_back: u64,
+    /// Inputs that came before their window opened.
+    pub early: u64,
 }
 
 impl SpinStats {
@@ -293,6 +293,7 @@ impl SpinStats {
         self.spin_ns += w.spin_ns;
         self.polled += u64::from(w.by_poll);
         self.fell_back += u64::from(w.fell_back);
+        self.early += u64::from(w.early);
     }
 
     /// Polling time per tick (µs).
@@ -309,6 +310,7 @@ impl SpinStats {
             ticks = self.ticks,
             polled = self.polled,
             fell_back = self.fell_back,
+            early = self.early,
             "wait strategy"
         );
     }
@@ -355,21 +357,36 @@ pub fn tight_timers() {
 mod tests {
     use super::*;
 
+    use std::cell::{Cell, RefCell};
+
     /// A clock that advances by `step` on every reading and jumps on a sleep.
     struct Fake {
-        now: u64,
+        now: Cell<u64>,
         step: u64,
-        slept_to: Vec<u64>,
+        slept_to: RefCell<Vec<u64>>,
     }
 
-    impl WaitClock for Fake {
+    impl WaitClock for &Fake {
         fn now_ns(&mut self) -> u64 {
-            self.now += self.step;
-            self.now
+            self.now.set(self.now.get() + self.step);
+            self.now.get()
         }
-        fn sleep_until(&mut self, ns: u64) {
-            self.slept_to.push(ns);
-            self.now = self.now.max(ns);
+    }
+
+    impl Fake {
+        fn new(step: u64) -> Self {
+            Self {
+                now: Cell::new(0),
+                step,
+                slept_to: RefCell::new(Vec::new()),
+            }
+        }
+
+        /// A sleep until `ns` that no event ends early.
+        fn sleep(&self, ns: u64) -> u64 {
+            self.slept_to.borrow_mut().push(ns);
+            self.now.set(self.now.get().max(ns));
+            0
         }
     }
 
@@ -455,25 +472,33 @@ mod tests {
             open_ns: 1_000,
             close_ns: 2_000,
         };
-        let mut c = Fake {
-            now: 0,
-            step: 10,
-            slept_to: vec![],
-        };
+        let c = Fake::new(10);
         let mut polls = 0;
         let got = wait_input(
             Poll::In(w),
             10_000,
-            &mut c,
+            &mut &c,
+            |u| c.sleep(u),
             || {
                 polls += 1;
                 u64::from(polls == 5)
             },
             |_| panic!("no event wait when polling found it"),
         );
-        assert_eq!(c.slept_to, [1_000]);
+        assert_eq!(*c.slept_to.borrow(), [1_000]);
         assert!(got.by_poll && !got.fell_back && got.ready == 1, "{got:?}");
         assert!(got.spin_ns > 0 && got.spin_ns <= 1_000);
+        // An input earlier than predicted wakes the sleep: no polling at all.
+        let c = Fake::new(10);
+        let got = wait_input(
+            Poll::In(w),
+            10_000,
+            &mut &c,
+            |_| 1,
+            || panic!("no poll"),
+            |_| 0,
+        );
+        assert!(got.early && !got.by_poll && got.ready == 1 && got.spin_ns == 0);
     }
 
     /// The safety rule: the input never comes, so polling ends at the window's close (within
@@ -489,16 +514,13 @@ mod tests {
             Poll::Always,
             Poll::No,
         ] {
-            let mut c = Fake {
-                now: 0,
-                step: 7,
-                slept_to: vec![],
-            };
+            let c = Fake::new(7);
             let mut until = Vec::new();
             let got = wait_input(
                 poll,
                 8_000,
-                &mut c,
+                &mut &c,
+                |u| c.sleep(u),
                 || 0,
                 |u| {
                     until.push(u);
@@ -506,7 +528,7 @@ mod tests {
                 },
             );
             assert_eq!(got.ready, 0, "{poll:?}");
-            assert!(!got.by_poll);
+            assert!(!got.by_poll && !got.early);
             match poll {
                 Poll::In(_) => {
                     assert!(got.fell_back && got.spin_ns <= 2_000 + 14, "{got:?}");
@@ -521,17 +543,13 @@ mod tests {
             }
         }
         // A window that opens after the deadline is not waited for.
-        let mut c = Fake {
-            now: 0,
-            step: 1,
-            slept_to: vec![],
-        };
+        let c = Fake::new(1);
         let w = Window {
             open_ns: 9_000,
             close_ns: 9_500,
         };
-        let got = wait_input(Poll::In(w), 8_000, &mut c, || 1, |_| 0);
-        assert!(c.slept_to.is_empty() && !got.by_poll && got.ready == 0);
+        let got = wait_input(Poll::In(w), 8_000, &mut &c, |u| c.sleep(u), || 1, |_| 0);
+        assert!(c.slept_to.borrow().is_empty() && !got.by_poll && got.ready == 0);
     }
 
     #[test]
@@ -541,13 +559,12 @@ mod tests {
             ready: 1,
             spin_ns: 3_000,
             by_poll: true,
-            fell_back: false,
+            ..Waited::default()
         });
         s.add(&Waited {
-            ready: 0,
             spin_ns: 1_000,
-            by_poll: false,
             fell_back: true,
+            ..Waited::default()
         });
         s.ticks = 2;
         assert_eq!((s.polled, s.fell_back), (1, 1));

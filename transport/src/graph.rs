@@ -694,6 +694,14 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T>
         }
     }
 
+    /// Blocks until the topic's event fires or the monotonic clock reaches `until_ns`, with
+    /// nanosecond precision (a `ppoll` on the event's descriptor; without one, a sleep);
+    /// returns whether it fired.
+    pub fn wait_until(&self, until_ns: u64) -> bool {
+        let d = Duration::from_nanos(until_ns.saturating_sub(ipc_types::time::now_ns()));
+        wait_any(&[self as &dyn Wakeable], d) != 0
+    }
+
     /// Drops the pending notifications of the topic's event (after an input taken by
     /// polling, so the next event wait does not wake for it).
     pub fn consume_notifications(&self) {

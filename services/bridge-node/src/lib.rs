@@ -599,6 +599,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
                     std::mem::replace(&mut poll, Poll::No),
                     deadline_ns,
                     &mut Monotonic,
+                    |until| u64::from(commands.wait_until(until)),
                     || u64::from(commands.has_pending()),
                     |_| 0,
                 );

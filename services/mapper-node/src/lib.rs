@@ -104,6 +104,8 @@ struct Poller {
     phase: node_rt::wait::Phase,
     /// A window passed without the state: the event wait until it comes, no new window.
     awaiting: bool,
+    /// The state came before the window opened at this time (its event woke the mapper).
+    early_before: Option<u64>,
     spin: node_rt::wait::SpinStats,
 }
 
@@ -113,6 +115,7 @@ impl Poller {
             wait,
             phase: node_rt::wait::Phase::new(period_ns),
             awaiting: false,
+            early_before: None,
             spin: node_rt::wait::SpinStats::default(),
         }
     }
@@ -129,7 +132,8 @@ impl Poller {
             return None;
         }
         let now = now_ns();
-        let poll = Poll::of(self.wait, self.phase.next_window(now));
+        let window = self.phase.next_window(now);
+        let poll = Poll::of(self.wait, window);
         if poll == Poll::No {
             return None;
         }
@@ -141,6 +145,7 @@ impl Poller {
             poll,
             now + 100_000_000,
             &mut Monotonic,
+            |until| u64::from(states.wait_until(until)),
             || {
                 let j = if spin && joystick.has_pending() { 2 } else { 0 };
                 u64::from(states.has_pending()) | j
@@ -151,16 +156,22 @@ impl Poller {
         if w.fell_back {
             self.awaiting = true;
         }
+        self.early_before = window.filter(|_| w.early).map(|w| w.open_ns);
         (w.ready != 0).then_some(w.ready)
     }
 
     /// A state taken at `rx_ns` was mapped: learn its phase, poll again from the next. A
     /// state carries no stamp of its publication (its `t_ns` is its tick's start, before the
     /// robot is read), so its arrival is the time it was taken: exact when polled, a
-    /// wake-up late after the event wait (the window then opens a little late, finds the
-    /// state at once, and the next offsets move it back).
+    /// wake-up late after an event. A state that came before its window opened counts as
+    /// arriving a margin before the opening, so the window moves earlier until it opens
+    /// before the state and polling measures the arrival.
     fn took(&mut self, state: &ipc_types::RobotState, rx_ns: u64) {
-        self.phase.observe(state.tick, state.t_ns, rx_ns);
+        let arrived = match self.early_before.take() {
+            Some(open) => open.saturating_sub(node_rt::wait::MARGIN_NS).min(rx_ns),
+            None => rx_ns,
+        };
+        self.phase.observe(state.tick, state.t_ns, arrived);
         self.spin.ticks += 1;
         self.awaiting = false;
     }

@@ -490,12 +490,13 @@ impl Poller {
             poll,
             now + MAX_WAIT.as_nanos() as u64,
             &mut Monotonic,
+            |until| u64::from(commands.wait_until(until)),
             || u64::from(commands.has_pending()),
             |_| 0,
         );
         self.spin.add(&w);
         self.awaiting = w.fell_back;
-        w.by_poll
+        w.ready != 0
     }
 
     /// A command was forwarded: learn its phase, poll again from the next.
