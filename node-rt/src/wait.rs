@@ -240,6 +240,14 @@ pub fn wait_input(
         && open < close
     {
         if clock.now_ns() < open {
+            // An input already there (its notification consumed before this wait) is not
+            // slept past.
+            let r = ready();
+            if r != 0 {
+                w.ready = r;
+                w.by_poll = true;
+                return w;
+            }
             let r = sleep(open);
             if r != 0 {
                 w.ready = r;
@@ -488,17 +496,26 @@ mod tests {
         assert_eq!(*c.slept_to.borrow(), [1_000]);
         assert!(got.by_poll && !got.fell_back && got.ready == 1, "{got:?}");
         assert!(got.spin_ns > 0 && got.spin_ns <= 1_000);
-        // An input earlier than predicted wakes the sleep: no polling at all.
+        // An input earlier than predicted wakes the sleep: no polling after it.
         let c = Fake::new(10);
+        let mut polls = 0;
         let got = wait_input(
             Poll::In(w),
             10_000,
             &mut &c,
             |_| 1,
-            || panic!("no poll"),
+            || {
+                polls += 1;
+                0
+            },
             |_| 0,
         );
         assert!(got.early && !got.by_poll && got.ready == 1 && got.spin_ns == 0);
+        assert_eq!(polls, 1, "one look before the sleep");
+        // An input already there is taken before any sleep.
+        let c = Fake::new(10);
+        let got = wait_input(Poll::In(w), 10_000, &mut &c, |u| c.sleep(u), || 1, |_| 0);
+        assert!(got.by_poll && c.slept_to.borrow().is_empty());
     }
 
     /// The safety rule: the input never comes, so polling ends at the window's close (within
