@@ -109,7 +109,7 @@ pub(crate) struct RtArgs {
     /// Ask for the standard real-time tuning on the control path: SCHED_FIFO priorities,
     /// mlockall, pinning to the last CPU (with a polling `--wait`: spread over the CPUs so
     /// that each polling process can poll, e.g. on 2 CPUs the bridge on CPU 0, the others on
-    /// CPU 1), and `/dev/cpu_dma_latency` held at 0 while the graph runs (the report says what
+    /// CPU 1; the config's `[graph] rt_cpus` if it sets them), and `/dev/cpu_dma_latency` held at 0 while the graph runs (the report says what
     /// each process got and what the machine refused).
     #[arg(long, conflicts_with = "rt_only")]
     pub(crate) rt: bool,

@@ -132,14 +132,19 @@ impl RtSettings {
         }
     }
 
-    /// Sets the `[graph]` keys of these settings on a machine with `cores` CPUs: pinning puts
-    /// the control path on the last CPU with `wait = "event"`, and spreads it over the CPUs
-    /// with a polling `wait` ([`scl_config::placement::spread_cpus`]), so that the processes
-    /// that can poll do.
+    /// Sets the `[graph]` keys of these settings on a machine with `cores` CPUs: pinning keeps
+    /// the base configuration's `rt_cpus` if it has them; otherwise it puts the control path
+    /// on the last CPU with `wait = "event"`, and spreads it over the CPUs with a polling
+    /// `wait` ([`scl_config::placement::spread_cpus`]), so that the processes that can poll do.
     pub fn apply(&self, graph: &mut scl_config::GraphSection, cores: usize) {
         graph.realtime = self.any();
         graph.rt_fifo = self.fifo;
         graph.rt_mlock = self.mlock;
+        if self.pin && !graph.rt_cpus.is_empty() {
+            graph.rt_cpu = -1;
+            graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
+            return;
+        }
         let spread = self.pin && graph.wait.polls();
         graph.rt_cpu = if self.pin && !spread {
             cores as i32 - 1
