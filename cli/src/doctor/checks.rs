@@ -573,7 +573,7 @@ pub fn wait_strategy(graph: &scl_config::GraphSection, online_cpus: usize) -> Fi
             .map_or(0, |p| p.waits.iter().filter(|w| w.polls()).count())
     };
     let supports = format!(
-        "{online_cpus} CPUs: predictive polls in {} of 3 processes with rt_cpus = {spread:?};          spin {}",
+        "{online_cpus} CPUs: predictive polls in {} of 3 processes with rt_cpus = {spread:?}; spin {}",
         polling(&spread, scl_config::WaitStrategy::Predictive),
         if polling(&spread, scl_config::WaitStrategy::Spin) > 0 {
             "fits (a CPU each)"
