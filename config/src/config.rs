@@ -204,6 +204,70 @@ pub struct GraphSection {
     /// Transport of the data-plane topics: `iceoryx2` (the product) or `uds` (Unix-domain
     /// datagram sockets, for latency comparisons; no single-publisher guarantee).
     pub transport: ipc_types::Transport,
+    /// With `realtime`: one CPU per control-path process, in the order bridge, safety,
+    /// mappers, joystick (`[]`: `rt_cpu` for all, or no pinning). Exclusive with `rt_cpu`.
+    pub rt_cpus: Vec<i32>,
+    /// How the mapper, safety and the bridge wait for their input: `event` (sleep until the
+    /// publisher's notification), `predictive` (sleep on the clock until shortly before the
+    /// input is due, learned from the messages' stamps, then poll for a bounded time, then
+    /// the event) or `spin` (poll always). See [`crate::placement`] for where polling is
+    /// allowed with SCHED_FIFO.
+    pub wait: WaitStrategy,
+}
+
+/// `[graph] wait`: how a control-path process waits for its input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WaitStrategy {
+    /// Sleep until the publisher's notification (one wake-up per hop).
+    #[default]
+    Event,
+    /// Sleep on the absolute clock until shortly before the input is due, then poll the
+    /// subscriber for a bounded time, then fall back to the event.
+    Predictive,
+    /// Poll the subscriber always (a CPU per process).
+    Spin,
+}
+
+impl WaitStrategy {
+    /// The names the key takes.
+    pub const NAMES: [&'static str; 3] = ["event", "predictive", "spin"];
+
+    /// Whether the process polls its subscriber (`predictive` or `spin`).
+    pub fn polls(self) -> bool {
+        self != Self::Event
+    }
+
+    /// The key's value for this strategy.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Event => "event",
+            Self::Predictive => "predictive",
+            Self::Spin => "spin",
+        }
+    }
+}
+
+impl std::fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for WaitStrategy {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "event" => Ok(Self::Event),
+            "predictive" => Ok(Self::Predictive),
+            "spin" => Ok(Self::Spin),
+            other => Err(format!(
+                "`{other}` is not a wait strategy; use one of {}",
+                Self::NAMES.join(", ")
+            )),
+        }
+    }
 }
 
 /// A process of the control path, for its real-time priority.
@@ -268,6 +332,8 @@ impl Default for GraphSection {
             rt_prewarm_us: 0,
             rate_hz: RobotProfile::default_robot().control_rate_hz(),
             transport: ipc_types::Transport::Iceoryx2,
+            rt_cpus: Vec::new(),
+            wait: WaitStrategy::Event,
         }
     }
 }
@@ -644,6 +710,7 @@ impl GraphConfig {
                 ));
             }
         }
+        crate::placement::check_rt_cpus(&self.graph)?;
         if !(5..=99).contains(&self.graph.rt_priority) {
             return Err(err(
                 "graph.rt_priority",
@@ -1082,6 +1149,24 @@ mod tests {
         std::fs::write(&p, "[supervisor.restart]\nmapper = \"on-failure\"\n").unwrap();
         let cfg = GraphConfig::load(Some(&p)).unwrap();
         assert_eq!(cfg.supervisor.restart.mapper, RestartPolicy::OnFailure);
+        std::fs::write(&p, "[graph]\nwait = \"sometimes\"\n").unwrap();
+        let e = GraphConfig::load(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("wait") && e.contains("predictive"), "{e}");
+        std::fs::write(
+            &p,
+            "[graph]\nwait = \"predictive\"\nrt_cpus = [0, 1, 0, 1]\n",
+        )
+        .unwrap();
+        let cfg = GraphConfig::load(Some(&p)).unwrap();
+        cfg.validate().unwrap();
+        assert_eq!(cfg.graph.wait, WaitStrategy::Predictive);
+        std::fs::write(&p, "[graph]\nrt_cpus = [0, 1]\n").unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("graph.rt_cpus"), "{e}");
         std::fs::write(&p, "not toml [").unwrap();
         assert!(matches!(
             GraphConfig::load(Some(&p)),

@@ -5,6 +5,7 @@
 
 mod config;
 mod network;
+pub mod placement;
 
 pub use config::*;
 pub use network::*;

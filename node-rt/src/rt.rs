@@ -15,12 +15,12 @@ pub fn elevate(graph: &GraphSection, role: RtRole) -> String {
     let rt = hw_bridge::clock::request(graph.rt_fifo.then_some(priority), graph.rt_mlock);
     let mut line = rt.summary();
     let mut ok = rt.ok();
-    if graph.rt_cpu >= 0 && role != RtRole::Supervisor {
-        match pin_to_cpu(graph.rt_cpu as usize) {
-            Ok(()) => line.push_str(&format!("; pinned to CPU {}", graph.rt_cpu)),
+    if let Some(cpu) = graph.cpu_of(role) {
+        match pin_to_cpu(cpu) {
+            Ok(()) => line.push_str(&format!("; pinned to CPU {cpu}")),
             Err(e) => {
                 ok = false;
-                line.push_str(&format!("; not pinned to CPU {} ({e})", graph.rt_cpu));
+                line.push_str(&format!("; not pinned to CPU {cpu} ({e})"));
             }
         }
     }

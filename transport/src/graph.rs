@@ -684,6 +684,30 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T>
         }
     }
 
+    /// Whether a message is waiting, without taking it: a poll of shared memory on iceoryx2,
+    /// a `ppoll` with no timeout on a socket. An error counts as `true`, so the caller's
+    /// receive that follows reports it.
+    pub fn has_pending(&self) -> bool {
+        match &self.inner {
+            SubInner::Iox { subscriber, .. } => subscriber.has_samples().unwrap_or(true),
+            SubInner::Uds(sub) => crate::uds::poll_readable(&[sub.raw_fd()], Duration::ZERO) != 0,
+        }
+    }
+
+    /// Blocks until the topic's event fires or the monotonic clock reaches `until_ns`, with
+    /// nanosecond precision (a `ppoll` on the event's descriptor; without one, a sleep);
+    /// returns whether it fired.
+    pub fn wait_until(&self, until_ns: u64) -> bool {
+        let d = Duration::from_nanos(until_ns.saturating_sub(ipc_types::time::now_ns()));
+        wait_any(&[self as &dyn Wakeable], d) != 0
+    }
+
+    /// Drops the pending notifications of the topic's event (after an input taken by
+    /// polling, so the next event wait does not wake for it).
+    pub fn consume_notifications(&self) {
+        self.consume();
+    }
+
     /// The newest buffered message, discarding older ones.
     pub fn latest(&self) -> Result<Option<T>, IpcError> {
         let mut last = None;

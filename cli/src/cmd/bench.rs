@@ -30,6 +30,14 @@ pub(crate) enum BenchCmd {
         /// The graph's tick rate (Hz, up to 1000); default: `[graph] rate_hz` of the config.
         #[arg(long, value_name = "HZ")]
         rate_hz: Option<f64>,
+        /// How the mapper, safety and the bridge wait for their input (`[graph] wait`):
+        /// `event` (a wake-up per hop), `predictive` (sleep until shortly before the input is
+        /// due, then poll briefly) or `spin` (poll always). Comma-separated, each runs on each
+        /// transport in turn and the report compares every polling strategy with `event`.
+        /// The report adds each polling process's time spent polling per tick. Default: the
+        /// config's.
+        #[arg(long, value_name = "WAIT", value_delimiter = ',')]
+        wait: Vec<scl_config::WaitStrategy>,
         /// Print the report as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -60,6 +68,11 @@ pub(crate) enum BenchCmd {
         /// `iceoryx2`, `uds` or `both` (each rate on each transport).
         #[arg(long, default_value = "iceoryx2")]
         transport: String,
+        /// How the mapper, safety and the bridge wait for their input (`[graph] wait`:
+        /// `event`, `predictive` or `spin`); each row then shows the polling time per tick.
+        /// Default: the config's.
+        #[arg(long, value_name = "WAIT")]
+        wait: Option<scl_config::WaitStrategy>,
         /// Print the report as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -67,6 +80,23 @@ pub(crate) enum BenchCmd {
         /// in DIR.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
+    },
+    /// The floor under the graph's figures: one hop's publish-to-receive latency on iceoryx2
+    /// and on Unix-domain datagram sockets, with the receiver polling its subscriber and
+    /// with it waiting for the event, in one run (p50 / p99 / max, and iceoryx2 / uds).
+    Hops {
+        /// Messages per transport and wait.
+        #[arg(long, default_value_t = 5000)]
+        count: usize,
+        /// Time between two messages (the graph's period at 1 kHz by default).
+        #[arg(long, value_name = "DURATION", default_value = "1ms", value_parser = parse_duration)]
+        interval: Duration,
+        /// `iceoryx2`, `uds` or `both`.
+        #[arg(long, default_value = "both")]
+        transport: String,
+        /// Print the report as JSON on stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// A busy loop (the load processes of `--load`).
     #[command(hide = true)]
@@ -77,8 +107,10 @@ pub(crate) enum BenchCmd {
 #[derive(clap::Args, Debug, Clone)]
 pub(crate) struct RtArgs {
     /// Ask for the standard real-time tuning on the control path: SCHED_FIFO priorities,
-    /// mlockall, pinning to the last CPU, and `/dev/cpu_dma_latency` held at 0 while the
-    /// graph runs (the report says what each process got and what the machine refused).
+    /// mlockall, pinning to the last CPU (with a polling `--wait`: spread over the CPUs so
+    /// that each polling process can poll, e.g. on 2 CPUs the bridge on CPU 0, the others on
+    /// CPU 1; the config's `[graph] rt_cpus` if it sets them), and `/dev/cpu_dma_latency` held at 0 while the graph runs (the report says what
+    /// each process got and what the machine refused).
     #[arg(long, conflicts_with = "rt_only")]
     pub(crate) rt: bool,
     /// Ask for one real-time setting alone, to measure its effect: `fifo`, `mlock`, `pin` or
@@ -123,6 +155,7 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
             load,
             transport,
             rate_hz,
+            wait,
             json,
             live,
             out,
@@ -132,11 +165,17 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 cfg.set_rate_hz(r);
             }
             cfg.validate()?;
+            let waits = if wait.is_empty() {
+                vec![cfg.graph.wait]
+            } else {
+                wait
+            };
             let opts = scl_bench::LatencyOptions {
                 duration,
                 rt: rt.settings()?,
                 load,
                 transports,
+                waits,
                 config: cfg,
                 out: out.clone(),
                 live,
@@ -162,9 +201,13 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
             rt,
             load,
             transport,
+            wait,
             json,
             out,
         } => {
+            if let Some(w) = wait {
+                cfg.graph.wait = w;
+            }
             if !(secs.is_finite() && secs > 0.0) {
                 return Err(SclError::Other(format!(
                     "--secs {secs}: must be a positive number of seconds"
@@ -197,6 +240,32 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 println!("{text}");
             } else {
                 print!("{}", scl_bench::headroom::render(&report));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCmd::Hops {
+            count,
+            interval,
+            transport,
+            json,
+        } => {
+            if count == 0 || interval.is_zero() {
+                return Err(SclError::Other(
+                    "--count and --interval must be positive".into(),
+                ));
+            }
+            let opts = scl_bench::hops::HopsOptions {
+                count,
+                interval,
+                transports: parse_transports(&transport)?,
+            };
+            let report = scl_bench::hops::hops(&opts)?;
+            if json {
+                let text = serde_json::to_string_pretty(&report)
+                    .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+                println!("{text}");
+            } else {
+                print!("{}", scl_bench::hops::render(&report));
             }
             Ok(ExitCode::SUCCESS)
         }

@@ -555,10 +555,88 @@ pub fn render(findings: &[Finding]) -> String {
     s
 }
 
+/// `[graph] wait` on a machine with `online_cpus` CPUs: how each control-path process will
+/// wait (`scl_config::GraphSection::placement`), refused where polling would starve another,
+/// and what the machine allows: how many processes can poll with `predictive` on the spread
+/// placement, and whether `spin` fits.
+pub fn wait_strategy(graph: &scl_config::GraphSection, online_cpus: usize) -> Finding {
+    const ITEM: &str = "wait strategy";
+    let spread = scl_config::placement::spread_cpus(online_cpus);
+    let polling = |cpus: &[i32], wait| {
+        let g = scl_config::GraphSection {
+            wait,
+            rt_cpu: -1,
+            rt_cpus: cpus.to_vec(),
+            ..graph.clone()
+        };
+        g.placement(online_cpus)
+            .map_or(0, |p| p.waits.iter().filter(|w| w.polls()).count())
+    };
+    let supports = format!(
+        "{online_cpus} CPUs: predictive polls in {} of 3 processes with rt_cpus = {spread:?}; spin {}",
+        polling(&spread, scl_config::WaitStrategy::Predictive),
+        if polling(&spread, scl_config::WaitStrategy::Spin) > 0 {
+            "fits (a CPU each)"
+        } else {
+            "needs 4 CPUs with SCHED_FIFO"
+        }
+    );
+    match graph.placement(online_cpus) {
+        Err(e) => Finding::fail(
+            ITEM,
+            format!("{e}; {supports}"),
+            "give each polling process its own CPU in [graph] rt_cpus, or use wait = \"predictive\" or \"event\"",
+        ),
+        Ok(p) => {
+            let names = ["bridge", "safety", "mapper"];
+            let waits: Vec<String> = names
+                .iter()
+                .zip(p.waits)
+                .map(|(n, w)| format!("{n} {w}"))
+                .collect();
+            let detail = format!("wait = {}: {}; {supports}", graph.wait, waits.join(", "));
+            if p.notes.is_empty() {
+                Finding::ok(ITEM, detail)
+            } else {
+                Finding::warn(
+                    ITEM,
+                    format!("{detail}; {}", p.notes.join("; ")),
+                    format!("[graph] rt_cpus = {spread:?} lets more of them poll"),
+                )
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_wait_strategy_says_how_each_process_waits_and_what_the_machine_allows() {
+        let mut g = scl_config::GraphSection::default();
+        let f = wait_strategy(&g, 2);
+        assert_eq!(f.level, Level::Ok);
+        assert!(
+            f.detail.contains("wait = event")
+                && f.detail.contains("2 of 3")
+                && f.detail.contains("needs 4 CPUs"),
+            "{f:?}"
+        );
+        g.wait = scl_config::WaitStrategy::Predictive;
+        let f = wait_strategy(&g, 2);
+        assert_eq!(f.level, Level::Warn, "{f:?}");
+        assert!(f.detail.contains("mapper predictive") && f.fix.contains("rt_cpus"));
+        g.wait = scl_config::WaitStrategy::Spin;
+        let f = wait_strategy(&g, 2);
+        assert_eq!(f.level, Level::Fail, "{f:?}");
+        assert!(f.detail.contains("graph.rt_cpus"), "{f:?}");
+        g.rt_cpus = vec![7, 6, 5, 4];
+        let f = wait_strategy(&g, 8);
+        assert_eq!(f.level, Level::Ok, "{f:?}");
+        assert!(f.detail.contains("spin fits"), "{f:?}");
+    }
 
     const NONE: Caps = Caps {
         sys_nice: false,

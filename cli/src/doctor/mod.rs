@@ -115,6 +115,10 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     let Some(cfg) = cfg else {
         return out;
     };
+    out.push(checks::wait_strategy(
+        &cfg.graph,
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+    ));
     let robot = match cfg.profile() {
         Ok(r) => r,
         Err(e) => {

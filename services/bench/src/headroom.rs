@@ -58,6 +58,10 @@ pub struct HeadroomRow {
     pub cpu_total_per_tick_us: f64,
     /// The graph's share of one CPU at this rate (total per tick × rate).
     pub cpu_share: f64,
+    /// Each process's share of one CPU.
+    pub process_cpu_share: Vec<(String, f64)>,
+    /// Each polling process's polling time per tick (µs; `[graph] wait`).
+    pub spin_us_per_tick: Vec<(String, f64)>,
 }
 
 /// The whole result (`--json`, `report.json`).
@@ -73,6 +77,8 @@ pub struct HeadroomReport {
     pub load: usize,
     /// The mapper's model.
     pub model: String,
+    /// How the control path waited (`[graph] wait`).
+    pub wait: scl_config::WaitStrategy,
     /// One row per rate and transport, rates in order.
     pub rows: Vec<HeadroomRow>,
     /// With both transports: per rate, iceoryx2 / uds of end to end p50, p99, max and of the
@@ -119,6 +125,7 @@ pub fn headroom(opts: &HeadroomOptions) -> Result<HeadroomReport, BenchError> {
             rt: opts.rt,
             load: opts.load,
             transports: opts.transports.clone(),
+            waits: vec![config.graph.wait],
             config,
             out: None,
             live: false,
@@ -127,7 +134,7 @@ pub fn headroom(opts: &HeadroomOptions) -> Result<HeadroomReport, BenchError> {
             if signals::stop_requested() {
                 break 'rates;
             }
-            let (run, _) = run_one(&lat, *t, &dir, &format!("-{rate}hz"))?;
+            let (run, _) = run_one(&lat, *t, lat.config.graph.wait, &dir, &format!("-{rate}hz"))?;
             let total: f64 = run.cpu_per_tick_us.iter().map(|(_, us)| us).sum();
             rows.push(HeadroomRow {
                 rate_hz: rate,
@@ -140,6 +147,8 @@ pub fn headroom(opts: &HeadroomOptions) -> Result<HeadroomReport, BenchError> {
                 cpu_per_tick_us: run.cpu_per_tick_us,
                 cpu_total_per_tick_us: total,
                 cpu_share: total * rate * 1e-6,
+                process_cpu_share: run.cpu_share,
+                spin_us_per_tick: run.spin_us_per_tick,
             });
         }
     }
@@ -163,6 +172,7 @@ pub fn headroom(opts: &HeadroomOptions) -> Result<HeadroomReport, BenchError> {
         rt_settings: opts.rt,
         load: opts.load,
         model: opts.config.mapper.model.clone(),
+        wait: opts.config.graph.wait,
         rows,
         ratios,
     };
@@ -186,7 +196,7 @@ pub fn render(r: &HeadroomReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} cores, {}, kernel {}{}; {:.0} s per rate, load {}, rt {}, model {}",
+        "{} cores, {}, kernel {}{}; {:.0} s per rate, load {}, rt {}, model {}, wait {}",
         r.machine.cores,
         r.machine.cpu,
         r.machine.kernel,
@@ -198,7 +208,8 @@ pub fn render(r: &HeadroomReport) -> String {
         r.duration_s,
         r.load,
         r.rt_settings.label(),
-        r.model
+        r.model,
+        r.wait
     );
     let _ = writeln!(
         s,
@@ -234,6 +245,14 @@ pub fn render(r: &HeadroomReport) -> String {
             row.cpu_share * 100.0,
             per.join(", ")
         );
+        if !row.spin_us_per_tick.is_empty() {
+            let spin: Vec<String> = row
+                .spin_us_per_tick
+                .iter()
+                .map(|(n, us)| format!("{n} {us:.1}"))
+                .collect();
+            let _ = writeln!(s, "{:>6} polling per tick (µs): {}", "", spin.join(", "));
+        }
     }
     if !r.ratios.is_empty() {
         let _ = writeln!(
@@ -382,6 +401,8 @@ mod tests {
             cpu_per_tick_us: vec![("bridge".into(), 10.0), ("safety".into(), 5.0)],
             cpu_total_per_tick_us: 15.0,
             cpu_share: 15.0 * rate_hz * 1e-6,
+            process_cpu_share: vec![("bridge".into(), 10.0 * rate_hz * 1e-6)],
+            spin_us_per_tick: vec![("mapper".into(), 2.5)],
         }
     }
 
@@ -393,6 +414,7 @@ mod tests {
             rt_settings: RtSettings::ALL,
             load: 0,
             model: "bundled".into(),
+            wait: scl_config::WaitStrategy::Predictive,
             rows: vec![
                 row(40.0, Transport::Iceoryx2, 100.0),
                 row(40.0, Transport::Uds, 200.0),

@@ -51,10 +51,11 @@ use transport::Graph;
 
 use ipc_types::stats::quantile;
 use node_rt::stats::sorted_us;
-use scl_config::GraphConfig;
+use scl_config::{GraphConfig, WaitStrategy};
 use transport::signals;
 
 pub mod headroom;
+pub mod hops;
 pub mod proc_cpu;
 
 /// The real-time settings a benchmark's graph asks for, each on its own so that one can be
@@ -131,12 +132,30 @@ impl RtSettings {
         }
     }
 
-    /// Sets the `[graph]` keys of these settings; `cores` names the last CPU for pinning.
+    /// Sets the `[graph]` keys of these settings on a machine with `cores` CPUs: pinning keeps
+    /// the base configuration's `rt_cpus` if it has them; otherwise it puts the control path
+    /// on the last CPU with `wait = "event"`, and spreads it over the CPUs with a polling
+    /// `wait` ([`scl_config::placement::spread_cpus`]), so that the processes that can poll do.
     pub fn apply(&self, graph: &mut scl_config::GraphSection, cores: usize) {
         graph.realtime = self.any();
         graph.rt_fifo = self.fifo;
         graph.rt_mlock = self.mlock;
-        graph.rt_cpu = if self.pin { cores as i32 - 1 } else { -1 };
+        if self.pin && !graph.rt_cpus.is_empty() {
+            graph.rt_cpu = -1;
+            graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
+            return;
+        }
+        let spread = self.pin && graph.wait.polls();
+        graph.rt_cpu = if self.pin && !spread {
+            cores as i32 - 1
+        } else {
+            -1
+        };
+        graph.rt_cpus = if spread {
+            scl_config::placement::spread_cpus(cores)
+        } else {
+            Vec::new()
+        };
         graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
     }
 }
@@ -152,6 +171,8 @@ pub struct LatencyOptions {
     pub load: usize,
     /// The transports, run one after the other.
     pub transports: Vec<Transport>,
+    /// The wait strategies (`[graph] wait`), each run on each transport, in this order.
+    pub waits: Vec<WaitStrategy>,
     /// The base configuration (its transport and real-time settings are overridden).
     pub config: GraphConfig,
     /// Where to write the JSON (and the raw samples); none: stdout only.
@@ -254,6 +275,13 @@ impl Samples {
 pub struct RunReport {
     /// The transport.
     pub transport: Transport,
+    /// How the control path waited (`[graph] wait`).
+    pub wait: WaitStrategy,
+    /// Each polling process's time spent polling per tick (µs), from its log line at its end
+    /// (`wait strategy ... spin_us_per_tick`); empty with `event`.
+    pub spin_us_per_tick: Vec<(String, f64)>,
+    /// Each process's share of one CPU (CPU time per tick × rate).
+    pub cpu_share: Vec<(String, f64)>,
     /// Ticks observed.
     pub ticks: u64,
     /// Ticks missed.
@@ -307,6 +335,9 @@ pub struct Compute {
 impl RunReport {
     fn new(transport: Transport, s: &Samples, realtime: Vec<String>, rate_hz: f64) -> Self {
         Self {
+            wait: WaitStrategy::Event,
+            spin_us_per_tick: Vec::new(),
+            cpu_share: Vec::new(),
             rate_hz,
             held_up: 0,
             cpu_per_tick_us: Vec::new(),
@@ -399,8 +430,12 @@ pub struct LatencyReport {
     pub settings: BenchSettings,
     /// One run per transport.
     pub runs: Vec<RunReport>,
-    /// iceoryx2 / uds of every figure's p50, p99 and max, when both ran.
+    /// iceoryx2 / uds of every figure's p50, p99 and max, when both ran (with the first
+    /// wait strategy).
     pub ratios: Vec<(String, f64, f64, f64)>,
+    /// Per transport and polling strategy, that strategy / `event` of every figure's p50, p99
+    /// and max, when both ran: (transport, strategy, figure, p50, p99, max).
+    pub wait_ratios: Vec<(Transport, WaitStrategy, String, f64, f64, f64)>,
 }
 
 /// The settings of a benchmark's graph, as reported in its JSON.
@@ -422,6 +457,8 @@ pub struct BenchSettings {
     pub rt_cpu_dma_latency_us: i32,
     /// The transports, in the order they ran.
     pub transports: Vec<Transport>,
+    /// The wait strategies, in the order they ran on each transport.
+    pub waits: Vec<WaitStrategy>,
 }
 
 struct Burners(Vec<Child>);
@@ -452,11 +489,54 @@ pub fn burn() -> ! {
     }
 }
 
-/// Runs the graph of `opts` on `transport` once; `tag` tells its files and prefix apart from
-/// the other runs of the benchmark.
+/// Each process's polling time per tick (µs) from a run's log: the `wait strategy` lines the
+/// polling processes write at their end (`process=mapper ... spin_us_per_tick=1.25`).
+pub fn spin_from_log(log: &str) -> Vec<(String, f64)> {
+    let mut out = Vec::new();
+    for line in log.lines().map(strip_ansi) {
+        if !line.contains("wait strategy") {
+            continue;
+        }
+        let field = |name: &str| {
+            line.split_whitespace()
+                .find_map(|t| t.strip_prefix(name))
+                .map(|v| v.trim_matches('"').to_owned())
+        };
+        if let (Some(p), Some(us)) = (
+            field("process="),
+            field("spin_us_per_tick=").and_then(|v| v.parse::<f64>().ok()),
+        ) {
+            out.push((p, us));
+        }
+    }
+    out.sort_by_key(|(p, _)| proc_cpu::ORDER.iter().position(|o| o == p));
+    out
+}
+
+/// `line` without its terminal colour sequences (`ESC [ ... m`).
+fn strip_ansi(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut chars = line.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// Runs the graph of `opts` on `transport` with `wait` once; `tag` tells its files and prefix
+/// apart from the other runs of the benchmark.
 pub(crate) fn run_one(
     opts: &LatencyOptions,
     transport: Transport,
+    wait: WaitStrategy,
     dir: &Path,
     tag: &str,
 ) -> Result<(RunReport, Samples), BenchError> {
@@ -464,6 +544,7 @@ pub(crate) fn run_one(
         .map_err(|e| BenchError::Graph(e.to_string()))?;
     let mut cfg = opts.config.clone();
     cfg.graph.transport = transport;
+    cfg.graph.wait = wait;
     opts.rt.apply(&mut cfg.graph, Machine::detect().cores);
     cfg.graph.prefix = prefix.to_string();
     // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
@@ -520,7 +601,7 @@ pub(crate) fn run_one(
         .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
 
     eprintln!(
-        "bench: {transport}, {} Hz, {secs:.0} s, load {}, rt {}",
+        "bench: {transport}, wait {wait}, {} Hz, {secs:.0} s, load {}, rt {}",
         cfg.graph.rate_hz,
         opts.load,
         opts.rt.label()
@@ -580,8 +661,8 @@ pub(crate) fn run_one(
     drop(graph);
     let _ = transport::graph::release_domain(&prefix);
     transport::uds::remove_graph(prefix.as_str());
-    let realtime = std::fs::read_to_string(&log_path)
-        .unwrap_or_default()
+    let log_text = std::fs::read_to_string(&log_path).unwrap_or_default();
+    let realtime = log_text
         .lines()
         .filter(|l| l.contains("real-time"))
         .map(|l| l.trim().to_owned())
@@ -595,7 +676,14 @@ pub(crate) fn run_one(
     }
     let mut report = RunReport::new(transport, &samples, realtime, cfg.graph.rate_hz);
     report.held_up = held_up;
+    report.wait = wait;
+    report.spin_us_per_tick = spin_from_log(&log_text);
     report.cpu_per_tick_us = cpu.per_tick_us();
+    report.cpu_share = report
+        .cpu_per_tick_us
+        .iter()
+        .map(|(n, us)| (n.clone(), us * 1e-6 * cfg.graph.rate_hz))
+        .collect();
     report.live_client_messages = live_messages;
     Ok((report, samples))
 }
@@ -769,12 +857,19 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
     let mut runs = Vec::new();
     let mut all_samples = Vec::new();
     for t in &opts.transports {
-        if signals::stop_requested() {
-            break;
+        for w in &opts.waits {
+            if signals::stop_requested() {
+                break;
+            }
+            let tag = if opts.waits.len() > 1 {
+                format!("-{w}")
+            } else {
+                String::new()
+            };
+            let (report, samples) = run_one(opts, *t, *w, &dir, &tag)?;
+            runs.push(report);
+            all_samples.push((*t, samples));
         }
-        let (report, samples) = run_one(opts, *t, &dir, "")?;
-        runs.push(report);
-        all_samples.push((*t, samples));
     }
     if opts.out.is_some() {
         let font = learning::plot::load_font(None).map_err(|e| BenchError::Graph(e.to_string()))?;
@@ -793,19 +888,43 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
             .map_err(|e| BenchError::Graph(e.to_string()))?;
         eprintln!("bench: histograms in {}", png.display());
     }
+    let r = |x: f64, y: f64| if y > 0.0 { x / y } else { f64::NAN };
     let mut ratios = Vec::new();
+    let first_wait = opts.waits.first().copied().unwrap_or_default();
+    let find =
+        |t: Transport, w: WaitStrategy| runs.iter().find(|x| x.transport == t && x.wait == w);
     if let (Some(i), Some(u)) = (
-        runs.iter().find(|r| r.transport == Transport::Iceoryx2),
-        runs.iter().find(|r| r.transport == Transport::Uds),
+        find(Transport::Iceoryx2, first_wait),
+        find(Transport::Uds, first_wait),
     ) {
         for ((name, a), (_, b)) in i.figures().into_iter().zip(u.figures()) {
-            let r = |x: f64, y: f64| if y > 0.0 { x / y } else { f64::NAN };
             ratios.push((
                 name.to_owned(),
                 r(a.p50, b.p50),
                 r(a.p99, b.p99),
                 r(a.max, b.max),
             ));
+        }
+    }
+    let mut wait_ratios = Vec::new();
+    for t in &opts.transports {
+        let Some(ev) = find(*t, WaitStrategy::Event) else {
+            continue;
+        };
+        for w in opts.waits.iter().filter(|w| w.polls()) {
+            let Some(run) = find(*t, *w) else {
+                continue;
+            };
+            for ((name, a), (_, b)) in run.figures().into_iter().zip(ev.figures()) {
+                wait_ratios.push((
+                    *t,
+                    *w,
+                    name.to_owned(),
+                    r(a.p50, b.p50),
+                    r(a.p99, b.p99),
+                    r(a.max, b.max),
+                ));
+            }
         }
     }
     if opts.out.is_none() {
@@ -825,6 +944,7 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         },
         rt_cpu_dma_latency_us: if opts.rt.dma_latency { 0 } else { -1 },
         transports: opts.transports.clone(),
+        waits: opts.waits.clone(),
     };
     Ok(LatencyReport {
         machine,
@@ -835,6 +955,7 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         settings,
         runs,
         ratios,
+        wait_ratios,
     })
 }
 
@@ -865,8 +986,8 @@ pub fn render(r: &LatencyReport) -> String {
     for run in &r.runs {
         let _ = writeln!(
             s,
-            "\n{}: {} ticks, {} missed ({} held up by the machine)",
-            run.transport, run.ticks, run.missed, run.held_up
+            "\n{}, wait {}: {} ticks, {} missed ({} held up by the machine)",
+            run.transport, run.wait, run.ticks, run.missed, run.held_up
         );
         if let Some(n) = run.live_client_messages {
             let _ = writeln!(
@@ -893,10 +1014,41 @@ pub fn render(r: &LatencyReport) -> String {
                 .map(|(n, us)| format!("{n} {us:.1}"))
                 .collect();
             let _ = writeln!(s, "  CPU per tick (µs): {}", cpu.join(", "));
+            let share: Vec<String> = run
+                .cpu_share
+                .iter()
+                .map(|(n, f)| format!("{n} {:.2}", f * 100.0))
+                .collect();
+            let _ = writeln!(s, "  CPU share (% of one CPU): {}", share.join(", "));
+        }
+        if run.wait.polls() {
+            let spin: Vec<String> = run
+                .spin_us_per_tick
+                .iter()
+                .map(|(n, us)| format!("{n} {us:.2}"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "  polling per tick (µs): {}",
+                if spin.is_empty() {
+                    "none reported".to_owned()
+                } else {
+                    spin.join(", ")
+                }
+            );
         }
         for line in &run.realtime {
             let _ = writeln!(s, "  {line}");
         }
+    }
+    let mut last = None;
+    for (t, w, name, a, b, c) in &r.wait_ratios {
+        if last != Some((*t, *w)) {
+            last = Some((*t, *w));
+            let _ = writeln!(s, "\n{t}: {w} / event (below 1: {w} faster)");
+            let _ = writeln!(s, "  {:<20} {:>7} {:>7} {:>7}", "", "p50", "p99", "max");
+        }
+        let _ = writeln!(s, "  {name:<20} {a:>7.2} {b:>7.2} {c:>7.2}");
     }
     if !r.ratios.is_empty() {
         let _ = writeln!(s, "\niceoryx2 / uds (below 1: iceoryx2 faster)");
@@ -951,5 +1103,18 @@ mod tests {
         );
         let d = Dist::of(&s.e2e);
         assert_eq!((d.p50, d.max, d.n), (120.0, 120.0, 1));
+    }
+
+    #[test]
+    fn spin_per_tick_is_read_from_the_polling_processes_log_lines() {
+        let log = "2026-11-27T13:00:00Z  INFO scl_safety_node: wait strategy process=\"safety\" \
+                   wait=predictive spin_us_per_tick=3.50 ticks=2400 polled=2390 fell_back=10\n\
+                   INFO real-time: SCHED_FIFO priority 80\n\
+                   \u{1b}[2m...\u{1b}[0m wait strategy \u{1b}[3mprocess\u{1b}[0m\u{1b}[2m=\u{1b}[0mmapper \
+                   \u{1b}[3mspin_us_per_tick\u{1b}[0m\u{1b}[2m=\u{1b}[0m1.25\n";
+        assert_eq!(
+            spin_from_log(log),
+            [("safety".to_owned(), 3.5), ("mapper".to_owned(), 1.25)]
+        );
     }
 }

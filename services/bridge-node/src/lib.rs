@@ -248,9 +248,11 @@ pub fn run(
             });
         }
     };
+    let wait = node_rt::wait::strategy_of(graph_cfg, RtRole::Bridge, "bridge")?;
     node_rt::rt::elevate(graph_cfg, RtRole::Bridge);
     let graph = Graph::join_with(prefix, "bridge", graph_cfg.transport)?;
     let ctx = Ctx {
+        wait,
         graph: &graph,
         period_ns: graph_cfg.period_ns(),
         cfg,
@@ -355,6 +357,8 @@ fn say_gate(change: GateChange, tick: u64) {
 }
 
 struct Ctx<'a> {
+    /// How the tick's command is waited for after the state went out (`[graph] wait`).
+    wait: node_rt::wait::WaitStrategy,
     graph: &'a Graph,
     /// The tick period (`[graph] rate_hz`).
     period_ns: u64,
@@ -400,7 +404,7 @@ fn tick_loop<R: Robot>(ctx: &Ctx<'_>, robot: R) -> Result<(), BridgeNodeError> {
         };
         t.publish_state(state)?;
         let mut verdicts = Vec::new();
-        let reply = t.await_command(state.tick, woke.deadline_ns, &mut verdicts)?;
+        let reply = t.await_command(&state, woke.deadline_ns, &mut verdicts)?;
         let outcome = match t
             .core
             .finish_tick(reply.found.as_ref().or(reply.other.as_ref()))
@@ -458,6 +462,10 @@ struct Ticker<'a, R: Robot> {
     late: late::LateCommands,
     /// Until the first tick has begun (a restarted bridge counts its downtime then).
     first_tick: bool,
+    /// When the commands are published after their state (`predictive`).
+    phase: node_rt::wait::Phase,
+    /// Time spent polling for commands.
+    spin: node_rt::wait::SpinStats,
 }
 
 impl<'a, R: Robot> Ticker<'a, R> {
@@ -494,6 +502,8 @@ impl<'a, R: Robot> Ticker<'a, R> {
             st,
             late: late::LateCommands::default(),
             first_tick: true,
+            phase: node_rt::wait::Phase::new(period_ns),
+            spin: node_rt::wait::SpinStats::default(),
         })
     }
 
@@ -541,16 +551,23 @@ impl<'a, R: Robot> Ticker<'a, R> {
         Ok(())
     }
 
-    /// Waits until `tick`'s command comes or `deadline_ns` passes; late commands for missed
-    /// ticks add their verdicts to `verdicts`.
+    /// Waits until the command of `state`'s tick comes or `deadline_ns` passes; late commands
+    /// for missed ticks add their verdicts to `verdicts`. With `predictive` or `spin` the
+    /// subscriber is polled first ([`node_rt::wait::wait_input`]: in the window learned from
+    /// the commands' stamps, or up to the deadline), then the event wait takes over; nothing
+    /// is waited for past the deadline.
     fn await_command(
         &mut self,
-        tick: u64,
+        state: &RobotState,
         deadline_ns: u64,
         verdicts: &mut Vec<late::Verdict>,
     ) -> Result<Reply, BridgeNodeError> {
+        use node_rt::wait::{Monotonic, Poll, wait_input};
+        let tick = state.tick;
         let mut reply = Reply::default();
         let late = &mut self.late;
+        let mut poll = Poll::of(self.ctx.wait, self.phase.window_at(state.t_ns));
+        self.spin.ticks += 1;
         loop {
             self.commands.drain(|c| {
                 if c.tick == tick {
@@ -562,8 +579,9 @@ impl<'a, R: Robot> Ticker<'a, R> {
                 late.superseded(c, verdicts);
             })?;
             let now = now_ns();
-            if reply.found.is_some() {
+            if let Some(c) = &reply.found {
                 reply.received_ns = now;
+                self.phase.observe_offset(c.t_ns as i64 - state.t_ns as i64);
                 break;
             }
             // A stop requested meanwhile waits for the command all the same: the supervisor
@@ -572,6 +590,21 @@ impl<'a, R: Robot> Ticker<'a, R> {
             // at most the command wait later.
             if now >= deadline_ns {
                 break;
+            }
+            if poll != Poll::No {
+                // Once per tick: poll, then the event wait below.
+                self.commands.consume_notifications();
+                let commands = &self.commands;
+                let w = wait_input(
+                    std::mem::replace(&mut poll, Poll::No),
+                    deadline_ns,
+                    &mut Monotonic,
+                    |until| u64::from(commands.wait_until(until)),
+                    || u64::from(commands.has_pending()),
+                    |_| 0,
+                );
+                self.spin.add(&w);
+                continue;
             }
             self.commands
                 .wait(Duration::from_nanos(deadline_ns - now))?;
@@ -692,6 +725,9 @@ impl<'a, R: Robot> Ticker<'a, R> {
     /// then says so: the last state, a `STOPPING` heartbeat, the link's counts. Returns the
     /// robot's error, if any.
     fn shutdown(mut self, mut failure: Option<RobotError>) -> Result<(), BridgeNodeError> {
+        if self.ctx.wait.polls() {
+            self.spin.log("bridge", self.ctx.wait);
+        }
         let (last, stopped) = self.core.shutdown(now_ns());
         if let Err(e) = stopped {
             match &failure {

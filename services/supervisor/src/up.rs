@@ -1039,6 +1039,11 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
 fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
     let cfg = &opts.config;
     cfg.validate()?;
+    // A polling process that would starve another is refused here, before any starts.
+    let placement = cfg.graph.placement(node_rt::wait::online_cpus())?;
+    for note in &placement.notes {
+        tracing::info!("wait: {note}");
+    }
     MapperStep::load(
         &cfg.mapper.model,
         cfg.mapper.id,

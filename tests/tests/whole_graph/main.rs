@@ -23,3 +23,4 @@ mod restart;
 mod safety;
 mod study;
 mod supervision;
+mod wait;
