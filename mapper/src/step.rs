@@ -21,6 +21,9 @@ pub struct MapperStep {
     /// Buttons of the last usable joystick sample, for press (rising-edge) detection.
     held: u32,
     out: [f64; MAX_JOINTS],
+    /// The arm, when known: its continuous joints are wrapped into the turn around home
+    /// before the map sees them ([`kinematics::RobotProfile::wrap_for_maps`]).
+    robot: Option<&'static kinematics::RobotProfile>,
 }
 
 impl MapperStep {
@@ -34,7 +37,31 @@ impl MapperStep {
             gripper_rate: DEFAULT_GRIPPER_RATE,
             held: 0,
             out: [0.0; MAX_JOINTS],
+            robot: None,
         })
+    }
+
+    /// [`MapperStep::new`] for the arm of `robot`, whose continuous joints the map sees
+    /// wrapped into the turn around home: the same pose, the same command.
+    pub fn for_robot(
+        id: u32,
+        model: LoadedModel,
+        robot: &'static kinematics::RobotProfile,
+    ) -> Result<Self, ModelError> {
+        let mut s = Self::new(id, model, robot.n_joints())?;
+        s.robot = Some(robot);
+        Ok(s)
+    }
+
+    /// The joint angles the map sees: `state`'s, continuous joints wrapped (on the stack).
+    fn map_q(&self, state: &RobotState, m: usize) -> [f64; MAX_JOINTS] {
+        let mut q = [0.0; MAX_JOINTS];
+        let n = m.min(state.q().len());
+        q[..n].copy_from_slice(&state.q()[..n]);
+        if let Some(r) = self.robot {
+            r.wrap_for_maps(&mut q[..n]);
+        }
+        q
     }
 
     /// Loads and checks the model `spec` for the arm of `robot` (the graph's robot profile),
@@ -47,7 +74,7 @@ impl MapperStep {
         period_s: f64,
     ) -> Result<Self, ModelError> {
         let model = LoadedModel::load_for(spec, robot)?.at_period(period_s);
-        Self::new(id, model, robot.n_joints())
+        Self::for_robot(id, model, robot)
     }
 
     /// The mapper id.
@@ -74,9 +101,10 @@ impl MapperStep {
         if state.n_joints as usize != m || out.len() < m {
             return;
         }
+        let q = self.map_q(state, m);
         self.model
             .map
-            .direction(state.q(), state.gripper, 0, &mut out[..m]);
+            .direction(&q[..m], state.gripper, 0, &mut out[..m]);
     }
 
     /// Computes the command for `state`'s tick from the newest joystick sample `joy`.
@@ -136,9 +164,10 @@ impl MapperStep {
             flags |= mapper_flags::STATE_INVALID;
             gripper = 0.0;
         } else {
+            let q = self.map_q(state, m);
             self.model
                 .map
-                .eval(state.q(), state.gripper, &a, &mut self.out[..m]);
+                .eval(&q[..m], state.gripper, &a, &mut self.out[..m]);
             let s = self.model.header.speed_scale_rad_s;
             self.out[..m].iter_mut().for_each(|v| *v *= s);
             if self.out[..m].iter().any(|v| !v.is_finite()) {
@@ -169,6 +198,33 @@ impl MapperStep {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_continuous_joint_a_turn_away_gives_the_same_command() {
+        let robot = kinematics::RobotProfile::by_name("gen3").unwrap();
+        let mut step = MapperStep::load("bundled", 1, robot, 0.025).unwrap();
+        let home = robot.named_pose("home").unwrap();
+        let joint = robot.continuous_joints().iter().position(|c| *c).unwrap();
+        let state = |extra: f64| {
+            let mut s = RobotState::at_rest(5, 1, robot.n_joints() as u32);
+            s.q_rad[..home.len()].copy_from_slice(home);
+            s.q_rad[joint] += extra;
+            s
+        };
+        let joy = JoystickInput {
+            tick: 5,
+            axes: [0.7, 0.2],
+            ..JoystickInput::neutral(1)
+        };
+        let at_home = step.step(&state(0.0), Some(&joy)).qdot_rad_s;
+        let turned = step
+            .step(&state(std::f64::consts::TAU), Some(&joy))
+            .qdot_rad_s;
+        assert!(at_home.iter().any(|v| *v != 0.0));
+        for (a, b) in at_home.iter().zip(turned) {
+            assert!((a - b).abs() < 1e-9, "{at_home:?} against {turned:?}");
+        }
+    }
     use crate::model::BUNDLED_NAME;
     use crate::pca::PcaMap;
     use nalgebra::DMatrix;

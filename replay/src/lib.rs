@@ -865,7 +865,7 @@ fn mapper_step(
 ) -> Result<ReplayedMapper, ReplayError> {
     Ok(match rec.model(mapper_id, pid, robot, notes)? {
         Some((model, name, altered)) => Some((
-            MapperStep::new(mapper_id, model.at_period(period_s), robot.n_joints()).map_err(
+            MapperStep::for_robot(mapper_id, model.at_period(period_s), robot).map_err(
                 |source| ReplayError::Model {
                     path: rec.path.clone(),
                     mapper_id,

@@ -124,14 +124,14 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
                     source,
                 })?;
             Some(
-                MapperStep::new(0, model.at_period(cfg.period_s()), n).map_err(|source| {
-                    ReplayError::Model {
+                MapperStep::for_robot(0, model.at_period(cfg.period_s()), robot).map_err(
+                    |source| ReplayError::Model {
                         path: rec.path.clone(),
                         mapper_id: 0,
                         pid: 0,
                         source,
-                    }
-                })?,
+                    },
+                )?,
             )
         }
         None => None,
