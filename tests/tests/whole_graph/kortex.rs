@@ -493,11 +493,26 @@ struct LowLevelRun {
 }
 
 fn low_level_up(tag: &str, run_for: &str, misread: Option<CyclicMisread>) -> LowLevelRun {
+    low_level_up_on(
+        kinematics::RobotProfile::default_robot(),
+        tag,
+        run_for,
+        misread,
+    )
+}
+
+/// [`low_level_up`] on the arm of `robot` (the fake plays it, `[graph] robot` names it).
+fn low_level_up_on(
+    robot: &'static kinematics::RobotProfile,
+    tag: &str,
+    run_for: &str,
+    misread: Option<CyclicMisread>,
+) -> LowLevelRun {
     let fake = FakeKortex::start(FakeConfig {
         credentials: Credentials::new(USER, PASSWORD),
         cyclic_timeout: Duration::from_millis(500),
         cyclic_misread: misread,
-        ..FakeConfig::default()
+        ..FakeConfig::for_robot(robot)
     })
     .unwrap();
     let start_q = fake.snapshot().q_rad;
@@ -506,9 +521,10 @@ fn low_level_up(tag: &str, run_for: &str, misread: Option<CyclicMisread>) -> Low
     std::fs::write(
         &config,
         format!(
-            "[graph]\nrate_hz = 1000\n\n[bridge]\nrobot = \"kortex\"\n\n[bridge.kortex]\n\
-             address = \"127.0.0.1\"\nport = {}\ncyclic_port = {}\nmode = \"low-level\"\n\
-             reply_timeout_ms = 1000\n",
+            "[graph]\nrobot = \"{}\"\nrate_hz = 1000\n\n[bridge]\nrobot = \"kortex\"\n\n\
+             [bridge.kortex]\naddress = \"127.0.0.1\"\nport = {}\ncyclic_port = {}\n\
+             mode = \"low-level\"\nreply_timeout_ms = 1000\n",
+            robot.name(),
             fake.addr().port(),
             fake.cyclic_addr().port()
         ),
@@ -550,6 +566,19 @@ fn low_level_up(tag: &str, run_for: &str, misread: Option<CyclicMisread>) -> Low
 #[test]
 fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
     let _serial = serial();
+    drives_in_low_level_mode(kinematics::RobotProfile::default_robot(), "kxlow");
+}
+
+/// The same on the 7-joint Gen3: seven actuators on the cyclic channel, its bundled model.
+#[test]
+fn the_graph_drives_a_fake_gen3_in_low_level_mode_at_1_khz() {
+    let _serial = serial();
+    let gen3 = kinematics::RobotProfile::by_name("gen3").unwrap();
+    drives_in_low_level_mode(gen3, "kxlow7");
+}
+
+fn drives_in_low_level_mode(robot: &'static kinematics::RobotProfile, tag: &str) {
+    let n = robot.n_joints();
     let LowLevelRun {
         fake,
         start_q,
@@ -558,7 +587,7 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
         prefix,
         mut rec,
         mut guard,
-    } = low_level_up("kxlow", "3s", None);
+    } = low_level_up_on(robot, tag, "3s", None);
     let _domain = DomainGuard(prefix.clone());
     let out = wait_for_exit(&mut rec, &mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
@@ -584,11 +613,15 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
         "{log_text}"
     );
 
-    eprintln!("low-level graph at 1 kHz: {summary}");
+    eprintln!(
+        "low-level graph at 1 kHz on the {}: {summary}",
+        robot.name()
+    );
+    assert_eq!(rec.robot_states.last().unwrap().n_joints as usize, n);
     let s = fake.snapshot();
     // The first command was the measured position (the arm at rest at its start pose).
     let first = s.first_position_command.clone().unwrap();
-    for j in 0..6 {
+    for j in 0..n {
         assert!((first[j] - start_q[j]).abs() < 1e-4, "joint {j}: {s:?}");
     }
     // A Refresh per tick (the bridge's stops hold the position with one too), no joint speeds.
@@ -601,11 +634,11 @@ fn the_graph_drives_the_fake_arm_in_low_level_mode_at_1_khz() {
     // integration itself is tested in hw-bridge's kortex_low_level), and the last state the
     // graph published is the robot's own.
     let travel = summary["joint_travel_rad"].as_f64().unwrap();
-    let moved: f64 = (0..6).map(|j| (s.q_rad[j] - start_q[j]).abs()).sum();
+    let moved: f64 = (0..n).map(|j| (s.q_rad[j] - start_q[j]).abs()).sum();
     assert!(travel == 0.0 || moved > 0.0, "travel {travel} rad: {s:?}");
     let last = rec.robot_states.last().unwrap();
     assert!(last.flags & state_flags::SHUTDOWN != 0);
-    for j in 0..6 {
+    for j in 0..n {
         assert!(
             (last.q_rad[j] - s.q_rad[j]).abs() < 1e-4,
             "joint {j}: {s:?}"
