@@ -41,6 +41,8 @@ pub(crate) trait Endpoint {
     fn status_line(&mut self) -> Option<String> {
         None
     }
+    /// Logs what the endpoint measured, at the end of the run.
+    fn finish(&self) {}
 }
 
 /// The graph on this machine.
@@ -127,6 +129,9 @@ enum Arrival {
 /// Samples sent recently, for the round trip: `(seq, when)`.
 const SENT_KEPT: usize = 256;
 
+/// Round trips kept for the figures at the end (an hour at 40 Hz).
+const RTT_KEPT: usize = 144_000;
+
 /// A graph's gateway on another machine.
 pub(crate) struct Remote {
     endpoint: String,
@@ -136,6 +141,8 @@ pub(crate) struct Remote {
     waker: Arc<Waker>,
     sent: std::collections::VecDeque<(u64, Instant)>,
     rtt: Option<Duration>,
+    /// Every round trip measured (ns), for the figures at the end (at most `RTT_KEPT`).
+    rtts: Vec<u64>,
     gateway: Option<GatewayStatus>,
     state: Option<RobotState>,
     /// Kept for the process's life: the token says this operator is here, the subscribers
@@ -217,6 +224,7 @@ impl Remote {
             waker,
             sent: std::collections::VecDeque::with_capacity(SENT_KEPT),
             rtt: None,
+            rtts: Vec::new(),
             gateway: None,
             state: None,
             _token: token,
@@ -226,8 +234,16 @@ impl Remote {
     }
 
     fn take_gateway(&mut self, g: GatewayStatus) {
-        if let Some(&(_, at)) = self.sent.iter().find(|(seq, _)| *seq == g.acked_seq) {
-            self.rtt = Some(at.elapsed());
+        let fresh = self.gateway.is_none_or(|old| old.acked_seq != g.acked_seq);
+        if let Some(&(_, at)) = self.sent.iter().find(|(seq, _)| *seq == g.acked_seq)
+            && fresh
+        {
+            let rtt = at.elapsed();
+            self.rtt = Some(rtt);
+            if self.rtts.len() < RTT_KEPT {
+                self.rtts
+                    .push(u64::try_from(rtt.as_nanos()).unwrap_or(u64::MAX));
+            }
         }
         self.gateway = Some(g);
     }
@@ -293,6 +309,17 @@ impl Endpoint for Remote {
 
     fn describe(&self) -> String {
         format!("{} (remote)", self.samples.key())
+    }
+
+    fn finish(&self) {
+        let p = node_rt::stats::percentiles_us(&self.rtts);
+        tracing::info!(
+            acknowledged = self.rtts.len(),
+            p50_us = format!("{:.0}", p.p50),
+            p99_us = format!("{:.0}", p.p99),
+            max_us = format!("{:.0}", p.max),
+            "round trip to the gateway (sample sent -> its acknowledgement)"
+        );
     }
 
     fn status_line(&mut self) -> Option<String> {

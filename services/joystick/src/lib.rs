@@ -691,6 +691,7 @@ fn drive(
     }
     drop(source);
     screen.finish();
+    ep.finish();
     if let Some(r) = out.recorder.take() {
         let file = cfg.record_input.clone();
         let rows = r.finish(t0.elapsed().as_secs_f64())?;
