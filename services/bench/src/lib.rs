@@ -305,9 +305,11 @@ pub struct RunReport {
     /// Misses the machine took (the bridge's `held_up`): part of `missed`.
     pub held_up: u64,
     /// Each process's CPU time per tick (µs, user + system, every thread), measured between
-    /// its first heartbeat and the end of the run: bridge, safety, mapper, joystick and the
-    /// supervisor (`scl up`).
+    /// its first heartbeat and the end of the run: bridge, safety, mapper, joystick, the
+    /// gateway (with `[network] enabled`) and the supervisor (`scl up`).
     pub cpu_per_tick_us: Vec<(String, f64)>,
+    /// Each process's resident, peak resident and locked memory at the end of the run.
+    pub memory: Vec<(String, proc_cpu::Memory)>,
 }
 
 /// Per-hop distributions.
@@ -341,6 +343,7 @@ impl RunReport {
             rate_hz,
             held_up: 0,
             cpu_per_tick_us: Vec::new(),
+            memory: Vec::new(),
             transport,
             live_client_messages: None,
             ticks: s.ticks,
@@ -679,6 +682,7 @@ pub(crate) fn run_one(
     report.wait = wait;
     report.spin_us_per_tick = spin_from_log(&log_text);
     report.cpu_per_tick_us = cpu.per_tick_us();
+    report.memory = cpu.memory();
     report.cpu_share = report
         .cpu_per_tick_us
         .iter()
@@ -1020,6 +1024,25 @@ pub fn render(r: &LatencyReport) -> String {
                 .map(|(n, f)| format!("{n} {:.2}", f * 100.0))
                 .collect();
             let _ = writeln!(s, "  CPU share (% of one CPU): {}", share.join(", "));
+        }
+        if !run.memory.is_empty() {
+            let mem: Vec<String> = run
+                .memory
+                .iter()
+                .map(|(n, m)| {
+                    format!(
+                        "{n} {:.1}/{:.1}/{:.1}",
+                        m.rss_kib as f64 / 1024.0,
+                        m.peak_rss_kib as f64 / 1024.0,
+                        m.locked_kib as f64 / 1024.0
+                    )
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "  memory, resident/peak/locked (MiB): {}",
+                mem.join(", ")
+            );
         }
         if run.wait.polls() {
             let spin: Vec<String> = run

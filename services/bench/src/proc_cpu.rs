@@ -16,10 +16,41 @@ pub fn cpu_ns(pid: u32) -> Option<u64> {
         .checked_add(u64::try_from(t.tv_nsec()).ok()?)
 }
 
+/// A process's memory, from `/proc/PID/status` (KiB).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct Memory {
+    /// Resident now (`VmRSS`).
+    pub rss_kib: u64,
+    /// The most ever resident (`VmHWM`).
+    pub peak_rss_kib: u64,
+    /// Locked in memory (`VmLck`: all of it after `mlockall`).
+    pub locked_kib: u64,
+}
+
+/// A process's memory now, or `None` once it is gone (or not ours to read).
+pub fn memory(pid: u32) -> Option<Memory> {
+    parse_status(&std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?)
+}
+
+fn parse_status(text: &str) -> Option<Memory> {
+    let field = |key: &str| {
+        text.lines()
+            .find_map(|l| l.strip_prefix(key))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+    };
+    Some(Memory {
+        rss_kib: field("VmRSS:")?,
+        peak_rss_kib: field("VmHWM:")?,
+        locked_kib: field("VmLck:").unwrap_or(0),
+    })
+}
+
 #[derive(Debug, Clone)]
 struct Watched {
     name: &'static str,
     pid: u32,
+    /// Memory at the latest reading.
+    mem: Option<Memory>,
     /// (CPU ns, ticks seen) at the first and at the latest reading.
     first: Option<(u64, u64)>,
     last: Option<(u64, u64)>,
@@ -33,7 +64,14 @@ pub struct CpuWatch {
 
 /// The order processes are reported in: the control path from the clock back, then the
 /// supervisor.
-pub const ORDER: [&str; 5] = ["bridge", "safety", "mapper", "joystick", "supervisor"];
+pub const ORDER: [&str; 6] = [
+    "bridge",
+    "safety",
+    "mapper",
+    "joystick",
+    "gateway",
+    "supervisor",
+];
 
 impl CpuWatch {
     /// Watches the supervisor (`scl up`, process `supervisor_pid`) and every control-path
@@ -43,6 +81,7 @@ impl CpuWatch {
             procs: vec![Watched {
                 name: "supervisor",
                 pid: supervisor_pid,
+                mem: None,
                 first: None,
                 last: None,
             }],
@@ -56,6 +95,7 @@ impl CpuWatch {
             Some(NodeRole::Safety) => "safety",
             Some(NodeRole::Mapper) => "mapper",
             Some(NodeRole::Joystick) => "joystick",
+            Some(NodeRole::Gateway) => "gateway",
             _ => return,
         };
         match self.procs.iter_mut().find(|p| p.name == name) {
@@ -65,6 +105,7 @@ impl CpuWatch {
                 *p = Watched {
                     name,
                     pid: s.pid,
+                    mem: None,
                     first: None,
                     last: None,
                 };
@@ -72,6 +113,7 @@ impl CpuWatch {
             None => self.procs.push(Watched {
                 name,
                 pid: s.pid,
+                mem: None,
                 first: None,
                 last: None,
             }),
@@ -81,6 +123,9 @@ impl CpuWatch {
     /// Reads every watched process's CPU time at `ticks` ticks into the run.
     pub fn read(&mut self, ticks: u64) {
         for p in &mut self.procs {
+            if let Some(m) = memory(p.pid) {
+                p.mem = Some(m);
+            }
             if let Some(ns) = cpu_ns(p.pid) {
                 if p.first.is_none() {
                     p.first = Some((ns, ticks));
@@ -104,6 +149,19 @@ impl CpuWatch {
     }
 }
 
+impl CpuWatch {
+    /// Each process's memory at its latest reading, in [`ORDER`].
+    pub fn memory(&self) -> Vec<(String, Memory)> {
+        ORDER
+            .iter()
+            .filter_map(|name| {
+                let p = self.procs.iter().find(|p| p.name == *name)?;
+                Some(((*name).to_owned(), p.mem?))
+            })
+            .collect()
+    }
+}
+
 /// CPU µs per tick between two (CPU ns, ticks) readings; `None` without ticks in between.
 pub fn per_tick_us(first: (u64, u64), last: (u64, u64)) -> Option<f64> {
     let ticks = last.1.checked_sub(first.1).filter(|t| *t > 0)?;
@@ -113,6 +171,23 @@ pub fn per_tick_us(first: (u64, u64), last: (u64, u64)) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn memory_is_read_from_the_status_file_and_our_own_is_there() {
+        let m = parse_status("Name:\tscl\nVmHWM:\t  2048 kB\nVmRSS:\t  1024 kB\nVmLck:\t 512 kB\n")
+            .unwrap();
+        assert_eq!(
+            m,
+            Memory {
+                rss_kib: 1024,
+                peak_rss_kib: 2048,
+                locked_kib: 512
+            }
+        );
+        assert_eq!(parse_status("Name:\tkthread\n"), None);
+        let own = memory(std::process::id()).unwrap();
+        assert!(own.rss_kib > 0 && own.peak_rss_kib >= own.rss_kib);
+    }
 
     #[test]
     fn own_cpu_time_grows_and_per_tick_divides() {
