@@ -276,11 +276,14 @@ fn driving_into_a_joint_limit_stops_at_the_margin_and_estop_latches() {
 #[test]
 fn a_nan_from_the_mapper_is_a_controlled_stop_for_that_tick() {
     let _serial = serial();
+    // Twelve seconds: after the NaN (3 s) the stick rests and pushes again four times, so a
+    // stop the machine causes (a held-up bridge's controlled stop, which also waits for
+    // neutral) still leaves a later push to resume on.
     let run = run_graph_with_input(
         "nan",
         &format!("[faults]\nmapper_nan_at_tick = 120\n{REPLAY}"),
-        &held_with_rests([1.0, 0.0], 8),
-        8,
+        &held_with_rests([1.0, 0.0], 12),
+        12,
         0,
         |_, _| {},
     );
