@@ -20,8 +20,8 @@ use ipc_types::{
     JoystickInput, NodeRole, NodeStatus, SafeCommand, buttons, gateway_counts, safe_flags,
 };
 use scl_tests::{
-    ChildGuard, Recorder, assert_misses_only_held_up, assert_stop_within_two_ticks, scl_binary,
-    serial, temp_dir, unique_prefix, wait_clean,
+    ChildGuard, DomainGuard, Recorder, assert_misses_only_held_up, assert_stop_within_two_ticks,
+    scl_binary, serial, temp_dir, unique_prefix, wait_clean,
 };
 
 /// Two namespaces joined by a veth pair: `robot` holds 10.213.X.1, `op` 10.213.X.2.
@@ -331,6 +331,8 @@ fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_se
     let _serial = serial();
     let ns = Netns::new("c");
     let prefix = unique_prefix("netcut");
+    // Released last, after the graph and the recorder (the domain's own file).
+    let _domain = DomainGuard(prefix.clone());
     let dir = temp_dir("netcut");
     let cfg = graph_config(&dir, &ns, "circle");
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
@@ -447,6 +449,8 @@ fn fifty_ms_of_delay_makes_the_input_stale_and_the_arm_stops_without_a_jerk() {
     let _serial = serial();
     let ns = Netns::new("d");
     let prefix = unique_prefix("netdelay");
+    // Released last, after the graph and the recorder (the domain's own file).
+    let _domain = DomainGuard(prefix.clone());
     let dir = temp_dir("netdelay");
     let cfg = graph_config(&dir, &ns, "step");
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
@@ -513,6 +517,8 @@ fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
     let _serial = serial();
     let ns = Netns::new("a");
     let prefix = unique_prefix("netauth");
+    // Released last, after the graph and the recorder (the domain's own file).
+    let _domain = DomainGuard(prefix.clone());
     let dir = temp_dir("netauth");
     let cfg = graph_config(&dir, &ns, "circle");
     let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
@@ -568,6 +574,8 @@ fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
 fn inbound_without_credentials_or_with_an_open_file_refuses_the_graph_naming_it() {
     let dir = temp_dir("netrefuse");
     let prefix = unique_prefix("netrefuse");
+    // Released last, after the graph and the recorder (the domain's own file).
+    let _domain = DomainGuard(prefix.clone());
     let p = dir.join("graph.toml");
     std::fs::write(&p, "[network]\nenabled = true\naccept_joystick = true\n").unwrap();
     let out = scl_tests::scl(&prefix)
@@ -606,6 +614,8 @@ fn scl_top_watches_a_graph_through_its_gateway() {
     let _serial = serial();
     let dir = temp_dir("nettop");
     let prefix = unique_prefix("nettop");
+    // Released last, after the graph and the recorder (the domain's own file).
+    let _domain = DomainGuard(prefix.clone());
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
