@@ -4,7 +4,7 @@
 use scl_config::NetworkMode;
 use zenoh::Wait as _;
 
-use crate::credentials::Credentials;
+use crate::credentials::{Credentials, CredentialsError};
 
 /// What a session needs.
 #[derive(Debug, Clone)]
@@ -107,6 +107,48 @@ pub fn open(spec: &SessionSpec<'_>) -> Result<zenoh::Session, SessionError> {
             connect: spec.connect.to_vec(),
             source,
         })
+}
+
+/// Why a client session (`--remote ENDPOINT`) could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    /// The endpoint is not one Zenoh can reach here (named as the `--remote` option).
+    #[error(transparent)]
+    Endpoint(scl_config::ConfigError),
+    /// The credentials file is unusable.
+    #[error(transparent)]
+    Credentials(#[from] CredentialsError),
+    /// The session did not open.
+    #[error(transparent)]
+    Session(#[from] SessionError),
+}
+
+/// A client session to the gateway at `endpoint` (a remote operator's, a remote observer's):
+/// the endpoint checked first, then the login of `credentials` (if any) read, then the session
+/// opened with it. Returns the session and the login it used.
+pub fn open_client(
+    endpoint: &str,
+    credentials: Option<&std::path::Path>,
+    lease_ms: u64,
+) -> Result<(zenoh::Session, Option<Credentials>), ClientError> {
+    scl_config::check_endpoint(endpoint).map_err(|reason| {
+        ClientError::Endpoint(scl_config::ConfigError::Value {
+            key: "--remote".into(),
+            reason: format!("`{endpoint}`: {reason}"),
+        })
+    })?;
+    let creds = credentials.map(Credentials::load).transpose()?;
+    let connect = [endpoint.to_owned()];
+    let session = open(&SessionSpec {
+        mode: NetworkMode::Client,
+        listen: &[],
+        connect: &connect,
+        lease_ms,
+        multicast_scouting: false,
+        credentials: creds.as_ref(),
+        accept_listed_only: false,
+    })?;
+    Ok((session, creds))
 }
 
 /// The session's id as keys carry it (hex).

@@ -88,9 +88,9 @@ pub enum TopError {
     /// The Zenoh session to a remote graph's gateway.
     #[error(transparent)]
     Session(#[from] scl_net::SessionError),
-    /// The credentials file.
+    /// A client session to a remote graph's gateway could not be opened.
     #[error(transparent)]
-    Credentials(#[from] scl_net::CredentialsError),
+    Client(#[from] scl_net::session::ClientError),
 }
 
 /// One node as the dashboard shows it.
@@ -943,27 +943,8 @@ impl RemoteFeed {
     fn open(o: &RemoteOptions) -> Result<Self, TopError> {
         use ipc_types::topics;
         use scl_net::ports::{self, Urgency};
-        scl_config::check_endpoint(&o.endpoint).map_err(|reason| {
-            TopError::Config(scl_config::ConfigError::Value {
-                key: "--remote".into(),
-                reason: format!("`{}`: {reason}", o.endpoint),
-            })
-        })?;
-        let creds = o
-            .credentials
-            .as_deref()
-            .map(scl_net::Credentials::load)
-            .transpose()?;
-        let connect = [o.endpoint.clone()];
-        let session = scl_net::session::open(&scl_net::SessionSpec {
-            mode: scl_config::NetworkMode::Client,
-            listen: &[],
-            connect: &connect,
-            lease_ms: o.lease_ms,
-            multicast_scouting: false,
-            credentials: creds.as_ref(),
-            accept_listed_only: false,
-        })?;
+        let (session, creds) =
+            scl_net::session::open_client(&o.endpoint, o.credentials.as_deref(), o.lease_ms)?;
         let keys = scl_net::Keys::new(&o.namespace);
         let (tx, rx) = crossbeam_channel::bounded(4096);
         let mut subs = Vec::new();

@@ -13,9 +13,9 @@ use crossbeam_channel::{Receiver, Sender};
 use ipc_types::control::EstopCommand;
 use ipc_types::{JoystickInput, NodeStatus, Prefix, RobotState};
 use scl_net::ports::{self, Out, Urgency};
-use scl_net::session::{self, SessionSpec};
+use scl_net::session;
 use scl_net::wire::link_state;
-use scl_net::{Credentials, GatewayStatus, Keys};
+use scl_net::{GatewayStatus, Keys};
 use transport::Waker;
 use transport::graph::Wakeable;
 
@@ -156,24 +156,9 @@ impl Remote {
     /// Opens a client session to `opts.endpoint` (authenticated), declares the operator's
     /// liveliness token, subscribes to the robot states and the gateway's status.
     pub(crate) fn open(opts: &RemoteOptions) -> Result<Self, JoystickError> {
-        scl_config::check_endpoint(&opts.endpoint).map_err(|reason| {
-            JoystickError::Config(scl_config::ConfigError::Value {
-                key: "--remote".into(),
-                reason: format!("`{}`: {reason}", opts.endpoint),
-            })
-        })?;
-        let creds = Credentials::load(&opts.credentials)?;
-        let connect = [opts.endpoint.clone()];
-        let spec = SessionSpec {
-            mode: scl_config::NetworkMode::Client,
-            listen: &[],
-            connect: &connect,
-            lease_ms: opts.lease_ms,
-            multicast_scouting: false,
-            credentials: Some(&creds),
-            accept_listed_only: false,
-        };
-        let s = session::open(&spec)?;
+        let (s, creds) =
+            session::open_client(&opts.endpoint, Some(&opts.credentials), opts.lease_ms)?;
+        let user = creds.map(|c| c.own().user.clone()).unwrap_or_default();
         let zid = session::session_id(&s);
         let keys = Keys::new(&opts.namespace);
         let waker = Arc::new(Waker::new().map_err(|source| JoystickError::Thread {
@@ -213,7 +198,7 @@ impl Remote {
             endpoint = %opts.endpoint,
             namespace = keys.namespace(),
             session = %zid,
-            user = %creds.own().user,
+            user = %user,
             "joined the graph's gateway"
         );
         Ok(Self {

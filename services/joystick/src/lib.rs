@@ -90,9 +90,9 @@ pub enum JoystickError {
     /// The remote operator's session to the graph's gateway.
     #[error(transparent)]
     Session(#[from] scl_net::SessionError),
-    /// The remote operator's credentials file.
+    /// The remote operator's client session (its endpoint, credentials or Zenoh).
     #[error(transparent)]
-    Credentials(#[from] scl_net::CredentialsError),
+    Client(#[from] scl_net::session::ClientError),
     /// A sample could not be handed to the network.
     #[error("cannot publish on `{key}`: {source}")]
     Network {
