@@ -326,22 +326,51 @@ fn first_forwarded_after(samples: &[JoystickInput], t: u64) -> Option<JoystickIn
         .copied()
 }
 
-#[test]
-fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_session() {
-    let _serial = serial();
-    let ns = Netns::new("c");
-    let prefix = unique_prefix("netcut");
-    // Released last, after the graph and the recorder (the domain's own file).
-    let _domain = DomainGuard(prefix.clone());
-    let dir = temp_dir("netcut");
-    let cfg = graph_config(&dir, &ns, "circle");
-    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
+/// The robot PC's side of a namespace test: graph `tag` (its domain released last, when the
+/// guard drops), its configuration with the joystick script `script`, a recorder, and `scl
+/// up` in the robot's namespace, once it publishes robot states.
+fn start_graph(
+    ns: &Netns,
+    tag: &str,
+    script: &str,
+) -> (
+    ipc_types::Prefix,
+    DomainGuard,
+    PathBuf,
+    PathBuf,
+    Recorder,
+    ChildGuard,
+) {
+    let prefix = unique_prefix(tag);
+    let domain = DomainGuard(prefix.clone());
+    let dir = temp_dir(tag);
+    let cfg = graph_config(&dir, ns, script);
     let mut rec = Recorder::join(&prefix);
-    let graph = up(&ns, &prefix, &cfg);
+    let graph = up(ns, &prefix, &cfg);
     assert!(
         rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5),
         "the graph did not start"
     );
+    (prefix, domain, dir, cfg, rec, graph)
+}
+
+/// After [`finish`]: the recorder leaves, the graph must have left nothing, the run's
+/// directory goes.
+fn clean_up(rec: Recorder, prefix: &ipc_types::Prefix, dir: PathBuf) {
+    drop(rec);
+    assert_eq!(
+        wait_clean(prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_session() {
+    let _serial = serial();
+    let ns = Netns::new("c");
+    let (prefix, _domain, dir, cfg, mut rec, graph) = start_graph(&ns, "netcut", "circle");
+    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
     let op = remote_operator(
         &ns,
         &ns.endpoint(),
@@ -436,27 +465,15 @@ fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_se
     drop(op2);
     let (summary, log) = finish(graph);
     assert_misses_only_held_up(&summary, &log, "a cut link");
-    drop(rec);
-    assert_eq!(
-        wait_clean(&prefix, Duration::from_secs(5)),
-        Vec::<String>::new()
-    );
-    std::fs::remove_dir_all(dir).unwrap();
+    clean_up(rec, &prefix, dir);
 }
 
 #[test]
 fn fifty_ms_of_delay_makes_the_input_stale_and_the_arm_stops_without_a_jerk() {
     let _serial = serial();
     let ns = Netns::new("d");
-    let prefix = unique_prefix("netdelay");
-    // Released last, after the graph and the recorder (the domain's own file).
-    let _domain = DomainGuard(prefix.clone());
-    let dir = temp_dir("netdelay");
-    let cfg = graph_config(&dir, &ns, "step");
+    let (prefix, _domain, dir, cfg, mut rec, graph) = start_graph(&ns, "netdelay", "step");
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
-    let mut rec = Recorder::join(&prefix);
-    let graph = up(&ns, &prefix, &cfg);
-    assert!(rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5));
     let line = DelayLine::start(&ns);
     let _op = remote_operator(
         &ns,
@@ -504,27 +521,15 @@ fn fifty_ms_of_delay_makes_the_input_stale_and_the_arm_stops_without_a_jerk() {
     assert_acceleration_limited(&rec.safe_commands, "50 ms delay");
     let (summary, log) = finish(graph);
     assert_misses_only_held_up(&summary, &log, "50 ms delay");
-    drop(rec);
-    assert_eq!(
-        wait_clean(&prefix, Duration::from_secs(5)),
-        Vec::<String>::new()
-    );
-    std::fs::remove_dir_all(dir).unwrap();
+    clean_up(rec, &prefix, dir);
 }
 
 #[test]
 fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
     let _serial = serial();
     let ns = Netns::new("a");
-    let prefix = unique_prefix("netauth");
-    // Released last, after the graph and the recorder (the domain's own file).
-    let _domain = DomainGuard(prefix.clone());
-    let dir = temp_dir("netauth");
-    let cfg = graph_config(&dir, &ns, "circle");
+    let (prefix, _domain, dir, cfg, mut rec, graph) = start_graph(&ns, "netauth", "circle");
     let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
-    let mut rec = Recorder::join(&prefix);
-    let graph = up(&ns, &prefix, &cfg);
-    assert!(rec.poll_until(Duration::from_secs(15), |r| r.robot_states.len() > 5));
     let mut op = remote_operator(
         &ns,
         &ns.endpoint(),
@@ -562,12 +567,7 @@ fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
         "the arm moved"
     );
     assert_eq!(summary["missed"], summary["held_up"], "{log}");
-    drop(rec);
-    assert_eq!(
-        wait_clean(&prefix, Duration::from_secs(5)),
-        Vec::<String>::new()
-    );
-    std::fs::remove_dir_all(dir).unwrap();
+    clean_up(rec, &prefix, dir);
 }
 
 #[test]
@@ -658,10 +658,5 @@ fn scl_top_watches_a_graph_through_its_gateway() {
     assert!(text.contains(&format!("graph `{prefix}`")), "{text}");
     let (summary, log) = finish(graph);
     assert_misses_only_held_up(&summary, &log, "scl top --remote");
-    drop(rec);
-    assert_eq!(
-        wait_clean(&prefix, Duration::from_secs(5)),
-        Vec::<String>::new()
-    );
-    std::fs::remove_dir_all(dir).unwrap();
+    clean_up(rec, &prefix, dir);
 }
