@@ -160,6 +160,17 @@ impl Recorder {
         }
     }
 
+    /// Records while `guard`'s child (`scl up`) runs, then takes in what it published last
+    /// and returns the child's output.
+    pub fn record_until_exit(&mut self, guard: &mut ChildGuard) -> Output {
+        while guard.child().try_wait().unwrap().is_none() {
+            self.poll();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.poll();
+        guard.take().wait_with_output().unwrap()
+    }
+
     /// The pid of the newest heartbeat of `role`.
     pub fn pid_of(&self, role: ipc_types::NodeRole) -> Option<u32> {
         self.statuses

@@ -43,13 +43,7 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
             .spawn()
             .unwrap(),
     ));
-    // Record while the graph runs.
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     assert!(out.status.success(), "scl up failed: {:?}", out.status);
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let ticks = summary["ticks"].as_u64().unwrap();
@@ -243,12 +237,7 @@ fn a_gen3_graph_runs_its_bundled_model_with_no_model_named() {
         .spawn()
         .unwrap(),
     ));
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(out.status.success(), "scl up failed: {log_text}");
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

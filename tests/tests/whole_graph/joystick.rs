@@ -23,12 +23,7 @@ fn up(prefix: &ipc_types::Prefix, config: &Path, secs: &str) -> (Recorder, Outpu
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
     let mut guard = ChildGuard(Some(cmd.spawn().unwrap()));
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     (rec, out)
 }
 

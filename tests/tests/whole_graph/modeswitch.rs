@@ -108,12 +108,7 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
     let mut guard = ChildGuard(Some(cmd.spawn().unwrap()));
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "scl up failed: {stderr}");
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

@@ -96,12 +96,7 @@ fn run_graph_with_input(
         "the graph did not run {after_ticks} ticks"
     );
     during(&prefix, &mut rec);
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     assert!(out.status.success(), "scl up: {:?}", out.status);
     std::fs::remove_dir_all(&dir).unwrap();
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

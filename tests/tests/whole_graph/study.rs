@@ -270,12 +270,7 @@ fn a_scripted_study_runs_on_the_live_graph_and_resumes_after_an_interruption() {
 
 fn stop_up(guard: &mut ChildGuard, rec: &mut Recorder) -> serde_json::Value {
     scl_tests::send_signal(guard.child().id(), Signal::SIGTERM);
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(guard);
     assert!(out.status.success(), "scl up: {:?}", out.status);
     serde_json::from_slice(&out.stdout).unwrap()
 }

@@ -105,12 +105,7 @@ fn stop_up_with(mut guard: ChildGuard, rec: &mut Recorder, signal: Signal) -> se
     rec.poll();
     let t_signal = now_ns();
     scl_tests::send_signal(guard.child().id(), signal);
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     assert!(out.status.success(), "scl up: {:?}", out.status);
 
     // The bridge stopped the arm first: its last state says so, with the arm at rest.

@@ -55,12 +55,7 @@ fn predictive_graph(rate_hz: f64, secs: u32, tag: &str, unclassified: u64) {
             .spawn()
             .unwrap(),
     ));
-    while guard.child().try_wait().unwrap().is_none() {
-        rec.poll();
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    rec.poll();
-    let out = guard.take().wait_with_output().unwrap();
+    let out = rec.record_until_exit(&mut guard);
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(out.status.success(), "scl up failed: {log_text}");
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
