@@ -196,15 +196,8 @@ pub fn render(r: &HeadroomReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} cores, {}, kernel {}{}; {:.0} s per rate, load {}, rt {}, model {}, wait {}",
-        r.machine.cores,
-        r.machine.cpu,
-        r.machine.kernel,
-        if r.machine.virtualised {
-            ", virtualised"
-        } else {
-            ""
-        },
+        "{}; {:.0} s per rate, load {}, rt {}, model {}, wait {}",
+        r.machine,
         r.duration_s,
         r.load,
         r.rt_settings.label(),

@@ -195,16 +195,8 @@ pub fn render(r: &HopsReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} cores, {}, kernel {}{}; one message every {:.0} µs",
-        r.machine.cores,
-        r.machine.cpu,
-        r.machine.kernel,
-        if r.machine.virtualised {
-            ", virtualised"
-        } else {
-            ""
-        },
-        r.interval_us
+        "{}; one message every {:.0} µs",
+        r.machine, r.interval_us
     );
     let _ = writeln!(
         s,

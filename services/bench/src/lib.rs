@@ -394,6 +394,24 @@ pub struct Machine {
     pub virtualised: bool,
 }
 
+impl std::fmt::Display for Machine {
+    /// `N cores, CPU, kernel K[, virtualised]`: the first words of every report.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} cores, {}, kernel {}{}",
+            self.cores,
+            self.cpu,
+            self.kernel,
+            if self.virtualised {
+                ", virtualised"
+            } else {
+                ""
+            }
+        )
+    }
+}
+
 impl Machine {
     /// Reads the machine's description from /proc.
     pub fn detect() -> Self {
@@ -969,15 +987,8 @@ pub fn render(r: &LatencyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} cores, {}, kernel {}{}; {:.0} s per transport, load {}, rt {}",
-        r.machine.cores,
-        r.machine.cpu,
-        r.machine.kernel,
-        if r.machine.virtualised {
-            ", virtualised"
-        } else {
-            ""
-        },
+        "{}; {:.0} s per transport, load {}, rt {}",
+        r.machine,
         r.duration_s,
         r.load,
         r.rt_settings.label()
