@@ -189,7 +189,7 @@ def run(args: argparse.Namespace) -> dict:
         settled_from = 0
         idle = 0
         neutral_passes = 0
-        start_error = None
+        start_error = start_m = None
         while True:
             s = states.next_latest(2.0)
             if s is None:
@@ -209,7 +209,7 @@ def run(args: argparse.Namespace) -> dict:
             p, jac = chain.position_and_jacobian(q)
             error = float(np.linalg.norm(goal - p))
             if start_error is None:
-                start_error = error
+                start_error, start_m = error, p
             if error < best_error - 0.001:
                 best_error, best_tick, best_driving = error, ticks, driving
             stuck = driving - best_driving > args.patience / DT
@@ -275,6 +275,7 @@ def run(args: argparse.Namespace) -> dict:
         return {
             "prefix": args.prefix,
             "goal_m": [round(float(v), 4) for v in goal],
+            "start_m": [round(float(v), 4) for v in (start_m if start_m is not None else goal)],
             "start_error_m": round(float(start_error or 0.0), 4),
             "final_error_m": round(error, 4),
             "reached": error < args.tolerance,
