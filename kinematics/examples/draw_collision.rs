@@ -15,7 +15,7 @@
 
 use std::path::PathBuf;
 
-use kinematics::collision::{Clearance, CollisionLink, CollisionModel, Scene};
+use kinematics::collision::{Clearance, CollisionModel, Scene};
 use kinematics::{RobotProfile, gen3, gen3_lite};
 use nalgebra::{Point3, Vector2};
 use plotters::coord::Shift;
@@ -24,7 +24,9 @@ use plotters::prelude::*;
 const SIZE: (u32, u32) = (1400, 1300);
 const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
 
-const COLOURS: [RGBColor; CollisionLink::COUNT] = [
+/// Colours by link index: the known links' (the Gen3 lite's, then the Gen3's own), and for a
+/// new arm's links the palette again.
+const COLOURS: [RGBColor; 16] = [
     RGBColor(110, 110, 110), // base
     RGBColor(31, 119, 180),  // shoulder
     RGBColor(44, 160, 44),   // arm
@@ -121,7 +123,7 @@ fn view(
     }
     let p2 = |p: &Point3<f64>| Vector2::new(p[i], p[j]);
     for (c, r) in out.capsules().iter().zip(model.capsule_refs()) {
-        let colour = COLOURS[r.link.index()];
+        let colour = COLOURS[r.link.index() % COLOURS.len()];
         let pts = outline(p2(&c.a), p2(&c.b), c.radius_m);
         chart
             .draw_series(std::iter::once(Polygon::new(

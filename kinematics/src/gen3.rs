@@ -145,6 +145,8 @@ pub const COLLISION_TOML_NAME: &str = "robots/gen3_collision.toml";
 pub const COLLISION_ARM: ModelArm<'static> = ModelArm {
     name: "the Gen3",
     joint_names: &JOINT_NAMES,
+    base_link: BASE_LINK,
+    tool_link: "gripper_base_link",
     gripper_joint: Some(GRIPPER_JOINT),
 };
 

@@ -100,7 +100,7 @@ fn bad_files_are_refused_with_file_link_and_field() {
     // Its capsule now belongs to the forearm, and the wrist has no entry.
     assert_eq!(
         e,
-        "bad.toml: link `lower_wrist_link`: has no [[link]] entry; every link of the Gen3 lite needs capsules"
+        "bad.toml: link `lower_wrist_link`: has no [[link]] entry; every body of the Gen3 lite's chain base_link -> gripper_base_link (the links the same joints move) needs capsules"
     );
     // Exclusions.
     let e = err(&COLLISION_TOML.replace(
@@ -129,6 +129,53 @@ fn bad_files_are_refused_with_file_link_and_field() {
         e.starts_with("bad.toml: exclude[0].links: `shoulder` is not a link"),
         "{e}"
     );
+}
+
+/// A new arm needs no code for its links: the Gen3 lite with every collision link renamed
+/// (in its description and its collision file) loads through [`CollisionModel::for_arm`]
+/// alone, with the same capsules, pairs and distances, and its pair codes name its links.
+#[test]
+fn an_arm_with_link_names_the_code_has_never_seen_loads() {
+    let rename = |text: &str| {
+        let mut t = text.to_owned();
+        for l in CollisionLink::ALL {
+            let new = format!("newarm_{}", l.short_name());
+            t = t.replace(&format!("\"{}\"", l.name()), &format!("\"{new}\""));
+        }
+        t
+    };
+    let robot =
+        kinematics::RobotModel::from_urdf_str(&rename(gen3_lite::URDF), "new.urdf").unwrap();
+    let arm = kinematics::collision::ModelArm {
+        name: "the new arm",
+        base_link: "newarm_base",
+        tool_link: "newarm_gripper_base",
+        ..kinematics::collision::ModelArm::GEN3_LITE
+    };
+    let new = CollisionModel::for_arm(&rename(COLLISION_TOML), "new.toml", &robot, &arm).unwrap();
+    let old = CollisionModel::get();
+    assert_eq!(new.capsule_refs().len(), old.capsule_refs().len());
+    assert_eq!(new.self_pairs().len(), old.self_pairs().len());
+    assert_eq!(new.exclusions().len(), old.exclusions().len());
+    assert_eq!(new.base_link().name(), "newarm_base");
+    assert_eq!(new.tool_link().name(), "newarm_gripper_base");
+    assert!(!new.checks_table(new.base_link()));
+    let names: Vec<_> = new.links().iter().map(|l| l.name()).collect();
+    assert!(names.iter().all(|n| n.starts_with("newarm_")), "{names:?}");
+    let (mut a, mut b) = (Clearance::default(), Clearance::default());
+    let scene = Scene::default();
+    new.clearance(&gen3_lite::HOME, &scene, &mut a).unwrap();
+    old.clearance(&gen3_lite::HOME, &scene, &mut b).unwrap();
+    assert_eq!(a.distances_m(), b.distances_m());
+    for (pa, pb) in a.pairs().iter().zip(b.pairs()) {
+        // The same pair under the new names; its code decodes to them.
+        assert_eq!(
+            format!("newarm_{}", pb.a.link.short_name()),
+            pa.a.link.name()
+        );
+        let back = Target::from_code(pa.a.code()).unwrap();
+        assert_eq!(back, Target::Capsule(pa.a));
+    }
 }
 
 #[test]

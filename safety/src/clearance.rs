@@ -24,7 +24,7 @@
 
 use kinematics::RobotProfile;
 pub use kinematics::collision::MAX_ARM_JOINTS;
-use kinematics::collision::{Clearance, CollisionLink, CollisionModel, Scene, Target, side_code};
+use kinematics::collision::{Clearance, CollisionModel, Scene, Target, side_code};
 use nalgebra::{Point3, Vector3};
 
 /// Slack kept above the stop distance (m): the rules predict a distance over one tick to
@@ -166,8 +166,8 @@ pub struct WholeArm {
 /// Whether a pair never changes: the base (which no joint moves) against the scene. Those
 /// pairs are left out of the rules and of the reported clearance: a mount box under the base
 /// would otherwise report its constant overlap as the closest pair.
-fn is_static(pair: &kinematics::collision::PairId) -> bool {
-    pair.a.link == CollisionLink::Base && !matches!(pair.b, Target::Capsule(_))
+fn is_static(model: &CollisionModel, pair: &kinematics::collision::PairId) -> bool {
+    pair.a.link == model.base_link() && !matches!(pair.b, Target::Capsule(_))
 }
 
 impl WholeArm {
@@ -188,8 +188,7 @@ impl WholeArm {
             robot.arm().fk(home),
         ) {
             (Ok(()), Ok(tcp)) => {
-                now.link_pose(CollisionLink::GripperBase).inverse()
-                    * Point3::from(tcp.translation.vector)
+                now.link_pose(model.tool_link()).inverse() * Point3::from(tcp.translation.vector)
             }
             _ => Point3::origin(),
         };
@@ -257,12 +256,12 @@ impl WholeArm {
                 self.points.push(rows(&c.point_jacobian(r.link, p)));
             }
         }
-        let tool = c.link_pose(CollisionLink::GripperBase) * self.tool_offset;
-        self.points
-            .push(rows(&c.point_jacobian(CollisionLink::GripperBase, &tool)));
-        self.angular = rows(&c.angular_jacobian(CollisionLink::GripperBase));
+        let tool_link = self.model.tool_link();
+        let tool = c.link_pose(tool_link) * self.tool_offset;
+        self.points.push(rows(&c.point_jacobian(tool_link, &tool)));
+        self.angular = rows(&c.angular_jacobian(tool_link));
         for (d, pair) in c.distances_m().iter().zip(c.pairs()) {
-            if !is_static(pair) && self.closest.is_none_or(|(m, _)| *d < m) {
+            if !is_static(self.model, pair) && self.closest.is_none_or(|(m, _)| *d < m) {
                 self.closest = Some((*d, pair.code()));
             }
         }
@@ -289,7 +288,7 @@ impl WholeArm {
         }
         let c = &self.now;
         for (i, (d, pair)) in c.distances_m().iter().zip(c.pairs()).enumerate() {
-            if *d >= horizon_m || is_static(pair) {
+            if *d >= horizon_m || is_static(self.model, pair) {
                 continue;
             }
             if let Some(row) = c.contact(i).and_then(|ct| c.rate_row(&ct)) {
@@ -356,7 +355,7 @@ impl WholeArm {
             .distances_m()
             .iter()
             .zip(self.now.pairs())
-            .any(|(d, p)| !is_static(p) && *d >= stop_m && *d - stop_m < reach);
+            .any(|(d, p)| !is_static(self.model, p) && *d >= stop_m && *d - stop_m < reach);
         if !near {
             return 1.0;
         }
@@ -382,7 +381,7 @@ impl WholeArm {
                 .zip(self.next.distances_m())
                 .zip(self.now.pairs())
             {
-                if is_static(p) || *d0 < stop_m || *d1 >= stop_m {
+                if is_static(self.model, p) || *d0 < stop_m || *d1 >= stop_m {
                     continue;
                 }
                 // The distance is nearly linear in the step's size: aim 10 % short of stop.

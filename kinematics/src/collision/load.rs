@@ -9,12 +9,11 @@ use serde::Deserialize;
 
 use super::model::{LinkGeom, Parent, Source};
 use super::{
-    CHAIN_TIP, COLLISION_TOML, COLLISION_TOML_NAME, Capsule, CapsuleRef, CollisionLink,
-    CollisionModel, Exclusion, FILE_VERSION, MAX_CAPSULES, MAX_CHAIN_LINKS, MAX_SELF_PAIRS, PairId,
-    Target,
+    COLLISION_TOML, COLLISION_TOML_NAME, Capsule, CapsuleRef, CollisionLink, CollisionModel,
+    Exclusion, FILE_VERSION, MAX_CAPSULES, MAX_CHAIN_LINKS, MAX_SELF_PAIRS, PairId, Target,
 };
 use crate::chain::Chain;
-use crate::gen3_lite::{self, BASE_LINK};
+use crate::gen3_lite;
 use crate::robot::{JointType, RobotModel, UrdfError};
 
 /// Why a collision model could not be loaded. Every message starts with the file.
@@ -165,8 +164,14 @@ static MODEL: OnceLock<CollisionModel> = OnceLock::new();
 pub struct ModelArm<'a> {
     /// How messages name the arm (`the Gen3 lite`).
     pub name: &'a str,
-    /// The joints of the chain `base_link -> gripper_base_link`, base to tip.
+    /// The joints of the chain [`ModelArm::base_link`] -> [`ModelArm::tool_link`], base to
+    /// tip.
     pub joint_names: &'a [&'a str],
+    /// The link the arm stands on (the chain's root; no joint moves it).
+    pub base_link: &'a str,
+    /// The link the tool is fixed to (the chain's tip: the gripper's base on the flange).
+    /// It needs capsules; safety's tool speed cap follows it.
+    pub tool_link: &'a str,
     /// The gripper joint that moves the finger links (their joints are it or mimic it), if
     /// the model has finger links.
     pub gripper_joint: Option<&'a str>,
@@ -177,6 +182,8 @@ impl ModelArm<'static> {
     pub const GEN3_LITE: ModelArm<'static> = ModelArm {
         name: "the Gen3 lite",
         joint_names: &gen3_lite::JOINT_NAMES,
+        base_link: gen3_lite::BASE_LINK,
+        tool_link: "gripper_base_link",
         gripper_joint: Some(gen3_lite::GRIPPER_JOINT),
     };
 }
@@ -229,21 +236,15 @@ impl CollisionModel {
     }
 
     /// Parses and checks a collision model (`file` names it in errors) for `arm`, whose
-    /// description is `robot`: every link of `robot` that is a [`CollisionLink`] needs
-    /// capsules, and no other link may have any.
+    /// description is `robot`: the file's links must be links of `robot` (their names join
+    /// the process's table, [`CollisionLink::intern`]), and every link of the arm chain
+    /// ([`ModelArm::base_link`] to [`ModelArm::tool_link`]) needs capsules.
     pub fn for_arm(
         text: &str,
         file: &str,
         robot: &RobotModel,
         arm: &ModelArm<'_>,
     ) -> Result<Self, CollisionError> {
-        // The links of this arm that can have geometry.
-        let own: Vec<CollisionLink> = CollisionLink::EVERY
-            .into_iter()
-            .filter(|l| robot.links().iter().any(|n| n == l.name()))
-            .collect();
-        let known = || own.iter().map(|l| l.name()).collect::<Vec<_>>().join(", ");
-        let find = |name: &str| CollisionLink::from_name(name).filter(|l| own.contains(l));
         let parsed: FileToml = toml::from_str(text).map_err(|e| CollisionError::Parse {
             file: file.to_owned(),
             reason: e.to_string().trim_end().to_owned(),
@@ -277,8 +278,58 @@ impl CollisionModel {
                 "must be a finite angle (rad)",
             ));
         }
-        // Links: each known one exactly once, with at least one capsule.
-        let mut by_link: [Option<usize>; CollisionLink::COUNT] = [None; CollisionLink::COUNT];
+        // Kinematics: the arm chain to the tool link, the other links hung from it.
+        let chain = robot.chain(arm.base_link, arm.tool_link)?;
+        let robot_err = |reason: String| CollisionError::Robot {
+            file: robot.file().to_owned(),
+            reason,
+        };
+        let (base_name, tip_name) = (arm.base_link, arm.tool_link);
+        if chain.joint_names() != arm.joint_names {
+            return Err(robot_err(format!(
+                "the chain {base_name} -> {tip_name} has the joints {:?}; {} has {:?}",
+                chain.joint_names(),
+                arm.name,
+                arm.joint_names
+            )));
+        }
+        if chain.n_links() > MAX_CHAIN_LINKS {
+            return Err(robot_err(format!(
+                "the chain {base_name} -> {tip_name} has {} links; at most {MAX_CHAIN_LINKS} are supported",
+                chain.n_links()
+            )));
+        }
+
+        // The file's links: links of the robot description, by name.
+        let known = || robot.links().join(", ");
+        let mut own: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
+        for (i, l) in parsed.link.iter().enumerate() {
+            if !robot.links().contains(&l.name) {
+                return Err(CollisionError::UnknownLink {
+                    arm: arm.name.into(),
+                    file: file.to_owned(),
+                    field: format!("link[{i}].name"),
+                    name: l.name.clone(),
+                    known: known(),
+                });
+            }
+            let link = CollisionLink::intern(&l.name).ok_or_else(|| CollisionError::Capacity {
+                file: file.to_owned(),
+                reason: format!(
+                    "link `{}`: the process knows {} link names already, the most it holds",
+                    l.name,
+                    CollisionLink::MAX
+                ),
+            })?;
+            if !own.contains(&link) {
+                own.push(link);
+            }
+        }
+        own.sort();
+        let find = |name: &str| CollisionLink::from_name(name).filter(|l| own.contains(l));
+
+        // Links: each at most once, with at least one capsule.
+        let mut by_link = vec![None; CollisionLink::MAX];
         for (i, l) in parsed.link.iter().enumerate() {
             let Some(link) = find(&l.name) else {
                 return Err(CollisionError::UnknownLink {
@@ -330,16 +381,29 @@ impl CollisionModel {
             }
             by_link[link.index()] = Some(i);
         }
-        if let Some(missing) = own.iter().find(|l| by_link[l.index()].is_none()) {
-            return Err(CollisionError::Link {
-                file: file.to_owned(),
-                link: missing.name().to_owned(),
-                reason: format!(
-                    "has no [[link]] entry; every link of {} needs capsules",
-                    arm.name
-                ),
-            });
+        // The bodies of the chain: the links that the same joints move are one body (a link
+        // and the frames fixed to it, such as an end-effector frame), and each body needs
+        // capsules on one of its links.
+        let moved = |n: &str| chain.link_id(n).map_or(0, |id| chain.joints_before(id));
+        let has = |n: &str| find(n).is_some_and(|l| by_link[l.index()].is_some());
+        for k in 0..=chain.n_joints() {
+            let body: Vec<&str> = chain.link_names().filter(|n| moved(n) == k).collect();
+            if !body.is_empty() && !body.iter().any(|n| has(n)) {
+                return Err(CollisionError::Link {
+                    file: file.to_owned(),
+                    link: body.join(" / "),
+                    reason: format!(
+                        "has no [[link]] entry; every body of {}'s chain {base_name} -> {tip_name} (the links the same joints move) needs capsules",
+                        arm.name
+                    ),
+                });
+            }
         }
+        let (Some(base), Some(tool)) = (find(base_name), find(tip_name)) else {
+            return Err(robot_err(format!(
+                "{base_name} and {tip_name} need capsules"
+            )));
+        };
         let n_capsules: usize = parsed.link.iter().map(|l| l.capsule.len()).sum();
         if n_capsules > MAX_CAPSULES {
             return Err(CollisionError::Capacity {
@@ -388,30 +452,11 @@ impl CollisionModel {
             });
         }
 
-        // Kinematics: the arm chain to the gripper base, the fingers hung from it.
-        let chain = robot.chain(BASE_LINK, CHAIN_TIP)?;
-        let robot_err = |reason: String| CollisionError::Robot {
-            file: robot.file().to_owned(),
-            reason,
-        };
-        if chain.joint_names() != arm.joint_names {
-            return Err(robot_err(format!(
-                "the chain {BASE_LINK} -> {CHAIN_TIP} has the joints {:?}; {} has {:?}",
-                chain.joint_names(),
-                arm.name,
-                arm.joint_names
-            )));
-        }
-        if chain.n_links() > MAX_CHAIN_LINKS {
-            return Err(robot_err(format!(
-                "the chain {BASE_LINK} -> {CHAIN_TIP} has {} links; at most {MAX_CHAIN_LINKS} are supported",
-                chain.n_links()
-            )));
-        }
-        let mut links: Vec<LinkGeom> = Vec::with_capacity(CollisionLink::COUNT);
+        let n_links = own.last().map_or(0, |l| l.index() + 1);
+        let mut links: Vec<LinkGeom> = Vec::with_capacity(n_links);
         let mut capsules = Vec::with_capacity(n_capsules);
         let mut refs = Vec::with_capacity(n_capsules);
-        for link in CollisionLink::EVERY {
+        for link in (0..n_links).filter_map(CollisionLink::from_index) {
             let Some(entry) = by_link[link.index()].map(|i| &parsed.link[i]) else {
                 links.push(LinkGeom {
                     source: Source::Absent,
@@ -500,6 +545,8 @@ impl CollisionModel {
         Ok(Self {
             file: file.to_owned(),
             present: own,
+            base,
+            tool,
             gripper_range,
             margin_m: parsed.margin_m,
             gripper_default_rad: parsed.gripper_default_rad,
@@ -526,7 +573,8 @@ fn chain_moved_by(chain: &Chain, i: usize) -> usize {
 
 /// The frame of a link off the arm chain: the one URDF joint above it, which must be fixed,
 /// the gripper joint, or a joint mimicking it, and whose parent is on the chain or a link
-/// before it in [`CollisionLink::EVERY`].
+/// before it in the process's table of link names (a file names a parent before its
+/// children).
 fn hang(
     robot: &RobotModel,
     chain: &Chain,

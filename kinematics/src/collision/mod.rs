@@ -2,7 +2,7 @@
 //! boxes), and the clearance of a joint state with the rate at which it changes. The Gen3
 //! lite's is [`CollisionModel::get`]; the Gen3's is [`crate::gen3::collision_model`]; a
 //! profile gives its arm's ([`crate::RobotProfile::collision_model`]). Another arm's model is
-//! read with [`CollisionModel::for_arm`] (its links must be [`CollisionLink`]s).
+//! read with [`CollisionModel::for_arm`]: its links are the file's, by their URDF names.
 //!
 //! * The geometry is data: `robots/gen3_lite_collision.toml` (embedded, [`COLLISION_TOML`]),
 //!   one or two capsules per link in the link's own frame, each with the reference fit it
@@ -81,52 +81,81 @@ pub const MAX_SELF_PAIRS: usize = 256;
 /// each box.
 pub const MAX_PAIRS: usize = MAX_SELF_PAIRS + MAX_CAPSULES * (1 + MAX_BOXES);
 
-/// The link the arm chain of the model ends at (the gripper is fixed to the flange).
-pub(super) const CHAIN_TIP: &str = "gripper_base_link";
-
-/// Most links along the arm chain `base_link -> gripper_base_link`.
+/// Most links along the arm chain ([`ModelArm::base_link`] to [`ModelArm::tool_link`]).
 pub(super) const MAX_CHAIN_LINKS: usize = 16;
 
-/// A link that has collision geometry: the Gen3 lite's, base to fingertips, then the Gen3's
-/// own (the Gen3 shares `base_link`, `shoulder_link`, `forearm_link` and `gripper_base_link`
-/// with the Gen3 lite). A model has the links its file names ([`CollisionModel::links`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum CollisionLink {
-    /// `base_link`: fixed on the table.
-    Base,
-    /// `shoulder_link`: turned by joint 1.
-    Shoulder,
-    /// `arm_link`, the upper arm: joint 2.
-    Arm,
-    /// `forearm_link`: joint 3.
-    Forearm,
-    /// `lower_wrist_link`: joint 4.
-    LowerWrist,
-    /// `upper_wrist_link`: joint 5.
-    UpperWrist,
-    /// `gripper_base_link`: joint 6 (fixed to the flange).
-    GripperBase,
-    /// `right_finger_prox_link`: the actuated finger joint.
-    RightFingerProx,
-    /// `right_finger_dist_link`.
-    RightFingerDist,
-    /// `left_finger_prox_link`.
-    LeftFingerProx,
-    /// `left_finger_dist_link`.
-    LeftFingerDist,
-    /// `half_arm_1_link` (Gen3): joint 2.
-    HalfArm1,
-    /// `half_arm_2_link` (Gen3): joint 3.
-    HalfArm2,
-    /// `spherical_wrist_1_link` (Gen3): joint 5.
-    SphericalWrist1,
-    /// `spherical_wrist_2_link` (Gen3): joint 6.
-    SphericalWrist2,
-    /// `bracelet_link` (Gen3): joint 7, the flange's actuator.
-    Bracelet,
+/// A link that has collision geometry, by its URDF name: an index into this process's table
+/// of link names. The table starts with the Gen3 lite's links, base to fingertips, then the
+/// Gen3's own (the constants below, so the codes in recorded messages keep their meaning);
+/// loading a model adds the names of its file's other links ([`CollisionLink::intern`]), so
+/// a new arm's links need no code. A model has the links its file names
+/// ([`CollisionModel::links`]).
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct CollisionLink(u8);
+
+/// The link names the table starts with, in index order.
+const KNOWN_LINKS: [&str; 16] = [
+    "base_link",
+    "shoulder_link",
+    "arm_link",
+    "forearm_link",
+    "lower_wrist_link",
+    "upper_wrist_link",
+    "gripper_base_link",
+    "right_finger_prox_link",
+    "right_finger_dist_link",
+    "left_finger_prox_link",
+    "left_finger_dist_link",
+    "half_arm_1_link",
+    "half_arm_2_link",
+    "spherical_wrist_1_link",
+    "spherical_wrist_2_link",
+    "bracelet_link",
+];
+
+/// The process's link names: [`KNOWN_LINKS`], then the names models added. Names are only
+/// added, never removed, so an index keeps its name for the life of the process.
+fn link_table() -> &'static std::sync::RwLock<Vec<&'static str>> {
+    static TABLE: std::sync::OnceLock<std::sync::RwLock<Vec<&'static str>>> =
+        std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::sync::RwLock::new(KNOWN_LINKS.to_vec()))
 }
 
+#[allow(non_upper_case_globals)]
 impl CollisionLink {
+    /// `base_link`: fixed on the table.
+    pub const Base: Self = Self(0);
+    /// `shoulder_link`: turned by joint 1.
+    pub const Shoulder: Self = Self(1);
+    /// `arm_link` (Gen3 lite), the upper arm: joint 2.
+    pub const Arm: Self = Self(2);
+    /// `forearm_link`: joint 3 (Gen3 lite), 4 (Gen3).
+    pub const Forearm: Self = Self(3);
+    /// `lower_wrist_link` (Gen3 lite): joint 4.
+    pub const LowerWrist: Self = Self(4);
+    /// `upper_wrist_link` (Gen3 lite): joint 5.
+    pub const UpperWrist: Self = Self(5);
+    /// `gripper_base_link`: fixed to the flange.
+    pub const GripperBase: Self = Self(6);
+    /// `right_finger_prox_link` (Gen3 lite): the actuated finger joint.
+    pub const RightFingerProx: Self = Self(7);
+    /// `right_finger_dist_link` (Gen3 lite).
+    pub const RightFingerDist: Self = Self(8);
+    /// `left_finger_prox_link` (Gen3 lite).
+    pub const LeftFingerProx: Self = Self(9);
+    /// `left_finger_dist_link` (Gen3 lite).
+    pub const LeftFingerDist: Self = Self(10);
+    /// `half_arm_1_link` (Gen3): joint 2.
+    pub const HalfArm1: Self = Self(11);
+    /// `half_arm_2_link` (Gen3): joint 3.
+    pub const HalfArm2: Self = Self(12);
+    /// `spherical_wrist_1_link` (Gen3): joint 5.
+    pub const SphericalWrist1: Self = Self(13);
+    /// `spherical_wrist_2_link` (Gen3): joint 6.
+    pub const SphericalWrist2: Self = Self(14);
+    /// `bracelet_link` (Gen3): joint 7, the flange's actuator.
+    pub const Bracelet: Self = Self(15);
+
     /// The Gen3 lite's links, parents before children (what a Gen3 lite model has; a model's
     /// own links are [`CollisionModel::links`]).
     pub const ALL: [CollisionLink; 11] = [
@@ -143,65 +172,75 @@ impl CollisionLink {
         CollisionLink::LeftFingerDist,
     ];
 
-    /// Every link of every arm, in index order (a parent before its children on each arm).
-    pub const EVERY: [CollisionLink; 16] = [
-        CollisionLink::Base,
-        CollisionLink::Shoulder,
-        CollisionLink::Arm,
-        CollisionLink::Forearm,
-        CollisionLink::LowerWrist,
-        CollisionLink::UpperWrist,
-        CollisionLink::GripperBase,
-        CollisionLink::RightFingerProx,
-        CollisionLink::RightFingerDist,
-        CollisionLink::LeftFingerProx,
-        CollisionLink::LeftFingerDist,
-        CollisionLink::HalfArm1,
-        CollisionLink::HalfArm2,
-        CollisionLink::SphericalWrist1,
-        CollisionLink::SphericalWrist2,
-        CollisionLink::Bracelet,
-    ];
-
-    /// Number of links of every arm ([`CollisionLink::EVERY`]).
-    pub const COUNT: usize = Self::EVERY.len();
+    /// Most links the process's table holds: the size of the per-link arrays of a
+    /// [`Clearance`] (a link's index is the high byte of a [`CapsuleRef::code`], below the
+    /// scene's codes).
+    pub const MAX: usize = 64;
 
     /// The URDF name.
     pub fn name(self) -> &'static str {
-        match self {
-            CollisionLink::Base => "base_link",
-            CollisionLink::Shoulder => "shoulder_link",
-            CollisionLink::Arm => "arm_link",
-            CollisionLink::Forearm => "forearm_link",
-            CollisionLink::LowerWrist => "lower_wrist_link",
-            CollisionLink::UpperWrist => "upper_wrist_link",
-            CollisionLink::GripperBase => "gripper_base_link",
-            CollisionLink::RightFingerProx => "right_finger_prox_link",
-            CollisionLink::RightFingerDist => "right_finger_dist_link",
-            CollisionLink::LeftFingerProx => "left_finger_prox_link",
-            CollisionLink::LeftFingerDist => "left_finger_dist_link",
-            CollisionLink::HalfArm1 => "half_arm_1_link",
-            CollisionLink::HalfArm2 => "half_arm_2_link",
-            CollisionLink::SphericalWrist1 => "spherical_wrist_1_link",
-            CollisionLink::SphericalWrist2 => "spherical_wrist_2_link",
-            CollisionLink::Bracelet => "bracelet_link",
-        }
+        link_table()
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get(self.index())
+            .copied()
+            .unwrap_or("(unknown link)")
     }
 
-    /// The link with this URDF name.
+    /// The link with this URDF name, if the table has it.
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::EVERY.into_iter().find(|l| l.name() == name)
+        let table = link_table()
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let i = table.iter().position(|n| *n == name)?;
+        u8::try_from(i).ok().map(Self)
     }
 
-    /// Position in [`CollisionLink::ALL`].
+    /// The link with this URDF name, added to the table if it is new; `None` when the table
+    /// is full ([`CollisionLink::MAX`] names).
+    pub fn intern(name: &str) -> Option<Self> {
+        if let Some(l) = Self::from_name(name) {
+            return Some(l);
+        }
+        let mut table = link_table()
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(i) = table.iter().position(|n| *n == name) {
+            return u8::try_from(i).ok().map(Self);
+        }
+        if table.len() >= Self::MAX {
+            return None;
+        }
+        // Leaked once per distinct name: the table only grows, by the links of the models
+        // the process loads.
+        table.push(Box::leak(name.to_owned().into_boxed_str()));
+        u8::try_from(table.len() - 1).ok().map(Self)
+    }
+
+    /// The link of this index, if the table has it.
+    pub fn from_index(index: usize) -> Option<Self> {
+        let len = link_table()
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .len();
+        (index < len).then(|| u8::try_from(index).ok().map(Self))?
+    }
+
+    /// Its index in the process's table of link names.
     pub fn index(self) -> usize {
-        self as usize
+        usize::from(self.0)
     }
 
     /// The name without `_link`, for status lines: `forearm`, `gripper_base`.
     pub fn short_name(self) -> &'static str {
         let n = self.name();
         n.strip_suffix("_link").unwrap_or(n)
+    }
+}
+
+impl fmt::Debug for CollisionLink {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "CollisionLink({})", self.name())
     }
 }
 
@@ -239,7 +278,7 @@ impl CapsuleRef {
 
     /// The capsule of a [`CapsuleRef::code`].
     pub fn from_code(code: u16) -> Option<Self> {
-        let link = *CollisionLink::EVERY.get(usize::from(code >> 8))?;
+        let link = CollisionLink::from_index(usize::from(code >> 8))?;
         Some(Self {
             link,
             index: (code & 0xFF) as u8,

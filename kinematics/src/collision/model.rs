@@ -48,8 +48,12 @@ pub(super) struct LinkGeom {
 #[derive(Debug, Clone, PartialEq)]
 pub struct CollisionModel {
     pub(super) file: String,
-    /// The links the model has, in [`CollisionLink::EVERY`] order.
+    /// The links the model has, in index order.
     pub(super) present: Vec<CollisionLink>,
+    /// The link the arm stands on.
+    pub(super) base: CollisionLink,
+    /// The link the tool is fixed to.
+    pub(super) tool: CollisionLink,
     /// The gripper joint's range `(lower, upper)` (rad); `(0, 0)` without a gripper joint.
     pub(super) gripper_range: (f64, f64),
     pub(super) margin_m: f64,
@@ -57,7 +61,7 @@ pub struct CollisionModel {
     pub(super) chain: Chain,
     pub(super) links: Vec<LinkGeom>,
     /// Capsules in their link frames, radius with the margin, link by link in
-    /// [`CollisionLink::EVERY`] order (one entry per link, absent ones empty).
+    /// index order (one entry per link index up to the model's last, absent ones empty).
     pub(super) capsules: Vec<Capsule>,
     pub(super) refs: Vec<CapsuleRef>,
     pub(super) self_pairs: Vec<(u16, u16)>,
@@ -95,6 +99,16 @@ impl CollisionModel {
         &self.present
     }
 
+    /// The link the arm stands on ([`super::ModelArm::base_link`]): no joint moves it.
+    pub fn base_link(&self) -> CollisionLink {
+        self.base
+    }
+
+    /// The link the tool is fixed to ([`super::ModelArm::tool_link`]), the arm chain's tip.
+    pub fn tool_link(&self) -> CollisionLink {
+        self.tool
+    }
+
     /// Whether the model has capsules on `link`.
     pub fn has_link(&self, link: CollisionLink) -> bool {
         self.present.contains(&link)
@@ -108,8 +122,10 @@ impl CollisionModel {
     /// The capsules of a link in its own frame, margin included (none for a link the model
     /// does not have).
     pub fn link_capsules(&self, link: CollisionLink) -> &[Capsule] {
-        let l = &self.links[link.index()];
-        &self.capsules[l.first..l.end]
+        self.links
+            .get(link.index())
+            .and_then(|l| self.capsules.get(l.first..l.end))
+            .unwrap_or(&[])
     }
 
     /// Every capsule of the model, in the order of [`Clearance::capsules`].
@@ -119,7 +135,7 @@ impl CollisionModel {
 
     /// Whether a link is checked against the table.
     pub fn checks_table(&self, link: CollisionLink) -> bool {
-        self.links[link.index()].table
+        self.links.get(link.index()).is_some_and(|l| l.table)
     }
 
     /// The capsule pairs checked against each other, in the order of the first entries of

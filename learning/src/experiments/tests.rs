@@ -481,6 +481,25 @@ fn the_experiments_run_on_the_gen3() {
     assert!(pca[2].forward_mean > 0.01, "{pca:?}");
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(summary.contains("on the mock Gen3\n"), "{summary}");
+    // The theorem's check on the same models, its uniform states within the Gen3's limits.
+    let t = theorem::run(
+        &TheoremArgs {
+            common: on_gen3(1, 3),
+            task: "pick-and-place".into(),
+            samples: 100,
+            seed: 1,
+        },
+        0.025,
+        "test",
+    )
+    .unwrap();
+    assert!(t.theorem_holds, "{:?}", t.rows);
+    assert!(t.rows.iter().any(|r| r.states == "uniform"), "{:?}", t.rows);
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(
+        summary.contains("within the Gen3's joint limits"),
+        "{summary}"
+    );
     let e = reversibility::run(
         &ReversibilityArgs {
             task: "planar-reach".into(),

@@ -28,7 +28,8 @@ pub struct TheoremArgs {
     /// Shared experiment options.
     #[command(flatten)]
     pub common: CommonArgs,
-    /// Gen3 lite task whose demonstrations train the models and give the data states.
+    /// Task whose demonstrations (on `--robot`'s arm) train the models and give the data
+    /// states.
     #[arg(long, default_value = "pick-and-place")]
     pub task: String,
     /// States per set (from the data; uniform within the joint limits), one random action
@@ -205,9 +206,13 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
             eval::states_from_data(&trajs, args.samples, &mut rng),
         ));
     }
-    let (lo, hi) = if n_joints == kinematics::gen3_lite::N_JOINTS {
-        let l = kinematics::gen3_lite::limits();
-        (l.lower_rad, l.upper_rad)
+    // The arm's own limits (`--robot`; its continuous joints as its profile bounds them for
+    // safety's margins); models of another joint count (given with --models) get a turn
+    // either way of zero.
+    let robot = args.common.robot;
+    let (lo, hi) = if n_joints == robot.n_joints() {
+        let l = robot.limits();
+        (l.lower_rad.clone(), l.upper_rad.clone())
     } else {
         (
             vec![-std::f64::consts::PI; n_joints],
@@ -358,10 +363,21 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
             ),
             (
                 "uniform states",
-                format!(
-                    "{} uniform within the joint limits, gripper uniform in [0, 1]",
-                    args.samples
-                ),
+                if n_joints == robot.n_joints() {
+                    format!(
+                        "{} uniform within the {}'s joint limits, gripper uniform in [0, 1]",
+                        args.samples,
+                        robot.description()
+                    )
+                } else {
+                    format!(
+                        "{} uniform in [-pi, pi] per joint ({n_joints} joints, not the {}'s \
+                         {}), gripper uniform in [0, 1]",
+                        args.samples,
+                        robot.description(),
+                        robot.n_joints()
+                    )
+                },
             ),
             (
                 "actions",
