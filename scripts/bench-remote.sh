@@ -8,7 +8,10 @@
 #
 #   scripts/bench-remote.sh [SCL_BINARY] [DURATION_S]
 #
-# This machine's kernel has no netem (CONFIG_NET_SCH_NETEM is not set), so no delay is added.
+# Then over the veth pair with 1 ms and 5 ms of added delay each way. This machine's kernel
+# has no netem (CONFIG_NET_SCH_NETEM is not set), so the delay is a relay in the operator's
+# namespace (scripts/delay-relay.py, standard-library Python) that holds every byte for the
+# delay in each direction: the round trip grows by twice the delay.
 set -euo pipefail
 scl=${1:-target/release/scl}
 secs=${2:-20}
@@ -17,8 +20,9 @@ trap 'ip netns del sclbr-$$ 2>/dev/null || true; ip netns del sclbo-$$ 2>/dev/nu
 printf 'operator:bench-only\n' > "$dir/creds"
 chmod 600 "$dir/creds"
 
-run() { # name, listen address, robot-side prefix command, operator-side prefix command
-  local name=$1 addr=$2 rns=$3 ons=$4
+run() { # name, listen address, robot-side prefix command, operator-side prefix command,
+        # [the operator's endpoint, default the listen address's]
+  local name=$1 addr=$2 rns=$3 ons=$4 endpoint=${5:-tcp/$2:7447}
   local prefix="benchremote$$${name}"
   cat > "$dir/$name.toml" <<EOF
 [network]
@@ -32,7 +36,7 @@ EOF
   local up=$!
   sleep 2
   SCL_LOG=info timeout --signal=INT "$secs" $ons "$scl" joystick --prefix "$prefix" \
-    --config "$dir/$name.toml" --remote "tcp/$addr:7447" --credentials "$dir/creds" \
+    --config "$dir/$name.toml" --remote "$endpoint" --credentials "$dir/creds" \
     --source script --script circle 2> "$dir/$name.op.log" || true
   wait "$up"
   echo "== $name"
@@ -55,3 +59,12 @@ for n in "sclbr-$$:vbr$$" "sclbo-$$:vbo$$"; do
   ip -n "${n%%:*}" link set "${n#*:}" up
 done
 run veth 10.214.0.1 "ip netns exec sclbr-$$" "ip netns exec sclbo-$$"
+here=$(cd "$(dirname "$0")" && pwd)
+for ms in 1 5; do
+  ip netns exec "sclbo-$$" python3 "$here/delay-relay.py" 127.0.0.1:7448 10.214.0.1:7447 "$ms" &
+  relay=$!
+  sleep 0.5
+  run "veth-${ms}ms" 10.214.0.1 "ip netns exec sclbr-$$" "ip netns exec sclbo-$$" tcp/127.0.0.1:7448
+  kill "$relay" 2>/dev/null || true
+  wait "$relay" 2>/dev/null || true
+done

@@ -109,7 +109,7 @@ pub(crate) enum EvalCmd {
     /// Gram-Schmidt (the theorem: must always hold), with Gram-Schmidt, and CAE.
     /// `--models FILE...` checks given files (the former `scl eval reversibility --model`).
     Theorem(learning::experiments::theorem::TheoremArgs),
-    /// Validation reconstruction loss of every kind on the three Gen3 lite tasks (with
+    /// Validation reconstruction loss of every kind on the three tasks of `--robot`'s arm (with
     /// `--models FILE... --data DIR`: of given files on one data set).
     Reconstruction(learning::experiments::reconstruction::ReconstructionArgs),
     /// The paper's simulated greedy user on the 5-DOF planar reach: SCL with and without

@@ -194,8 +194,12 @@ pub fn run(args: &ReconstructionArgs, command: &str) -> Result<Outcome, ToolErro
         &run.path("reconstruction"),
         (1100, 560),
     )?;
+    let title = format!(
+        "Validation reconstruction loss on the {}'s tasks",
+        args.common.robot.description()
+    );
     let mut s = run.summary_head(
-        "Validation reconstruction loss on the Gen3 lite tasks",
+        &title,
         &[
             (
                 "models",

@@ -466,6 +466,11 @@ fn the_experiments_run_on_the_gen3() {
         let m = load_model(&e.path).unwrap();
         assert_eq!(m.header().n_joints, 7, "{}", e.variant);
     }
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(
+        summary.starts_with("# Validation reconstruction loss on the Gen3's tasks"),
+        "{summary}"
+    );
     let data = dataset::load_dir(&out.join("data/pick-and-place")).unwrap();
     assert_eq!((data.n_train(), data.n_val()), (2001, 667));
     let args = ReversibilityArgs {
