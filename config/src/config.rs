@@ -205,7 +205,9 @@ pub struct GraphSection {
     /// datagram sockets, for latency comparisons; no single-publisher guarantee).
     pub transport: ipc_types::Transport,
     /// With `realtime`: one CPU per control-path process, in the order bridge, safety,
-    /// mappers, joystick (`[]`: `rt_cpu` for all, or no pinning). Exclusive with `rt_cpu`.
+    /// mappers, joystick (`[]`: `rt_cpu` for all, or no pinning; with a polling `wait` and
+    /// no `rt_cpu`, the isolated or last CPUs: [`crate::placement::MachineCpus::auto_cpus`]).
+    /// Exclusive with `rt_cpu`.
     pub rt_cpus: Vec<i32>,
     /// How the mapper, safety and the bridge wait for their input: `event` (sleep until the
     /// publisher's notification), `predictive` (sleep on the clock until shortly before the

@@ -19,6 +19,11 @@
 //!
 //! Two processes share a CPU when both are pinned to it, or when one is not pinned and the
 //! machine has fewer CPUs than the four control-path processes.
+//!
+//! A polling wait at real-time settings with no CPUs given (`rt_cpus = []`, `rt_cpu = -1`)
+//! pins the processes itself ([`MachineCpus::auto_cpus`]): from the CPUs the kernel isolates
+//! (`isolcpus=`, `/sys/devices/system/cpu/isolated`) where it has any, else from the last
+//! CPUs, one each where there are four, so that as many as can poll.
 
 use crate::{ConfigError, GraphSection, RtRole, WaitStrategy};
 
@@ -96,7 +101,99 @@ pub fn spread_cpus(online_cpus: usize) -> Vec<i32> {
     }
 }
 
+/// The machine's CPUs as the placement sees them.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct MachineCpus {
+    /// CPUs online.
+    pub online: usize,
+    /// CPUs the kernel keeps other work off (`isolcpus=`; `/sys/devices/system/cpu/isolated`),
+    /// ascending.
+    pub isolated: Vec<usize>,
+}
+
+impl MachineCpus {
+    /// A machine with `online` CPUs and none isolated.
+    pub fn online(online: usize) -> Self {
+        Self {
+            online,
+            isolated: Vec::new(),
+        }
+    }
+
+    /// The CPUs a polling control path is pinned to when the configuration names none
+    /// (`rt_cpus` in [`RT_CPU_ORDER`]): [`spread_cpus`] over the isolated CPUs where the
+    /// kernel isolates any (the pattern on their count, the last of them first), else over
+    /// all the online CPUs.
+    pub fn auto_cpus(&self) -> Vec<i32> {
+        if self.isolated.is_empty() {
+            return spread_cpus(self.online);
+        }
+        spread_cpus(self.isolated.len())
+            .into_iter()
+            .map(|i| {
+                let k = usize::try_from(i).unwrap_or(0);
+                self.isolated
+                    .get(k)
+                    .and_then(|c| i32::try_from(*c).ok())
+                    .unwrap_or(0)
+            })
+            .collect()
+    }
+}
+
+/// Parses a kernel CPU list (`/sys/devices/system/cpu/isolated`: `2-5,7`, empty for none).
+pub fn parse_cpu_list(text: &str) -> Result<Vec<usize>, String> {
+    let mut cpus = Vec::new();
+    for part in text
+        .trim()
+        .split(',')
+        .map(str::trim)
+        .filter(|p| !p.is_empty())
+    {
+        let num = |s: &str| {
+            s.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("`{part}` is not a CPU or a range of CPUs"))
+        };
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (num(a)?, num(b)?);
+                if b < a || b - a > 4096 {
+                    return Err(format!("`{part}` is not an ascending range of CPUs"));
+                }
+                cpus.extend(a..=b);
+            }
+            None => cpus.push(num(part)?),
+        }
+    }
+    cpus.sort_unstable();
+    cpus.dedup();
+    Ok(cpus)
+}
+
 impl GraphSection {
+    /// Whether the processes pin themselves ([`MachineCpus::auto_cpus`]): a polling wait with
+    /// real-time settings and neither `rt_cpus` nor `rt_cpu` given.
+    pub fn auto_pins(&self) -> bool {
+        self.realtime && self.wait.polls() && self.rt_cpus.is_empty() && self.rt_cpu < 0
+    }
+
+    /// The CPU `role` is pinned to on `machine`: [`GraphSection::cpu_of`], else, where
+    /// [`GraphSection::auto_pins`], the machine's [`MachineCpus::auto_cpus`].
+    pub fn cpu_on(&self, role: RtRole, machine: &MachineCpus) -> Option<usize> {
+        if let Some(c) = self.cpu_of(role) {
+            return Some(c);
+        }
+        if !self.auto_pins() {
+            return None;
+        }
+        let i = index(role)?;
+        machine
+            .auto_cpus()
+            .get(i)
+            .and_then(|c| usize::try_from(*c).ok())
+    }
+
     /// The CPU `role` is pinned to with `realtime` (`rt_cpus`, else `rt_cpu`), if any.
     pub fn cpu_of(&self, role: RtRole) -> Option<usize> {
         if !self.realtime || role == RtRole::Supervisor {
@@ -110,12 +207,13 @@ impl GraphSection {
         usize::try_from(self.rt_cpu).ok()
     }
 
-    /// Where each control-path process runs and how it waits, on a machine with
-    /// `online_cpus` CPUs (see the module's documentation); a `spin` that would starve
-    /// another control-path process is refused naming the keys.
-    pub fn placement(&self, online_cpus: usize) -> Result<Placement, ConfigError> {
+    /// Where each control-path process runs and how it waits on `machine` (see the module's
+    /// documentation); a `spin` that would starve another control-path process is refused
+    /// naming the keys.
+    pub fn placement(&self, machine: &MachineCpus) -> Result<Placement, ConfigError> {
+        let online_cpus = machine.online;
         let mut p = Placement {
-            cpus: RT_CPU_ORDER.map(|r| self.cpu_of(r)),
+            cpus: RT_CPU_ORDER.map(|r| self.cpu_on(r, machine)),
             waits: RT_CPU_ORDER.map(|r| match producer(r) {
                 Some(_) => self.wait,
                 None => WaitStrategy::Event,
@@ -208,10 +306,14 @@ mod tests {
 
     #[test]
     fn event_is_unchanged_and_the_joystick_never_polls() {
-        let p = graph(Event, 1, &[]).placement(2).unwrap();
+        let p = graph(Event, 1, &[])
+            .placement(&MachineCpus::online(2))
+            .unwrap();
         assert_eq!(p.waits, [Event; 4]);
         assert_eq!(p.cpus, [Some(1); 4]);
-        let p = graph(Spin, -1, &[0, 1, 2, 3]).placement(4).unwrap();
+        let p = graph(Spin, -1, &[0, 1, 2, 3])
+            .placement(&MachineCpus::online(4))
+            .unwrap();
         assert_eq!(p.waits, [Spin, Spin, Spin, Event]);
         assert_eq!(p.wait_of(RtRole::Supervisor), Event);
         assert!(p.notes.is_empty());
@@ -224,41 +326,61 @@ mod tests {
             (graph(Spin, -1, &[0, 1, 2, 2]), 4),
             (graph(Spin, -1, &[]), 2),
         ] {
-            let e = g.placement(cpus).unwrap_err().to_string();
+            let e = g
+                .placement(&MachineCpus::online(cpus))
+                .unwrap_err()
+                .to_string();
             assert!(
                 e.contains("graph.rt_cpus") && e.contains("graph.wait"),
                 "{e}"
             );
         }
         // Unpinned on a machine with a CPU per process, or without SCHED_FIFO: allowed.
-        graph(Spin, -1, &[]).placement(4).unwrap();
+        graph(Spin, -1, &[])
+            .placement(&MachineCpus::online(4))
+            .unwrap();
         let mut g = graph(Spin, 1, &[]);
         g.rt_fifo = false;
-        assert_eq!(g.placement(2).unwrap().waits, [Spin, Spin, Spin, Event]);
+        assert_eq!(
+            g.placement(&MachineCpus::online(2)).unwrap().waits,
+            [Spin, Spin, Spin, Event]
+        );
         g.rt_fifo = true;
         g.realtime = false;
-        g.placement(1).unwrap();
+        g.placement(&MachineCpus::online(1)).unwrap();
     }
 
     /// On one shared CPU only the mapper keeps polling (it waits for the bridge, which
     /// preempts it); safety and the bridge wait for lower-priority producers and fall back.
     #[test]
     fn predictive_on_shared_cpus_keeps_only_windows_that_cannot_hold_up_their_producer() {
-        let p = graph(Predictive, 1, &[]).placement(2).unwrap();
+        let p = graph(Predictive, 1, &[])
+            .placement(&MachineCpus::online(2))
+            .unwrap();
         assert_eq!(p.waits, [Event, Event, Predictive, Event]);
         assert_eq!(p.notes.len(), 2, "{:?}", p.notes);
-        // Fewer CPUs than processes and no pinning: the same.
-        let p = graph(Predictive, -1, &[]).placement(2).unwrap();
-        assert_eq!(p.waits, [Event, Event, Predictive, Event]);
+        // No CPUs given: pinned as spread_cpus would (the bridge alone on CPU 0), so the
+        // bridge polls too.
+        let p = graph(Predictive, -1, &[])
+            .placement(&MachineCpus::online(2))
+            .unwrap();
+        assert_eq!(p.cpus, [Some(0), Some(1), Some(1), Some(1)]);
+        assert_eq!(p.waits, [Predictive, Event, Predictive, Event]);
         // Safety on its own CPU: it polls; the bridge shares with the mapper, whose output it
         // does not wait for, and polls too.
-        let p = graph(Predictive, -1, &[0, 1, 0, 0]).placement(2).unwrap();
+        let p = graph(Predictive, -1, &[0, 1, 0, 0])
+            .placement(&MachineCpus::online(2))
+            .unwrap();
         assert_eq!(p.waits, [Predictive, Predictive, Predictive, Event]);
         // Bridge and safety together: the bridge would hold safety up.
-        let p = graph(Predictive, -1, &[0, 0, 1, 1]).placement(2).unwrap();
+        let p = graph(Predictive, -1, &[0, 0, 1, 1])
+            .placement(&MachineCpus::online(2))
+            .unwrap();
         assert_eq!(p.waits, [Event, Predictive, Predictive, Event]);
         // A CPU each: everyone polls.
-        let p = graph(Predictive, -1, &[0, 1, 2, 3]).placement(4).unwrap();
+        let p = graph(Predictive, -1, &[0, 1, 2, 3])
+            .placement(&MachineCpus::online(4))
+            .unwrap();
         assert_eq!(p.waits, [Predictive, Predictive, Predictive, Event]);
         assert!(p.notes.is_empty());
     }
@@ -269,7 +391,9 @@ mod tests {
     fn spread_cpus_let_as_many_poll_as_the_machine_allows() {
         let waits = |n: usize, w| {
             let cpus = spread_cpus(n);
-            graph(w, -1, &cpus).placement(n).map(|p| p.waits)
+            graph(w, -1, &cpus)
+                .placement(&MachineCpus::online(n))
+                .map(|p| p.waits)
         };
         assert_eq!(
             waits(2, Predictive).unwrap(),
@@ -304,5 +428,43 @@ mod tests {
         assert_eq!(g.cpu_of(RtRole::Bridge), Some(3));
         assert_eq!(g.cpu_of(RtRole::Joystick), Some(0));
         assert_eq!(g.cpu_of(RtRole::Supervisor), None);
+    }
+
+    /// With a polling wait and no CPUs given, the processes pin themselves: on the isolated
+    /// CPUs where the kernel has any, else on the last ones; never with `event`, with CPUs
+    /// given, or without real-time settings.
+    #[test]
+    fn a_polling_path_without_cpus_given_takes_the_isolated_or_the_last_cpus() {
+        let m = MachineCpus {
+            online: 16,
+            isolated: parse_cpu_list("4-7,12\n").unwrap(),
+        };
+        assert_eq!(m.isolated, [4, 5, 6, 7, 12]);
+        assert_eq!(m.auto_cpus(), [12, 7, 6, 5]);
+        assert_eq!(MachineCpus::online(16).auto_cpus(), [15, 14, 13, 12]);
+        let two = MachineCpus {
+            online: 8,
+            isolated: vec![2, 3],
+        };
+        assert_eq!(two.auto_cpus(), [2, 3, 3, 3]);
+        let p = graph(Predictive, -1, &[]).placement(&m).unwrap();
+        assert_eq!(p.cpus, [Some(12), Some(7), Some(6), Some(5)]);
+        assert_eq!(p.waits, [Predictive, Predictive, Predictive, Event]);
+        let p = graph(Spin, -1, &[])
+            .placement(&MachineCpus::online(4))
+            .unwrap();
+        assert_eq!(p.cpus, [Some(3), Some(2), Some(1), Some(0)]);
+        // Not with event, nor with CPUs given, nor without real-time settings.
+        assert_eq!(graph(Event, -1, &[]).placement(&m).unwrap().cpus, [None; 4]);
+        let given = graph(Predictive, -1, &[0, 1, 2, 3]).placement(&m).unwrap();
+        assert_eq!(given.cpus, [Some(0), Some(1), Some(2), Some(3)]);
+        let mut off = graph(Predictive, -1, &[]);
+        off.realtime = false;
+        assert_eq!(off.placement(&m).unwrap().cpus, [None; 4]);
+        // The kernel's list: ranges, singles, blanks; anything else is an error.
+        assert_eq!(parse_cpu_list("").unwrap(), Vec::<usize>::new());
+        assert_eq!(parse_cpu_list("3,1-2").unwrap(), [1, 2, 3]);
+        assert!(parse_cpu_list("a-b").is_err());
+        assert!(parse_cpu_list("5-2").is_err());
     }
 }

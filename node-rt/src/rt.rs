@@ -15,7 +15,7 @@ pub fn elevate(graph: &GraphSection, role: RtRole) -> String {
     let rt = hw_bridge::clock::request(graph.rt_fifo.then_some(priority), graph.rt_mlock);
     let mut line = rt.summary();
     let mut ok = rt.ok();
-    if let Some(cpu) = graph.cpu_of(role) {
+    if let Some(cpu) = graph.cpu_on(role, &crate::wait::machine_cpus()) {
         match pin_to_cpu(cpu) {
             Ok(()) => line.push_str(&format!("; pinned to CPU {cpu}")),
             Err(e) => {

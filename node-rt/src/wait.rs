@@ -331,6 +331,25 @@ pub fn online_cpus() -> usize {
     usize::try_from(n).unwrap_or(1).max(1)
 }
 
+/// This machine's CPUs for the placement: the online count and the CPUs the kernel isolates
+/// (`/sys/devices/system/cpu/isolated`; none where it cannot be read or parsed, said in the
+/// log).
+pub fn machine_cpus() -> scl_config::placement::MachineCpus {
+    const ISOLATED: &str = "/sys/devices/system/cpu/isolated";
+    let isolated = match std::fs::read_to_string(ISOLATED) {
+        Ok(text) => scl_config::placement::parse_cpu_list(&text).unwrap_or_else(|e| {
+            tracing::warn!("{ISOLATED}: {e}; taken as no isolated CPU");
+            Vec::new()
+        }),
+        Err(_) => Vec::new(),
+    };
+    let online = online_cpus();
+    scl_config::placement::MachineCpus {
+        online,
+        isolated: isolated.into_iter().filter(|c| *c < online).collect(),
+    }
+}
+
 /// How `role` waits on this machine ([`scl_config::GraphSection::placement`]): refused when
 /// polling would starve another control-path process; says in the log when it falls back to
 /// the event and why. A polling process also gets tight timers ([`tight_timers`]).
@@ -339,7 +358,7 @@ pub fn strategy_of(
     role: scl_config::RtRole,
     process: &str,
 ) -> Result<WaitStrategy, scl_config::ConfigError> {
-    let p = graph.placement(online_cpus())?;
+    let p = graph.placement(&machine_cpus())?;
     for note in p.notes.iter().filter(|n| n.starts_with(process)) {
         tracing::info!("wait: {note}");
     }

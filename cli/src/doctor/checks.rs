@@ -555,12 +555,17 @@ pub fn render(findings: &[Finding]) -> String {
     s
 }
 
-/// `[graph] wait` on a machine with `online_cpus` CPUs: how each control-path process will
-/// wait (`scl_config::GraphSection::placement`), refused where polling would starve another,
+/// `[graph] wait` on `machine`: how each control-path process will wait and where it is
+/// pinned (`scl_config::GraphSection::placement`; a polling wait with no CPUs given pins
+/// itself to the isolated or the last CPUs), refused where polling would starve another,
 /// and what the machine allows: how many processes can poll with `predictive` on the spread
 /// placement, and whether `spin` fits.
-pub fn wait_strategy(graph: &scl_config::GraphSection, online_cpus: usize) -> Finding {
+pub fn wait_strategy(
+    graph: &scl_config::GraphSection,
+    machine: &scl_config::placement::MachineCpus,
+) -> Finding {
     const ITEM: &str = "wait strategy";
+    let online_cpus = machine.online;
     let spread = scl_config::placement::spread_cpus(online_cpus);
     let polling = |cpus: &[i32], wait| {
         let g = scl_config::GraphSection {
@@ -569,7 +574,7 @@ pub fn wait_strategy(graph: &scl_config::GraphSection, online_cpus: usize) -> Fi
             rt_cpus: cpus.to_vec(),
             ..graph.clone()
         };
-        g.placement(online_cpus)
+        g.placement(&scl_config::placement::MachineCpus::online(online_cpus))
             .map_or(0, |p| p.waits.iter().filter(|w| w.polls()).count())
     };
     let supports = format!(
@@ -581,7 +586,20 @@ pub fn wait_strategy(graph: &scl_config::GraphSection, online_cpus: usize) -> Fi
             "needs 4 CPUs with SCHED_FIFO"
         }
     );
-    match graph.placement(online_cpus) {
+    let supports = if graph.auto_pins() {
+        format!(
+            "{supports}; no CPUs given, so pinned to {:?} (bridge, safety, mapper, joystick; from {})",
+            machine.auto_cpus(),
+            if machine.isolated.is_empty() {
+                "the last CPUs".to_owned()
+            } else {
+                format!("the isolated CPUs {:?}", machine.isolated)
+            }
+        )
+    } else {
+        supports
+    };
+    match graph.placement(machine) {
         Err(e) => Finding::fail(
             ITEM,
             format!("{e}; {supports}"),
@@ -616,7 +634,7 @@ mod tests {
     #[test]
     fn the_wait_strategy_says_how_each_process_waits_and_what_the_machine_allows() {
         let mut g = scl_config::GraphSection::default();
-        let f = wait_strategy(&g, 2);
+        let f = wait_strategy(&g, &scl_config::placement::MachineCpus::online(2));
         assert_eq!(f.level, Level::Ok);
         assert!(
             f.detail.contains("wait = event")
@@ -625,15 +643,16 @@ mod tests {
             "{f:?}"
         );
         g.wait = scl_config::WaitStrategy::Predictive;
-        let f = wait_strategy(&g, 2);
+        let f = wait_strategy(&g, &scl_config::placement::MachineCpus::online(2));
         assert_eq!(f.level, Level::Warn, "{f:?}");
         assert!(f.detail.contains("mapper predictive") && f.fix.contains("rt_cpus"));
+        assert!(f.detail.contains("pinned to [0, 1, 1, 1]"), "{f:?}");
         g.wait = scl_config::WaitStrategy::Spin;
-        let f = wait_strategy(&g, 2);
+        let f = wait_strategy(&g, &scl_config::placement::MachineCpus::online(2));
         assert_eq!(f.level, Level::Fail, "{f:?}");
         assert!(f.detail.contains("graph.rt_cpus"), "{f:?}");
         g.rt_cpus = vec![7, 6, 5, 4];
-        let f = wait_strategy(&g, 8);
+        let f = wait_strategy(&g, &scl_config::placement::MachineCpus::online(8));
         assert_eq!(f.level, Level::Ok, "{f:?}");
         assert!(f.detail.contains("spin fits"), "{f:?}");
     }

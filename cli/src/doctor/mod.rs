@@ -117,7 +117,7 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     };
     out.push(checks::wait_strategy(
         &cfg.graph,
-        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        &node_rt::wait::machine_cpus(),
     ));
     let robot = match cfg.profile() {
         Ok(r) => r,

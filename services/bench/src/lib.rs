@@ -1054,6 +1054,16 @@ pub fn render(r: &LatencyReport) -> String {
                 "  memory, resident/peak/locked (MiB): {}",
                 mem.join(", ")
             );
+            let faults: Vec<String> = run
+                .memory
+                .iter()
+                .map(|(n, m)| format!("{n} {}/{}", m.minor_faults, m.major_faults))
+                .collect();
+            let _ = writeln!(
+                s,
+                "  page faults in the run, minor/major: {}",
+                faults.join(", ")
+            );
         }
         if run.wait.polls() {
             let spin: Vec<String> = run

@@ -25,6 +25,26 @@ pub struct Memory {
     pub peak_rss_kib: u64,
     /// Locked in memory (`VmLck`: all of it after `mlockall`).
     pub locked_kib: u64,
+    /// Minor page faults between the first and the latest reading of the run (a page mapped
+    /// without reading the disk; `/proc/PID/stat`).
+    pub minor_faults: u64,
+    /// Major page faults between the first and the latest reading (a page read from disk).
+    pub major_faults: u64,
+}
+
+/// A process's page faults so far, (minor, major), from `/proc/PID/stat`; `None` once it is
+/// gone.
+pub fn faults(pid: u32) -> Option<(u64, u64)> {
+    parse_stat_faults(&std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?)
+}
+
+/// Fields 10 (`minflt`) and 12 (`majflt`) of a `/proc/PID/stat` line; the command name (field
+/// 2) is in parentheses and may hold spaces, so the count starts after its last `)`.
+fn parse_stat_faults(text: &str) -> Option<(u64, u64)> {
+    let rest = &text[text.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // After the name: field 3 (state) is index 0, so field N is index N - 3.
+    Some((fields.get(7)?.parse().ok()?, fields.get(9)?.parse().ok()?))
 }
 
 /// A process's memory now, or `None` once it is gone (or not ours to read).
@@ -42,6 +62,8 @@ fn parse_status(text: &str) -> Option<Memory> {
         rss_kib: field("VmRSS:")?,
         peak_rss_kib: field("VmHWM:")?,
         locked_kib: field("VmLck:").unwrap_or(0),
+        minor_faults: 0,
+        major_faults: 0,
     })
 }
 
@@ -51,6 +73,8 @@ struct Watched {
     pid: u32,
     /// Memory at the latest reading.
     mem: Option<Memory>,
+    /// Page faults (minor, major) at the first and at the latest reading.
+    faults: Option<((u64, u64), (u64, u64))>,
     /// (CPU ns, ticks seen) at the first and at the latest reading.
     first: Option<(u64, u64)>,
     last: Option<(u64, u64)>,
@@ -82,6 +106,7 @@ impl CpuWatch {
                 name: "supervisor",
                 pid: supervisor_pid,
                 mem: None,
+                faults: None,
                 first: None,
                 last: None,
             }],
@@ -106,6 +131,7 @@ impl CpuWatch {
                     name,
                     pid: s.pid,
                     mem: None,
+                    faults: None,
                     first: None,
                     last: None,
                 };
@@ -114,6 +140,7 @@ impl CpuWatch {
                 name,
                 pid: s.pid,
                 mem: None,
+                faults: None,
                 first: None,
                 last: None,
             }),
@@ -125,6 +152,9 @@ impl CpuWatch {
         for p in &mut self.procs {
             if let Some(m) = memory(p.pid) {
                 p.mem = Some(m);
+            }
+            if let Some(f) = faults(p.pid) {
+                p.faults = Some((p.faults.map_or(f, |(first, _)| first), f));
             }
             if let Some(ns) = cpu_ns(p.pid) {
                 if p.first.is_none() {
@@ -156,7 +186,12 @@ impl CpuWatch {
             .iter()
             .filter_map(|name| {
                 let p = self.procs.iter().find(|p| p.name == *name)?;
-                Some(((*name).to_owned(), p.mem?))
+                let mut m = p.mem?;
+                if let Some((first, last)) = p.faults {
+                    m.minor_faults = last.0.saturating_sub(first.0);
+                    m.major_faults = last.1.saturating_sub(first.1);
+                }
+                Some(((*name).to_owned(), m))
             })
             .collect()
     }
@@ -181,9 +216,17 @@ mod tests {
             Memory {
                 rss_kib: 1024,
                 peak_rss_kib: 2048,
-                locked_kib: 512
+                locked_kib: 512,
+                minor_faults: 0,
+                major_faults: 0,
             }
         );
+        // The name may hold spaces and parentheses; the fields count from its last `)`.
+        let stat = "42 (scl (a) b) S 1 42 42 0 -1 4194560 1234 0 5 0 10 2 0 0 20 0 1 0";
+        assert_eq!(parse_stat_faults(stat), Some((1234, 5)));
+        assert_eq!(parse_stat_faults("42 (scl) S 1"), None);
+        let (minor, _) = faults(std::process::id()).unwrap();
+        assert!(minor > 0);
         assert_eq!(parse_status("Name:\tkthread\n"), None);
         let own = memory(std::process::id()).unwrap();
         assert!(own.rss_kib > 0 && own.peak_rss_kib >= own.rss_kib);

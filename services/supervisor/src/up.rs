@@ -1040,7 +1040,7 @@ fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
     let cfg = &opts.config;
     cfg.validate()?;
     // A polling process that would starve another is refused here, before any starts.
-    let placement = cfg.graph.placement(node_rt::wait::online_cpus())?;
+    let placement = cfg.graph.placement(&node_rt::wait::machine_cpus())?;
     for note in &placement.notes {
         tracing::info!("wait: {note}");
     }
