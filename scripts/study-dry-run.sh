@@ -5,7 +5,7 @@
 #
 #   scripts/study-dry-run.sh [OUT_DIR]      # default out/study-dry-run (must not exist)
 #
-# Needs the study's models (scripts/study-models.sh).
+# Serves the study's models, shipped in models/study/ (scripts/study-models.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-out/study-dry-run}"

@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
-# Trains the models the example studies (examples/study/) serve: for each of the paper's
+# Trains the models the example studies (examples/study/) serve, which the repository ships in
+# models/study/ (learning/tests/study_models.rs checks they are this script's output): for each of the paper's
 # three Gen3 lite tasks, demonstrations (`scl demos`, the paper's counts) and SCL, CAE and
 # PCA fitted on them at the paper's settings (d = 2, 2 x 256, 200 epochs, best of 10 seeds;
 # SCL with Gram-Schmidt and L = 1), into models/study/<kind>-<task>.safetensors.
 #
-#   scripts/study-models.sh          # the paper's settings (hours on 2 cores)
+#   scripts/study-models.sh          # the paper's settings (about 4 minutes on 2 cores, release)
 #   QUICK=1 scripts/study-models.sh  # 1 seed, 20 epochs: a dry run's models (minutes)
 #
 # Existing files are kept (delete them to retrain); training is deterministic per seed.
+# The loss logs (*.loss.csv, *.loss.png) are written beside the models.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release -q -p scl --bin scl
