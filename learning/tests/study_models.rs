@@ -39,8 +39,14 @@ fn the_shipped_study_models_are_what_the_script_makes() {
                 .unwrap_or_else(|e| panic!("{}: {e} (scripts/study-models.sh)", path.display()));
             let h = read_header(&bytes, &path).unwrap();
             let what = path.display();
-            assert_eq!(h.training.data_hash, ds.hash, "{what}: trained on other data");
-            assert_eq!((h.training.n_train, h.training.n_val), (ds.n_train(), ds.n_val()));
+            assert_eq!(
+                h.training.data_hash, ds.hash,
+                "{what}: trained on other data"
+            );
+            assert_eq!(
+                (h.training.n_train, h.training.n_val),
+                (ds.n_train(), ds.n_val())
+            );
             assert_eq!(h.latent_dim, 2, "{what}");
             if kind == "pca" {
                 assert_eq!(h.kind, ModelKind::Pca);
@@ -55,7 +61,10 @@ fn the_shipped_study_models_are_what_the_script_makes() {
                     command: h.training.command.clone(),
                 })
                 .unwrap();
-                assert!(std::fs::read(&again).unwrap() == bytes, "{what}: not what PCA fits");
+                assert!(
+                    std::fs::read(&again).unwrap() == bytes,
+                    "{what}: not what PCA fits"
+                );
                 continue;
             }
             // The networks: the paper's settings (d = 2, 2 x 256, 200 epochs, best of 10
