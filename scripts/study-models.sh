@@ -5,7 +5,7 @@
 # PCA fitted on them at the paper's settings (d = 2, 2 x 256, 200 epochs, best of 10 seeds;
 # SCL with Gram-Schmidt and L = 1), into models/study/<kind>-<task>.safetensors.
 #
-#   scripts/study-models.sh          # the paper's settings (about 4 minutes on 2 cores, release)
+#   scripts/study-models.sh          # the paper's settings (3.5 minutes on 2 cores, release)
 #   QUICK=1 scripts/study-models.sh  # 1 seed, 20 epochs: a dry run's models (minutes)
 #
 # Existing files are kept (delete them to retrain); training is deterministic per seed.
