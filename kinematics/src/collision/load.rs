@@ -302,6 +302,8 @@ impl CollisionModel {
 
         // The file's links: links of the robot description, by name.
         let known = || robot.links().join(", ");
+        // Each `[[link]]`'s link, in file order; `own`: the model's links, in index order.
+        let mut file_links: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
         let mut own: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
         for (i, l) in parsed.link.iter().enumerate() {
             if !robot.links().contains(&l.name) {
@@ -321,6 +323,7 @@ impl CollisionModel {
                     CollisionLink::MAX
                 ),
             })?;
+            file_links.push(link);
             if !own.contains(&link) {
                 own.push(link);
             }
@@ -330,16 +333,7 @@ impl CollisionModel {
 
         // Links: each at most once, with at least one capsule.
         let mut by_link = vec![None; CollisionLink::MAX];
-        for (i, l) in parsed.link.iter().enumerate() {
-            let Some(link) = find(&l.name) else {
-                return Err(CollisionError::UnknownLink {
-                    arm: arm.name.into(),
-                    file: file.to_owned(),
-                    field: format!("link[{i}].name"),
-                    name: l.name.clone(),
-                    known: known(),
-                });
-            };
+        for (i, (l, link)) in parsed.link.iter().zip(&file_links).enumerate() {
             if by_link[link.index()].is_some() {
                 return Err(CollisionError::Link {
                     file: file.to_owned(),

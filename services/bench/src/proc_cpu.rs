@@ -80,6 +80,20 @@ struct Watched {
     last: Option<(u64, u64)>,
 }
 
+impl Watched {
+    /// Process `pid`, not read yet.
+    fn new(name: &'static str, pid: u32) -> Self {
+        Self {
+            name,
+            pid,
+            mem: None,
+            faults: None,
+            first: None,
+            last: None,
+        }
+    }
+}
+
 /// The processes of one run and their CPU readings.
 #[derive(Debug, Clone)]
 pub struct CpuWatch {
@@ -102,14 +116,7 @@ impl CpuWatch {
     /// process that sends a heartbeat.
     pub fn new(supervisor_pid: u32) -> Self {
         Self {
-            procs: vec![Watched {
-                name: "supervisor",
-                pid: supervisor_pid,
-                mem: None,
-                faults: None,
-                first: None,
-                last: None,
-            }],
+            procs: vec![Watched::new("supervisor", supervisor_pid)],
         }
     }
 
@@ -127,23 +134,9 @@ impl CpuWatch {
             Some(p) if p.pid == s.pid => {}
             Some(p) => {
                 // A restart: the new process's time from its own first reading.
-                *p = Watched {
-                    name,
-                    pid: s.pid,
-                    mem: None,
-                    faults: None,
-                    first: None,
-                    last: None,
-                };
+                *p = Watched::new(name, s.pid);
             }
-            None => self.procs.push(Watched {
-                name,
-                pid: s.pid,
-                mem: None,
-                faults: None,
-                first: None,
-                last: None,
-            }),
+            None => self.procs.push(Watched::new(name, s.pid)),
         }
     }
 
