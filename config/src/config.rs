@@ -205,10 +205,13 @@ pub struct GraphSection {
     /// datagram sockets, for latency comparisons; no single-publisher guarantee).
     pub transport: ipc_types::Transport,
     /// With `realtime`: one CPU per control-path process, in the order bridge, safety,
-    /// mappers, joystick (`[]`: `rt_cpu` for all, or no pinning; with a polling `wait` and
-    /// no `rt_cpu`, the isolated or last CPUs: [`crate::placement::MachineCpus::auto_cpus`]).
+    /// mappers, joystick (`[]`: `rt_cpu` for all, or no pinning; see `rt_auto_pin`).
     /// Exclusive with `rt_cpu`.
     pub rt_cpus: Vec<i32>,
+    /// With `realtime`, a polling `wait` and neither `rt_cpus` nor `rt_cpu`: pin the control
+    /// path automatically ([`crate::placement::MachineCpus::auto_cpus`]); `false`: leave it
+    /// unpinned (`scl bench --rt-only` measures a setting without pinning so).
+    pub rt_auto_pin: bool,
     /// How the mapper, safety and the bridge wait for their input: `event` (sleep until the
     /// publisher's notification), `predictive` (sleep on the clock until shortly before the
     /// input is due, learned from the messages' stamps, then poll for a bounded time, then
@@ -335,6 +338,7 @@ impl Default for GraphSection {
             rate_hz: RobotProfile::default_robot().control_rate_hz(),
             transport: ipc_types::Transport::Iceoryx2,
             rt_cpus: Vec::new(),
+            rt_auto_pin: true,
             wait: WaitStrategy::Event,
         }
     }

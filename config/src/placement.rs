@@ -21,7 +21,7 @@
 //! machine has fewer CPUs than the four control-path processes.
 //!
 //! A polling wait at real-time settings with no CPUs given (`rt_cpus = []`, `rt_cpu = -1`)
-//! pins the processes itself ([`MachineCpus::auto_cpus`]): from the CPUs the kernel isolates
+//! and `rt_auto_pin` (the default) pins the processes itself ([`MachineCpus::auto_cpus`]): from the CPUs the kernel isolates
 //! (`isolcpus=`, `/sys/devices/system/cpu/isolated`) where it has any, else from the last
 //! CPUs, one each where there are four, so that as many as can poll.
 
@@ -173,9 +173,13 @@ pub fn parse_cpu_list(text: &str) -> Result<Vec<usize>, String> {
 
 impl GraphSection {
     /// Whether the processes pin themselves ([`MachineCpus::auto_cpus`]): a polling wait with
-    /// real-time settings and neither `rt_cpus` nor `rt_cpu` given.
+    /// real-time settings, `rt_auto_pin`, and neither `rt_cpus` nor `rt_cpu` given.
     pub fn auto_pins(&self) -> bool {
-        self.realtime && self.wait.polls() && self.rt_cpus.is_empty() && self.rt_cpu < 0
+        self.realtime
+            && self.rt_auto_pin
+            && self.wait.polls()
+            && self.rt_cpus.is_empty()
+            && self.rt_cpu < 0
     }
 
     /// The CPU `role` is pinned to on `machine`: [`GraphSection::cpu_of`], else, where
@@ -460,6 +464,9 @@ mod tests {
         assert_eq!(given.cpus, [Some(0), Some(1), Some(2), Some(3)]);
         let mut off = graph(Predictive, -1, &[]);
         off.realtime = false;
+        assert_eq!(off.placement(&m).unwrap().cpus, [None; 4]);
+        let mut off = graph(Predictive, -1, &[]);
+        off.rt_auto_pin = false;
         assert_eq!(off.placement(&m).unwrap().cpus, [None; 4]);
         // The kernel's list: ranges, singles, blanks; anything else is an error.
         assert_eq!(parse_cpu_list("").unwrap(), Vec::<usize>::new());

@@ -134,29 +134,26 @@ impl RtSettings {
 
     /// Sets the `[graph]` keys of these settings on a machine with `cores` CPUs: pinning keeps
     /// the base configuration's `rt_cpus` if it has them; otherwise it puts the control path
-    /// on the last CPU with `wait = "event"`, and spreads it over the CPUs with a polling
-    /// `wait` ([`scl_config::placement::spread_cpus`]), so that the processes that can poll do.
+    /// on the last CPU with `wait = "event"`, and with a polling `wait` leaves the choice to
+    /// the graph's own rule (`rt_auto_pin`: [`scl_config::placement::MachineCpus::auto_cpus`],
+    /// the isolated CPUs or else spread over the last ones), so that the processes that can
+    /// poll do. Without pinning nothing is pinned, automatically or not.
     pub fn apply(&self, graph: &mut scl_config::GraphSection, cores: usize) {
         graph.realtime = self.any();
         graph.rt_fifo = self.fifo;
         graph.rt_mlock = self.mlock;
+        graph.rt_auto_pin = self.pin;
+        graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
         if self.pin && !graph.rt_cpus.is_empty() {
             graph.rt_cpu = -1;
-            graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
             return;
         }
-        let spread = self.pin && graph.wait.polls();
-        graph.rt_cpu = if self.pin && !spread {
+        graph.rt_cpus = Vec::new();
+        graph.rt_cpu = if self.pin && !graph.wait.polls() {
             cores as i32 - 1
         } else {
             -1
         };
-        graph.rt_cpus = if spread {
-            scl_config::placement::spread_cpus(cores)
-        } else {
-            Vec::new()
-        };
-        graph.rt_cpu_dma_latency_us = if self.dma_latency { 0 } else { -1 };
     }
 }
 
@@ -1107,6 +1104,26 @@ pub fn render(r: &LatencyReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--rt` with a polling wait leaves the CPUs to the graph's automatic choice; one other
+    /// setting alone (`--rt-only fifo`) pins nothing, automatically or not.
+    #[test]
+    fn rt_settings_pin_only_when_pinning_is_asked_for() {
+        use scl_config::placement::MachineCpus;
+        let four = MachineCpus::online(4);
+        let mut g = scl_config::GraphSection {
+            wait: scl_config::WaitStrategy::Predictive,
+            ..scl_config::GraphSection::default()
+        };
+        RtSettings::ALL.apply(&mut g, 4);
+        let p = g.placement(&four).unwrap();
+        assert_eq!(p.cpus, [Some(3), Some(2), Some(1), Some(0)]);
+        RtSettings::only("fifo").unwrap().apply(&mut g, 4);
+        assert_eq!(g.placement(&four).unwrap().cpus, [None; 4]);
+        g.wait = scl_config::WaitStrategy::Event;
+        RtSettings::ALL.apply(&mut g, 4);
+        assert_eq!(g.placement(&four).unwrap().cpus, [Some(3); 4]);
+    }
 
     fn report(tick: u64, executed: bool) -> TickReport {
         TickReport {
