@@ -26,7 +26,9 @@ use nalgebra::Vector6;
 use serde::{Deserialize, Serialize};
 
 pub use crate::operator::OperatorKind;
-use crate::operator::expert::ExpertParams;
+use crate::operator::expert::{Expert, ExpertParams, Learner};
+use crate::operator::internal::InternalModel;
+use crate::operator::practiced::{Explorer, PracticedParams};
 use crate::operator::{Operate, Seen, operator};
 
 use crate::data::{Appender, Outcome, STUDY_COPY, TRIALS, TrialRow};
@@ -64,6 +66,8 @@ pub struct SimParams {
     pub tilt_weight_m_per_rad: f64,
     /// The expert operator's planner (`[simulation.expert]`).
     pub expert: ExpertParams,
+    /// The practiced operator (`[simulation.practiced]`).
+    pub practiced: PracticedParams,
 }
 
 impl Default for SimParams {
@@ -78,6 +82,7 @@ impl Default for SimParams {
             tilt_weight_m_per_rad: 0.1,
             operator: OperatorKind::default(),
             expert: ExpertParams::default(),
+            practiced: PracticedParams::default(),
         }
     }
 }
@@ -105,7 +110,10 @@ impl SimParams {
         }
         self.expert
             .check()
-            .map_err(|(k, r)| (format!("simulation.expert.{k}"), r))
+            .map_err(|(k, r)| (format!("simulation.expert.{k}"), r))?;
+        self.practiced
+            .check()
+            .map_err(|(k, r)| (format!("simulation.practiced.{k}"), r))
     }
 }
 
@@ -184,6 +192,8 @@ pub struct AttemptSetup<'a> {
     /// For scripted maps that move straight to the goal: each tick the pose error to the
     /// operator's current aim ([`learning::goals::Aim::error`]) is written here before the map is evaluated.
     pub aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    /// What the practiced operator learned in practice with this map ([`practice`]).
+    pub learned: Option<&'a InternalModel>,
 }
 
 /// What the operator does with a robot state ([`AttemptDriver::on_state`]).
@@ -221,29 +231,36 @@ pub struct AttemptDriver<'a> {
 impl<'a> AttemptDriver<'a> {
     /// The operator of attempt `s`, before its first state.
     pub fn new(s: &AttemptSetup<'a>) -> Result<Self, SimError> {
+        let op = operator(
+            s.params,
+            s.sim.robot,
+            &s.sim.safety,
+            s.goals.tol,
+            s.sim.period_s,
+            s.model,
+            s.aim_out.clone(),
+            s.learned,
+        )?;
+        Ok(Self::with_operator(s, op))
+    }
+
+    /// Attempt `s` with the operator `op`.
+    fn with_operator(s: &AttemptSetup<'a>, op: Box<dyn Operate>) -> Self {
         let dt = s.sim.period_s;
-        Ok(Self {
+        Self {
             robot: s.sim.robot,
             dt,
             ticks: (s.time_limit_s / dt).ceil() as u64,
             time_limit_s: s.time_limit_s,
             model: s.model,
             aim_out: s.aim_out.clone(),
-            op: operator(
-                s.params,
-                s.sim.robot,
-                &s.sim.safety,
-                s.goals.tol,
-                dt,
-                s.model,
-                s.aim_out.clone(),
-            )?,
+            op,
             run: GoalRun::new(s.goals),
             rng: Rng::new(s.seed),
             jac: Jacobian::zeros(s.sim.robot.n_joints()),
             first_tick: None,
             last_k: 0,
-        })
+        }
     }
 
     /// The operator's answer to `state`. `mode` is the map's mode as the screen shows it (the
@@ -272,11 +289,15 @@ impl<'a> AttemptDriver<'a> {
                 mode_switches: self.op.presses(),
             }));
         }
-        if k >= self.ticks {
+        if k >= self.ticks || self.op.finished() {
             return Ok(Answer::Done(AttemptResult {
                 outcome: Outcome::Timeout,
                 completion_pct: self.run.completion_pct(),
-                duration_s: self.time_limit_s,
+                duration_s: if self.op.finished() {
+                    k as f64 * self.dt
+                } else {
+                    self.time_limit_s
+                },
                 mode_switches: self.op.presses(),
             }));
         }
@@ -301,6 +322,8 @@ impl<'a> AttemptDriver<'a> {
         tracing::trace!(
             tick = k,
             tool = ?tool.translation.vector.as_slice(),
+            tilt = learning::goals::tilt(&tool.rotation),
+            q = ?state.q(),
             aim = ?aim.map(|a| a.position),
             axes = ?joy.axes,
             gripper = state.gripper,
@@ -319,6 +342,14 @@ impl<'a> AttemptDriver<'a> {
 /// the operator gave for tick `k - 1` (the live graph's mapper has computed tick `k` before
 /// the operator's answer to it arrives); safety filters; the mock arm executes.
 pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
+    run_driver(s, AttemptDriver::new(s)?).map(|(r, _)| r)
+}
+
+/// [`run_attempt`] with the operator of `driver`; gives the operator back.
+fn run_driver(
+    s: &AttemptSetup<'_>,
+    mut driver: AttemptDriver<'_>,
+) -> Result<(AttemptResult, Box<dyn Operate>), SimError> {
     let robot = s.sim.robot;
     let n = robot.n_joints();
     let dt = s.sim.period_s;
@@ -337,7 +368,6 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
     let mut state = RobotState::at_rest(0, period_ns, n as u32);
     state.q_rad[..n].copy_from_slice(&s.start_q[..n.min(s.start_q.len())]);
     state.flags = state_flags::MOCK;
-    let mut driver = AttemptDriver::new(s)?;
     let mut newest: Option<JoystickInput> = None;
     let mut k = 0u64;
     loop {
@@ -347,7 +377,7 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
         // The screen shows the mode of the mapper's last heartbeat: after tick k - 1.
         let mode = step.mode().map(|m| m.index as usize);
         let joy = match driver.on_state(&state, mode, t_ns)? {
-            Answer::Done(r) => return Ok(r),
+            Answer::Done(r) => return Ok((r, driver.op)),
             Answer::Sample(j) => j,
         };
         let mut cmd = step.step(&state, newest.as_ref());
@@ -363,6 +393,61 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
         state.applied_tick = k;
         k += 1;
     }
+}
+
+/// The practiced operator's practice with the map of `s` for `practice_s` (the task's
+/// practice time), in process on simulated time, from the task's start pose as the study
+/// does: first trying the stick in each mode ([`Explorer`]), then attempts of the task
+/// (each to the task's time limit or its end) planned with what it has learned so far, learning
+/// on. Returns what it learned. `s.seed` seeds each part's own stream.
+pub fn practice(s: &AttemptSetup<'_>, practice_s: f64) -> Result<InternalModel, SimError> {
+    let dt = s.sim.period_s;
+    let mut model = InternalModel::new(s.params.practiced.widths());
+    let mut used = 0.0;
+    let mut round = 0u64;
+    while used + dt < practice_s {
+        let left = practice_s - used;
+        let limit = left.min(s.time_limit_s);
+        let part = AttemptSetup {
+            sim: s.sim,
+            start_q: s.start_q,
+            goals: s.goals,
+            time_limit_s: limit,
+            params: s.params,
+            model: s.model,
+            seed: attempt_seed(s.seed, &[round]),
+            aim_out: s.aim_out.clone(),
+            learned: None,
+        };
+        let op: Box<dyn Operate> = if round == 0 {
+            Box::new(Explorer::new(s.params, dt, model))
+        } else {
+            Box::new(Expert::practiced(
+                s.params,
+                s.sim.robot,
+                &s.sim.safety,
+                s.goals.tol,
+                dt,
+                Learner::new(model, true, dt),
+            ))
+        };
+        let (r, op) = run_driver(&part, AttemptDriver::with_operator(&part, op))?;
+        model = op
+            .into_learned()
+            .ok_or_else(|| SimError::Setup("practice: the operator learned nothing".into()))?;
+        tracing::debug!(
+            round,
+            outcome = ?r.outcome,
+            duration_s = r.duration_s,
+            observations = model.observations(),
+            modes = model.modes(),
+            general = ?(0..model.modes()).map(|m| model.general(m)).collect::<Vec<_>>(),
+            "practice"
+        );
+        used += r.duration_s.max(dt);
+        round += 1;
+    }
+    Ok(model)
 }
 
 /// A seed for one attempt, from the study's seed and where the attempt is in the plan (the
@@ -588,6 +673,23 @@ pub fn simulate_participant_with(
                         source,
                     })
             };
+            // The practiced operator practises with the map first, as people did.
+            let learned = if params.operator == OperatorKind::Practiced {
+                let setup = AttemptSetup {
+                    sim,
+                    start_q: &q0,
+                    goals: &goals[ti],
+                    time_limit_s: task.time_limit_s,
+                    params: &params,
+                    model: &make,
+                    seed: attempt_seed(seed, &[u64::from(p.0), ti as u64, ci as u64, 0]),
+                    aim_out: None,
+                    learned: None,
+                };
+                Some(practice(&setup, task.practice_s)?)
+            } else {
+                None
+            };
             for attempt in 1..=task.attempts {
                 if stop() {
                     return Err(StudyError::Data {
@@ -607,6 +709,7 @@ pub fn simulate_participant_with(
                         &[u64::from(p.0), ti as u64, ci as u64, u64::from(attempt)],
                     ),
                     aim_out: None,
+                    learned: learned.as_ref(),
                 };
                 let info = AttemptInfo {
                     spec,
@@ -758,6 +861,7 @@ mod tests {
             model: &make,
             seed,
             aim_out: (map == Map::Perfect).then_some(cell),
+            learned: None,
         })
         .unwrap()
     }
@@ -778,6 +882,7 @@ mod tests {
             model: &make,
             seed,
             aim_out: Some(cell),
+            learned: None,
         })
         .unwrap()
     }
@@ -908,6 +1013,7 @@ participants = 2
 name = "pick-and-place"
 start = "home"
 time_limit_s = 4
+practice_s = 6
 attempts = 2
 [[conditions]]
 label = "A"
@@ -929,6 +1035,180 @@ candidates = 16
     #[test]
     fn the_same_seed_gives_the_same_trials_file_with_the_expert() {
         same_seed_same_trials("expert");
+    }
+
+    #[test]
+    fn the_same_seed_gives_the_same_trials_file_with_the_practiced_operator() {
+        same_seed_same_trials("practiced");
+    }
+
+    /// Mode switching with the stick turned a quarter turn: what the stick's x does, its y
+    /// does (and x does what -y did).
+    struct Turned(Box<dyn ActionMap>);
+
+    impl ActionMap for Turned {
+        fn kind(&self) -> ModelKind {
+            self.0.kind()
+        }
+        fn n_joints(&self) -> usize {
+            self.0.n_joints()
+        }
+        fn latent_dim(&self) -> usize {
+            self.0.latent_dim()
+        }
+        fn eval(&mut self, q: &[f64], c: f64, a: &[f64], out: &mut [f64]) {
+            self.0.eval(q, c, &[-a[1], a[0]], out);
+        }
+        fn press(&mut self, pressed: u32) {
+            self.0.press(pressed);
+        }
+        fn mode(&self) -> Option<mapper::MapMode> {
+            self.0.mode()
+        }
+        fn set_period(&mut self, period_s: f64) {
+            self.0.set_period(period_s);
+        }
+    }
+
+    fn modeswitch(turned: bool) -> Result<LoadedModel, SimError> {
+        let mut m = LoadedModel::load_for("modeswitch", robot())
+            .map(|m| m.at_period(0.025))
+            .map_err(|source| SimError::Model {
+                spec: "modeswitch".into(),
+                source,
+            })?;
+        if turned {
+            let zero = Scripted {
+                aim: None,
+                jac: Jacobian::zeros(robot().n_joints()),
+            };
+            let inner = std::mem::replace(&mut m.map, Box::new(zero));
+            m.map = Box::new(Turned(inner));
+        }
+        Ok(m)
+    }
+
+    /// The practiced operator practises pouring for `practice_s` with mode switching
+    /// (`turned`: with its stick turned), then makes an attempt with mode switching. Also
+    /// the times the attempt asked for a copy of the map.
+    fn practiced_pouring(turned: bool, practice_s: f64, seed: u64) -> (AttemptResult, usize) {
+        let sim = sim();
+        let goals = TaskGoals::of(GoalTask::Pouring, Tolerances::default()).unwrap();
+        let params = SimParams {
+            operator: OperatorKind::Practiced,
+            ..SimParams::default()
+        };
+        let q0 = start(GoalTask::Pouring);
+        let practice_map = move || modeswitch(turned);
+        let learned = practice(
+            &AttemptSetup {
+                sim: &sim,
+                start_q: &q0,
+                goals: &goals,
+                time_limit_s: 120.0,
+                params: &params,
+                model: &practice_map,
+                seed,
+                aim_out: None,
+                learned: None,
+            },
+            practice_s,
+        )
+        .unwrap();
+        assert!(learned.observations() > 1000, "{}", learned.observations());
+        assert_eq!(learned.modes(), 3);
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let map = || {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            modeswitch(false)
+        };
+        let r = run_attempt(&AttemptSetup {
+            sim: &sim,
+            start_q: &q0,
+            goals: &goals,
+            time_limit_s: 120.0,
+            params: &params,
+            model: &map,
+            seed: seed + 100,
+            aim_out: None,
+            learned: Some(&learned),
+        })
+        .unwrap();
+        (r, calls.into_inner())
+    }
+
+    /// The practiced operator knows the map only from practice: after practising with the
+    /// map it is tested on it pours; after practising with the stick turned a quarter turn
+    /// (the same map otherwise) it does worse with the same seeds. It never asks for a copy
+    /// of the map: the one copy made is the one the graph serves (the expert, for
+    /// comparison, asks for one per prediction).
+    #[test]
+    fn the_practiced_operator_knows_the_map_only_from_practice() {
+        let mut same = Vec::new();
+        let mut swapped = Vec::new();
+        for seed in [1, 2] {
+            let (r, calls) = practiced_pouring(false, 240.0, seed);
+            assert_eq!(calls, 1, "only the served copy: {calls}");
+            same.push(r);
+            swapped.push(practiced_pouring(true, 240.0, seed).0);
+        }
+        eprintln!("practised with the map: {same:#?}\npractised turned: {swapped:#?}");
+        let score = |rs: &[AttemptResult]| -> f64 {
+            rs.iter()
+                .map(|r| r.completion_pct - r.duration_s / 120.0)
+                .sum()
+        };
+        assert!(
+            same.iter().all(|r| r.outcome == Outcome::Success),
+            "{same:#?}"
+        );
+        assert!(score(&swapped) < score(&same), "{swapped:#?}\n{same:#?}");
+        let expert_calls = std::sync::atomic::AtomicUsize::new(0);
+        let map = || {
+            expert_calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            modeswitch(false)
+        };
+        let goals = TaskGoals::of(GoalTask::Pouring, Tolerances::default()).unwrap();
+        let q0 = start(GoalTask::Pouring);
+        run_attempt(&AttemptSetup {
+            sim: &sim(),
+            start_q: &q0,
+            goals: &goals,
+            time_limit_s: 1.0,
+            params: &expert(),
+            model: &map,
+            seed: 1,
+            aim_out: None,
+            learned: None,
+        })
+        .unwrap();
+        assert!(expert_calls.into_inner() > 10);
+    }
+
+    /// Without practice the practiced operator has nothing to go on.
+    #[test]
+    fn the_practiced_operator_is_refused_without_practice() {
+        let sim = sim();
+        let goals = TaskGoals::of(GoalTask::Pouring, Tolerances::default()).unwrap();
+        let params = SimParams {
+            operator: OperatorKind::Practiced,
+            ..SimParams::default()
+        };
+        let q0 = start(GoalTask::Pouring);
+        let map = || modeswitch(false);
+        let e = run_attempt(&AttemptSetup {
+            sim: &sim,
+            start_q: &q0,
+            goals: &goals,
+            time_limit_s: 1.0,
+            params: &params,
+            model: &map,
+            seed: 1,
+            aim_out: None,
+            learned: None,
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("not practised"), "{e}");
     }
 
     fn same_seed_same_trials(operator: &str) {

@@ -34,8 +34,10 @@ use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector3, Vector6};
 use safety::clearance::WholeArm;
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
+use super::internal::{InternalModel, ToolState, twist_between};
 use super::{Hand, ModeButton, Operate, Seen};
 use crate::simulate::{ModelFactory, SimError, SimParams};
 
@@ -141,7 +143,72 @@ enum Target {
     Point(Vector3<f64>),
 }
 
-/// The expert operator of one attempt.
+/// The forward model a planning operator predicts with.
+pub(crate) enum Forward {
+    /// The served map (the expert operator). Its copies, one per mode, for a map without
+    /// memory; empty for a map with memory (its twist ramps): each prediction then starts
+    /// from a fresh copy, at rest.
+    Map(Vec<LoadedModel>),
+    /// What practice taught (the practiced operator): never the map.
+    Learned(Learner),
+}
+
+/// The practiced operator's internal model and, while it practises, what it learns from: the
+/// tool poses it saw and the samples it sent.
+pub(crate) struct Learner {
+    pub(crate) model: InternalModel,
+    /// It learns from what it sees (practice); otherwise the model stays as practice left it.
+    pub(crate) learning: bool,
+    /// The last ticks: the tool's pose and the gripper seen, the mode shown, the sample sent.
+    history: VecDeque<(Isometry3<f64>, f64, Option<usize>, [f64; 2], u32)>,
+    dt: f64,
+}
+
+impl Learner {
+    /// What practice taught, `learning` or not from here on.
+    pub(crate) fn new(model: InternalModel, learning: bool, dt: f64) -> Self {
+        Self {
+            model,
+            learning,
+            history: VecDeque::new(),
+            dt,
+        }
+    }
+
+    /// Takes what is seen this tick. The sample sent two ticks ago moved the tool between
+    /// the last tick and this one (the mapper maps tick `k - 1` with the sample answered at
+    /// `k - 2`, and the arm executes it until tick `k`), in the mode shown now.
+    pub(crate) fn see(&mut self, seen: &Seen<'_>) {
+        if !self.learning {
+            return;
+        }
+        if let (Some((before, c, mode_before, _, _)), Some((_, _, _, a, buttons))) =
+            (self.history.back(), self.history.iter().rev().nth(1))
+            && *mode_before == seen.mode
+            && *buttons & buttons::MODE == 0
+        {
+            let v = twist_between(before, seen.tool, self.dt);
+            let at = ToolState::of(before, *c);
+            self.model.observe(seen.mode.unwrap_or(0), &at, *a, &v);
+        }
+        self.history
+            .push_back((*seen.tool, seen.state.gripper, seen.mode, [0.0; 2], 0));
+        while self.history.len() > 3 {
+            self.history.pop_front();
+        }
+    }
+
+    /// Notes the sample sent this tick.
+    pub(crate) fn sent(&mut self, joy: &JoystickInput) {
+        if let Some(last) = self.history.back_mut() {
+            last.3 = [f64::from(joy.axes[0]), f64::from(joy.axes[1])];
+            last.4 = joy.buttons;
+        }
+    }
+}
+
+/// The expert operator of one attempt, and the practiced one (the same planner with what
+/// practice taught as its forward model).
 pub(crate) struct Expert {
     params: SimParams,
     ex: ExpertParams,
@@ -149,9 +216,15 @@ pub(crate) struct Expert {
     tol: Tolerances,
     dt: f64,
     hand: Hand,
-    /// The map's copies, one per mode, for a map without memory; empty for a map with
-    /// memory (its twist ramps): each prediction then starts from a fresh copy, at rest.
-    copies: Vec<LoadedModel>,
+    /// What it predicts with: the served map (the expert) or what practice taught (the
+    /// practiced operator).
+    forward: Forward,
+    /// Press the mode button when another mode's plan gains this fraction more.
+    switch_margin: f64,
+    /// What a turn of the tool that the subgoal does not ask for costs (m per rad).
+    rotation_weight: f64,
+    /// The chance that a switch ends one press too far (a slip of the thumb).
+    slip: f64,
     modes: usize,
     speed_scale: f64,
     /// Knots per plan.
@@ -214,16 +287,79 @@ impl Expert {
             }
             (Vec::new(), modes)
         };
+        let mut op = Self::with(
+            params,
+            ex,
+            params.mode_switch_margin,
+            robot,
+            safety,
+            tol,
+            dt,
+            Forward::Map(copies),
+            modes,
+            aim_out,
+        );
+        op.speed_scale = speed_scale;
+        Ok(op)
+    }
+
+    /// The practiced operator: plans with `learner`'s model (the modes it has seen), never
+    /// with the map.
+    pub(crate) fn practiced(
+        params: &SimParams,
+        robot: &'static RobotProfile,
+        safety: &safety::SafetyConfig,
+        tol: Tolerances,
+        dt: f64,
+        learner: Learner,
+    ) -> Self {
+        let pr = &params.practiced;
+        let modes = learner.model.modes();
+        let mut op = Self::with(
+            params,
+            pr.planner.clone(),
+            pr.mode_switch_margin,
+            robot,
+            safety,
+            tol,
+            dt,
+            Forward::Learned(learner),
+            modes,
+            None,
+        );
+        // It sees the table and the arm stop at it; its own floor stands for that.
+        op.whole_arm = None;
+        op.rotation_weight = pr.rotation_weight_m_per_rad;
+        op.slip = pr.mode_slip;
+        op
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn with(
+        params: &SimParams,
+        ex: ExpertParams,
+        switch_margin: f64,
+        robot: &'static RobotProfile,
+        safety: &safety::SafetyConfig,
+        tol: Tolerances,
+        dt: f64,
+        forward: Forward,
+        modes: usize,
+        aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    ) -> Self {
         let knots = ((ex.horizon_s / ex.step_s).round() as usize).max(1);
-        Ok(Self {
+        Self {
             hand: Hand::new(params, dt),
             params: params.clone(),
             robot,
             tol,
             dt,
-            copies,
+            forward,
+            switch_margin,
+            rotation_weight: 0.0,
+            slip: 0.0,
             modes,
-            speed_scale,
+            speed_scale: 1.0,
             knots,
             ticks_per_knot: (ex.step_s / dt).max(1e-9),
             plans: vec![vec![[0.0; 2]; knots]; modes],
@@ -246,7 +382,7 @@ impl Expert {
             clearance_now: f64::INFINITY,
             predicted_q: [0.0; MAX_JOINTS],
             ex,
-        })
+        }
     }
 
     fn error(&self, aim: &Aim, p: &Vector3<f64>, t: f64) -> f64 {
@@ -297,23 +433,19 @@ impl Expert {
         seen: &Seen<'_>,
         target: Target,
     ) -> f64 {
-        let mut fresh = None;
-        if self.copies.is_empty() {
-            let Ok(mut copy) = make() else {
-                return f64::INFINITY;
-            };
-            for _ in 0..m {
-                copy.map.press(buttons::MODE);
+        // A map with memory: a fresh copy in mode m, at rest.
+        let mut fresh = match &self.forward {
+            Forward::Map(copies) if copies.is_empty() => {
+                let Ok(mut copy) = make() else {
+                    return f64::INFINITY;
+                };
+                for _ in 0..m {
+                    copy.map.press(buttons::MODE);
+                }
+                copy.map.set_period(self.ex.step_s);
+                Some(copy)
             }
-            copy.map.set_period(self.ex.step_s);
-            fresh = Some(copy);
-        }
-        let model = match fresh.as_mut() {
-            Some(c) => c,
-            None => match self.copies.get_mut(m) {
-                Some(c) => c,
-                None => return f64::INFINITY,
-            },
+            _ => None,
         };
         let chain = self.robot.arm();
         let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
@@ -330,6 +462,8 @@ impl Expert {
         let mut run: Option<GoalRun> = matches!(target, Target::Task).then(|| seen.run.clone());
         let mut aim = seen.aim;
         let mut a = stick;
+        let mut x = ToolState::of(seen.tool, c);
+        let wrist = seen.state.q().last().copied().unwrap_or(0.0);
         let (mut cost, mut bonus) = (0.0, 0.0);
         for i in 0..h {
             let u = lead
@@ -361,28 +495,42 @@ impl Expert {
                     *e = g.error(&tool);
                 }
             }
-            model.map.eval(&q[..n], c, &a, &mut self.out[..n]);
-            let before = q;
-            for (qj, v) in q[..n].iter_mut().zip(&self.out[..n]) {
-                if v.is_finite() {
-                    *qj += v * self.speed_scale * step;
+            let next = match (&mut self.forward, fresh.as_mut()) {
+                (Forward::Learned(l), _) => {
+                    x.c = c;
+                    let v = l.model.twist(m, &x, a);
+                    x = l.model.advance(&x, &v, step);
+                    Isometry3::from_parts(x.p.into(), x.r)
                 }
-            }
-            chain.clamp_to_limits(&mut q[..n]);
-            // The whole-arm stop: a step that brings a pair of the collision model closer
-            // than the stop distance is not taken.
-            if let Some((arm, stop)) = self.whole_arm.as_mut()
-                && arm.update(&q[..n], c)
-                && let Some((d, _)) = arm.closest()
-            {
-                if d < *stop && d < clearance {
-                    q = before;
-                } else {
-                    clearance = d;
+                (Forward::Map(copies), f) => {
+                    let Some(model) = f.or_else(|| copies.get_mut(m)) else {
+                        return f64::INFINITY;
+                    };
+                    model.map.eval(&q[..n], c, &a, &mut self.out[..n]);
+                    let before = q;
+                    for (qj, v) in q[..n].iter_mut().zip(&self.out[..n]) {
+                        if v.is_finite() {
+                            *qj += v * self.speed_scale * step;
+                        }
+                    }
+                    chain.clamp_to_limits(&mut q[..n]);
+                    // The whole-arm stop: a step that brings a pair of the collision model
+                    // closer than the stop distance is not taken.
+                    if let Some((arm, stop)) = self.whole_arm.as_mut()
+                        && arm.update(&q[..n], c)
+                        && let Some((d, _)) = arm.closest()
+                    {
+                        if d < *stop && d < clearance {
+                            q = before;
+                        } else {
+                            clearance = d;
+                        }
+                    }
+                    let Ok(next) = chain.fk(&q[..n]) else {
+                        return f64::INFINITY;
+                    };
+                    next
                 }
-            }
-            let Ok(next) = chain.fk(&q[..n]) else {
-                return f64::INFINITY;
             };
             tool = next;
             p = tool.translation.vector;
@@ -390,7 +538,11 @@ impl Expert {
                 (Some(run), _) => {
                     let before = run.subgoals_done();
                     run.update(&tool, c, step);
-                    aim = run.aim(&tool, q[n.saturating_sub(1)]);
+                    let wrist = match self.forward {
+                        Forward::Map(_) => q[n.saturating_sub(1)],
+                        Forward::Learned(_) => wrist,
+                    };
+                    aim = run.aim(&tool, wrist);
                     let done = run.subgoals_done() - before;
                     bonus += done as f64 * SUBGOAL_M * (2.0 - i as f64 / h as f64);
                     aim.map_or(0.0, |g| {
@@ -400,7 +552,13 @@ impl Expert {
                 (None, Target::Point(w)) => (w - p).norm(),
                 (None, Target::Task) => 0.0,
             };
-            cost += e;
+            let turn = if self.rotation_weight > 0.0 {
+                let tilt_asked = aim.is_some_and(|g| g.tilt.is_some());
+                self.rotation_weight * unasked_turn(&seen.tool.rotation, &tool.rotation, tilt_asked)
+            } else {
+                0.0
+            };
+            cost += e + turn;
         }
         self.predicted_q = q;
         cost / h as f64 - bonus
@@ -550,6 +708,22 @@ fn aim_error(aim: &Aim, p: &Vector3<f64>, t: f64, tilt_weight: f64) -> f64 {
     }
 }
 
+/// How far the tool turned from `now` to `then` in ways the subgoal does not ask for (rad):
+/// the whole turn, or with a tilt asked for, the turn of the approach axis (tool z) alone.
+fn unasked_turn(
+    now: &nalgebra::UnitQuaternion<f64>,
+    then: &nalgebra::UnitQuaternion<f64>,
+    tilt_asked: bool,
+) -> f64 {
+    if tilt_asked {
+        let a = now * Vector3::z();
+        let b = then * Vector3::z();
+        a.dot(&b).clamp(-1.0, 1.0).acos()
+    } else {
+        now.angle_to(then)
+    }
+}
+
 /// `u` brought into the stick's disc.
 fn disc(u: [f64; 2]) -> [f64; 2] {
     let n = u[0].hypot(u[1]);
@@ -565,6 +739,9 @@ impl Operate for Expert {
             .aim_out
             .as_ref()
             .and_then(|c| c.lock().ok().map(|e| *e));
+        if let Forward::Learned(l) = &mut self.forward {
+            l.see(seen);
+        }
         self.shift_plans();
         if let Some(b) = self.button.tick() {
             buttons_now |= b;
@@ -600,12 +777,20 @@ impl Operate for Expert {
                         other = Some((m, rest - bm));
                     }
                 }
+                tracing::trace!(cur, best, rest, ?other, "the planner weighs the modes");
                 if let Some((m, g)) = other
-                    && g > (1.0 + self.params.mode_switch_margin) * gain.max(0.0) + SWITCH_MIN_M
+                    && g > (1.0 + self.switch_margin) * gain.max(0.0) + SWITCH_MIN_M
                 {
+                    // A slip: one press too many; it sees the mode it got and goes on from
+                    // there.
+                    let to = if self.slip > 0.0 && rng.uniform() < self.slip {
+                        (m + 1) % self.modes
+                    } else {
+                        m
+                    };
                     self.button
-                        .switch(cur, m, self.modes, self.params.mode_switch_s, self.dt);
-                    self.switching_to = Some(m);
+                        .switch(cur, to, self.modes, self.params.mode_switch_s, self.dt);
+                    self.switching_to = Some(to);
                     self.hand.let_go();
                     choice = [0.0; 2];
                 }
@@ -623,7 +808,7 @@ impl Operate for Expert {
         }
         self.ticks += 1;
         let resting = self.button.busy();
-        self.hand.sample(
+        let joy = self.hand.sample(
             &self.params,
             self.dt,
             choice,
@@ -633,11 +818,22 @@ impl Operate for Expert {
             gripper,
             buttons_now,
             rng,
-        )
+        );
+        if let Forward::Learned(l) = &mut self.forward {
+            l.sent(&joy);
+        }
+        joy
     }
 
     fn presses(&self) -> u32 {
         self.button.presses()
+    }
+
+    fn into_learned(self: Box<Self>) -> Option<InternalModel> {
+        match self.forward {
+            Forward::Learned(l) => Some(l.model),
+            Forward::Map(_) => None,
+        }
     }
 }
 

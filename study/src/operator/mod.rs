@@ -9,11 +9,16 @@
 //!
 //! Every operator sees what a person sees ([`Seen`]: the tool's pose, the gripper, the map's
 //! mode, the task's scene and next subgoal) and acts through the same hand (`Hand`: a
-//! reaction delay, a bounded stick rate, input noise). An operator that learns the map from
-//! practice joins as another [`OperatorKind`] and another implementation of [`Operate`].
+//! reaction delay, a bounded stick rate, input noise).
+//! * [`OperatorKind::Practiced`] ([`practiced`]): a person after the practice phase: learns an
+//!   internal model of the map from what it saw in the study's practice time
+//!   ([`internal::InternalModel`]), then plans like the expert with that model, never with the
+//!   map.
 
 pub mod expert;
 pub mod greedy;
+pub mod internal;
+pub mod practiced;
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -38,23 +43,27 @@ pub enum OperatorKind {
     /// Plans with the served map as its forward model (sampling-based model-predictive
     /// control over stick sequences and mode presses): what the map allows at best.
     Expert,
+    /// Learns the map in the study's practice time from what it sees, then plans with what
+    /// it learned: a person after practice.
+    Practiced,
 }
 
 impl OperatorKind {
     /// Every kind, as the study file spells it.
-    pub const NAMES: [&'static str; 2] = ["greedy", "expert"];
+    pub const NAMES: [&'static str; 3] = ["greedy", "practiced", "expert"];
 
     /// Its name in the study file.
     pub fn name(self) -> &'static str {
         match self {
             Self::Greedy => "greedy",
             Self::Expert => "expert",
+            Self::Practiced => "practiced",
         }
     }
 
     /// The kind the study file names `name`.
     pub fn from_name(name: &str) -> Option<Self> {
-        [Self::Greedy, Self::Expert]
+        [Self::Greedy, Self::Practiced, Self::Expert]
             .into_iter()
             .find(|k| k.name() == name)
     }
@@ -99,13 +108,24 @@ pub trait Operate: Send {
     fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput;
     /// Mode presses so far.
     fn presses(&self) -> u32;
+    /// It has done what it set out to do before the time ran out (trying the stick in
+    /// practice); a task attempt ends with the task.
+    fn finished(&self) -> bool {
+        false
+    }
+    /// What it learned of the map (the operators that learn).
+    fn into_learned(self: Box<Self>) -> Option<internal::InternalModel> {
+        None
+    }
 }
 
 /// The operator of one attempt of kind `params.operator` on `robot` (`safety`: the graph's
 /// safety configuration, whose whole-arm stop the expert foresees). `aim_out` is the attempt's
 /// [`AttemptSetup::aim_out`](crate::simulate::AttemptSetup::aim_out): a scripted map that
 /// moves straight to the operator's aim reads it, so the expert writes its predicted aims
-/// there while it predicts (and puts back what it found).
+/// there while it predicts (and puts back what it found). `learned`: what the practiced
+/// operator learned in practice (it is refused without).
+#[allow(clippy::too_many_arguments)]
 pub fn operator(
     params: &SimParams,
     robot: &'static RobotProfile,
@@ -114,6 +134,7 @@ pub fn operator(
     dt: f64,
     make: &ModelFactory<'_>,
     aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+    learned: Option<&internal::InternalModel>,
 ) -> Result<Box<dyn Operate>, SimError> {
     Ok(match params.operator {
         OperatorKind::Greedy => Box::new(greedy::Greedy::new(
@@ -125,6 +146,19 @@ pub fn operator(
         OperatorKind::Expert => Box::new(expert::Expert::new(
             params, robot, safety, tol, dt, make, aim_out,
         )?),
+        OperatorKind::Practiced => {
+            let model = learned.ok_or_else(|| {
+                SimError::Setup("the practiced operator has not practised this map".into())
+            })?;
+            Box::new(expert::Expert::practiced(
+                params,
+                robot,
+                safety,
+                tol,
+                dt,
+                expert::Learner::new(model.clone(), true, dt),
+            ))
+        }
     })
 }
 

@@ -322,13 +322,27 @@ fn simulate(prefix: &ipc_types::Prefix, study: &Path, out: &Path, live: bool) {
 /// and is run again, at most four times.
 #[test]
 fn the_simulated_and_live_paths_agree() {
+    sim_and_live_agree(SIM_VS_LIVE, "simlive");
+}
+
+/// The same check with the practiced operator (`[simulation] operator = "practiced"`): it
+/// practises in process (a minute, with the condition's map), then makes the attempt in
+/// process and live with what it learned, learning on from what it sees in both.
+#[test]
+fn the_simulated_and_live_paths_agree_for_the_practiced_operator() {
+    let study = SIM_VS_LIVE.replace("attempts = 1\n", "attempts = 1\npractice_s = 60\n")
+        + "[simulation]\noperator = \"practiced\"\n";
+    sim_and_live_agree(&study, "simlivep");
+}
+
+fn sim_and_live_agree(study_text: &str, name: &str) {
     let _serial = serial();
-    let prefix = unique_prefix("simlive");
+    let prefix = unique_prefix(name);
     let live_prefix = ipc_types::Prefix::new(&format!("{prefix}-sim")).unwrap();
     let _domain = DomainGuard(live_prefix.clone());
-    let dir = scl_tests::temp_dir("simlive");
+    let dir = scl_tests::temp_dir(name);
     let study = dir.join("study.toml");
-    std::fs::write(&study, SIM_VS_LIVE).unwrap();
+    std::fs::write(&study, study_text).unwrap();
 
     let sim = dir.join("sim");
     simulate(&prefix, &study, &sim, false);
