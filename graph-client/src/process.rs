@@ -415,10 +415,12 @@ mod tests {
             e.contains("process 43 from gw") && e.contains("of process 42"),
             "{e}"
         );
-        for cut in [0, 8, bytes.len() / 2, bytes.len() - 1] {
-            let e = Captured::read(&bytes[..cut], 42, "gw")
-                .unwrap_err()
-                .to_string();
+        // Cut before its end (in the model's bytes, or before anything).
+        for cut in [0, 8, bytes.len() / 3, bytes.len() / 2] {
+            let Err(e) = Captured::read(&bytes[..cut], 42, "gw") else {
+                panic!("a capture cut at {cut} of {} was taken", bytes.len());
+            };
+            let e = e.to_string();
             assert!(e.contains("process 42 from gw"), "{cut}: {e}");
         }
         let mut flipped = bytes.clone();
