@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender};
 use graph_client::process::Captured;
 use ipc_types::{NodeRole, NodeStatus, Prefix};
-use recording::Payload;
+use recording::{Payload, Topic};
 use scl_net::Keys;
 use scl_net::observe::{self, FetchError, Observed};
 use transport::signals;
@@ -33,6 +33,76 @@ const FETCH_TIMEOUT: Duration = Duration::from_secs(1);
 const FETCH_ATTEMPTS: u32 = 20;
 /// Between two questions about the same process.
 const FETCH_RETRY: Duration = Duration::from_millis(250);
+
+/// Ticks between the newest first tick of the topics a command depends on and the first
+/// command a remote recording keeps: a mapper command at tick `k` may use a joystick sample
+/// answering `k - 1` (two behind is stale), so from there on each one's inputs are in.
+const START_MARGIN: u64 = 3;
+
+/// Robot states after which a remote recording keeps commands even if a topic they depend
+/// on was never heard (a graph without a joystick): about a second at 40 Hz.
+const START_AT_THE_LATEST: u64 = 40;
+
+/// Which commands a remote recording keeps. Its subscriptions reach the gateway one by one,
+/// so the first ticks may bring a mapper command without the joystick sample it used: a
+/// replay would find its input missing. Every message is kept, but mapper and executed
+/// commands only from the first tick at which the joystick, robot state and mapper command
+/// topics (those recorded) have all been heard, plus [`START_MARGIN`]: from then on each
+/// command's inputs are in the recording (Zenoh keeps one key's samples in order).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct StartGate {
+    /// The first tick heard on the joystick, robot state and mapper command topics; `None`
+    /// for one not recorded is filled in as heard at tick 0.
+    first: [Option<u64>; 3],
+    /// The first command tick kept, once known.
+    start: Option<u64>,
+}
+
+impl StartGate {
+    /// A gate for a recording of `topics`.
+    pub(crate) fn new(topics: &[Topic]) -> Self {
+        let mut g = Self::default();
+        for (i, t) in [Topic::Joystick, Topic::RobotState, Topic::MapperCommand]
+            .into_iter()
+            .enumerate()
+        {
+            if !topics.contains(&t) {
+                g.first[i] = Some(0);
+            }
+        }
+        if !topics.contains(&Topic::RobotState) {
+            g.start = Some(0);
+        }
+        g
+    }
+
+    /// Whether to keep `p` (every message but a command before the start).
+    pub(crate) fn keep(&mut self, p: &Payload) -> bool {
+        let heard = match p {
+            Payload::Joystick(j) => Some((0, j.tick)),
+            Payload::RobotState(s) => Some((1, s.tick)),
+            Payload::MapperCommand(c) => Some((2, c.tick)),
+            _ => None,
+        };
+        if let Some((i, tick)) = heard
+            && tick != ipc_types::NO_TICK
+            && self.start.is_none()
+        {
+            let first = *self.first[i].get_or_insert(tick);
+            if let [Some(a), Some(b), Some(c)] = self.first {
+                self.start = Some(a.max(b).max(c) + START_MARGIN);
+            } else if i == 1 && tick >= first + START_AT_THE_LATEST {
+                self.start = Some(tick + START_MARGIN);
+            }
+        }
+        let tick = match p {
+            Payload::MapperCommand(c) => c.tick,
+            Payload::SafeCommand(c) => c.tick,
+            _ => return true,
+        };
+        self.start.is_some_and(|s| tick >= s)
+    }
+}
 
 /// The message of the graph `m` is.
 pub(crate) fn payload(m: Observed) -> Payload {
@@ -91,7 +161,7 @@ pub(crate) fn run(
             .spawn(move || fetch_loop(&session, &keys, &from, &seen_rx, &procs, &stopping))
             .map_err(RecorderError::Thread)?
     };
-    let shared = Arc::new(Mutex::new(Some(producer)));
+    let shared = Arc::new(Mutex::new(Some((producer, StartGate::new(&opts.topics)))));
     let refused = Arc::new(AtomicU64::new(0));
     let subscribed = {
         let (shared, refused, topics) = (
@@ -106,7 +176,8 @@ pub(crate) fn run(
                     return;
                 }
                 if let Ok(mut guard) = shared.lock()
-                    && let Some(producer) = guard.as_mut()
+                    && let Some((producer, gate)) = guard.as_mut()
+                    && gate.keep(&p)
                 {
                     if let Payload::Status(st) = &p {
                         producer.note_process(st);
@@ -143,7 +214,7 @@ pub(crate) fn run(
     // No message after this: the subscriptions go first.
     drop(subs);
     if let Ok(mut guard) = shared.lock()
-        && let Some(p) = guard.as_mut()
+        && let Some((p, _)) = guard.as_mut()
     {
         outcome_at_stop(opts, p);
     }
@@ -159,13 +230,17 @@ pub(crate) fn run(
 /// Ends the run: the fetcher answers what it was asked (once each), then the hand-off
 /// closes and the writer finishes the file.
 fn stop(
-    shared: &Mutex<Option<crate::Producer>>,
+    shared: &Mutex<Option<(crate::Producer, StartGate)>>,
     stopping: &AtomicBool,
     fetcher: std::thread::JoinHandle<()>,
     writer: std::thread::JoinHandle<WriterOutcome>,
 ) -> WriterOutcome {
     stopping.store(true, Ordering::Relaxed);
-    let mut producer = shared.lock().ok().and_then(|mut g| g.take());
+    let mut producer = shared
+        .lock()
+        .ok()
+        .and_then(|mut g| g.take())
+        .map(|(p, _)| p);
     if let Some(p) = producer.as_mut() {
         p.remote_procs = None;
     }
@@ -234,8 +309,76 @@ mod tests {
     /// The name a capture came from.
     const FROM: &str = "tcp/192.0.2.10:7447";
     use graph_client::process::{ProcessSeen, capture_bytes};
-    use ipc_types::phase;
-    use recording::Topic;
+    use ipc_types::{JoystickInput, MapperCommand, SafeCommand, phase};
+
+    fn joystick(tick: u64) -> Payload {
+        Payload::Joystick(JoystickInput {
+            tick,
+            ..zerocopy::FromZeros::new_zeroed()
+        })
+    }
+
+    fn state(tick: u64) -> Payload {
+        Payload::RobotState(ipc_types::RobotState::at_rest(tick, 1, 6))
+    }
+
+    fn mapper(tick: u64) -> Payload {
+        Payload::MapperCommand(MapperCommand {
+            tick,
+            ..zerocopy::FromZeros::new_zeroed()
+        })
+    }
+
+    fn safe(tick: u64) -> Payload {
+        Payload::SafeCommand(SafeCommand {
+            tick,
+            ..SafeCommand::zeroed()
+        })
+    }
+
+    #[test]
+    fn commands_are_kept_once_every_input_is_heard_and_other_messages_always() {
+        let mut g = StartGate::new(&Topic::ALL);
+        // The mapper's topic is heard first (tick 10), the joystick at 11, states at 12.
+        assert!(!g.keep(&mapper(10)));
+        assert!(!g.keep(&safe(10)));
+        assert!(g.keep(&joystick(11)));
+        assert!(!g.keep(&mapper(11)));
+        assert!(g.keep(&state(12)));
+        assert!(g.keep(&Payload::Status(mapper_status(1))));
+        // From 12 + 3 on.
+        assert!(!g.keep(&mapper(14)));
+        assert!(!g.keep(&safe(14)));
+        assert!(g.keep(&mapper(15)));
+        assert!(g.keep(&safe(15)));
+        assert!(g.keep(&mapper(16)));
+        // A joystick sample that answers no tick says nothing.
+        let mut g = StartGate::new(&Topic::ALL);
+        g.keep(&joystick(ipc_types::NO_TICK));
+        g.keep(&mapper(3));
+        g.keep(&state(3));
+        assert!(!g.keep(&mapper(100)));
+    }
+
+    #[test]
+    fn a_topic_not_recorded_or_never_heard_holds_nothing_back_for_long() {
+        let mut g = StartGate::new(&[Topic::RobotState, Topic::SafeCommand]);
+        g.keep(&state(5));
+        assert!(g.keep(&safe(8)));
+        assert!(!g.keep(&safe(7)));
+        // No joystick at all: states for a second, then the commands.
+        let mut g = StartGate::new(&Topic::ALL);
+        for k in 0..START_AT_THE_LATEST {
+            g.keep(&state(k));
+            g.keep(&mapper(k));
+            assert!(!g.keep(&safe(k)), "{k}");
+        }
+        g.keep(&state(START_AT_THE_LATEST));
+        assert!(g.keep(&safe(START_AT_THE_LATEST + START_MARGIN)));
+        // Without robot states, nothing to wait for.
+        let mut g = StartGate::new(&[Topic::SafeCommand]);
+        assert!(g.keep(&safe(0)));
+    }
 
     fn mapper_status(pid: u32) -> NodeStatus {
         let mut st = NodeStatus::new(NodeRole::Mapper, phase::RUNNING, 5);
