@@ -637,6 +637,20 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
             what: "the server's runtime",
             source,
         })?;
+    let counters = Arc::new(Counters::default());
+    let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
+    let mut producer = Producer {
+        tx,
+        counters: counters.clone(),
+        seen: BTreeSet::new(),
+        remote_procs: None,
+    };
+    // A remote graph's gateway first: a wrong endpoint or login starts no server.
+    let remote = opts
+        .remote
+        .as_ref()
+        .map(|r| Remote::open(r, &mut producer))
+        .transpose()?;
     let ctx = Context::new();
     let channels = Channels::new(&ctx)?;
     let server = ctx
@@ -654,20 +668,9 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     tracing::info!(
         "serving graph `{prefix}` to Foxglove on ws://{addr} (open connection: Foxglove WebSocket)"
     );
-    let counters = Arc::new(Counters::default());
-    let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
-    let mut producer = Producer {
-        tx,
-        counters: counters.clone(),
-        seen: BTreeSet::new(),
-        remote_procs: None,
-    };
-    let result = match &opts.remote {
+    let result = match remote {
         None => serve_local(prefix, opts, producer, rx, viz, channels, addr),
-        Some(remote) => {
-            let remote = Remote::open(remote, &mut producer)?;
-            remote.serve(opts, producer, rx, viz, channels, addr)
-        }
+        Some(remote) => remote.serve(opts, producer, rx, viz, channels, addr),
     };
     let _ = server.stop();
     rt.shutdown_timeout(Duration::from_secs(1));
