@@ -752,6 +752,23 @@ fn a_remote_recording_holds_what_a_local_one_holds_and_replays_bit_for_bit() {
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
     let pca = scl_tests::joint_reach_pca(&dir, None);
     let (local_file, remote_file) = (dir.join("local.mcap"), dir.join("remote.mcap"));
+    // A wrong password is refused during the handshake, and no file is made.
+    let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
+    let refused = dir.join("refused.mcap");
+    let out = ns
+        .scl(&ns.op, &prefix)
+        .args(["record", "--remote", &ns.endpoint(), "--credentials"])
+        .arg(&wrong)
+        .arg("--out")
+        .arg(&refused)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("cannot open a Zenoh session"),
+        "{err}"
+    );
+    assert!(!refused.exists());
     // This machine's recorder (shared memory), and the operator's through the gateway, which
     // requires the login.
     let mut c = scl_tests::scl(&prefix);
