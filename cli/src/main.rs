@@ -365,11 +365,12 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             Ok(ExitCode::from(code as u8))
         }
         Cmd::Record { graph, args } => {
-            let prefix = graph.load()?.0;
-            // Recording a graph, not repairing or converting a file.
-            let live = args.recover.is_none() && args.convert.is_none();
+            let (prefix, cfg) = graph.load()?;
+            // Recording this machine's graph, not repairing or converting a file, nor
+            // recording a remote graph (whose shared memory is not here).
+            let live = args.recover.is_none() && args.convert.is_none() && args.remote.is_none();
             let _log = live.then(|| graph_log(&prefix, "recorder"));
-            Ok(scl_recorder::cli(&prefix, &args)?)
+            Ok(scl_recorder::cli(&prefix, &args, &cfg.network)?)
         }
         Cmd::Study { graph, what } => {
             let (prefix, cfg) = graph.load()?;

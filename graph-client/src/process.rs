@@ -5,6 +5,10 @@
 //! embeds them as attachments with their SHA-256 and writes a [`recording::PROCESS_METADATA`]
 //! record. A replay of the recording ([`recording`] readers, `scl replay`) takes the model and
 //! the safety configuration from there.
+//!
+//! The gateway serves the same capture to other machines ([`capture_bytes`]: what [`capture`]
+//! writes, as a small MCAP file of its own); a remote recorder reads it back ([`Captured`])
+//! and writes exactly those records into its recording.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -215,9 +219,223 @@ pub fn capture<W: std::io::Write>(
     w.write_metadata(&recording::metadata(recording::PROCESS_METADATA, m))
 }
 
+/// The name a capture's bytes are read and written under (in error messages).
+const CAPTURE_NAME: &str = "process-capture.mcap";
+
+/// [`capture`] into an MCAP file of its own: the bytes the gateway serves for process `p`.
+pub fn capture_bytes(p: &ProcessSeen) -> Result<Vec<u8>, RecordError> {
+    let mut w = LogWriter::new(Vec::new(), Path::new(CAPTURE_NAME), None)?;
+    capture(&mut w, p)?;
+    w.finish(None)
+}
+
+/// One attachment of a capture.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CapturedFile {
+    /// The attachment's name (`model/mapper-<id>/<pid>/<file>`, `config/safety/<pid>/graph.toml`).
+    pub name: String,
+    /// Its log time (ns).
+    pub log_time: u64,
+    /// Its media type.
+    pub media_type: String,
+    /// Its bytes.
+    pub data: Vec<u8>,
+}
+
+/// What [`capture`] wrote for one process, read back from [`capture_bytes`]' bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Captured {
+    /// The [`recording::PROCESS_METADATA`] record's entries.
+    pub entries: BTreeMap<String, String>,
+    /// The attachments, in the order they were written.
+    pub attachments: Vec<CapturedFile>,
+}
+
+/// Why a capture's bytes were refused.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    /// The bytes are not a readable MCAP file.
+    #[error("the capture of process {pid} from {from}: {source}")]
+    Read {
+        /// The process asked for.
+        pid: u32,
+        /// Where the bytes came from.
+        from: String,
+        /// Why.
+        #[source]
+        source: RecordError,
+    },
+    /// The file is readable but not one capture of this process.
+    #[error("the capture of process {pid} from {from}: {reason}")]
+    Content {
+        /// The process asked for.
+        pid: u32,
+        /// Where the bytes came from.
+        from: String,
+        /// What was wrong.
+        reason: String,
+    },
+}
+
+impl Captured {
+    /// Reads the capture of process `pid` from `bytes` (which came `from`: named in errors):
+    /// a complete MCAP file with one [`recording::PROCESS_METADATA`] record of that pid, and
+    /// every attachment the record names.
+    pub fn read(bytes: &[u8], pid: u32, from: &str) -> Result<Self, CaptureError> {
+        let content = |reason: String| CaptureError::Content {
+            pid,
+            from: from.to_owned(),
+            reason,
+        };
+        let mut records = Vec::new();
+        let mut attachments = Vec::new();
+        let summary = recording::read(bytes, Path::new(CAPTURE_NAME), |ev| {
+            match ev {
+                recording::Event::Metadata { name, entries }
+                    if name == recording::PROCESS_METADATA =>
+                {
+                    records.push(entries.clone());
+                }
+                recording::Event::Attachment {
+                    name,
+                    log_time,
+                    media_type,
+                    data,
+                } => attachments.push(CapturedFile {
+                    name: name.to_owned(),
+                    log_time,
+                    media_type: media_type.to_owned(),
+                    data: data.to_vec(),
+                }),
+                _ => {}
+            }
+            Ok(())
+        })
+        .map_err(|source| CaptureError::Read {
+            pid,
+            from: from.to_owned(),
+            source,
+        })?;
+        if !summary.complete {
+            return Err(content(format!(
+                "the file is cut ({})",
+                summary
+                    .stopped
+                    .map_or_else(|| "no end".to_owned(), |s| format!("{s:?}"))
+            )));
+        }
+        let [entries] = <[_; 1]>::try_from(records)
+            .map_err(|r| content(format!("{} process records, not one", r.len())))?;
+        if entries.get("pid").map(String::as_str) != Some(pid.to_string().as_str()) {
+            return Err(content(format!(
+                "its record is of process {}",
+                entries.get("pid").map_or("(none)", String::as_str)
+            )));
+        }
+        for key in ["model_attachment", "config_attachment"] {
+            if let Some(name) = entries.get(key)
+                && !attachments.iter().any(|a| &a.name == name)
+            {
+                return Err(content(format!("its record names {name}, which it lacks")));
+            }
+        }
+        Ok(Self {
+            entries,
+            attachments,
+        })
+    }
+
+    /// Writes the capture into `w` as [`capture`] wrote it: the attachments, then the record.
+    pub fn write_to<W: std::io::Write>(&self, w: &mut LogWriter<W>) -> Result<(), RecordError> {
+        for a in &self.attachments {
+            w.attach(&a.name, a.log_time, &a.media_type, &a.data)?;
+        }
+        w.write_metadata(&recording::metadata(
+            recording::PROCESS_METADATA,
+            self.entries.clone(),
+        ))
+    }
+
+    /// The attachments by name (what `viz::convert::apply_process_record` looks them up in).
+    pub fn attachment_map(&self) -> std::collections::HashMap<String, Vec<u8>> {
+        self.attachments
+            .iter()
+            .map(|a| (a.name.clone(), a.data.clone()))
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn bundled_mapper() -> ProcessSeen {
+        ProcessSeen {
+            role: NodeRole::Mapper,
+            pid: 42,
+            mapper_id: 3,
+            t_ns: 7,
+            argv: Ok(vec![
+                "scl".into(),
+                "mapper".into(),
+                "--model".into(),
+                "bundled".into(),
+            ]),
+            cwd: None,
+        }
+    }
+
+    /// Written through its bytes, a capture is the same records as written directly.
+    #[test]
+    fn a_capture_read_back_from_its_bytes_writes_the_same_records() {
+        let p = bundled_mapper();
+        let direct = {
+            let mut w = LogWriter::new(Vec::new(), Path::new("a.mcap"), None).unwrap();
+            capture(&mut w, &p).unwrap();
+            w.finish(None).unwrap()
+        };
+        let bytes = capture_bytes(&p).unwrap();
+        let c = Captured::read(&bytes, 42, "test").unwrap();
+        assert_eq!(c.attachments.len(), 1);
+        assert_eq!(c.entries["model_spec"], "bundled");
+        let through = {
+            let mut w = LogWriter::new(Vec::new(), Path::new("a.mcap"), None).unwrap();
+            c.write_to(&mut w).unwrap();
+            w.finish(None).unwrap()
+        };
+        assert_eq!(direct, through);
+        assert_eq!(c.attachment_map().len(), 1);
+    }
+
+    #[test]
+    fn a_corrupt_cut_or_foreign_capture_is_refused_naming_the_process() {
+        let bytes = capture_bytes(&bundled_mapper()).unwrap();
+        let e = Captured::read(&bytes, 43, "gw").unwrap_err().to_string();
+        assert!(
+            e.contains("process 43 from gw") && e.contains("of process 42"),
+            "{e}"
+        );
+        // Cut before its end (in the model's bytes, or before anything).
+        for cut in [0, 8, bytes.len() / 3, bytes.len() / 2] {
+            let Err(e) = Captured::read(&bytes[..cut], 42, "gw") else {
+                panic!("a capture cut at {cut} of {} was taken", bytes.len());
+            };
+            let e = e.to_string();
+            assert!(e.contains("process 42 from gw"), "{cut}: {e}");
+        }
+        let mut flipped = bytes.clone();
+        for i in (20..flipped.len()).step_by(37) {
+            flipped[i] ^= 0x5a;
+        }
+        assert!(Captured::read(&flipped, 42, "gw").is_err());
+        // A file with no process record.
+        let empty = LogWriter::new(Vec::new(), Path::new("e.mcap"), None)
+            .unwrap()
+            .finish(None)
+            .unwrap();
+        let e = Captured::read(&empty, 42, "gw").unwrap_err().to_string();
+        assert!(e.contains("0 process records"), "{e}");
+    }
 
     #[test]
     fn options_in_both_spellings() {

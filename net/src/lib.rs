@@ -9,6 +9,7 @@
 //! * [`credentials`]: the `user:password` file, refused unless only its owner can read it;
 //! * [`session`]: `[network]` as a Zenoh configuration, and opening a session;
 //! * [`ports`]: typed publishers, subscribers and liveliness tokens;
+//! * [`observe`]: a remote observer's side (every topic, what each process runs, the clocks);
 //! * [`link`]: the remote operator's link as the gateway judges it (pure: who drives, stale
 //!   and lost input, neutral before motion).
 #![cfg_attr(test, allow(clippy::unwrap_used))]
@@ -16,6 +17,7 @@
 pub mod credentials;
 pub mod keys;
 pub mod link;
+pub mod observe;
 pub mod ports;
 pub mod ros2;
 pub mod session;

@@ -131,3 +131,111 @@ pub fn token(
             source,
         })
 }
+
+/// One answer of a queryable: the key it answers for, its encoding and its bytes.
+#[derive(Debug, Clone)]
+pub struct Answer {
+    /// The key (it must match the query's key expression).
+    pub key: String,
+    /// The encoding (a [`crate::wire`] encoding).
+    pub encoding: String,
+    /// The bytes, shared with whoever keeps them.
+    pub bytes: std::sync::Arc<Vec<u8>>,
+}
+
+/// Declares a queryable on `key` (wildcards allowed): `f` gets each query's key expression
+/// and returns the answers, on Zenoh's thread (it must not block). Read-only by design: a
+/// query carries no payload the gateway reads.
+pub fn serve<F>(
+    session: &zenoh::Session,
+    key: String,
+    f: F,
+) -> Result<zenoh::query::Queryable<()>, SessionError>
+where
+    F: Fn(&zenoh::key_expr::KeyExpr<'_>) -> Vec<Answer> + Send + Sync + 'static,
+{
+    session
+        .declare_queryable(key.clone())
+        .callback(move |q| {
+            for a in f(q.key_expr()) {
+                let r = q
+                    .reply(a.key.clone(), a.bytes.as_slice().to_vec())
+                    .encoding(a.encoding.as_str())
+                    .wait();
+                if let Err(e) = r {
+                    tracing::warn!(key = %a.key, "cannot answer a query: {e}");
+                }
+            }
+        })
+        .wait()
+        .map_err(|source| SessionError::Declare {
+            what: "queryable",
+            key,
+            source,
+        })
+}
+
+/// An answer a query got: its key, its encoding and its bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Got {
+    /// The key it answers for.
+    pub key: String,
+    /// Its encoding, as Zenoh writes it.
+    pub encoding: String,
+    /// Its bytes.
+    pub bytes: Vec<u8>,
+}
+
+/// Asks `key` (wildcards allowed) and waits for the answers, at most `timeout`: every answer
+/// that came (none: nobody answers that key, or not yet). Error replies are logged and left
+/// out.
+pub fn fetch(
+    session: &zenoh::Session,
+    key: String,
+    timeout: std::time::Duration,
+) -> Result<Vec<Got>, SessionError> {
+    let replies = session
+        .get(key.clone())
+        .timeout(timeout)
+        .wait()
+        .map_err(|source| SessionError::Declare {
+            what: "query",
+            key: key.clone(),
+            source,
+        })?;
+    let mut got = Vec::new();
+    while let Ok(r) = replies.recv() {
+        match r.result() {
+            Ok(s) => got.push(Got {
+                key: s.key_expr().as_str().to_owned(),
+                encoding: s.encoding().to_string(),
+                bytes: s.payload().to_bytes().into_owned(),
+            }),
+            Err(e) => {
+                let why = e.payload().to_bytes();
+                tracing::warn!(%key, "the query was answered with an error: {}", String::from_utf8_lossy(&why));
+            }
+        }
+    }
+    Ok(got)
+}
+
+/// [`fetch`] of one `T` (a [`Wire`] message): the first answer that decodes, or why none did
+/// (`None`: nobody answered).
+pub fn fetch_one<T: Wire>(
+    session: &zenoh::Session,
+    key: String,
+    timeout: std::time::Duration,
+) -> Result<Option<Result<T, DecodeError>>, SessionError> {
+    let got = fetch(session, key, timeout)?;
+    let mut first_err = None;
+    for g in got {
+        match decode::<T>(&g.bytes, &g.encoding) {
+            Ok(m) => return Ok(Some(Ok(m))),
+            Err(e) => {
+                first_err.get_or_insert(e);
+            }
+        }
+    }
+    Ok(first_err.map(Err))
+}

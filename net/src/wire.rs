@@ -1,9 +1,10 @@
 //! The messages on the wire: each graph message travels as its own bytes (the `#[repr(C)]`
 //! layout `scl layout` prints, little-endian on every machine this runs on), tagged with its
 //! stable type name as the Zenoh encoding's schema, so a reader checks what it got before it
-//! reads a field. [`GatewayStatus`] is the gateway's own message.
+//! reads a field. [`GatewayStatus`] and [`ClockPair`] are the gateway's own messages;
+//! [`PROCESS_CAPTURE`] is the encoding of what a process runs.
 
-use ipc_types::control::EstopCommand;
+use ipc_types::control::{EstopCommand, SafetyControl};
 use ipc_types::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, TickReport};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
@@ -29,7 +30,28 @@ wire! {
     NodeStatus => "scl::NodeStatus",
     TickReport => "scl::TickReport",
     EstopCommand => "scl::EstopCommand",
+    SafetyControl => "scl::SafetyControl",
     GatewayStatus => "scl::GatewayStatus",
+    ClockPair => "scl::ClockPair",
+}
+
+/// The encoding of the gateway's answer on `NS/process/<pid>`: a small MCAP file holding
+/// exactly what a local `scl record` writes when it first sees that process (the
+/// `scl.process` metadata record and its attachments: the graph configuration, the model
+/// file's bytes), as `graph_client::process::capture` writes them.
+pub const PROCESS_CAPTURE: &str = "application/mcap;scl::ProcessCapture";
+
+/// The robot PC's two clocks read together (the gateway's answer on `NS/clock`): an
+/// observer on another machine maps the messages' `t_ns` (the robot PC's `CLOCK_MONOTONIC`)
+/// to wall-clock time with it, as a local recorder does with its own pair.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(C)]
+#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
+pub struct ClockPair {
+    /// `CLOCK_MONOTONIC` (ns).
+    pub mono_ns: u64,
+    /// The wall clock at the same instant (ns since the Unix epoch).
+    pub unix_ns: u64,
 }
 
 /// Why a payload was refused.
@@ -175,6 +197,7 @@ mod tests {
                 (NodeStatus::type_name(), NodeStatus::TYPE_NAME),
                 (TickReport::type_name(), TickReport::TYPE_NAME),
                 (EstopCommand::type_name(), EstopCommand::TYPE_NAME),
+                (SafetyControl::type_name(), SafetyControl::TYPE_NAME),
             ]
         };
         for (graph, wire) in names {

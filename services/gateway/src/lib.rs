@@ -1,10 +1,16 @@
 //! The gateway process (`scl gateway`; `scl up` starts it when `[network] enabled`): the
 //! graph's link to other machines through Zenoh ([`scl_net`]).
 //!
-//! * **Out**, for observers, read-only: every robot state, mapper and executed command,
-//!   heartbeat and tick report, handed from the loop to a network thread through a bounded
+//! * **Out**, for observers, read-only: every robot state, joystick sample, mapper and
+//!   executed command, heartbeat, tick report, safety control and e-stop command (every topic
+//!   `scl record` writes), handed from the loop to a network thread through a bounded
 //!   queue: when the network is behind, the newest messages are dropped and counted
 //!   ([`ipc_types::gateway_counts::OUTBOUND_DROPPED`]); the loop never waits on the network.
+//! * **Served**, read-only queryables: what each mapper and safety process runs, captured as
+//!   the local recorder captures it (`graph_client::process::capture`, on a capture thread
+//!   when the process's first heartbeat arrives: the configuration, the model file's bytes,
+//!   every swap's model), and the robot PC's clocks, so that `scl record --remote` writes
+//!   what a local recording holds.
 //! * **In**, only with `[network] accept_joystick` / `accept_reset` and only from peers the
 //!   credentials file lists (Zenoh's user/password authentication refuses the others before
 //!   they can publish anything): a remote operator's joystick samples, which the gateway
@@ -23,7 +29,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
-use ipc_types::control::{EstopCommand, estop_action};
+use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
 use ipc_types::{
     JoystickInput, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand,
     TickReport, gateway_counts, phase, time::now_ns,
@@ -39,6 +45,11 @@ use transport::{Graph, Waker, signals};
 
 /// Inbound messages queued for the loop before the newest are dropped (and counted).
 const INBOUND_QUEUE: usize = 256;
+
+/// Captures of processes kept for remote recorders, newest last; beyond that the oldest go
+/// (a recorder asks for a process when it first sees its heartbeat, so only the processes of
+/// long-past swaps are lost).
+const KEPT_CAPTURES: usize = 64;
 
 /// Why the gateway could not run.
 #[derive(Debug, thiserror::Error)]
@@ -74,6 +85,8 @@ enum Outbound {
     Status(NodeStatus),
     Report(TickReport),
     Joystick(JoystickInput),
+    Control(SafetyControl),
+    Estop(EstopCommand),
     Gateway(GatewayStatus),
 }
 
@@ -133,6 +146,7 @@ struct Network {
     _session: scl_net::zenoh::Session,
     _subscribers: Vec<scl_net::zenoh::pubsub::Subscriber<()>>,
     _tokens: Vec<scl_net::zenoh::liveliness::LivelinessToken>,
+    _queryables: Vec<scl_net::zenoh::query::Queryable<()>>,
     out: Sender<Outbound>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -143,6 +157,7 @@ impl Network {
         keys: &Keys,
         creds: Option<&Credentials>,
         inbound: &InboundTx,
+        captures: &Captures,
     ) -> Result<Self, GatewayError> {
         let net = &cfg.network;
         let spec = SessionSpec {
@@ -229,6 +244,18 @@ impl Network {
                 node.entity_token(3, EntityKind::Subscription, JOY_TOPIC, JOY),
             )?);
         }
+        let queryables = vec![captures.serve(&session, keys)?, {
+            let key = keys.clock();
+            ports::serve(&session, key.clone(), move |_| {
+                let (_, mono_ns, unix_ns) = recording::LogClock::wall_now();
+                let c = scl_net::wire::ClockPair { mono_ns, unix_ns };
+                vec![ports::Answer {
+                    key: key.clone(),
+                    encoding: scl_net::wire::encoding_of::<scl_net::wire::ClockPair>(),
+                    bytes: Arc::new(scl_net::wire::encode(&c).to_vec()),
+                }]
+            })?
+        }];
         let (out, rx) = crossbeam_channel::bounded(net.outbound_queue);
         let publishers = Publishers::declare(&session, keys, cfg)?;
         let thread = std::thread::Builder::new()
@@ -242,6 +269,7 @@ impl Network {
             _session: session,
             _subscribers: subscribers,
             _tokens: tokens,
+            _queryables: queryables,
             out,
             thread: Some(thread),
         })
@@ -267,6 +295,8 @@ struct Publishers {
     status: Out<NodeStatus>,
     report: Out<TickReport>,
     joystick: Out<JoystickInput>,
+    control: Out<SafetyControl>,
+    estop: Out<EstopCommand>,
     gateway: Out<GatewayStatus>,
     ros2: Option<Ros2Out>,
 }
@@ -421,6 +451,8 @@ impl Publishers {
             status: ports::publisher(session, keys.topic(topics::STATUS.name), o)?,
             report: ports::publisher(session, keys.topic(topics::TICK_REPORT.name), o)?,
             joystick: ports::publisher(session, keys.topic(topics::JOYSTICK.name), o)?,
+            control: ports::publisher(session, keys.topic(ipc_types::control::SAFETY_CONTROL), o)?,
+            estop: ports::publisher(session, keys.topic(ipc_types::control::ESTOP), o)?,
             gateway: ports::publisher(session, keys.gateway(), Urgency::Control)?,
         })
     }
@@ -446,6 +478,8 @@ impl Publishers {
                 Outbound::Status(s) => self.status.put(s),
                 Outbound::Report(r) => self.report.put(r),
                 Outbound::Joystick(j) => self.joystick.put(j),
+                Outbound::Control(c) => self.control.put(c),
+                Outbound::Estop(c) => self.estop.put(c),
                 Outbound::Gateway(g) => self.gateway.put(g),
             };
             if let Err(e) = r {
@@ -725,6 +759,131 @@ impl Gateway<'_> {
     }
 }
 
+/// The captures of what each mapper and safety process runs, made on a capture thread (at a
+/// low priority: it reads the model files) when the process's first heartbeat arrives, and
+/// served on `NS/process/<pid>`.
+struct Captures {
+    /// Processes seen, to the capture thread (rare: unbounded; never waits).
+    tx: Option<Sender<(NodeStatus, ipc_types::NodeRole)>>,
+    seen: std::collections::BTreeSet<u32>,
+    kept: Arc<std::sync::Mutex<Kept>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// The captures kept, newest last, and the keys they answer.
+#[derive(Default)]
+struct Kept {
+    captures: std::collections::VecDeque<(String, Arc<Vec<u8>>)>,
+}
+
+impl Kept {
+    /// Keeps `bytes` for `key`, the oldest going beyond [`KEPT_CAPTURES`].
+    fn keep(&mut self, key: String, bytes: Arc<Vec<u8>>) {
+        self.captures.retain(|(k, _)| *k != key);
+        self.captures.push_back((key, bytes));
+        while self.captures.len() > KEPT_CAPTURES {
+            self.captures.pop_front();
+        }
+    }
+
+    /// The captures whose key `query` matches.
+    fn answers(&self, query: &scl_net::zenoh::key_expr::KeyExpr<'_>) -> Vec<ports::Answer> {
+        self.captures
+            .iter()
+            .filter(|(k, _)| {
+                scl_net::zenoh::key_expr::KeyExpr::try_from(k.as_str())
+                    .is_ok_and(|k| query.intersects(&k))
+            })
+            .map(|(k, b)| ports::Answer {
+                key: k.clone(),
+                encoding: scl_net::wire::PROCESS_CAPTURE.to_owned(),
+                bytes: Arc::clone(b),
+            })
+            .collect()
+    }
+}
+
+impl Captures {
+    fn start(keys: &Keys) -> Result<Self, GatewayError> {
+        let (tx, rx) = crossbeam_channel::unbounded::<(NodeStatus, ipc_types::NodeRole)>();
+        let kept = Arc::new(std::sync::Mutex::new(Kept::default()));
+        let (k2, keys) = (Arc::clone(&kept), keys.clone());
+        let thread = std::thread::Builder::new()
+            .name("gateway-capture".into())
+            .spawn(move || {
+                node_rt::rt::lower_priority();
+                while let Ok((st, role)) = rx.recv() {
+                    let seen = graph_client::process::ProcessSeen::of(&st, role);
+                    match graph_client::process::capture_bytes(&seen) {
+                        Ok(bytes) => {
+                            tracing::debug!(
+                                pid = st.pid,
+                                role = role.name(),
+                                bytes = bytes.len(),
+                                "process captured"
+                            );
+                            if let Ok(mut k) = k2.lock() {
+                                k.keep(keys.process(st.pid), Arc::new(bytes));
+                            }
+                        }
+                        Err(e) => tracing::warn!(
+                            pid = st.pid,
+                            "cannot capture what process {} runs: {e}",
+                            st.pid
+                        ),
+                    }
+                }
+            })
+            .map_err(|source| GatewayError::Thread {
+                what: "capture thread",
+                source,
+            })?;
+        Ok(Self {
+            tx: Some(tx),
+            seen: std::collections::BTreeSet::new(),
+            kept,
+            thread: Some(thread),
+        })
+    }
+
+    /// Notes the process a heartbeat comes from; a mapper or safety process seen for the
+    /// first time is captured.
+    fn note(&mut self, st: &NodeStatus) {
+        let Some(role) = ipc_types::NodeRole::from_u32(st.role) else {
+            return;
+        };
+        if matches!(
+            role,
+            ipc_types::NodeRole::Mapper | ipc_types::NodeRole::Safety
+        ) && self.seen.insert(st.pid)
+            && let Some(tx) = &self.tx
+        {
+            let _ = tx.send((*st, role));
+        }
+    }
+
+    /// The queryable on `NS/process/*`.
+    fn serve(
+        &self,
+        session: &scl_net::zenoh::Session,
+        keys: &Keys,
+    ) -> Result<scl_net::zenoh::query::Queryable<()>, GatewayError> {
+        let kept = Arc::clone(&self.kept);
+        Ok(ports::serve(session, keys.process_all(), move |q| {
+            kept.lock().map(|k| k.answers(q)).unwrap_or_default()
+        })?)
+    }
+}
+
+impl Drop for Captures {
+    fn drop(&mut self) {
+        self.tx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 /// Runs the gateway of graph `prefix` until a shutdown is requested.
 pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     cfg.network.validate()?;
@@ -742,6 +901,8 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     let statuses = graph.status_subscriber()?;
     let reports = graph.tick_report_subscriber()?;
     let joysticks = graph.joystick_subscriber(false)?;
+    let controls = graph.safety_control_observer()?;
+    let estops = graph.estop_observer()?;
     let heartbeat = graph.status_publisher()?;
     let joystick = if net_cfg.accept_joystick {
         Some(graph.joystick_publisher()?)
@@ -764,7 +925,8 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         waker: Arc::clone(&waker),
         dropped: Arc::clone(&inbound_dropped),
     };
-    let net = Network::open(cfg, &keys, creds.as_ref(), &inbound)?;
+    let mut captures = Captures::start(&keys)?;
+    let net = Network::open(cfg, &keys, creds.as_ref(), &inbound, &captures)?;
     let mut gw = Gateway {
         cfg,
         link: OperatorLink::new(),
@@ -812,14 +974,20 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         }
         mappers.drain(|c| gw.send_out(&net, Outbound::Mapper(*c)))?;
         safes.drain(|c| gw.send_out(&net, Outbound::Safe(*c)))?;
-        statuses.drain(|s| gw.send_out(&net, Outbound::Status(*s)))?;
+        statuses.drain(|s| {
+            captures.note(s);
+            gw.send_out(&net, Outbound::Status(*s));
+        })?;
         reports.drain(|r| gw.send_out(&net, Outbound::Report(*r)))?;
         joysticks.drain(|j| gw.send_out(&net, Outbound::Joystick(*j)))?;
+        controls.drain(|c| gw.send_out(&net, Outbound::Control(*c)))?;
+        estops.drain(|c| gw.send_out(&net, Outbound::Estop(*c)))?;
     }
     gw.st.phase = phase::STOPPING;
     gw.st.t_ns = now_ns();
     let _ = heartbeat.send(gw.st);
     drop(net);
+    drop(captures);
     if let Some(cpu) = process_cpu_s()
         && gw.st.handled > 0
     {
@@ -843,6 +1011,36 @@ fn process_cpu_s() -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    #[test]
+    fn captures_answer_the_keys_a_query_matches_and_the_oldest_go() {
+        let keys = Keys::new("scl/g");
+        let mut k = Kept::default();
+        for pid in 0..(KEPT_CAPTURES as u32 + 2) {
+            k.keep(keys.process(pid), Arc::new(vec![pid as u8]));
+        }
+        let q = |s: &str| scl_net::zenoh::key_expr::KeyExpr::try_from(s.to_owned()).unwrap();
+        assert!(k.answers(&q(&keys.process(0))).is_empty());
+        assert!(k.answers(&q(&keys.process(1))).is_empty());
+        let a = k.answers(&q(&keys.process(5)));
+        assert_eq!(a.len(), 1);
+        assert_eq!(
+            (a[0].key.as_str(), a[0].bytes.as_slice()),
+            ("scl/g/process/5", &[5u8][..])
+        );
+        assert_eq!(a[0].encoding, scl_net::wire::PROCESS_CAPTURE);
+        assert_eq!(k.answers(&q(&keys.process_all())).len(), KEPT_CAPTURES);
+        assert!(k.answers(&q("scl/h/process/5")).is_empty());
+        // Kept again: one capture per key, now the newest.
+        k.keep(keys.process(5), Arc::new(vec![9]));
+        assert_eq!(k.answers(&q(&keys.process_all())).len(), KEPT_CAPTURES);
+        assert_eq!(
+            k.answers(&q(&keys.process(5)))[0].bytes.as_slice(),
+            &[9u8][..]
+        );
+    }
+
     #[test]
     fn neutral_is_safetys_neutral() {
         assert_eq!(

@@ -73,6 +73,21 @@ pub enum LiveError {
         /// Why.
         source: foxglove::FoxgloveError,
     },
+    /// `--remote`: the session to the gateway could not be opened.
+    #[error(transparent)]
+    Remote(#[from] scl_net::session::ClientError),
+    /// `--remote`: a subscription to the gateway's topics could not be declared.
+    #[error(transparent)]
+    Session(#[from] scl_net::SessionError),
+    /// `--remote`: the gateway did not answer (its clocks).
+    #[error("--remote {endpoint}: {source}")]
+    Gateway {
+        /// The endpoint.
+        endpoint: String,
+        /// Why.
+        #[source]
+        source: scl_net::observe::FetchError,
+    },
     /// A thread did not start (`what`: the server's runtime, the view thread).
     #[error("cannot start {what}: {source}")]
     Thread {
@@ -102,7 +117,37 @@ pub struct LiveArgs {
     /// --live` knows that its own server serves.
     #[arg(long, hide = true)]
     pub announce: bool,
+    /// Serve a graph on another machine, through its Zenoh gateway (`[network]` there): its
+    /// endpoint, e.g. `tcp/192.0.2.10:7447`. The same channels as for a local graph, the
+    /// models and configuration as the gateway captured them; `/scl/log` stays empty (the
+    /// gateway does not forward log records).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub remote: Option<String>,
+    /// With `--remote`: a credentials file (`user:password`, mode 0600; default `[network]
+    /// credentials`, if any), for a gateway that requires authentication.
+    #[arg(long, value_name = "FILE", requires = "remote")]
+    pub credentials: Option<std::path::PathBuf>,
 }
+
+/// `--remote`: where the graph's gateway is and how to reach it.
+#[derive(Debug, Clone)]
+pub struct RemoteSource {
+    /// The gateway's endpoint.
+    pub endpoint: String,
+    /// The credentials file, if any.
+    pub credentials: Option<std::path::PathBuf>,
+    /// The graph's namespace (`[network] namespace`, by default `scl/<prefix>`).
+    pub namespace: String,
+    /// Zenoh's lease (ms).
+    pub lease_ms: u64,
+}
+
+/// How long `scl live --remote` waits for the gateway's first answer (its clocks).
+const GATEWAY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long one question to the gateway about a process waits, how often it is asked.
+const FETCH_TIMEOUT: Duration = Duration::from_secs(1);
+const FETCH_ATTEMPTS: u32 = 20;
+const FETCH_RETRY: Duration = Duration::from_millis(250);
 
 /// Parses `ADDR:PORT`; says whether it is a loopback address.
 pub fn parse_listen(s: &str) -> Result<(SocketAddr, bool), LiveError> {
@@ -143,6 +188,8 @@ enum Item {
     /// A process's own log record (boxed: 512 bytes, and rare).
     Log(Box<ipc_types::LogRecord>),
     Process(Box<ProcessSeen>),
+    /// A remote process, as its gateway captured it.
+    Captured(Box<process::Captured>),
 }
 
 /// The server's channels: one per graph topic and one per 3D-view topic.
@@ -230,6 +277,18 @@ fn view_loop(
                     tracing::warn!("{e}");
                 }
             }
+            Item::Captured(c) => {
+                let mut notes = Vec::new();
+                viz::convert::apply_process_record(
+                    &mut viz,
+                    &c.entries,
+                    &c.attachment_map(),
+                    &mut notes,
+                );
+                for n in notes {
+                    tracing::warn!("the 3D view: {n}");
+                }
+            }
             Item::Message(p) => {
                 let t_ns = p.t_ns();
                 json.clear();
@@ -274,6 +333,9 @@ struct Producer {
     tx: Sender<Item>,
     counters: Arc<Counters>,
     seen: BTreeSet<u32>,
+    /// `--remote`: processes seen for the first time, to the thread that asks the gateway
+    /// what they run; `None`: read from this machine's `/proc`.
+    remote_procs: Option<Sender<(NodeStatus, NodeRole)>>,
 }
 
 impl Producer {
@@ -299,6 +361,10 @@ impl Producer {
             return;
         };
         if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
+            if let Some(tx) = &self.remote_procs {
+                let _ = tx.send((*st, role));
+                return;
+            }
             // Rare (a start, a swap, a restart); /proc only, no disk. Dropped if full.
             let _ = self
                 .tx
@@ -350,9 +416,206 @@ pub struct LiveOptions {
     pub config: GraphConfig,
     /// Announce readiness on stdout (`node_rt::ready`) once serving, with the address bound.
     pub announce: bool,
+    /// Serve a graph on another machine through its gateway, not this machine's.
+    pub remote: Option<RemoteSource>,
 }
 
-/// Serves graph `prefix` until a shutdown is requested (Ctrl-C, SIGTERM).
+/// Starts the view thread, mapping the messages' monotonic stamps with `clock`.
+fn start_view(
+    rx: Receiver<Item>,
+    viz: Viz,
+    channels: Channels,
+    counters: Arc<Counters>,
+    clock: LogClock,
+) -> Result<std::thread::JoinHandle<()>, LiveError> {
+    std::thread::Builder::new()
+        .name("live-view".into())
+        .spawn(move || view_loop(rx, viz, channels, counters, clock))
+        .map_err(|source| LiveError::Thread {
+            what: "the view thread",
+            source,
+        })
+}
+
+/// Serves this machine's graph `prefix` until a shutdown is requested.
+fn serve_local(
+    prefix: &Prefix,
+    opts: &LiveOptions,
+    mut producer: Producer,
+    rx: Receiver<Item>,
+    viz: Viz,
+    channels: Channels,
+    addr: SocketAddr,
+) -> Result<(), LiveError> {
+    let graph = Graph::join(prefix, "live")?;
+    let subs = Subscriptions::open(&graph)?;
+    let (clock, _, _) = LogClock::wall_now();
+    let view = start_view(rx, viz, channels, producer.counters.clone(), clock)?;
+    if opts.announce {
+        node_rt::ready::announce(&node_rt::ready::Announcement::Ready(addr.to_string()));
+    }
+    let mut result = Ok(());
+    while result.is_ok() && !signals::stop_requested() {
+        result = subs
+            .states
+            .wait(Duration::from_millis(50))
+            .map_err(LiveError::from)
+            .and_then(|_| subs.drain(&mut producer));
+    }
+    drop(producer);
+    let _ = view.join();
+    drop(subs);
+    drop(graph);
+    let _ = transport::graph::release_domain(prefix);
+    result
+}
+
+/// `--remote`: the session to the gateway, the robot PC's clocks, the fetcher of what each
+/// process runs.
+struct Remote {
+    session: scl_net::zenoh::Session,
+    keys: scl_net::Keys,
+    endpoint: String,
+    clock: LogClock,
+    fetcher: std::thread::JoinHandle<()>,
+    stopping: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Remote {
+    fn open(r: &RemoteSource, producer: &mut Producer) -> Result<Self, LiveError> {
+        let (session, _) =
+            scl_net::session::open_client(&r.endpoint, r.credentials.as_deref(), r.lease_ms)?;
+        let keys = scl_net::Keys::new(&r.namespace);
+        let c =
+            scl_net::observe::fetch_clock(&session, &keys, GATEWAY_TIMEOUT).map_err(|source| {
+                LiveError::Gateway {
+                    endpoint: r.endpoint.clone(),
+                    source,
+                }
+            })?;
+        let (seen_tx, seen_rx) = crossbeam_channel::unbounded::<(NodeStatus, NodeRole)>();
+        producer.remote_procs = Some(seen_tx);
+        let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let fetcher = {
+            let (session, keys, tx, stopping) = (
+                session.clone(),
+                keys.clone(),
+                producer.tx.clone(),
+                Arc::clone(&stopping),
+            );
+            let from = r.endpoint.clone();
+            std::thread::Builder::new()
+                .name("remote-processes".into())
+                .spawn(move || {
+                    node_rt::rt::lower_priority();
+                    while let Ok((st, role)) = seen_rx.recv() {
+                        let got = scl_net::observe::until_answered(
+                            || {
+                                scl_net::observe::fetch_process(
+                                    &session,
+                                    &keys,
+                                    st.pid,
+                                    FETCH_TIMEOUT,
+                                )
+                            },
+                            FETCH_ATTEMPTS,
+                            FETCH_RETRY,
+                            &stopping,
+                        );
+                        let captured = got.map_err(|e| e.to_string()).and_then(|b| {
+                            process::Captured::read(&b, st.pid, &from).map_err(|e| e.to_string())
+                        });
+                        match captured {
+                            Ok(c) => {
+                                let _ = tx.send(Item::Captured(Box::new(c)));
+                            }
+                            Err(e) => tracing::warn!(
+                                "{} process {}: what it runs is not known here: {e}",
+                                role.name(),
+                                st.pid
+                            ),
+                        }
+                    }
+                })
+                .map_err(|source| LiveError::Thread {
+                    what: "the process fetcher",
+                    source,
+                })?
+        };
+        Ok(Self {
+            session,
+            keys,
+            endpoint: r.endpoint.clone(),
+            clock: LogClock::from_pair(c.mono_ns, c.unix_ns),
+            fetcher,
+            stopping,
+        })
+    }
+
+    /// Serves the remote graph until a shutdown is requested.
+    fn serve(
+        self,
+        opts: &LiveOptions,
+        producer: Producer,
+        rx: Receiver<Item>,
+        viz: Viz,
+        channels: Channels,
+        addr: SocketAddr,
+    ) -> Result<(), LiveError> {
+        let view = start_view(rx, viz, channels, producer.counters.clone(), self.clock)?;
+        let shared = Arc::new(std::sync::Mutex::new(Some(producer)));
+        let s2 = Arc::clone(&shared);
+        let subs = scl_net::observe::subscribe_graph(&self.session, &self.keys, move |m| {
+            if let Ok(m) = m
+                && let Ok(mut g) = s2.lock()
+                && let Some(p) = g.as_mut()
+            {
+                let p_m = observed(m);
+                if let Payload::Status(st) = &p_m {
+                    p.note_process(st);
+                }
+                p.offer(p_m);
+            }
+        });
+        let result = subs.map(|subs| {
+            tracing::info!(endpoint = %self.endpoint, "serving the remote graph");
+            if opts.announce {
+                node_rt::ready::announce(&node_rt::ready::Announcement::Ready(addr.to_string()));
+            }
+            while !signals::stop_requested() {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            drop(subs);
+        });
+        self.stopping
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+        let mut producer = shared.lock().ok().and_then(|mut g| g.take());
+        if let Some(p) = producer.as_mut() {
+            p.remote_procs = None;
+        }
+        let _ = self.fetcher.join();
+        drop(producer);
+        let _ = view.join();
+        Ok(result?)
+    }
+}
+
+/// The graph's message `m` is.
+fn observed(m: scl_net::observe::Observed) -> Payload {
+    use scl_net::observe::Observed as O;
+    match m {
+        O::Joystick(j) => Payload::Joystick(j),
+        O::RobotState(s) => Payload::RobotState(s),
+        O::MapperCommand(c) => Payload::MapperCommand(c),
+        O::SafeCommand(c) => Payload::SafeCommand(c),
+        O::Status(s) => Payload::Status(s),
+        O::SafetyControl(c) => Payload::SafetyControl(c),
+        O::Estop(c) => Payload::Estop(c),
+    }
+}
+
+/// Serves graph `prefix` until a shutdown is requested (Ctrl-C, SIGTERM); with
+/// [`LiveOptions::remote`], the graph on another machine, through its gateway.
 pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError> {
     let started = Instant::now();
     let (addr, loopback) = parse_listen(&opts.listen)?;
@@ -374,6 +637,20 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
             what: "the server's runtime",
             source,
         })?;
+    let counters = Arc::new(Counters::default());
+    let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
+    let mut producer = Producer {
+        tx,
+        counters: counters.clone(),
+        seen: BTreeSet::new(),
+        remote_procs: None,
+    };
+    // A remote graph's gateway first: a wrong endpoint or login starts no server.
+    let remote = opts
+        .remote
+        .as_ref()
+        .map(|r| Remote::open(r, &mut producer))
+        .transpose()?;
     let ctx = Context::new();
     let channels = Channels::new(&ctx)?;
     let server = ctx
@@ -391,40 +668,10 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     tracing::info!(
         "serving graph `{prefix}` to Foxglove on ws://{addr} (open connection: Foxglove WebSocket)"
     );
-    let graph = Graph::join(prefix, "live")?;
-    let subs = Subscriptions::open(&graph)?;
-    let counters = Arc::new(Counters::default());
-    let (tx, rx) = crossbeam_channel::bounded(opts.queue.max(1));
-    let c2 = counters.clone();
-    let (clock, _, _) = LogClock::wall_now();
-    let view = std::thread::Builder::new()
-        .name("live-view".into())
-        .spawn(move || view_loop(rx, viz, channels, c2, clock))
-        .map_err(|source| LiveError::Thread {
-            what: "the view thread",
-            source,
-        })?;
-    let mut producer = Producer {
-        tx,
-        counters: counters.clone(),
-        seen: BTreeSet::new(),
+    let result = match remote {
+        None => serve_local(prefix, opts, producer, rx, viz, channels, addr),
+        Some(remote) => remote.serve(opts, producer, rx, viz, channels, addr),
     };
-    if opts.announce {
-        node_rt::ready::announce(&node_rt::ready::Announcement::Ready(addr.to_string()));
-    }
-    let mut result = Ok(());
-    while result.is_ok() && !signals::stop_requested() {
-        result = subs
-            .states
-            .wait(Duration::from_millis(50))
-            .map_err(LiveError::from)
-            .and_then(|_| subs.drain(&mut producer));
-    }
-    drop(producer);
-    let _ = view.join();
-    drop(subs);
-    drop(graph);
-    let _ = transport::graph::release_domain(prefix);
     let _ = server.stop();
     rt.shutdown_timeout(Duration::from_secs(1));
     result?;
@@ -449,8 +696,17 @@ pub fn cli(
         &LiveOptions {
             listen: args.listen.clone(),
             queue: args.queue,
-            config,
             announce: args.announce,
+            remote: args.remote.as_ref().map(|endpoint| RemoteSource {
+                endpoint: endpoint.clone(),
+                credentials: args.credentials.clone().or_else(|| {
+                    (!config.network.credentials.is_empty())
+                        .then(|| std::path::PathBuf::from(&config.network.credentials))
+                }),
+                namespace: config.network.namespace_for(prefix.as_str()),
+                lease_ms: config.network.lease_ms,
+            }),
+            config,
         },
     )
     .inspect_err(|e| {

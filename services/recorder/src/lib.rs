@@ -39,9 +39,26 @@ pub enum RecorderError {
     /// `--json`: the report could not be encoded.
     #[error("cannot encode the report: {0}")]
     Report(#[source] serde_json::Error),
+    /// `--remote`: the session to the gateway could not be opened.
+    #[error(transparent)]
+    Remote(#[from] scl_net::session::ClientError),
+    /// `--remote`: a subscription to the gateway's topics could not be declared.
+    #[error(transparent)]
+    Session(#[from] scl_net::SessionError),
+    /// `--remote`: the gateway did not answer (its clocks), so nothing was recorded.
+    #[error("--remote {endpoint}: {source}")]
+    Gateway {
+        /// The endpoint.
+        endpoint: String,
+        /// Why.
+        #[source]
+        source: scl_net::observe::FetchError,
+    },
 }
 
 use graph_client::process;
+
+mod remote;
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -103,7 +120,33 @@ pub struct RecordArgs {
     /// Print the report as one JSON object on stdout at the end.
     #[arg(long)]
     pub json: bool,
+    /// Record a graph on another machine through its Zenoh gateway (`[network]` there): its
+    /// endpoint, e.g. `tcp/192.0.2.10:7447`. The recording holds what a local one holds:
+    /// every topic, and what each mapper and safety process runs (configuration, model
+    /// files, every swap's model), as the gateway captured them; `scl replay` replays it.
+    #[arg(long, value_name = "ENDPOINT", conflicts_with_all = ["recover", "convert"])]
+    pub remote: Option<String>,
+    /// With `--remote`: a credentials file (`user:password`, mode 0600; default `[network]
+    /// credentials`, if any), for a gateway that requires authentication.
+    #[arg(long, value_name = "FILE", requires = "remote")]
+    pub credentials: Option<PathBuf>,
 }
+
+/// `--remote`: where the graph's gateway is and how to reach it.
+#[derive(Debug, Clone)]
+pub struct RemoteSource {
+    /// The gateway's endpoint.
+    pub endpoint: String,
+    /// The credentials file, if any.
+    pub credentials: Option<PathBuf>,
+    /// The graph's namespace (`[network] namespace`, by default `scl/<prefix>`).
+    pub namespace: String,
+    /// Zenoh's lease (ms).
+    pub lease_ms: u64,
+}
+
+/// How long `scl record --remote` waits for the gateway's first answer (its clocks).
+const GATEWAY_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// What a recording run is asked to do.
 #[derive(Debug, Clone)]
@@ -120,6 +163,8 @@ pub struct RecordOptions {
     pub trial: BTreeMap<String, String>,
     /// A JSON object of strings read at the stop, written as `scl.trial.outcome`.
     pub meta_at_stop: Option<PathBuf>,
+    /// Record a graph on another machine through its gateway, not this machine's.
+    pub remote: Option<RemoteSource>,
 }
 
 /// The metadata record of a recording's trial (`scl record --meta`).
@@ -265,7 +310,10 @@ pub struct Producer {
     tally: Arc<Tally>,
     last_tick: Option<u64>,
     /// Processes seen for the first time, to the writer thread (rare: unbounded).
-    procs: Sender<process::ProcessSeen>,
+    procs: Sender<ProcessItem>,
+    /// `--remote`: processes seen for the first time, to the thread that asks the gateway
+    /// what they run (rare: unbounded); `None`: read from this machine's `/proc`.
+    remote_procs: Option<Sender<(NodeStatus, NodeRole)>>,
     /// Pids of the mapper and safety processes seen so far.
     seen: BTreeSet<u32>,
     /// Metadata records to the writer thread (rare: unbounded).
@@ -324,9 +372,38 @@ impl Producer {
             return;
         };
         if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
-            let _ = self.procs.send(process::ProcessSeen::of(st, role));
+            match &self.remote_procs {
+                Some(tx) => {
+                    let _ = tx.send((*st, role));
+                }
+                None => {
+                    let _ = self
+                        .procs
+                        .send(ProcessItem::Seen(process::ProcessSeen::of(st, role)));
+                }
+            }
         }
     }
+}
+
+/// What the writer thread learns of a process, to embed in the recording.
+#[derive(Debug)]
+pub enum ProcessItem {
+    /// A process of this machine: captured here ([`process::capture`]).
+    Seen(process::ProcessSeen),
+    /// A remote process, as its gateway captured it.
+    Captured(Box<process::Captured>),
+    /// A remote process whose capture could not be had: a record naming why.
+    Missing {
+        /// Its pid.
+        pid: u32,
+        /// Its role.
+        role: NodeRole,
+        /// Its heartbeat's time.
+        t_ns: u64,
+        /// Why.
+        error: String,
+    },
 }
 
 /// How the writer thread ended.
@@ -417,6 +494,20 @@ impl View {
         Ok((self.out.len() as u64, n))
     }
 
+    /// Takes what a remote mapper or safety process runs, as its gateway captured it.
+    fn captured(&mut self, c: &process::Captured) {
+        let mut notes = Vec::new();
+        viz::convert::apply_process_record(
+            &mut self.viz,
+            &c.entries,
+            &c.attachment_map(),
+            &mut notes,
+        );
+        for n in notes {
+            tracing::warn!("the 3D view: {n}");
+        }
+    }
+
     /// Takes what a newly seen mapper or safety process runs.
     fn process(&mut self, p: &process::ProcessSeen) {
         let (cfg, model) = process::runs(p);
@@ -464,6 +555,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
             tally: tally.clone(),
             last_tick: None,
             procs,
+            remote_procs: None,
             seen: BTreeSet::new(),
             metas,
             logs,
@@ -475,7 +567,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
 
 /// The writer thread's rare inputs beside the messages.
 struct SideChannels {
-    procs: Receiver<process::ProcessSeen>,
+    procs: Receiver<ProcessItem>,
     metas: Receiver<recording::Metadata>,
     logs: Receiver<ipc_types::LogRecord>,
 }
@@ -539,12 +631,9 @@ fn write_loop<W: Write>(
         }
         while let Ok(p) = side.procs.try_recv() {
             if error.is_none()
-                && let Err(e) = process::capture(&mut w, &p)
+                && let Err(e) = write_process(&mut w, view.as_mut(), &p)
             {
                 fail(&mut error, &mut pending, e);
-            }
-            if let Some(v) = view.as_mut() {
-                v.process(&p);
             }
         }
         while let Ok(m) = side.metas.try_recv() {
@@ -584,6 +673,14 @@ fn write_loop<W: Write>(
             last_flush = Instant::now();
         }
     }
+    // What was handed over while stopping.
+    while let Ok(p) = side.procs.try_recv() {
+        if error.is_none()
+            && let Err(e) = write_process(&mut w, view.as_mut(), &p)
+        {
+            fail(&mut error, &mut pending, e);
+        }
+    }
     while let Ok(m) = side.metas.try_recv() {
         if error.is_none()
             && let Err(e) = w.write_metadata(&m)
@@ -604,6 +701,43 @@ fn write_loop<W: Write>(
         }
     }
     WriterOutcome { error }
+}
+
+/// Writes what process item `p` says into `w` and tells the 3D view.
+fn write_process<W: Write>(
+    w: &mut LogWriter<W>,
+    view: Option<&mut View>,
+    p: &ProcessItem,
+) -> Result<(), RecordError> {
+    match p {
+        ProcessItem::Seen(p) => {
+            process::capture(w, p)?;
+            if let Some(v) = view {
+                v.process(p);
+            }
+        }
+        ProcessItem::Captured(c) => {
+            c.write_to(w)?;
+            if let Some(v) = view {
+                v.captured(c);
+            }
+        }
+        ProcessItem::Missing {
+            pid,
+            role,
+            t_ns,
+            error,
+        } => {
+            tracing::warn!(pid, role = role.name(), "{error}");
+            let mut m = BTreeMap::new();
+            m.insert("role".to_owned(), role.name().to_owned());
+            m.insert("pid".to_owned(), pid.to_string());
+            m.insert("t_ns".to_owned(), t_ns.to_string());
+            m.insert("error".to_owned(), error.clone());
+            w.write_metadata(&recording::metadata(recording::PROCESS_METADATA, m))?;
+        }
+    }
+    Ok(())
 }
 
 /// The subscriptions of the recorder; `None` for topics not recorded.
@@ -735,20 +869,24 @@ struct Running {
     _graph: Graph,
 }
 
-/// Creates the file (channels on disk at once), joins the graph, subscribes and starts the
-/// writer thread.
-fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError> {
+/// Creates the file and writes its start: the start record (with the clocks `mono` and
+/// `wall` read together, and `extra` entries), the trial record, the channels and the 3D
+/// view's (on disk at once).
+fn create(
+    prefix: &Prefix,
+    opts: &RecordOptions,
+    (mono, wall): (u64, u64),
+    extra: BTreeMap<String, String>,
+) -> Result<(LogWriter<std::io::BufWriter<std::fs::File>>, Option<View>), RecorderError> {
     let file = recording::create_new(&opts.out)?;
-    let (clock, mono, wall) = LogClock::wall_now();
+    let mut start = start_metadata(prefix, &opts.topics, mono, wall);
+    start.extend(extra);
     let mut w = LogWriter::new(
         std::io::BufWriter::new(file),
         &opts.out,
-        Some(recording::metadata(
-            recording::START_METADATA,
-            start_metadata(prefix, &opts.topics, mono, wall),
-        )),
+        Some(recording::metadata(recording::START_METADATA, start)),
     )?;
-    w.set_clock(clock);
+    w.set_clock(LogClock::from_pair(mono, wall));
     if !opts.trial.is_empty() {
         w.write_metadata(&recording::metadata(TRIAL_METADATA, opts.trial.clone()))?;
     }
@@ -765,6 +903,14 @@ fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError
     };
     // The channel definitions reach the disk at once: a crash keeps them.
     w.flush()?;
+    Ok((w, view))
+}
+
+/// Creates the file (channels on disk at once), joins the graph, subscribes and starts the
+/// writer thread.
+fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError> {
+    let (_, mono, wall) = LogClock::wall_now();
+    let (w, view) = create(prefix, opts, (mono, wall), BTreeMap::new())?;
     let graph = Graph::join(prefix, "recorder")?;
     let subs = Subscriptions::open(&graph, &opts.topics)?;
     let heartbeat = graph.status_publisher()?;
@@ -781,17 +927,59 @@ fn start(prefix: &Prefix, opts: &RecordOptions) -> Result<Running, RecorderError
     })
 }
 
+/// Nothing was recorded: leave no file that would block the next attempt (an existing file
+/// is never ours to remove).
+fn remove_unrecorded(out: &Path, e: &RecorderError) {
+    if !matches!(e, RecorderError::Record(RecordError::Exists(_))) {
+        let _ = std::fs::remove_file(out);
+    }
+}
+
+/// The `--meta-at-stop` record, handed to the writer.
+fn outcome_at_stop(opts: &RecordOptions, producer: &mut Producer) {
+    if let Some(path) = &opts.meta_at_stop {
+        match read_meta_file(path) {
+            Ok(Some(m)) => producer.metadata(recording::metadata(TRIAL_OUTCOME_METADATA, m)),
+            Ok(None) => {}
+            Err(e) => tracing::warn!("--meta-at-stop {}: {e}; no outcome record", path.display()),
+        }
+    }
+}
+
+/// The report of a finished run.
+fn report(
+    opts: &RecordOptions,
+    started: Instant,
+    tally: &Tally,
+    outcome: WriterOutcome,
+) -> RecordReport {
+    let topics = tally.counts(&opts.topics);
+    let view_written = tally.view_written();
+    RecordReport {
+        file: opts.out.display().to_string(),
+        duration_s: started.elapsed().as_secs_f64(),
+        received: topics.iter().map(|c| c.received).sum(),
+        written: tally.written(&opts.topics),
+        view_written,
+        dropped: topics.iter().map(|c| c.dropped).sum(),
+        topics,
+        robot_state_gaps: tally.state_gaps.load(Ordering::SeqCst),
+        file_bytes: std::fs::metadata(&opts.out).map_or(0, |m| m.len()),
+        write_error: outcome.error,
+    }
+}
+
 /// Records graph `prefix` into `opts.out` until a shutdown is requested (Ctrl-C, SIGTERM).
+/// With [`RecordOptions::remote`], the graph on another machine, through its gateway.
 pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, RecorderError> {
+    if let Some(remote) = &opts.remote {
+        return remote::run(prefix, opts, remote);
+    }
     let started = Instant::now();
     let r = match start(prefix, opts) {
         Ok(r) => r,
         Err(e) => {
-            // Nothing was recorded: leave no file that would block the next attempt (an
-            // existing file is never ours to remove).
-            if !matches!(e, RecorderError::Record(RecordError::Exists(_))) {
-                let _ = std::fs::remove_file(&opts.out);
-            }
+            remove_unrecorded(&opts.out, &e);
             return Err(e);
         }
     };
@@ -827,13 +1015,7 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
     }
     // What arrived while stopping (the bridge's last state) goes in too.
     let _ = subs.drain(&mut producer);
-    if let Some(path) = &opts.meta_at_stop {
-        match read_meta_file(path) {
-            Ok(Some(m)) => producer.metadata(recording::metadata(TRIAL_OUTCOME_METADATA, m)),
-            Ok(None) => {}
-            Err(e) => tracing::warn!("--meta-at-stop {}: {e}; no outcome record", path.display()),
-        }
-    }
+    outcome_at_stop(opts, &mut producer);
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     let _ = heartbeat.send(st);
@@ -846,20 +1028,7 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
     // If this was the last process of the graph, leave nothing in shared memory.
     let _ = transport::graph::release_domain(prefix);
     loop_result?;
-    let topics = tally.counts(&opts.topics);
-    let view_written = tally.view_written();
-    Ok(RecordReport {
-        file: opts.out.display().to_string(),
-        duration_s: started.elapsed().as_secs_f64(),
-        received: topics.iter().map(|c| c.received).sum(),
-        written: tally.written(&opts.topics),
-        view_written,
-        dropped: topics.iter().map(|c| c.dropped).sum(),
-        topics,
-        robot_state_gaps: tally.state_gaps.load(Ordering::SeqCst),
-        file_bytes: std::fs::metadata(&opts.out).map_or(0, |m| m.len()),
-        write_error: outcome.error,
-    })
+    Ok(report(opts, started, &tally, outcome))
 }
 
 /// The human-readable end-of-recording lines.
@@ -902,7 +1071,13 @@ fn parse_key_value(kv: &str) -> Result<(String, String), String> {
 }
 
 /// `scl record`: records until Ctrl-C / SIGTERM, or recovers a cut recording.
-pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode, RecorderError> {
+/// `network` is the configuration's `[network]` (`--remote`: the namespace, the lease, the
+/// default credentials).
+pub fn cli(
+    prefix: &Prefix,
+    args: &RecordArgs,
+    network: &scl_config::NetworkConfig,
+) -> Result<std::process::ExitCode, RecorderError> {
     if let Some(broken) = &args.recover {
         let r = recording::recover(broken, &args.out)?;
         let how = if r.source_complete {
@@ -945,6 +1120,14 @@ pub fn cli(prefix: &Prefix, args: &RecordArgs) -> Result<std::process::ExitCode,
         flush_every: FLUSH_EVERY,
         trial,
         meta_at_stop: args.meta_at_stop.clone(),
+        remote: args.remote.as_ref().map(|endpoint| RemoteSource {
+            endpoint: endpoint.clone(),
+            credentials: args.credentials.clone().or_else(|| {
+                (!network.credentials.is_empty()).then(|| PathBuf::from(&network.credentials))
+            }),
+            namespace: network.namespace_for(prefix.as_str()),
+            lease_ms: network.lease_ms,
+        }),
     };
     let r = run(prefix, &opts)?;
     eprint!("{}", render_report(&r));

@@ -660,3 +660,346 @@ fn scl_top_watches_a_graph_through_its_gateway() {
     assert_misses_only_held_up(&summary, &log, "scl top --remote");
     clean_up(rec, &prefix, dir);
 }
+
+/// What a recording says each mapper and safety process ran: its `scl.process` records by
+/// pid (less `t_ns`, when that recorder first saw the process) and its attachments by name.
+type Processes = (
+    std::collections::BTreeMap<String, std::collections::BTreeMap<String, String>>,
+    std::collections::BTreeMap<String, Vec<u8>>,
+);
+
+fn processes_of(path: &Path) -> Processes {
+    let (mut records, mut files) = (
+        std::collections::BTreeMap::new(),
+        std::collections::BTreeMap::new(),
+    );
+    recording::read_file(path, |ev| {
+        match ev {
+            recording::Event::Metadata { name, entries } if name == recording::PROCESS_METADATA => {
+                let mut e = entries.clone();
+                e.remove("t_ns");
+                records.insert(e["pid"].clone(), e);
+            }
+            recording::Event::Attachment { name, data, .. } => {
+                files.insert(name.to_owned(), data.to_vec());
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    (records, files)
+}
+
+/// Robot states in `path` so far (a recording being written: read up to its last chunk).
+fn states_in(path: &Path) -> usize {
+    let mut n = 0;
+    let _ = recording::read_file(path, |ev| {
+        if let recording::Event::Message { channel, .. } = ev
+            && channel.topic == "/robot_state"
+        {
+            n += 1;
+        }
+        Ok(())
+    });
+    n
+}
+
+/// `scl replay --json` of `path`: its exit code and report.
+fn replay(path: &Path) -> (Option<i32>, serde_json::Value) {
+    let out = Command::new(scl_binary())
+        .env("SCL_LOG", "warn")
+        .args(["replay", "--json"])
+        .arg(path)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let v = serde_json::from_str(text.trim())
+        .unwrap_or_else(|e| panic!("{e}: {text} {}", String::from_utf8_lossy(&out.stderr)));
+    (out.status.code(), v)
+}
+
+/// Stops a recorder (SIGINT, as Ctrl-C) and returns its output, checking it succeeded.
+fn stop_recorder(mut g: ChildGuard, what: &str) -> std::process::Output {
+    let child = g.take();
+    scl_tests::send_signal(child.id(), nix::sys::signal::Signal::SIGINT);
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{what}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// `scl` run to completion on this machine's graph while `rec` polls; it must succeed.
+fn scl_ok(prefix: &ipc_types::Prefix, args: &[&std::ffi::OsStr], rec: &mut Recorder) {
+    let mut c = scl_tests::scl(prefix);
+    c.args(args);
+    let out = scl_tests::run_polling(c, rec);
+    assert!(
+        out.status.success(),
+        "scl {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn a_remote_recording_holds_what_a_local_one_holds_and_replays_bit_for_bit() {
+    let _serial = serial();
+    let ns = Netns::new("r");
+    let (prefix, _domain, dir, cfg, mut rec, graph) = start_graph(&ns, "netrec", "circle");
+    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
+    let pca = scl_tests::joint_reach_pca(&dir, None);
+    let (local_file, remote_file) = (dir.join("local.mcap"), dir.join("remote.mcap"));
+    // A wrong password is refused during the handshake, and no file is made.
+    let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
+    let refused = dir.join("refused.mcap");
+    let out = ns
+        .scl(&ns.op, &prefix)
+        .args(["record", "--remote", &ns.endpoint(), "--credentials"])
+        .arg(&wrong)
+        .arg("--out")
+        .arg(&refused)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("cannot open a Zenoh session"),
+        "{err}"
+    );
+    assert!(!refused.exists());
+    // This machine's recorder (shared memory), and the operator's through the gateway, which
+    // requires the login.
+    let mut c = scl_tests::scl(&prefix);
+    c.args(["record", "--out"])
+        .arg(&local_file)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let local = ChildGuard(Some(c.spawn().unwrap()));
+    let mut c = ns.scl(&ns.op, &prefix);
+    c.args([
+        "record",
+        "--json",
+        "--remote",
+        &ns.endpoint(),
+        "--credentials",
+    ])
+    .arg(&op_creds)
+    .arg("--out")
+    .arg(&remote_file)
+    .stdout(Stdio::piped())
+    .stderr(Stdio::piped());
+    let remote = ChildGuard(Some(c.spawn().unwrap()));
+    // Both record before anyone drives: the replay's filter starts from rest and neutral
+    // input, where safety was when each recording began.
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| r
+            .statuses
+            .iter()
+            .any(|s| s.role == NodeRole::Recorder as u32)),
+        "the local recorder never started"
+    );
+    let mut remote_states = 0;
+    for _ in 0..600 {
+        rec.poll_for(Duration::from_millis(100));
+        remote_states = states_in(&remote_file);
+        if remote_states > 0 {
+            break;
+        }
+    }
+    assert!(remote_states > 0, "the remote recording got no robot state");
+    let op = remote_operator(
+        &ns,
+        &ns.endpoint(),
+        &prefix,
+        &cfg,
+        &op_creds,
+        "circle",
+        Stdio::null(),
+    );
+    assert!(
+        rec.poll_until(Duration::from_secs(60), |r| moving(r)
+            && count(r, gateway_counts::FORWARDED) > 40),
+        "the remote operator never drove the arm: gateway {:?}",
+        gateway(&rec)
+    );
+    // A live swap to a model file: its model reaches the remote recording as it happens.
+    scl_ok(&prefix, &["swap".as_ref(), pca.as_os_str()], &mut rec);
+    assert!(
+        rec.poll_until(Duration::from_secs(30), |r| r
+            .safe_commands
+            .iter()
+            .any(|c| c.mapper_id == 2)),
+        "the swapped-in mapper never drove"
+    );
+    rec.poll_for(Duration::from_secs(1));
+    // An e-stop and its reset: the safety controls travel too.
+    scl_ok(&prefix, &["estop".as_ref()], &mut rec);
+    rec.poll_for(Duration::from_millis(500));
+    scl_ok(&prefix, &["reset".as_ref()], &mut rec);
+    rec.poll_for(Duration::from_millis(500));
+    drop(op);
+    let out = stop_recorder(remote, "scl record --remote");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!("{e}: {}", String::from_utf8_lossy(&out.stderr));
+    });
+    assert_eq!(report["dropped"], 0, "{report}");
+    stop_recorder(local, "scl record");
+    let (summary, log) = finish(graph);
+    assert_misses_only_held_up(&summary, &log, "a remote recording");
+
+    // The same models and configuration, from the same processes.
+    let (local_procs, local_files) = processes_of(&local_file);
+    let (remote_procs, remote_files) = processes_of(&remote_file);
+    assert_eq!(remote_procs, local_procs);
+    assert_eq!(
+        remote_files.keys().collect::<Vec<_>>(),
+        local_files.keys().collect::<Vec<_>>()
+    );
+    assert_eq!(remote_files, local_files);
+    let names: Vec<&String> = remote_files.keys().collect();
+    for want in ["model/mapper-1/", "model/mapper-2/", "config/safety/"] {
+        assert!(
+            names.iter().any(|n| n.starts_with(want)),
+            "{want}: {names:?}"
+        );
+    }
+    assert!(
+        names.iter().any(|n| n.ends_with("pca.safetensors")),
+        "{names:?}"
+    );
+    assert_eq!(
+        remote_procs
+            .values()
+            .filter(|e| e.contains_key("error"))
+            .count(),
+        0,
+        "{remote_procs:?}"
+    );
+    // Both replay bit for bit, through the swap, the e-stop and its reset.
+    for f in [&remote_file, &local_file] {
+        let (code, v) = replay(f);
+        assert_eq!(code, Some(0), "{}: {v}", f.display());
+        let ticks = v["ticks"].as_u64().unwrap();
+        assert!(ticks >= 100, "{}: {v}", f.display());
+        assert_eq!(v["identical"].as_u64(), Some(ticks), "{}: {v}", f.display());
+        assert_eq!(v["diverged"].as_u64(), Some(0), "{}: {v}", f.display());
+        assert_eq!(v["skipped"].as_u64(), Some(0), "{}: {v}", f.display());
+        assert_eq!(v["mapper_identical"], v["mapper_commands"], "{v}");
+        let events: Vec<&str> = v["events"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|e| e["event"].as_str())
+            .collect();
+        for e in ["swap", "estop", "reset"] {
+            assert!(
+                events.contains(&e),
+                "{}: {e} not in {events:?}",
+                f.display()
+            );
+        }
+    }
+    clean_up(rec, &prefix, dir);
+}
+
+#[test]
+fn scl_live_serves_a_graph_through_its_gateway() {
+    let _serial = serial();
+    let ns = Netns::new("l");
+    let (prefix, _domain, dir, _cfg, mut rec, graph) = start_graph(&ns, "netlive", "circle");
+    let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
+    let mut c = ns.scl(&ns.op, &prefix);
+    c.args([
+        "live",
+        "--announce",
+        "--listen",
+        "127.0.0.1:0",
+        "--remote",
+        &ns.endpoint(),
+        "--credentials",
+    ])
+    .arg(&op_creds)
+    .stdout(Stdio::piped())
+    .stderr(Stdio::piped());
+    let mut live = ChildGuard(Some(c.spawn().unwrap()));
+    // Its announcement names the address it serves (in the operator's namespace).
+    let mut line = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(live.child().stdout.take().unwrap()),
+        &mut line,
+    )
+    .unwrap();
+    let addr = line
+        .trim()
+        .strip_prefix("scl-ready ")
+        .unwrap_or_else(|| panic!("scl live --remote did not start: {line}"))
+        .to_owned();
+    // A Foxglove client on the operator's machine: the channels a local `scl live` serves,
+    // robot states with the graph's ticks, and the map's arrows (the mapper's model, as the
+    // gateway captured it).
+    let netns = ns.op.clone();
+    let client = std::thread::spawn(move || {
+        let f = std::fs::File::open(format!("/var/run/netns/{netns}")).unwrap();
+        nix::sched::setns(f, nix::sched::CloneFlags::CLONE_NEWNET).unwrap();
+        let mut c = viz::client::Client::connect(&addr, Duration::from_secs(30)).unwrap();
+        let topics: Vec<String> = c.channels.values().map(|a| a.topic.clone()).collect();
+        let (state, tick) = (
+            c.channel("/robot_state").unwrap(),
+            c.channel("/scl/tick").unwrap(),
+        );
+        c.subscribe(&[state, tick]).unwrap();
+        let (mut ticks, mut with_map) = (Vec::new(), 0);
+        // Frames counted, not timed: a loaded machine only takes longer.
+        for _ in 0..100_000 {
+            if ticks.len() >= 80 && with_map >= 20 {
+                break;
+            }
+            let Some(fr) = c.next_frame().unwrap() else {
+                continue;
+            };
+            let v: serde_json::Value = serde_json::from_slice(&fr.data).unwrap();
+            if u64::from(fr.subscription) == state {
+                ticks.push(v["tick"].as_u64().unwrap());
+            } else if !v["axis1_m_s"].is_null() {
+                with_map += 1;
+            }
+        }
+        c.close();
+        (topics, ticks, with_map)
+    });
+    while !client.is_finished() {
+        rec.poll_for(Duration::from_millis(100));
+    }
+    let (topics, ticks, with_map) = client.join().unwrap();
+    for t in [
+        "/robot_state",
+        "/joystick",
+        "/mapper_command",
+        "/safe_command",
+        "/status",
+        "/safety_control",
+        "/estop",
+        "/tf",
+        "/scl/arm",
+        "/scl/map",
+        "/scl/world",
+        "/scl/tick",
+    ] {
+        assert!(topics.iter().any(|x| x == t), "{t} not served: {topics:?}");
+    }
+    assert!(ticks.len() >= 80, "{} robot states", ticks.len());
+    assert!(with_map >= 20, "the map's arrows in {with_map} ticks");
+    assert!(ticks.windows(2).all(|w| w[1] > w[0]), "{ticks:?}");
+    rec.poll();
+    let newest = rec.robot_states.last().unwrap().tick;
+    assert!(
+        ticks.iter().all(|t| *t <= newest),
+        "ticks the graph did not publish (newest {newest}): {ticks:?}"
+    );
+    stop_recorder(live, "scl live --remote");
+    let (summary, log) = finish(graph);
+    assert_misses_only_held_up(&summary, &log, "scl live --remote");
+    clean_up(rec, &prefix, dir);
+}

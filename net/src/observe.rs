@@ -1,0 +1,274 @@
+//! A remote observer's side of the gateway (`scl record --remote`, `scl live --remote`): the
+//! graph's messages as the gateway publishes them (every topic a local recording holds), and
+//! its queryables: what each mapper and safety process runs ([`crate::wire::PROCESS_CAPTURE`])
+//! and the robot PC's clocks ([`ClockPair`]).
+
+use std::time::Duration;
+
+use ipc_types::control::{self, EstopCommand, SafetyControl};
+use ipc_types::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, topics};
+
+use crate::keys::Keys;
+use crate::ports::{self, Got};
+use crate::session::SessionError;
+use crate::wire::{ClockPair, DecodeError, PROCESS_CAPTURE};
+
+/// One message of a remote graph.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Observed {
+    /// A joystick sample.
+    Joystick(JoystickInput),
+    /// A robot state.
+    RobotState(RobotState),
+    /// A mapper's command.
+    MapperCommand(MapperCommand),
+    /// An executed command.
+    SafeCommand(SafeCommand),
+    /// A heartbeat.
+    Status(NodeStatus),
+    /// The supervisor's switch, hold or relayed e-stop.
+    SafetyControl(SafetyControl),
+    /// An e-stop or reset command.
+    Estop(EstopCommand),
+}
+
+/// The outbound topics an observer subscribes to, by their names below the namespace (the
+/// graph's own topic names).
+pub const TOPICS: [&str; 7] = [
+    topics::JOYSTICK.name,
+    topics::ROBOT_STATE.name,
+    topics::MAPPER_COMMAND.name,
+    topics::SAFE_COMMAND.name,
+    topics::STATUS.name,
+    control::SAFETY_CONTROL,
+    control::ESTOP,
+];
+
+/// Subscribes to every topic of the graph below `keys`; `f` gets each message, or why one was
+/// refused (with its key), on Zenoh's threads: it must not block.
+pub fn subscribe_graph<F>(
+    session: &zenoh::Session,
+    keys: &Keys,
+    f: F,
+) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, SessionError>
+where
+    F: Fn(Result<Observed, (String, DecodeError)>) + Clone + Send + Sync + 'static,
+{
+    macro_rules! sub {
+        ($ty:ty, $name:expr, $variant:ident) => {{
+            let f = f.clone();
+            ports::subscribe::<$ty, _>(session, keys.topic($name), move |key, m| {
+                f(m.map(Observed::$variant).map_err(|e| (key.to_owned(), e)))
+            })?
+        }};
+    }
+    Ok(vec![
+        sub!(JoystickInput, TOPICS[0], Joystick),
+        sub!(RobotState, TOPICS[1], RobotState),
+        sub!(MapperCommand, TOPICS[2], MapperCommand),
+        sub!(SafeCommand, TOPICS[3], SafeCommand),
+        sub!(NodeStatus, TOPICS[4], Status),
+        sub!(SafetyControl, TOPICS[5], SafetyControl),
+        sub!(EstopCommand, TOPICS[6], Estop),
+    ])
+}
+
+/// Why the gateway's queryables did not give what was asked.
+#[derive(Debug, thiserror::Error)]
+pub enum FetchError {
+    /// The query itself failed.
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    /// Nobody answered (no gateway of this namespace is reachable, or it has not seen it).
+    #[error(
+        "no answer on `{key}` within {timeout:?} (is the graph's gateway running, under this namespace?)"
+    )]
+    NoAnswer {
+        /// The key asked.
+        key: String,
+        /// How long the query waited.
+        timeout: Duration,
+    },
+    /// The answer is not what the key serves.
+    #[error("the answer on `{key}` was refused: {source}")]
+    Decode {
+        /// The key asked.
+        key: String,
+        /// Why.
+        #[source]
+        source: DecodeError,
+    },
+}
+
+/// The robot PC's clocks, from the gateway below `keys`.
+pub fn fetch_clock(
+    session: &zenoh::Session,
+    keys: &Keys,
+    timeout: Duration,
+) -> Result<ClockPair, FetchError> {
+    let key = keys.clock();
+    match ports::fetch_one::<ClockPair>(session, key.clone(), timeout)? {
+        Some(Ok(c)) => Ok(c),
+        Some(Err(source)) => Err(FetchError::Decode { key, source }),
+        None => Err(FetchError::NoAnswer { key, timeout }),
+    }
+}
+
+/// What process `pid` runs, as the gateway below `keys` captured it (an MCAP file's bytes,
+/// [`PROCESS_CAPTURE`]).
+pub fn fetch_process(
+    session: &zenoh::Session,
+    keys: &Keys,
+    pid: u32,
+    timeout: Duration,
+) -> Result<Vec<u8>, FetchError> {
+    let key = keys.process(pid);
+    let got = ports::fetch(session, key.clone(), timeout)?;
+    process_answer(&key, got).ok_or(FetchError::NoAnswer { key, timeout })?
+}
+
+/// Asks (`ask`) until it is answered: at most `attempts` times, `pause` apart, once only
+/// when `stopping` is set; an answer of the wrong kind or a failed query is not asked again.
+/// The gateway captures a process when its first heartbeat arrives, so an observer that saw
+/// the same heartbeat may ask a moment before the capture is there.
+pub fn until_answered<T>(
+    mut ask: impl FnMut() -> Result<T, FetchError>,
+    attempts: u32,
+    pause: Duration,
+    stopping: &std::sync::atomic::AtomicBool,
+) -> Result<T, FetchError> {
+    let mut n = 0;
+    loop {
+        n += 1;
+        match ask() {
+            Err(FetchError::NoAnswer { .. })
+                if n < attempts && !stopping.load(std::sync::atomic::Ordering::Relaxed) =>
+            {
+                std::thread::sleep(pause);
+            }
+            r => return r,
+        }
+    }
+}
+
+/// The capture among the answers to `key`: the first of the right encoding, or why the
+/// first answer was refused; `None` if there was none.
+fn process_answer(key: &str, got: Vec<Got>) -> Option<Result<Vec<u8>, FetchError>> {
+    let mut refused = None;
+    for g in got {
+        if g.encoding == PROCESS_CAPTURE && g.key == key {
+            return Some(Ok(g.bytes));
+        }
+        refused.get_or_insert(FetchError::Decode {
+            key: key.to_owned(),
+            source: DecodeError::Type {
+                want: PROCESS_CAPTURE,
+                got: g.encoding,
+            },
+        });
+    }
+    refused.map(Err)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn got(key: &str, encoding: &str) -> Got {
+        Got {
+            key: key.into(),
+            encoding: encoding.into(),
+            bytes: vec![1, 2, 3],
+        }
+    }
+
+    #[test]
+    fn a_question_is_asked_again_only_while_unanswered() {
+        use std::sync::atomic::AtomicBool;
+        let no_answer = || FetchError::NoAnswer {
+            key: "k".into(),
+            timeout: Duration::ZERO,
+        };
+        let (go, stop) = (AtomicBool::new(false), AtomicBool::new(true));
+        let mut n = 0;
+        let r = until_answered(
+            || {
+                n += 1;
+                if n < 3 { Err(no_answer()) } else { Ok(n) }
+            },
+            5,
+            Duration::ZERO,
+            &go,
+        );
+        assert_eq!(r.unwrap(), 3);
+        let mut n = 0;
+        let r: Result<u32, _> = until_answered(
+            || {
+                n += 1;
+                Err(no_answer())
+            },
+            5,
+            Duration::ZERO,
+            &go,
+        );
+        assert!(matches!(r, Err(FetchError::NoAnswer { .. })) && n == 5);
+        let mut n = 0;
+        let _ = until_answered::<u32>(
+            || {
+                n += 1;
+                Err(no_answer())
+            },
+            5,
+            Duration::ZERO,
+            &stop,
+        );
+        assert_eq!(n, 1);
+        let mut n = 0;
+        let r = until_answered::<u32>(
+            || {
+                n += 1;
+                Err(FetchError::Decode {
+                    key: "k".into(),
+                    source: DecodeError::Size {
+                        want: "x",
+                        size: 1,
+                        got: 2,
+                    },
+                })
+            },
+            5,
+            Duration::ZERO,
+            &go,
+        );
+        assert!(matches!(r, Err(FetchError::Decode { .. })) && n == 1);
+    }
+
+    #[test]
+    fn a_capture_is_taken_only_with_its_encoding_and_key() {
+        let k = "scl/g/process/7";
+        assert!(process_answer(k, vec![]).is_none());
+        assert_eq!(
+            process_answer(k, vec![got(k, PROCESS_CAPTURE)])
+                .unwrap()
+                .unwrap(),
+            vec![1, 2, 3]
+        );
+        let e = process_answer(k, vec![got(k, "application/octet-stream")])
+            .unwrap()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(k) && e.contains("ProcessCapture"), "{e}");
+        // Another process's answer is not this one's.
+        assert!(
+            process_answer(k, vec![got("scl/g/process/8", PROCESS_CAPTURE)])
+                .unwrap()
+                .is_err()
+        );
+        assert_eq!(
+            process_answer(k, vec![got(k, "text/plain"), got(k, PROCESS_CAPTURE)])
+                .unwrap()
+                .unwrap(),
+            vec![1, 2, 3]
+        );
+    }
+}
