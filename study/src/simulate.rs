@@ -1396,4 +1396,29 @@ model = "modeswitch"
             .to_string();
         assert!(e.contains("sample"), "{e}");
     }
+
+    #[test]
+    fn a_bad_practiced_setting_is_refused_naming_the_key() {
+        let p =
+            parse("operator = \"practiced\"\n[simulation.practiced]\nmode_slip = 0.3\n").unwrap();
+        assert_eq!(p.file.simulation.operator, OperatorKind::Practiced);
+        assert_eq!(p.file.simulation.practiced.mode_slip, 0.3);
+        for (text, key) in [
+            ("mode_slip = 1.5", "simulation.practiced.mode_slip"),
+            (
+                "position_width_m = 0",
+                "simulation.practiced.position_width_m",
+            ),
+            ("explore_s = -1", "simulation.practiced.explore_s"),
+            (
+                "[simulation.practiced.planner]\nsamples = 0",
+                "simulation.practiced.planner.samples",
+            ),
+        ] {
+            let e = parse(&format!("[simulation.practiced]\n{text}\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(key), "{text}: {e}");
+        }
+    }
 }

@@ -1014,14 +1014,14 @@ pub enum StudyCmd {
         reference: Option<String>,
     },
     /// Run the study with simulated participants instead of people: the same protocol
-    /// (Latin-square order, attempts, time limits; practice and questionnaires left out)
-    /// through the served maps, the graph's safety filter (--config) and the mock arm, faster
+    /// (Latin-square order, attempts, time limits; questionnaires left out; practice only for
+    /// the practiced operator, which learns the map in it) through the served maps, the graph's safety filter (--config) and the mock arm, faster
     /// than real time and deterministic for a seed. Writes DIR/P01/trials.csv ... and the
     /// report (DIR/report, with the paper's claims checked in summary.md). With --live, each
     /// attempt runs through the real process graph instead, in real time.
     Simulate {
-        /// The study file (its `[simulation]` section sets the operator; see
-        /// examples/study/).
+        /// The study file (its `[simulation]` section sets the operator: greedy, practiced or
+        /// expert; see examples/study/ and docs/simulated-participants.md).
         study: PathBuf,
         /// How many simulated participants (P01 ..; orders by the Latin square).
         #[arg(long, default_value = "13")]

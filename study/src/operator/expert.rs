@@ -159,9 +159,23 @@ pub(crate) struct Learner {
     pub(crate) model: InternalModel,
     /// It learns from what it sees (practice); otherwise the model stays as practice left it.
     pub(crate) learning: bool,
-    /// The last ticks: the tool's pose and the gripper seen, the mode shown, the sample sent.
-    history: VecDeque<(Isometry3<f64>, f64, Option<usize>, [f64; 2], u32)>,
+    /// The last ticks.
+    history: VecDeque<Tick>,
     dt: f64,
+}
+
+/// What the practiced operator saw and did at one tick.
+struct Tick {
+    /// The tool's pose seen.
+    tool: Isometry3<f64>,
+    /// The gripper seen.
+    gripper: f64,
+    /// The mode shown.
+    mode: Option<usize>,
+    /// The stick sent.
+    axes: [f64; 2],
+    /// The buttons sent.
+    buttons: u32,
 }
 
 impl Learner {
@@ -182,17 +196,22 @@ impl Learner {
         if !self.learning {
             return;
         }
-        if let (Some((before, c, mode_before, _, _)), Some((_, _, _, a, buttons))) =
-            (self.history.back(), self.history.iter().rev().nth(1))
-            && *mode_before == seen.mode
-            && *buttons & buttons::MODE == 0
+        if let (Some(last), Some(sent)) = (self.history.back(), self.history.iter().rev().nth(1))
+            && last.mode == seen.mode
+            && sent.buttons & buttons::MODE == 0
         {
-            let v = twist_between(before, seen.tool, self.dt);
-            let at = ToolState::of(before, *c);
-            self.model.observe(seen.mode.unwrap_or(0), &at, *a, &v);
+            let v = twist_between(&last.tool, seen.tool, self.dt);
+            let at = ToolState::of(&last.tool, last.gripper);
+            self.model
+                .observe(seen.mode.unwrap_or(0), &at, sent.axes, &v);
         }
-        self.history
-            .push_back((*seen.tool, seen.state.gripper, seen.mode, [0.0; 2], 0));
+        self.history.push_back(Tick {
+            tool: *seen.tool,
+            gripper: seen.state.gripper,
+            mode: seen.mode,
+            axes: [0.0; 2],
+            buttons: 0,
+        });
         while self.history.len() > 3 {
             self.history.pop_front();
         }
@@ -201,8 +220,8 @@ impl Learner {
     /// Notes the sample sent this tick.
     pub(crate) fn sent(&mut self, joy: &JoystickInput) {
         if let Some(last) = self.history.back_mut() {
-            last.3 = [f64::from(joy.axes[0]), f64::from(joy.axes[1])];
-            last.4 = joy.buttons;
+            last.axes = [f64::from(joy.axes[0]), f64::from(joy.axes[1])];
+            last.buttons = joy.buttons;
         }
     }
 }

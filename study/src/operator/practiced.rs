@@ -181,7 +181,7 @@ impl Operate for Explorer {
             if self.hold.1 == 0 {
                 // A push, then the push back: the tool stays about where it started.
                 self.pushes += 1;
-                self.hold.0 = if self.pushes % 2 == 0 {
+                self.hold.0 = if self.pushes.is_multiple_of(2) {
                     [-self.hold.0[0], -self.hold.0[1]]
                 } else {
                     let th = rng.range(0.0, std::f64::consts::TAU);
