@@ -48,7 +48,10 @@ pub struct PracticedParams {
     /// The chance that a mode switch it decides on ends one press too far (the thumb slips
     /// or loses count); it then sees the mode it got and switches again if it must. The
     /// calibrated key: set so that its presses on pouring with mode switching match the
-    /// paper's participants (17.55 per attempt). Default: the calibrated value.
+    /// paper's participants (17.55 per attempt). Default 0.8, the calibrated value
+    /// (`scripts/calibrate-practiced.sh`, 13 participants, 2026-11-27: 16.5 presses per
+    /// pouring attempt; docs/simulated-participants.md). It stands in for every reason people
+    /// press more than this planner does.
     pub mode_slip: f64,
     /// A turn of the tool the subgoal does not ask for costs this much in its plans (m per
     /// rad): a person keeps the tool's orientation unless the task needs it turned, and so
@@ -66,7 +69,7 @@ impl Default for PracticedParams {
             angle_width_rad: 0.35,
             mode_switch_margin: 0.25,
             rotation_weight_m_per_rad: 0.05,
-            mode_slip: 0.0,
+            mode_slip: 0.8,
             planner: ExpertParams::default(),
         }
     }
