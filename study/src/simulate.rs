@@ -6,10 +6,11 @@
 //! The simulated operator sees what a person sees: the tool's pose, the gripper, the map's
 //! mode (the screen shows it) and the next subgoal ([`learning::goals`]); not the map's
 //! internals. Which operator runs is the study file's `[simulation] operator`
-//! ([`crate::operator`]): the greedy one (one tick ahead, the lower bound) or the expert one
-//! (plans with the served map as its forward model: what the map allows at best). Both act
-//! through the same hand: a reaction delay, a bounded rate of change of the stick, Gaussian
-//! input noise, time to press the mode button.
+//! ([`crate::operator`]): the greedy one (one tick ahead, the lower bound), the practiced one
+//! (learns the map in the practice time from what it sees, [`practice`], then plans with
+//! what it learned) or the expert one (plans with the served map as its forward model: what
+//! the map allows at best). All act through the same hand: a reaction delay, a bounded rate
+//! of change of the stick, Gaussian input noise, time to press the mode button.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -397,7 +398,7 @@ fn run_driver(
 
 /// The practiced operator's practice with the map of `s` for `practice_s` (the task's
 /// practice time), in process on simulated time, from the task's start pose as the study
-/// does: first trying the stick in each mode ([`Explorer`]), then attempts of the task
+/// does: first trying the stick in each mode (`operator::practiced::Explorer`), then attempts of the task
 /// (each to the task's time limit or its end) planned with what it has learned so far, learning
 /// on. Returns what it learned. `s.seed` seeds each part's own stream.
 pub fn practice(s: &AttemptSetup<'_>, practice_s: f64) -> Result<InternalModel, SimError> {
@@ -592,7 +593,7 @@ pub type AttemptRunner<'r> =
     dyn Fn(&AttemptSetup<'_>, &AttemptInfo<'_>) -> Result<AttemptResult, SimError> + Sync + 'r;
 
 /// Runs participant `p`'s protocol (tasks in order, conditions in their Latin-square order,
-/// every attempt; practice left out) and writes `dir/trials.csv` (refusing a directory that
+/// every attempt; practice only for the practiced operator, before each condition's attempts) and writes `dir/trials.csv` (refusing a directory that
 /// has one) and a copy of the study file. `progress` is called after each attempt; `stop`
 /// before each (true: stop there, an error saying how far it got).
 pub fn simulate_participant(

@@ -4,7 +4,7 @@
 //! what it sees: the stick it pushed and the tool's resulting motion at the states it visited.
 //! Practice has two parts:
 //!
-//! 1. **Trying the stick** ([`Explorer`]): from the task's start pose, in each mode the screen
+//! 1. **Trying the stick** (`Explorer`): from the task's start pose, in each mode the screen
 //!    shows, it pushes the stick in a random direction and back ([`PracticedParams::explore_s`]
 //!    per mode), then presses the mode button for the next, until the modes come round.
 //! 2. **Practising the task**: attempts of the task from the start pose, planned with what it
@@ -17,7 +17,7 @@
 //! the same person's limits: reaction delay, input noise, bounded stick rate, time to press the
 //! mode button, backing off when it makes no progress.
 //!
-//! What it may query is exactly what it observed: [`crate::operator::expert::Learner`] takes
+//! What it may query is exactly what it observed: `expert::Learner` takes
 //! the tool's pose each tick and the sample it sent; nothing else of the map reaches it.
 
 use ipc_types::{JoystickInput, buttons};
