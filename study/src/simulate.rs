@@ -1299,12 +1299,12 @@ model = "modeswitch"
 
     #[test]
     fn an_unknown_operator_is_refused_naming_the_key_and_the_operators() {
-        let e = parse("operator = \"practiced\"\n").unwrap_err().to_string();
+        let e = parse("operator = \"careful\"\n").unwrap_err().to_string();
         for want in [
             "s.toml",
             "simulation.operator",
-            "practiced",
-            "greedy, expert",
+            "careful",
+            "greedy, practiced, expert",
         ] {
             assert!(e.contains(want), "`{want}` in: {e}");
         }
