@@ -444,6 +444,31 @@ pub fn assert_misses_only_held_up(summary: &serde_json::Value, log: &str, what: 
     }
 }
 
+/// Every state of `states` (consecutive ticks) reports that the command of the tick before it
+/// was executed, but at most the ticks the machine held up (`summary`'s `held_up`, the
+/// bridge's count), which executed no command: never another tick's command.
+pub fn assert_each_tick_ran_its_own_command(states: &[RobotState], summary: &serde_json::Value) {
+    let held_up = summary["held_up"].as_u64().unwrap_or(0);
+    let mut lost = 0;
+    for w in states.windows(2) {
+        assert_eq!(w[1].tick, w[0].tick + 1, "gap in ticks");
+        if w[1].applied_tick != w[0].tick {
+            assert_eq!(
+                w[1].applied_tick,
+                u64::MAX,
+                "tick {} executed tick {}'s command",
+                w[1].tick,
+                w[1].applied_tick
+            );
+            lost += 1;
+        }
+    }
+    assert!(
+        lost <= held_up,
+        "{lost} ticks executed no command, {held_up} held up by the machine: {summary}"
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

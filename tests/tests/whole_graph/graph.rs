@@ -80,14 +80,8 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
         .copied()
         .collect();
     assert!(states.len() >= 200, "recorded {} states", states.len());
-    for w in states.windows(2) {
-        assert_eq!(w[1].tick, w[0].tick + 1, "gap in ticks");
-        assert_eq!(
-            w[1].applied_tick, w[0].tick,
-            "tick {} executed {}",
-            w[1].tick, w[1].applied_tick
-        );
-    }
+    // A tick the machine held up (allowed above) executed none.
+    scl_tests::assert_each_tick_ran_its_own_command(&states, &summary);
     for c in &rec.safe_commands {
         assert!(states.iter().any(|s| s.tick == c.tick));
     }

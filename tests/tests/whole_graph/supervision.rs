@@ -261,12 +261,11 @@ fn twenty_live_swaps_miss_no_tick() {
         elapsed_ms[10], elapsed_ms[19]
     );
 
-    // Every tick executed the command of its own tick.
+    // Every tick executed the command of its own tick, but those the machine held up
+    // (checked above), which executed none.
     let states = running_states(&rec);
-    for w in states.windows(2) {
-        assert_eq!(w[1].tick, w[0].tick + 1);
-        assert_eq!(w[1].applied_tick, w[0].tick, "tick {} missed", w[0].tick);
-    }
+    scl_tests::assert_each_tick_ran_its_own_command(&states, &summary);
+
     // Every executed command came from the mapper active at its tick.
     let first = switches[0].0;
     let mut seen = std::collections::BTreeSet::new();
