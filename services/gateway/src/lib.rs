@@ -515,8 +515,12 @@ impl Gateway<'_> {
     fn publish_sample(&mut self, mut s: JoystickInput) -> Result<(), GatewayError> {
         if let Some(p) = &self.joystick {
             // The operator's clock is not this machine's: the sample is stamped on arrival,
-            // so safety's age check measures from here.
-            s.t_ns = now_ns();
+            // so safety's age check measures from here. A benchmark whose operator shares
+            // this machine's clock keeps the operator's stamp (never one from the future).
+            let now = now_ns();
+            if !(self.cfg.network.keep_operator_stamps && s.t_ns != 0 && s.t_ns <= now) {
+                s.t_ns = now;
+            }
             s.seq = self.seq;
             self.seq += 1;
             p.send(s)?;
