@@ -334,6 +334,24 @@ pub struct OperatorRun {
     pub forwarded: u64,
     /// The gateway's stand-ins (neutral, `NO_DEVICE`) while no operator drove.
     pub stand_ins: u64,
+    /// The operator's round trip (a sample sent -> the gateway's acknowledgement), p50 / p99
+    /// / max (µs), from the summary it logs at its end; none if it logged none.
+    pub round_trip_us: Option<(f64, f64, f64)>,
+}
+
+/// The round trip `scl joystick --remote` logs at its end (`round trip to the gateway ...
+/// p50_us="400" p99_us="609" max_us="3188"`), as (p50, p99, max) µs.
+pub fn round_trip_from_log(log: &str) -> Option<(f64, f64, f64)> {
+    let line = log
+        .lines()
+        .map(strip_ansi)
+        .find(|l| l.contains("round trip to the gateway"))?;
+    let field = |name: &str| {
+        line.split_whitespace()
+            .find_map(|t| t.strip_prefix(name))
+            .and_then(|v| v.trim_matches('"').parse::<f64>().ok())
+    };
+    Some((field("p50_us=")?, field("p99_us=")?, field("max_us=")?))
 }
 
 /// The samples a gateway forwarded from a remote operator, by their kept creation stamp, and
@@ -803,6 +821,7 @@ pub(crate) fn run_with(
     let t0 = Instant::now();
     let mut next = 10.0;
     let mut next_cpu = 0.0;
+    let op_log = dir.join(format!("operator-{transport}{tag}.log"));
     let mut operator = OperatorChild {
         child: None,
         stopped: false,
@@ -838,7 +857,6 @@ pub(crate) fn run_with(
         let el = t0.elapsed().as_secs_f64();
         if let Some((wrap, args)) = &extra.operator {
             if operator.child.is_none() && !operator.stopped && samples.ticks > 0 {
-                let op_log = dir.join(format!("operator-{transport}{tag}.log"));
                 let f = std::fs::File::create(&op_log)
                     .map_err(|e| BenchError::Graph(format!("{}: {e}", op_log.display())))?;
                 let c = spawn_wrapped(wrap, args)?
@@ -924,7 +942,9 @@ pub(crate) fn run_with(
         .collect();
     report.live_client_messages = live_messages;
     if extra.operator.is_some() {
+        let op_text = std::fs::read_to_string(&op_log).unwrap_or_default();
         report.operator = Some(OperatorRun {
+            round_trip_us: round_trip_from_log(&op_text),
             forwarded: from_operator.stamps.len() as u64,
             stand_ins: from_operator.stand_ins,
             same_clock: operator.same_clock,
@@ -1398,6 +1418,15 @@ mod tests {
         );
         let d = Dist::of(&s.e2e);
         assert_eq!((d.p50, d.max, d.n), (120.0, 120.0, 1));
+    }
+
+    #[test]
+    fn the_operators_round_trip_is_read_from_its_log() {
+        let log = " INFO scl{role=\"joystick\"}: round trip to the gateway (sample sent -> its \
+                   acknowledgement) acknowledged=179 p50_us=\"11689\" p99_us=\"13091\" \
+                   max_us=\"21843\"\n";
+        assert_eq!(round_trip_from_log(log), Some((11689.0, 13091.0, 21843.0)));
+        assert_eq!(round_trip_from_log("nothing\n"), None);
     }
 
     #[test]

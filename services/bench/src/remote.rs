@@ -340,6 +340,9 @@ pub struct LinkRow {
     pub e2e_us: Dist,
     /// The gateway's CPU time per tick (µs, every thread, Zenoh's included).
     pub gateway_cpu_per_tick_us: Option<f64>,
+    /// The operator's round trip, a sample sent -> the gateway's acknowledgement, p50 / p99 /
+    /// max (µs, from its log).
+    pub round_trip_us: Option<(f64, f64, f64)>,
     /// Ticks observed.
     pub ticks: u64,
     /// Ticks missed.
@@ -363,6 +366,7 @@ impl LinkRow {
             joystick_mapper_us: Dist::default(),
             e2e_us: Dist::default(),
             gateway_cpu_per_tick_us: None,
+            round_trip_us: None,
             ticks: 0,
             missed: 0,
             held_up: 0,
@@ -377,6 +381,7 @@ impl LinkRow {
         row.joystick_mapper_us = run.hops_us.joystick_mapper;
         row.e2e_us = run.e2e_us;
         row.gateway_cpu_per_tick_us = gateway_cpu(&run);
+        row.round_trip_us = run.operator.as_ref().and_then(|o| o.round_trip_us);
         row.ticks = run.ticks;
         row.missed = run.missed;
         row.held_up = run.held_up;
@@ -697,6 +702,13 @@ pub fn render(r: &RemoteReport) -> String {
             row.ticks,
             format!("{} ({})", row.missed, row.held_up)
         );
+        if let Some((a, b, c)) = row.round_trip_us {
+            let _ = writeln!(
+                s,
+                "    the operator's round trip (sample sent -> the gateway's acknowledgement): \
+                 {a:.0} / {b:.0} / {c:.0}"
+            );
+        }
         if let Some(e) = &row.error {
             let _ = writeln!(s, "    FAILED: {e}");
         }
