@@ -739,6 +739,6 @@ mod tests {
 
     #[test]
     fn this_process_reads_its_own_clock() {
-        assert_eq!(same_monotonic_clock(std::process::id()), Some(true));
+        assert_eq!(crate::same_monotonic_clock(std::process::id()), Some(true));
     }
 }
