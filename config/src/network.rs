@@ -74,6 +74,11 @@ pub struct NetworkConfig {
     /// A `/joy` input older than this (ms) is stale and stops the arm (the `joy` node repeats
     /// its last message at `autorepeat_rate`, 20 Hz by default).
     pub ros2_joy_timeout_ms: u64,
+    /// Forward a remote operator's samples with their own stamp (`t_ns`, the operator's
+    /// monotonic clock) instead of the arrival stamp. Only where the operator shares this
+    /// machine's clock: `scl bench latency --remote` sets it so that the graph's figures run
+    /// from the sample's creation. A stamp from the future is replaced by the arrival stamp.
+    pub keep_operator_stamps: bool,
 }
 
 impl Default for NetworkConfig {
@@ -100,6 +105,7 @@ impl Default for NetworkConfig {
             ros2_joy_mode: -1,
             ros2_joy_estop: -1,
             ros2_joy_timeout_ms: 150,
+            keep_operator_stamps: false,
         }
     }
 }

@@ -48,6 +48,26 @@ pub(crate) enum BenchCmd {
         /// Keep the report (report.json), the runs' configs and logs in DIR.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
+        /// The remote operator instead: the control path with the gateway off and on (the
+        /// local joystick, end to end p50 / p99 / max and their ratio), then per link the
+        /// graph with its gateway taking the joystick and `scl joystick --remote` (the
+        /// config's script, `circle` by default) driving it through Zenoh, for `--for` each:
+        /// joystick -> executed (the operator's sample created -> the bridge executing the
+        /// command that used it; one monotonic clock, both sides on this machine),
+        /// joystick -> mapper, the graph's end to end, the gateway's CPU time per tick and
+        /// missed ticks. Links, comma-separated: `loopback`, `veth` (the graph and the
+        /// operator in two network namespaces joined by a veth pair: needs root and `ip`,
+        /// iproute2) and `veth+Nms` (N ms added each way by a TCP relay in the operator's
+        /// namespace; this project's kernels have no netem). A link that cannot run is a
+        /// failed row naming what is missing, and the command exits with failure.
+        /// `--remote default`: loopback,veth,veth+1ms,veth+5ms.
+        #[arg(
+            long,
+            value_name = "LINKS",
+            value_delimiter = ',',
+            conflicts_with = "live"
+        )]
+        remote: Vec<String>,
     },
     /// Run the graph at rising rates (40, 100, 250, 500, 1000 Hz unless `--rates`) and report
     /// per rate the missed ticks (and how many the machine took), end to end p50 / p99 / max,
@@ -145,6 +165,53 @@ fn parse_transports(t: &str) -> Result<Vec<ipc_types::Transport>, SclError> {
     }
 }
 
+/// `scl bench latency --remote LINKS`.
+fn run_remote(
+    opts: &scl_bench::LatencyOptions,
+    links: &[String],
+    json: bool,
+    out: Option<&std::path::Path>,
+) -> Result<ExitCode, SclError> {
+    use scl_bench::remote::Link;
+    let mut parsed = Vec::new();
+    for l in links {
+        if l == "default" {
+            parsed.extend(Link::DEFAULT);
+        } else {
+            parsed.push(
+                l.parse::<Link>()
+                    .map_err(|e| SclError::Other(format!("--remote {e}")))?,
+            );
+        }
+    }
+    if opts.transports.len() > 1 || opts.waits.len() > 1 {
+        return Err(SclError::Other(
+            "--remote runs one transport and one wait strategy: give one of each".into(),
+        ));
+    }
+    let report = scl_bench::remote::remote(opts, &parsed)?;
+    let text = serde_json::to_string_pretty(&report)
+        .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+    if let Some(dir) = out {
+        let p = dir.join("report.json");
+        std::fs::write(&p, &text).map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+    }
+    if json {
+        println!("{text}");
+    } else {
+        print!("{}", scl_bench::remote::render(&report));
+    }
+    let failed = report.failures();
+    if failed.is_empty() {
+        Ok(ExitCode::SUCCESS)
+    } else {
+        for f in &failed {
+            tracing::error!("bench --remote: {f}");
+        }
+        Ok(ExitCode::FAILURE)
+    }
+}
+
 /// `scl bench WHAT` on the graph configured by `cfg`.
 pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclError> {
     match what {
@@ -159,6 +226,7 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
             json,
             live,
             out,
+            remote,
         } => {
             let transports = parse_transports(&transport)?;
             if let Some(r) = rate_hz {
@@ -180,6 +248,9 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 out: out.clone(),
                 live,
             };
+            if !remote.is_empty() {
+                return run_remote(&opts, &remote, json, out.as_deref());
+            }
             let report = scl_bench::latency(&opts)?;
             let text = serde_json::to_string_pretty(&report)
                 .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;

@@ -57,6 +57,7 @@ use transport::signals;
 pub mod headroom;
 pub mod hops;
 pub mod proc_cpu;
+pub mod remote;
 
 /// The real-time settings a benchmark's graph asks for, each on its own so that one can be
 /// measured alone (`--rt` asks for all, `--rt-only NAME` for one).
@@ -228,6 +229,9 @@ pub struct Samples {
     pub e2e: Vec<u64>,
     /// Joystick sample age when used.
     pub joystick_age: Vec<u64>,
+    /// Joystick sample produced -> the command that used it received by the bridge, which
+    /// executes it at once.
+    pub joystick_executed: Vec<u64>,
     /// Tick lateness.
     pub lateness: Vec<u64>,
     /// Mapper compute.
@@ -257,6 +261,8 @@ impl Samples {
                 .push(d(r.joystick_t_ns, r.joystick_rx_ns));
             let used = r.mapper_t_ns.saturating_sub(r.mapper_compute_ns);
             self.joystick_age.push(d(r.joystick_t_ns, used));
+            self.joystick_executed
+                .push(d(r.joystick_t_ns, r.safe_rx_ns));
         }
         self.bridge_mapper.push(d(r.state_t_ns, r.state_rx_ns));
         self.mapper_safety.push(d(r.mapper_t_ns, r.mapper_rx_ns));
@@ -289,6 +295,9 @@ pub struct RunReport {
     pub e2e_us: Dist,
     /// Age of the joystick sample when the mapper used it (µs).
     pub joystick_age_us: Dist,
+    /// The joystick sample produced -> the command that used it received by the bridge,
+    /// which executes it at once (µs): the operator's input to the arm's motion.
+    pub joystick_executed_us: Dist,
     /// The bridge's lateness against the ideal grid (µs).
     pub tick_lateness_us: Dist,
     /// Compute inside the processes (µs).
@@ -307,6 +316,79 @@ pub struct RunReport {
     pub cpu_per_tick_us: Vec<(String, f64)>,
     /// Each process's resident, peak resident and locked memory at the end of the run.
     pub memory: Vec<(String, proc_cpu::Memory)>,
+    /// With a remote operator: its process and how it ended.
+    pub operator: Option<OperatorRun>,
+}
+
+/// A run's remote operator (`scl joystick --remote`).
+#[derive(Debug, Clone, Serialize)]
+pub struct OperatorRun {
+    /// Its process id (none: it never started, the graph never ticked).
+    pub pid: Option<u32>,
+    /// How it ended.
+    pub exit: Option<String>,
+    /// Whether it read this machine's monotonic clock (one time namespace), so that its
+    /// samples' stamps compare with the graph's; `None`: it was gone before it was checked.
+    pub same_clock: Option<bool>,
+    /// The operator's samples the gateway forwarded to the graph (seen on its joystick topic).
+    pub forwarded: u64,
+    /// The gateway's stand-ins (neutral, `NO_DEVICE`) while no operator drove.
+    pub stand_ins: u64,
+    /// The operator's round trip (a sample sent -> the gateway's acknowledgement), p50 / p99
+    /// / max (µs), from the summary it logs at its end; none if it logged none.
+    pub round_trip_us: Option<(f64, f64, f64)>,
+}
+
+/// The round trip `scl joystick --remote` logs at its end (`round trip to the gateway ...
+/// p50_us="400" p99_us="609" max_us="3188"`), as (p50, p99, max) µs.
+pub fn round_trip_from_log(log: &str) -> Option<(f64, f64, f64)> {
+    let line = log
+        .lines()
+        .map(strip_ansi)
+        .find(|l| l.contains("round trip to the gateway"))?;
+    let field = |name: &str| {
+        line.split_whitespace()
+            .find_map(|t| t.strip_prefix(name))
+            .and_then(|v| v.trim_matches('"').parse::<f64>().ok())
+    };
+    Some((field("p50_us=")?, field("p99_us=")?, field("max_us=")?))
+}
+
+/// The samples a gateway forwarded from a remote operator, by their kept creation stamp, and
+/// the tick reports' joystick stamps, so that only the commands an operator's sample drove
+/// count.
+#[derive(Debug, Default)]
+struct OperatorSamples {
+    stamps: std::collections::HashSet<u64>,
+    stand_ins: u64,
+    /// (joystick_t_ns, joystick_rx_ns, safe_rx_ns) of each executed tick.
+    ticks: Vec<(u64, u64, u64)>,
+}
+
+impl OperatorSamples {
+    fn sample(&mut self, s: &ipc_types::JoystickInput) {
+        if s.buttons & ipc_types::buttons::NO_DEVICE != 0 {
+            self.stand_ins += 1;
+        } else {
+            self.stamps.insert(s.t_ns);
+        }
+    }
+
+    fn report(&mut self, r: &TickReport) {
+        if r.executed != 0 && r.joystick_t_ns != 0 {
+            self.ticks
+                .push((r.joystick_t_ns, r.joystick_rx_ns, r.safe_rx_ns));
+        }
+    }
+
+    /// (sample -> mapper, sample -> executed) of the ticks an operator's sample drove (ns).
+    fn hops(&self) -> (Vec<u64>, Vec<u64>) {
+        self.ticks
+            .iter()
+            .filter(|(t, _, _)| self.stamps.contains(t))
+            .map(|(t, rx, safe)| (rx.saturating_sub(*t), safe.saturating_sub(*t)))
+            .unzip()
+    }
 }
 
 /// Per-hop distributions.
@@ -341,6 +423,7 @@ impl RunReport {
             held_up: 0,
             cpu_per_tick_us: Vec::new(),
             memory: Vec::new(),
+            operator: None,
             transport,
             live_client_messages: None,
             ticks: s.ticks,
@@ -353,6 +436,7 @@ impl RunReport {
             },
             e2e_us: Dist::of(&s.e2e),
             joystick_age_us: Dist::of(&s.joystick_age),
+            joystick_executed_us: Dist::of(&s.joystick_executed),
             tick_lateness_us: Dist::of(&s.lateness),
             compute_us: Compute {
                 mapper: Dist::of(&s.mapper_compute),
@@ -371,6 +455,7 @@ impl RunReport {
             ("safety -> bridge", self.hops_us.safety_bridge),
             ("end to end", self.e2e_us),
             ("joystick sample age", self.joystick_age_us),
+            ("joystick -> executed", self.joystick_executed_us),
             ("tick lateness", self.tick_lateness_us),
             ("mapper compute", self.compute_us.mapper),
             ("safety compute", self.compute_us.safety),
@@ -558,6 +643,105 @@ pub(crate) fn run_one(
     dir: &Path,
     tag: &str,
 ) -> Result<(RunReport, Samples), BenchError> {
+    run_with(opts, transport, wait, dir, tag, &Extra::default())
+}
+
+/// What a run adds to the plain graph: `scl up` inside a network namespace, and a remote
+/// operator started once the graph ticks.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Extra {
+    /// The command `scl up` runs under (`ip netns exec NS`); empty: none.
+    pub(crate) up_wrap: Vec<String>,
+    /// The operator: its wrapper (as `up_wrap`) and its `scl` arguments.
+    pub(crate) operator: Option<(Vec<String>, Vec<String>)>,
+}
+
+/// `scl ARGS` under `wrap` (a command that runs its arguments, e.g. `ip netns exec NS`).
+fn spawn_wrapped(wrap: &[String], args: &[String]) -> Result<Command, BenchError> {
+    let Some((first, rest)) = wrap.split_first() else {
+        return spawn_scl(args);
+    };
+    let exe = std::env::current_exe()
+        .map_err(|e| BenchError::Graph(format!("cannot find the scl executable: {e}")))?;
+    let mut c = Command::new(first);
+    c.args(rest).arg(exe).args(args);
+    Ok(c)
+}
+
+/// The remote operator of a run: started once the graph ticks, stopped (SIGINT, as a
+/// person's Ctrl-C) a second before the graph's end.
+struct OperatorChild {
+    child: Option<Child>,
+    stopped: bool,
+    /// Whether it read the same monotonic clock as this process, seen before it was stopped.
+    same_clock: Option<bool>,
+}
+
+/// Whether process `pid` reads the same `CLOCK_MONOTONIC` as this one: both in one time
+/// namespace (`/proc/PID/ns/time`; a kernel without time namespaces has one clock). `None`
+/// when `pid` is gone.
+pub fn same_monotonic_clock(pid: u32) -> Option<bool> {
+    let Ok(mine) = std::fs::read_link("/proc/self/ns/time") else {
+        return std::path::Path::new(&format!("/proc/{pid}"))
+            .exists()
+            .then_some(true);
+    };
+    let theirs = std::fs::read_link(format!("/proc/{pid}/ns/time")).ok()?;
+    Some(mine == theirs)
+}
+
+impl OperatorChild {
+    fn interrupt(&mut self) {
+        if let Some(c) = &self.child
+            && !self.stopped
+        {
+            self.stopped = true;
+            self.same_clock = same_monotonic_clock(c.id());
+            // Our own child; an error means it has exited already.
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(c.id() as i32),
+                nix::sys::signal::Signal::SIGINT,
+            );
+        }
+    }
+
+    /// Waits up to 5 s for the operator to end, then kills it; its exit status.
+    fn finish(&mut self) -> Option<std::process::ExitStatus> {
+        self.interrupt();
+        let c = self.child.as_mut()?;
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(5) {
+            if let Ok(Some(s)) = c.try_wait() {
+                self.child = None;
+                return Some(s);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = c.kill();
+        let s = c.wait().ok();
+        self.child = None;
+        s
+    }
+}
+
+impl Drop for OperatorChild {
+    fn drop(&mut self) {
+        if let Some(c) = &mut self.child {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// [`run_one`] with `extra`.
+pub(crate) fn run_with(
+    opts: &LatencyOptions,
+    transport: Transport,
+    wait: WaitStrategy,
+    dir: &Path,
+    tag: &str,
+    extra: &Extra,
+) -> Result<(RunReport, Samples), BenchError> {
     let prefix = Prefix::new(&format!("bench{}{}{tag}", std::process::id(), transport))
         .map_err(|e| BenchError::Graph(e.to_string()))?;
     let mut cfg = opts.config.clone();
@@ -587,6 +771,13 @@ pub(crate) fn run_one(
     let graph = Graph::join_with(&prefix, &format!("bench-{}", std::process::id()), transport)?;
     let reports = graph.tick_report_subscriber()?;
     let heartbeats = graph.status_subscriber()?;
+    // With a remote operator: the samples the gateway forwards, to tell the operator's (its
+    // creation stamp kept) from the gateway's stand-ins (`NO_DEVICE`, stamped here).
+    let joysticks = match extra.operator {
+        Some(_) => Some(graph.joystick_subscriber(false)?),
+        None => None,
+    };
+    let mut from_operator = OperatorSamples::default();
     let log_path = dir.join(format!("scl-up-{transport}{tag}.log"));
     let log = std::fs::File::create(&log_path)
         .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
@@ -611,7 +802,7 @@ pub(crate) fn run_one(
     } else {
         None
     };
-    let mut up = spawn_scl(&up_args)?
+    let mut up = spawn_wrapped(&extra.up_wrap, &up_args)?
         .env("SCL_LOG", "info")
         .stdout(Stdio::null())
         .stderr(log)
@@ -630,12 +821,26 @@ pub(crate) fn run_one(
     let t0 = Instant::now();
     let mut next = 10.0;
     let mut next_cpu = 0.0;
+    let op_log = dir.join(format!("operator-{transport}{tag}.log"));
+    let mut operator = OperatorChild {
+        child: None,
+        stopped: false,
+        same_clock: None,
+    };
+    // The operator stops a second before the graph (a shorter run: at 80 % of it).
+    let operator_stop = if secs > 5.0 { secs - 1.0 } else { secs * 0.8 };
     while up
         .try_wait()
         .map_err(|e| BenchError::Graph(e.to_string()))?
         .is_none()
     {
-        reports.drain(|r| samples.take(r))?;
+        if let Some(j) = &joysticks {
+            j.drain(|s| from_operator.sample(s))?;
+        }
+        reports.drain(|r| {
+            samples.take(r);
+            from_operator.report(r);
+        })?;
         heartbeats.drain(|s| {
             cpu.heartbeat(s);
             if s.role == ipc_types::NodeRole::Bridge as u32 {
@@ -650,6 +855,23 @@ pub(crate) fn run_one(
             );
         }
         let el = t0.elapsed().as_secs_f64();
+        if let Some((wrap, args)) = &extra.operator {
+            if operator.child.is_none() && !operator.stopped && samples.ticks > 0 {
+                let f = std::fs::File::create(&op_log)
+                    .map_err(|e| BenchError::Graph(format!("{}: {e}", op_log.display())))?;
+                let c = spawn_wrapped(wrap, args)?
+                    .env("SCL_LOG", "info")
+                    .stdin(Stdio::null())
+                    .stdout(Stdio::null())
+                    .stderr(f)
+                    .spawn()
+                    .map_err(|e| BenchError::Graph(format!("cannot start the operator: {e}")))?;
+                operator.child = Some(c);
+            }
+            if el >= operator_stop {
+                operator.interrupt();
+            }
+        }
         if el >= next_cpu {
             // Read often enough that the last reading is close to the graph's end.
             next_cpu = el + 0.25;
@@ -666,7 +888,22 @@ pub(crate) fn run_one(
         // The tick reports' buffer holds 256: a quarter of a second at 1 kHz.
         std::thread::sleep(Duration::from_millis(5));
     }
-    reports.drain(|r| samples.take(r))?;
+    if let Some(j) = &joysticks {
+        j.drain(|s| from_operator.sample(s))?;
+    }
+    reports.drain(|r| {
+        samples.take(r);
+        from_operator.report(r);
+    })?;
+    drop(joysticks);
+    if extra.operator.is_some() {
+        // Only the commands an operator's sample drove: not the stand-ins before it joined.
+        let (mapper, executed) = from_operator.hops();
+        samples.joystick_mapper = mapper;
+        samples.joystick_executed = executed;
+    }
+    let operator_pid = operator.child.as_ref().map(Child::id);
+    let operator_exit = operator.finish();
     let live_messages = live.map(LiveClient::finish);
     heartbeats.drain(|s| {
         if s.role == ipc_types::NodeRole::Bridge as u32 {
@@ -704,7 +941,23 @@ pub(crate) fn run_one(
         .map(|(n, us)| (n.clone(), us * 1e-6 * cfg.graph.rate_hz))
         .collect();
     report.live_client_messages = live_messages;
+    if extra.operator.is_some() {
+        let op_text = std::fs::read_to_string(&op_log).unwrap_or_default();
+        report.operator = Some(OperatorRun {
+            round_trip_us: round_trip_from_log(&op_text),
+            forwarded: from_operator.stamps.len() as u64,
+            stand_ins: from_operator.stand_ins,
+            same_clock: operator.same_clock,
+            pid: operator_pid,
+            exit: operator_exit.map(|s| s.to_string()),
+        });
+    }
     Ok((report, samples))
+}
+
+/// A free port on the loopback, or the error saying there is none.
+pub(crate) fn free_loopback_port_or_err() -> Result<u16, BenchError> {
+    free_loopback_port().map_err(|e| BenchError::Graph(format!("no free loopback port: {e}")))
 }
 
 fn free_loopback_port() -> std::io::Result<u16> {
@@ -1156,6 +1409,7 @@ mod tests {
         assert_eq!(s.e2e, vec![120_000]);
         assert_eq!(s.joystick_mapper, vec![10_000]);
         assert_eq!(s.joystick_age, vec![58_000]);
+        assert_eq!(s.joystick_executed, vec![130_000]);
         // A missed tick counts, but has no hops.
         s.take(&report(2, false));
         assert_eq!(
@@ -1164,6 +1418,15 @@ mod tests {
         );
         let d = Dist::of(&s.e2e);
         assert_eq!((d.p50, d.max, d.n), (120.0, 120.0, 1));
+    }
+
+    #[test]
+    fn the_operators_round_trip_is_read_from_its_log() {
+        let log = " INFO scl{role=\"joystick\"}: round trip to the gateway (sample sent -> its \
+                   acknowledgement) acknowledged=179 p50_us=\"11689\" p99_us=\"13091\" \
+                   max_us=\"21843\"\n";
+        assert_eq!(round_trip_from_log(log), Some((11689.0, 13091.0, 21843.0)));
+        assert_eq!(round_trip_from_log("nothing\n"), None);
     }
 
     #[test]

@@ -515,8 +515,9 @@ impl Gateway<'_> {
     fn publish_sample(&mut self, mut s: JoystickInput) -> Result<(), GatewayError> {
         if let Some(p) = &self.joystick {
             // The operator's clock is not this machine's: the sample is stamped on arrival,
-            // so safety's age check measures from here.
-            s.t_ns = now_ns();
+            // so safety's age check measures from here. A benchmark whose operator shares
+            // this machine's clock keeps the operator's stamp (never one from the future).
+            s.t_ns = forwarded_stamp(self.cfg.network.keep_operator_stamps, s.t_ns, now_ns());
             s.seq = self.seq;
             self.seq += 1;
             p.send(s)?;
@@ -1001,6 +1002,17 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     Ok(())
 }
 
+/// The stamp a forwarded sample carries: the arrival time `now`, or with `keep` (the operator
+/// shares this machine's clock: `[network] keep_operator_stamps`) its own `t_ns`, unless that
+/// is missing (0: a stand-in) or from the future.
+fn forwarded_stamp(keep: bool, t_ns: u64, now: u64) -> u64 {
+    if keep && t_ns != 0 && t_ns <= now {
+        t_ns
+    } else {
+        now
+    }
+}
+
 /// The process's CPU time so far (s), every thread: its CPU-time clock, as `scl bench`
 /// reads the graph's processes.
 fn process_cpu_s() -> Option<f64> {
@@ -1039,6 +1051,15 @@ mod tests {
             k.answers(&q(&keys.process(5)))[0].bytes.as_slice(),
             &[9u8][..]
         );
+    }
+
+    #[test]
+    fn a_sample_is_stamped_on_arrival_unless_its_own_stamp_is_kept() {
+        assert_eq!(forwarded_stamp(false, 90, 100), 100);
+        assert_eq!(forwarded_stamp(true, 90, 100), 90);
+        // A stand-in (no stamp) and a stamp from the future take the arrival time.
+        assert_eq!(forwarded_stamp(true, 0, 100), 100);
+        assert_eq!(forwarded_stamp(true, 101, 100), 100);
     }
 
     #[test]

@@ -228,3 +228,180 @@ fn bench_headroom_reports_every_rate_and_transport() {
     assert!(png.starts_with(b"\x89PNG"), "headroom.png is not a PNG");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `scl bench latency --remote` end to end, shortened: the control path with the gateway off
+/// and on, then the remote operator (`scl joystick --remote`) over loopback, a veth pair
+/// between two namespaces (CI runs as root) and the pair with 5 ms each way. Each link's row
+/// carries its counts (samples forwarded, commands they drove), its figures measured (positive,
+/// finite, ordered) and the clock check; the 5 ms relay shows in the sample's way to the
+/// mapper. No wall-clock limit is asserted. Nothing is left behind: no namespace, no
+/// shared memory.
+#[test]
+fn bench_latency_remote_measures_the_operator_over_each_link() {
+    let _serial = serial();
+    let dir = temp_dir("benchremote");
+    let out_dir = dir.join("out");
+    let child = std::process::Command::new(scl_binary())
+        .args([
+            "bench",
+            "latency",
+            "--remote",
+            "loopback,veth,veth+5ms",
+            "--for",
+            "6s",
+            "--json",
+            "--out",
+        ])
+        .arg(&out_dir)
+        .env("SCL_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "scl bench latency --remote failed: {stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["duration_s"], 6.0);
+    assert!(
+        report["clock"]
+            .as_str()
+            .is_some_and(|c| c.contains("CLOCK_MONOTONIC")),
+        "{}",
+        report["clock"]
+    );
+
+    // The gateway off and on, in the same run, each measured.
+    for key in ["gateway_off", "gateway_on"] {
+        let run = &report[key];
+        let ticks = run["ticks"].as_u64().unwrap();
+        assert!(ticks >= 120, "{key}: {ticks} ticks");
+        check_dist(key, &run["e2e_us"], ticks / 2);
+    }
+    let on_off = report["gateway_on_off_e2e"].as_array().unwrap();
+    for v in on_off {
+        let v = v.as_f64().unwrap_or(f64::NAN);
+        assert!(v.is_finite() && v > 0.0, "on / off: {on_off:?}");
+    }
+
+    let rows = report["links"].as_array().unwrap();
+    let links: Vec<&str> = rows.iter().map(|r| r["link"].as_str().unwrap()).collect();
+    assert_eq!(links, ["loopback", "veth", "veth+5ms"]);
+    for row in rows {
+        let link = row["link"].as_str().unwrap();
+        assert!(row["error"].is_null(), "{link}: {}", row["error"]);
+        let op = &row["run"]["operator"];
+        assert_eq!(op["same_clock"], true, "{link}: {op}");
+        let forwarded = op["forwarded"].as_u64().unwrap();
+        // About 4 s of driving at 40 Hz, one sample per robot state.
+        assert!(forwarded >= 20, "{link}: {forwarded} samples forwarded");
+        let executed = &row["joystick_executed_us"];
+        let n = executed["n"].as_u64().unwrap();
+        // Each command an operator's sample drove; no more than the samples forwarded allow
+        // (a sample drives the ticks until the next one arrives).
+        assert!(n >= 20, "{link}: {n} commands from the operator");
+        check_dist(&format!("{link} joystick -> executed"), executed, 20);
+        check_dist(
+            &format!("{link} joystick -> mapper"),
+            &row["joystick_mapper_us"],
+            20,
+        );
+        for k in ["p50", "p99", "max"] {
+            let (to_mapper, to_bridge) = (
+                row["joystick_mapper_us"][k].as_f64().unwrap(),
+                executed[k].as_f64().unwrap(),
+            );
+            assert!(
+                to_mapper.is_finite() && to_bridge.is_finite() && to_mapper <= to_bridge,
+                "{link} {k}: joystick -> mapper {to_mapper} µs, -> executed {to_bridge} µs"
+            );
+        }
+        let ticks = row["ticks"].as_u64().unwrap();
+        check_dist(&format!("{link} e2e"), &row["e2e_us"], ticks / 2);
+        let cpu = row["gateway_cpu_per_tick_us"].as_f64().unwrap();
+        assert!(cpu.is_finite() && cpu > 0.0, "{link}: gateway CPU {cpu}");
+        assert!(row["held_up"].as_u64().unwrap() <= row["missed"].as_u64().unwrap());
+    }
+    // The relay holds every chunk 5 ms: no sample reaches the mapper sooner.
+    let delayed = rows[2]["joystick_mapper_us"]["p50"].as_f64().unwrap();
+    assert!(
+        delayed >= 5_000.0,
+        "veth+5ms: joystick -> mapper p50 {delayed} µs"
+    );
+
+    // Nothing left behind: the namespaces and every run's shared memory.
+    let netns = std::process::Command::new("ip")
+        .args(["netns", "list"])
+        .output()
+        .unwrap();
+    let netns = String::from_utf8_lossy(&netns.stdout);
+    let id = pid % 100_000;
+    for n in [format!("sclbr-{id}"), format!("sclbo-{id}")] {
+        assert!(
+            !netns
+                .lines()
+                .any(|l| l.split_whitespace().next() == Some(n.as_str())),
+            "namespace {n} left: {netns}"
+        );
+    }
+    // Every run's prefix starts `bench<pid>` (`bench<pid>iceoryx2-lo`, ...).
+    let needle = format!("scl_bench{pid}");
+    let t0 = std::time::Instant::now();
+    let left = loop {
+        let left = files_named(&needle);
+        if left.is_empty() || t0.elapsed() > std::time::Duration::from_secs(5) {
+            break left;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    assert!(left.is_empty(), "left behind: {left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A link that is not one is refused, naming it, before anything runs.
+#[test]
+fn bench_latency_remote_refuses_a_bad_link_naming_it() {
+    let out = std::process::Command::new(scl_binary())
+        .args([
+            "bench",
+            "latency",
+            "--remote",
+            "loopback,wifi",
+            "--for",
+            "1s",
+        ])
+        .env("SCL_LOG", "warn")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("`wifi`"), "{stderr}");
+}
+
+/// Files under `/dev/shm` and iceoryx2's directory whose name holds `needle`.
+fn files_named(needle: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    let mut stack = vec![
+        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from("/tmp/iceoryx2"),
+    ];
+    while let Some(dir) = stack.pop() {
+        let Ok(rd) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p.clone());
+            }
+            if e.file_name().to_string_lossy().contains(needle) {
+                found.push(p.display().to_string());
+            }
+        }
+    }
+    found
+}
