@@ -19,6 +19,7 @@ pub mod keys;
 pub mod link;
 pub mod observe;
 pub mod ports;
+pub mod relay;
 pub mod ros2;
 pub mod session;
 pub mod wire;

@@ -22,14 +22,9 @@
 //! namespaces do not change it, and the benchmark checks that the operator is in this
 //! process's time namespace (a run where it is not is refused).
 
-use std::io::{Read as _, Write as _};
-use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde::Serialize;
 
@@ -127,14 +122,8 @@ pub enum VethError {
         stderr: String,
     },
     /// The delay relay could not start.
-    #[error("the delay relay in namespace {netns}: {source}")]
-    Relay {
-        /// The operator's namespace.
-        netns: String,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Relay(#[from] scl_net::relay::RelayError),
 }
 
 fn ip(args: &[&str]) -> Result<(), VethError> {
@@ -214,110 +203,6 @@ impl Drop for Veth {
             let _ = Command::new("ip").args(["netns", "del", n]).output();
         }
     }
-}
-
-/// A TCP relay in the operator's namespace, listening on its loopback and connecting to the
-/// gateway: every chunk, both ways, is held `delay` before it is passed on, in order. Stops
-/// when dropped.
-struct Relay {
-    port: u16,
-    stop: Arc<AtomicBool>,
-}
-
-impl Relay {
-    fn start(netns: &str, target: String, delay: Duration) -> Result<Self, VethError> {
-        let err = |source| VethError::Relay {
-            netns: netns.to_owned(),
-            source,
-        };
-        let (port_tx, port_rx) = mpsc::channel();
-        let stop = Arc::new(AtomicBool::new(false));
-        let st = Arc::clone(&stop);
-        let path = format!("/var/run/netns/{netns}");
-        std::thread::Builder::new()
-            .name("bench-relay".into())
-            .spawn(move || {
-                // This thread (and those it starts) live in the operator's namespace.
-                let listener = std::fs::File::open(&path)
-                    .and_then(|f| {
-                        nix::sched::setns(f, nix::sched::CloneFlags::CLONE_NEWNET)
-                            .map_err(std::io::Error::from)
-                    })
-                    .and_then(|()| TcpListener::bind("127.0.0.1:0"))
-                    .and_then(|l| l.set_nonblocking(true).map(|()| l))
-                    .and_then(|l| l.local_addr().map(|a| (l, a.port())));
-                let l = match listener {
-                    Ok((l, port)) => {
-                        let _ = port_tx.send(Ok(port));
-                        l
-                    }
-                    Err(e) => {
-                        let _ = port_tx.send(Err(e));
-                        return;
-                    }
-                };
-                while !st.load(Ordering::Relaxed) {
-                    match l.accept() {
-                        Ok((a, _)) => {
-                            // The gateway gone: the operator's retry fails.
-                            let Ok(b) = TcpStream::connect(&target) else {
-                                continue;
-                            };
-                            // As Zenoh's own sockets: no Nagle (it would hold small samples
-                            // for the peer's delayed acknowledgement).
-                            let _ = a.set_nodelay(true).and(b.set_nodelay(true));
-                            let _ = a.set_nonblocking(false);
-                            for (from, to) in [(&a, &b), (&b, &a)] {
-                                if let (Ok(f), Ok(t)) = (from.try_clone(), to.try_clone()) {
-                                    pipe(f, t, delay, &st);
-                                }
-                            }
-                        }
-                        Err(_) => std::thread::sleep(Duration::from_millis(5)),
-                    }
-                }
-            })
-            .map_err(err)?;
-        let port = port_rx
-            .recv_timeout(Duration::from_secs(5))
-            .map_err(|e| err(std::io::Error::other(e.to_string())))?
-            .map_err(err)?;
-        Ok(Self { port, stop })
-    }
-}
-
-impl Drop for Relay {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-    }
-}
-
-/// One direction of the relay: a reader stamps each chunk with when it is due, a writer sends
-/// it then.
-fn pipe(mut from: TcpStream, mut to: TcpStream, delay: Duration, stop: &Arc<AtomicBool>) {
-    let (tx, rx) = mpsc::channel::<(Instant, Vec<u8>)>();
-    std::thread::spawn(move || {
-        let mut buf = [0u8; 65536];
-        while let Ok(n) = from.read(&mut buf) {
-            if n == 0
-                || tx
-                    .send((Instant::now() + delay, buf[..n].to_vec()))
-                    .is_err()
-            {
-                break;
-            }
-        }
-    });
-    let st = Arc::clone(stop);
-    std::thread::spawn(move || {
-        while let Ok((due, bytes)) = rx.recv() {
-            std::thread::sleep(due.saturating_duration_since(Instant::now()));
-            if st.load(Ordering::Relaxed) || to.write_all(&bytes).is_err() {
-                break;
-            }
-        }
-        let _ = to.shutdown(std::net::Shutdown::Both);
-    });
 }
 
 /// One link's row.
@@ -585,13 +470,13 @@ fn run_link(
             let direct = format!("tcp/{}:{VETH_PORT}", v.robot_ip);
             let op_wrap = Veth::wrap(&v.op);
             let endpoint = if delay_ms > 0 {
-                let r = Relay::start(
+                let r = scl_net::relay::Relay::start(
                     &v.op,
                     format!("{}:{VETH_PORT}", v.robot_ip),
                     Duration::from_millis(u64::from(delay_ms)),
                 )
                 .map_err(|e| e.to_string())?;
-                let e = format!("tcp/127.0.0.1:{}", r.port);
+                let e = r.endpoint();
                 relay = Some(r);
                 e
             } else {

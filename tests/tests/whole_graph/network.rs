@@ -5,16 +5,12 @@
 //! This project's machines run a kernel built without `netem` (`CONFIG_NET_SCH_NETEM` is not
 //! set: `tc qdisc ... netem` answers "Specified qdisc kind is unknown"), so a cut is the
 //! operator's interface taken down (`ip link set down`: the same loss of every packet), and
-//! added delay is a TCP relay in the operator's namespace ([`DelayLine`]) that holds every
+//! added delay is a TCP relay in the operator's namespace (`scl_net::relay::Relay`, the bench's too) that holds every
 //! chunk, both ways, for a set time before passing it on.
 
-use std::io::{Read as _, Write as _};
-use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use ipc_types::{
     JoystickInput, NodeRole, NodeStatus, SafeCommand, buttons, gateway_counts, safe_flags,
@@ -118,97 +114,6 @@ impl Drop for Netns {
     }
 }
 
-/// A TCP relay in the operator's namespace, listening on its loopback and connecting to the
-/// gateway: every chunk, both ways, is held `delay` before it is passed on (in order).
-struct DelayLine {
-    port: u16,
-    delay_us: Arc<AtomicU64>,
-    stop: Arc<AtomicBool>,
-}
-
-impl DelayLine {
-    fn start(ns: &Netns) -> Self {
-        let (port_tx, port_rx) = std::sync::mpsc::channel();
-        let delay_us = Arc::new(AtomicU64::new(0));
-        let stop = Arc::new(AtomicBool::new(false));
-        let (netns, target) = (ns.op.clone(), format!("{}:7447", ns.robot_ip));
-        let (d, st) = (Arc::clone(&delay_us), Arc::clone(&stop));
-        std::thread::spawn(move || {
-            // This thread (and the threads it starts) live in the operator's namespace.
-            let f = std::fs::File::open(format!("/var/run/netns/{netns}")).unwrap();
-            nix::sched::setns(f, nix::sched::CloneFlags::CLONE_NEWNET).unwrap();
-            let l = TcpListener::bind("127.0.0.1:0").unwrap();
-            l.set_nonblocking(true).unwrap();
-            port_tx.send(l.local_addr().unwrap().port()).unwrap();
-            while !st.load(Ordering::Relaxed) {
-                match l.accept() {
-                    Ok((a, _)) => {
-                        // The gateway gone (the graph stopped): the operator's retry fails.
-                        let Ok(b) = TcpStream::connect(&target) else {
-                            continue;
-                        };
-                        // As Zenoh's own sockets: no Nagle (it would hold small samples
-                        // for the peer's delayed acknowledgement, ~40 ms).
-                        let _ = a.set_nodelay(true).and(b.set_nodelay(true));
-                        let _ = a.set_nonblocking(false);
-                        for (from, to) in [(&a, &b), (&b, &a)] {
-                            pipe(from.try_clone().unwrap(), to.try_clone().unwrap(), &d, &st);
-                        }
-                    }
-                    Err(_) => std::thread::sleep(Duration::from_millis(5)),
-                }
-            }
-        });
-        let port = port_rx.recv_timeout(Duration::from_secs(5)).unwrap();
-        Self {
-            port,
-            delay_us,
-            stop,
-        }
-    }
-
-    fn set_delay(&self, d: Duration) {
-        self.delay_us.store(d.as_micros() as u64, Ordering::Relaxed);
-    }
-
-    fn endpoint(&self) -> String {
-        format!("tcp/127.0.0.1:{}", self.port)
-    }
-}
-
-impl Drop for DelayLine {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-    }
-}
-
-/// One direction of the relay: a reader stamps each chunk with when it is due, a writer
-/// sends it then.
-fn pipe(mut from: TcpStream, mut to: TcpStream, delay_us: &Arc<AtomicU64>, stop: &Arc<AtomicBool>) {
-    let (tx, rx) = std::sync::mpsc::channel::<(Instant, Vec<u8>)>();
-    let d = Arc::clone(delay_us);
-    std::thread::spawn(move || {
-        let mut buf = [0u8; 65536];
-        while let Ok(n) = from.read(&mut buf) {
-            let due = Instant::now() + Duration::from_micros(d.load(Ordering::Relaxed));
-            if n == 0 || tx.send((due, buf[..n].to_vec())).is_err() {
-                break;
-            }
-        }
-    });
-    let st = Arc::clone(stop);
-    std::thread::spawn(move || {
-        while let Ok((due, bytes)) = rx.recv() {
-            std::thread::sleep(due.saturating_duration_since(Instant::now()));
-            if st.load(Ordering::Relaxed) || to.write_all(&bytes).is_err() {
-                break;
-            }
-        }
-        let _ = to.shutdown(std::net::Shutdown::Both);
-    });
-}
-
-/// A credentials file of `text` with mode 0600.
 fn credentials(dir: &Path, name: &str, text: &str) -> PathBuf {
     use std::os::unix::fs::PermissionsExt as _;
     let p = dir.join(name);
@@ -474,7 +379,9 @@ fn fifty_ms_of_delay_makes_the_input_stale_and_the_arm_stops_without_a_jerk() {
     let ns = Netns::new("d");
     let (prefix, _domain, dir, cfg, mut rec, graph) = start_graph(&ns, "netdelay", "step");
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
-    let line = DelayLine::start(&ns);
+    let line =
+        scl_net::relay::Relay::start(&ns.op, format!("{}:7447", ns.robot_ip), Duration::ZERO)
+            .unwrap();
     let _op = remote_operator(
         &ns,
         &line.endpoint(),
