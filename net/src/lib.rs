@@ -11,12 +11,15 @@
 //! * [`ports`]: typed publishers, subscribers and liveliness tokens;
 //! * [`observe`]: a remote observer's side (every topic, what each process runs, the clocks);
 //! * [`link`]: the remote operator's link as the gateway judges it (pure: who drives, stale
-//!   and lost input, neutral before motion).
+//!   and lost input, neutral before motion);
+//! * [`netns`] and [`relay`]: two test hosts on one machine (network namespaces and a veth
+//!   pair) and a delay line between them, for the benchmark and the network tests.
 #![cfg_attr(test, allow(clippy::unwrap_used))]
 
 pub mod credentials;
 pub mod keys;
 pub mod link;
+pub mod netns;
 pub mod observe;
 pub mod ports;
 pub mod relay;

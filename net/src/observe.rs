@@ -8,29 +8,12 @@ use std::time::Duration;
 use ipc_types::control::{self, EstopCommand, SafetyControl};
 use ipc_types::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, topics};
 
+use recording::Payload;
+
 use crate::keys::Keys;
 use crate::ports::{self, Got};
 use crate::session::SessionError;
 use crate::wire::{ClockPair, DecodeError, PROCESS_CAPTURE};
-
-/// One message of a remote graph.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Observed {
-    /// A joystick sample.
-    Joystick(JoystickInput),
-    /// A robot state.
-    RobotState(RobotState),
-    /// A mapper's command.
-    MapperCommand(MapperCommand),
-    /// An executed command.
-    SafeCommand(SafeCommand),
-    /// A heartbeat.
-    Status(NodeStatus),
-    /// The supervisor's switch, hold or relayed e-stop.
-    SafetyControl(SafetyControl),
-    /// An e-stop or reset command.
-    Estop(EstopCommand),
-}
 
 /// The outbound topics an observer subscribes to, by their names below the namespace (the
 /// graph's own topic names).
@@ -44,21 +27,22 @@ pub const TOPICS: [&str; 7] = [
     control::ESTOP,
 ];
 
-/// Subscribes to every topic of the graph below `keys`; `f` gets each message, or why one was
-/// refused (with its key), on Zenoh's threads: it must not block.
+/// Subscribes to every topic of the graph below `keys`; `f` gets each message (as a local
+/// recorder takes it off shared memory), or why one was refused (with its key), on Zenoh's
+/// threads: it must not block.
 pub fn subscribe_graph<F>(
     session: &zenoh::Session,
     keys: &Keys,
     f: F,
 ) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, SessionError>
 where
-    F: Fn(Result<Observed, (String, DecodeError)>) + Clone + Send + Sync + 'static,
+    F: Fn(Result<Payload, (String, DecodeError)>) + Clone + Send + Sync + 'static,
 {
     macro_rules! sub {
         ($ty:ty, $name:expr, $variant:ident) => {{
             let f = f.clone();
             ports::subscribe::<$ty, _>(session, keys.topic($name), move |key, m| {
-                f(m.map(Observed::$variant).map_err(|e| (key.to_owned(), e)))
+                f(m.map(Payload::$variant).map_err(|e| (key.to_owned(), e)))
             })?
         }};
     }

@@ -23,9 +23,9 @@
 //! process's time namespace (a run where it is not is refused).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Duration;
 
+use scl_net::netns::{Side, VethPair};
 use serde::Serialize;
 
 use crate::{BenchError, Dist, Extra, LatencyOptions, Machine, RunReport, run_with};
@@ -100,107 +100,6 @@ impl Link {
         match self {
             Self::Loopback => "lo".to_owned(),
             Self::Veth { delay_ms } => format!("veth{delay_ms}"),
-        }
-    }
-}
-
-/// Why a veth link could not be set up.
-#[derive(Debug, thiserror::Error)]
-pub enum VethError {
-    /// Namespaces need root.
-    #[error("the veth links need root (network namespaces); run as root, e.g. with sudo")]
-    NotRoot,
-    /// No `ip`.
-    #[error("the veth links need `ip` (iproute2), which cannot be run: {0}")]
-    NoIp(#[source] std::io::Error),
-    /// An `ip` command failed.
-    #[error("ip {args}: {stderr}")]
-    Ip {
-        /// Its arguments.
-        args: String,
-        /// What it said.
-        stderr: String,
-    },
-    /// The delay relay could not start.
-    #[error(transparent)]
-    Relay(#[from] scl_net::relay::RelayError),
-}
-
-fn ip(args: &[&str]) -> Result<(), VethError> {
-    let out = Command::new("ip")
-        .args(args)
-        .output()
-        .map_err(VethError::NoIp)?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(VethError::Ip {
-            args: args.join(" "),
-            stderr: String::from_utf8_lossy(&out.stderr).trim().to_owned(),
-        })
-    }
-}
-
-/// Two namespaces joined by a veth pair: `robot` holds 10.214.X.1, `op` 10.214.X.2. Deleted
-/// when dropped.
-#[derive(Debug)]
-struct Veth {
-    robot: String,
-    op: String,
-    robot_ip: String,
-    made: Vec<String>,
-}
-
-impl Veth {
-    fn new() -> Result<Self, VethError> {
-        if !nix::unistd::geteuid().is_root() {
-            return Err(VethError::NotRoot);
-        }
-        Command::new("ip")
-            .arg("-V")
-            .output()
-            .map_err(VethError::NoIp)?;
-        // Short names: interface names hold 15 bytes.
-        let id = std::process::id() % 100_000;
-        let (robot, op) = (format!("sclbr-{id}"), format!("sclbo-{id}"));
-        let (rdev, odev) = (format!("vbr{id}"), format!("vbo{id}"));
-        let subnet = 1 + id % 250;
-        let mut v = Self {
-            robot: robot.clone(),
-            op: op.clone(),
-            robot_ip: format!("10.214.{subnet}.1"),
-            made: Vec::new(),
-        };
-        ip(&["netns", "add", &robot])?;
-        v.made.push(robot.clone());
-        ip(&["netns", "add", &op])?;
-        v.made.push(op.clone());
-        ip(&["link", "add", &rdev, "type", "veth", "peer", "name", &odev])?;
-        ip(&["link", "set", &rdev, "netns", &robot])?;
-        ip(&["link", "set", &odev, "netns", &op])?;
-        let (ra, oa) = (
-            format!("10.214.{subnet}.1/30"),
-            format!("10.214.{subnet}.2/30"),
-        );
-        ip(&["-n", &robot, "addr", "add", &ra, "dev", &rdev])?;
-        ip(&["-n", &op, "addr", "add", &oa, "dev", &odev])?;
-        for (n, d) in [(&robot, &rdev), (&op, &odev)] {
-            ip(&["-n", n, "link", "set", "lo", "up"])?;
-            ip(&["-n", n, "link", "set", d, "up"])?;
-        }
-        Ok(v)
-    }
-
-    fn wrap(netns: &str) -> Vec<String> {
-        ["ip", "netns", "exec", netns].map(str::to_owned).to_vec()
-    }
-}
-
-impl Drop for Veth {
-    fn drop(&mut self) {
-        // Deleting a namespace deletes its end of the pair, and with it the other.
-        for n in &self.made {
-            let _ = Command::new("ip").args(["netns", "del", n]).output();
         }
     }
 }
@@ -438,7 +337,7 @@ fn run_link(
     wait: scl_config::WaitStrategy,
     dir: &Path,
     creds: &Path,
-    veth: &mut Option<Result<Veth, String>>,
+    veth: &mut Option<Result<VethPair, String>>,
 ) -> Result<RunReport, String> {
     let tag = format!("-{}", link.tag());
     let namespace = format!("sclbench/{}{}", std::process::id(), link.tag());
@@ -462,17 +361,18 @@ fn run_link(
         }
         Link::Veth { delay_ms } => {
             let v = veth
-                .get_or_insert_with(|| Veth::new().map_err(|e| e.to_string()))
+                .get_or_insert_with(|| VethPair::new("b").map_err(|e| e.to_string()))
                 .as_ref()
                 .map_err(Clone::clone)?;
-            cfg.network.listen = vec![format!("tcp/{}:{VETH_PORT}", v.robot_ip)];
-            extra.up_wrap = Veth::wrap(&v.robot);
-            let direct = format!("tcp/{}:{VETH_PORT}", v.robot_ip);
-            let op_wrap = Veth::wrap(&v.op);
+            let robot_ip = v.addr(Side::Robot);
+            cfg.network.listen = vec![format!("tcp/{robot_ip}:{VETH_PORT}")];
+            extra.up_wrap = v.exec_prefix(Side::Robot);
+            let direct = format!("tcp/{robot_ip}:{VETH_PORT}");
+            let op_wrap = v.exec_prefix(Side::Operator);
             let endpoint = if delay_ms > 0 {
                 let r = scl_net::relay::Relay::start(
-                    &v.op,
-                    format!("{}:{VETH_PORT}", v.robot_ip),
+                    v.netns(Side::Operator),
+                    format!("{robot_ip}:{VETH_PORT}"),
                     Duration::from_millis(u64::from(delay_ms)),
                 )
                 .map_err(|e| e.to_string())?;

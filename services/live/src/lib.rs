@@ -570,11 +570,10 @@ impl Remote {
                 && let Ok(mut g) = s2.lock()
                 && let Some(p) = g.as_mut()
             {
-                let p_m = observed(m);
-                if let Payload::Status(st) = &p_m {
+                if let Payload::Status(st) = &m {
                     p.note_process(st);
                 }
-                p.offer(p_m);
+                p.offer(m);
             }
         });
         let result = subs.map(|subs| {
@@ -597,20 +596,6 @@ impl Remote {
         drop(producer);
         let _ = view.join();
         Ok(result?)
-    }
-}
-
-/// The graph's message `m` is.
-fn observed(m: scl_net::observe::Observed) -> Payload {
-    use scl_net::observe::Observed as O;
-    match m {
-        O::Joystick(j) => Payload::Joystick(j),
-        O::RobotState(s) => Payload::RobotState(s),
-        O::MapperCommand(c) => Payload::MapperCommand(c),
-        O::SafeCommand(c) => Payload::SafeCommand(c),
-        O::Status(s) => Payload::Status(s),
-        O::SafetyControl(c) => Payload::SafetyControl(c),
-        O::Estop(c) => Payload::Estop(c),
     }
 }
 

@@ -18,7 +18,7 @@ use graph_client::process::Captured;
 use ipc_types::{NodeRole, NodeStatus, Prefix};
 use recording::{Payload, Topic};
 use scl_net::Keys;
-use scl_net::observe::{self, FetchError, Observed};
+use scl_net::observe::{self, FetchError};
 use transport::signals;
 
 use crate::{
@@ -104,19 +104,6 @@ impl StartGate {
     }
 }
 
-/// The message of the graph `m` is.
-pub(crate) fn payload(m: Observed) -> Payload {
-    match m {
-        Observed::Joystick(j) => Payload::Joystick(j),
-        Observed::RobotState(s) => Payload::RobotState(s),
-        Observed::MapperCommand(c) => Payload::MapperCommand(c),
-        Observed::SafeCommand(c) => Payload::SafeCommand(c),
-        Observed::Status(s) => Payload::Status(s),
-        Observed::SafetyControl(c) => Payload::SafetyControl(c),
-        Observed::Estop(c) => Payload::Estop(c),
-    }
-}
-
 /// Records the graph behind `remote` into `opts.out` until a shutdown is requested.
 pub(crate) fn run(
     prefix: &Prefix,
@@ -170,8 +157,7 @@ pub(crate) fn run(
             opts.topics.clone(),
         );
         observe::subscribe_graph(&session, &keys, move |m| match m {
-            Ok(m) => {
-                let p = payload(m);
+            Ok(p) => {
                 if !topics.contains(&p.topic()) {
                     return;
                 }
@@ -486,13 +472,5 @@ mod tests {
             &no,
         );
         assert!(matches!(item, ProcessItem::Missing { .. }), "{item:?}");
-    }
-
-    #[test]
-    fn every_observed_message_is_the_graphs_payload_of_its_topic() {
-        let st = mapper_status(1);
-        assert_eq!(payload(Observed::Status(st)).topic(), Topic::Status);
-        let s = ipc_types::RobotState::at_rest(3, 4, 6);
-        assert_eq!(payload(Observed::RobotState(s)).topic(), Topic::RobotState);
     }
 }

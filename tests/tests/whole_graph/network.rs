@@ -1,12 +1,13 @@
 //! The graph reached from another machine through its Zenoh gateway, on real network stacks:
-//! two network namespaces (the robot PC and the operator's laptop) joined by a veth pair. CI
-//! runs as root; a test that cannot make its namespaces fails, it does not skip.
+//! two network namespaces (the robot PC and the operator's laptop) joined by a veth pair
+//! (`scl_net::netns::VethPair`, the bench's too). CI runs as root; a test that cannot make its
+//! namespaces fails, it does not skip.
 //!
 //! This project's machines run a kernel built without `netem` (`CONFIG_NET_SCH_NETEM` is not
 //! set: `tc qdisc ... netem` answers "Specified qdisc kind is unknown"), so a cut is the
 //! operator's interface taken down (`ip link set down`: the same loss of every packet), and
-//! added delay is a TCP relay in the operator's namespace (`scl_net::relay::Relay`, the bench's too) that holds every
-//! chunk, both ways, for a set time before passing it on.
+//! added delay is a TCP relay in the operator's namespace (`scl_net::relay::Relay`, the
+//! bench's too) that holds every chunk, both ways, for a set time before passing it on.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -15,102 +16,46 @@ use std::time::Duration;
 use ipc_types::{
     JoystickInput, NodeRole, NodeStatus, SafeCommand, buttons, gateway_counts, safe_flags,
 };
+use scl_net::netns::{Side, VethPair};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, assert_misses_only_held_up, assert_stop_within_two_ticks,
     scl_binary, serial, temp_dir, unique_prefix, wait_clean,
 };
 
-/// Two namespaces joined by a veth pair: `robot` holds 10.213.X.1, `op` 10.213.X.2.
+/// The robot PC and the operator's machine: [`VethPair`], with the graph's helpers.
 struct Netns {
-    robot: String,
+    pair: VethPair,
     op: String,
-    robot_ip: String,
-    op_dev: String,
-}
-
-fn ip(args: &[&str]) {
-    let out = Command::new("ip").args(args).output().unwrap_or_else(|e| {
-        panic!("`ip` (iproute2) is needed for the network tests (.ci/run installs it): {e}")
-    });
-    assert!(
-        out.status.success(),
-        "ip {}: {}",
-        args.join(" "),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    robot_ip: std::net::Ipv4Addr,
 }
 
 impl Netns {
     fn new(tag: &str) -> Self {
-        // Short names: interface names hold 15 bytes.
-        let id = std::process::id() % 10_000;
-        let n = format!("{tag}{id}");
-        let (robot, op) = (format!("sclr-{n}"), format!("sclo-{n}"));
-        let (rdev, odev) = (format!("vr{n}"), format!("vo{n}"));
-        let subnet = 1 + id % 250;
-        let ns = Self {
-            robot: robot.clone(),
-            op: op.clone(),
-            robot_ip: format!("10.213.{subnet}.1"),
-            op_dev: odev.clone(),
-        };
-        ip(&["netns", "add", &robot]);
-        ip(&["netns", "add", &op]);
-        ip(&["link", "add", &rdev, "type", "veth", "peer", "name", &odev]);
-        ip(&["link", "set", &rdev, "netns", &robot]);
-        ip(&["link", "set", &odev, "netns", &op]);
-        ip(&[
-            "-n",
-            &robot,
-            "addr",
-            "add",
-            &format!("10.213.{subnet}.1/30"),
-            "dev",
-            &rdev,
-        ]);
-        ip(&[
-            "-n",
-            &op,
-            "addr",
-            "add",
-            &format!("10.213.{subnet}.2/30"),
-            "dev",
-            &odev,
-        ]);
-        for (n, d) in [(&robot, &rdev), (&op, &odev)] {
-            ip(&["-n", n, "link", "set", "lo", "up"]);
-            ip(&["-n", n, "link", "set", d, "up"]);
+        let pair = VethPair::new(tag).unwrap_or_else(|e| {
+            panic!("the network tests need two namespaces (CI runs as root with iproute2): {e}")
+        });
+        Self {
+            op: pair.netns(Side::Operator).to_owned(),
+            robot_ip: pair.addr(Side::Robot),
+            pair,
         }
-        ns
     }
 
-    /// `scl ARGS` inside namespace `ns`, for graph `prefix`.
-    fn scl(&self, ns: &str, prefix: &ipc_types::Prefix) -> Command {
-        let mut c = Command::new("ip");
-        c.args(["netns", "exec", ns])
-            .arg(scl_binary())
-            .env("SCL_PREFIX", prefix.as_str())
+    /// `scl ARGS` on `side`, for graph `prefix`.
+    fn scl(&self, side: Side, prefix: &ipc_types::Prefix) -> Command {
+        let mut c = self.pair.command(side, scl_binary());
+        c.env("SCL_PREFIX", prefix.as_str())
             .env("SCL_LOG", "warn");
         c
     }
 
     /// Cuts the link (`up == false`: the operator's interface down) or restores it.
     fn link(&self, up: bool) {
-        let state = if up { "up" } else { "down" };
-        ip(&["-n", &self.op, "link", "set", &self.op_dev, state]);
+        self.pair.set_operator_link(up).unwrap();
     }
 
     fn endpoint(&self) -> String {
         format!("tcp/{}:7447", self.robot_ip)
-    }
-}
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        // Deleting a namespace deletes its end of the pair, and with it the other.
-        for n in [&self.robot, &self.op] {
-            let _ = Command::new("ip").args(["netns", "del", n]).output();
-        }
     }
 }
 
@@ -187,7 +132,7 @@ fn remote_operator(
     script: &str,
     stderr: Stdio,
 ) -> ChildGuard {
-    let mut c = ns.scl(&ns.op, prefix);
+    let mut c = ns.scl(Side::Operator, prefix);
     c.args(["joystick", "--config"])
         .arg(cfg)
         .args([
@@ -202,7 +147,7 @@ fn remote_operator(
 
 /// `scl up` in the robot's namespace, until [`finish`] stops it (at most two minutes).
 fn up(ns: &Netns, prefix: &ipc_types::Prefix, cfg: &Path) -> ChildGuard {
-    let mut c = ns.scl(&ns.robot, prefix);
+    let mut c = ns.scl(Side::Robot, prefix);
     c.args(["up", "--json", "--config"])
         .arg(cfg)
         .args(["--for", "120s"])
@@ -453,7 +398,7 @@ fn an_operator_with_the_wrong_password_is_refused_and_never_moves_the_arm() {
     // A world-readable credentials file is refused before any connection, naming its mode.
     let open = dir.join("open.creds");
     std::fs::write(&open, "operator:right-one\n").unwrap();
-    let mut c = ns.scl(&ns.op, &prefix);
+    let mut c = ns.scl(Side::Operator, &prefix);
     let out = c
         .args(["joystick", "--source", "script", "--remote"])
         .arg(ns.endpoint())
@@ -663,7 +608,7 @@ fn a_remote_recording_holds_what_a_local_one_holds_and_replays_bit_for_bit() {
     let wrong = credentials(&dir, "wrong.creds", "operator:wrong-one\n");
     let refused = dir.join("refused.mcap");
     let out = ns
-        .scl(&ns.op, &prefix)
+        .scl(Side::Operator, &prefix)
         .args(["record", "--remote", &ns.endpoint(), "--credentials"])
         .arg(&wrong)
         .arg("--out")
@@ -684,7 +629,7 @@ fn a_remote_recording_holds_what_a_local_one_holds_and_replays_bit_for_bit() {
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
     let local = ChildGuard(Some(c.spawn().unwrap()));
-    let mut c = ns.scl(&ns.op, &prefix);
+    let mut c = ns.scl(Side::Operator, &prefix);
     c.args([
         "record",
         "--json",
@@ -817,7 +762,7 @@ fn scl_live_serves_a_graph_through_its_gateway() {
     let ns = Netns::new("l");
     let (prefix, _domain, dir, _cfg, mut rec, graph) = start_graph(&ns, "netlive", "circle");
     let op_creds = credentials(&dir, "op.creds", "operator:right-one\n");
-    let mut c = ns.scl(&ns.op, &prefix);
+    let mut c = ns.scl(Side::Operator, &prefix);
     c.args([
         "live",
         "--announce",
