@@ -291,7 +291,7 @@ pub fn remote(opts: &LatencyOptions, links: &[Link]) -> Result<RemoteReport, Ben
         ratio(on_run.e2e_us.max, off_run.e2e_us.max),
     );
 
-    let mut veth: Option<Result<Veth, String>> = None;
+    let mut veth: Option<Result<VethPair, String>> = None;
     let mut rows = Vec::new();
     for link in links {
         if transport::signals::stop_requested() {

@@ -44,8 +44,7 @@ impl Netns {
     /// `scl ARGS` on `side`, for graph `prefix`.
     fn scl(&self, side: Side, prefix: &ipc_types::Prefix) -> Command {
         let mut c = self.pair.command(side, scl_binary());
-        c.env("SCL_PREFIX", prefix.as_str())
-            .env("SCL_LOG", "warn");
+        c.env("SCL_PREFIX", prefix.as_str()).env("SCL_LOG", "warn");
         c
     }
 
