@@ -16,8 +16,8 @@ pub enum NetnsError {
     /// No `ip`.
     #[error("network namespaces need `ip` (iproute2), which cannot be run: {0}")]
     NoIp(#[source] std::io::Error),
-    /// The tag would make a name longer than an interface name holds.
-    #[error("namespace tag {0:?} is longer than 3 bytes or not ASCII alphanumeric")]
+    /// The tag would make a name longer than an interface name holds, or ambiguous.
+    #[error("namespace tag {0:?}: 1 to 3 lowercase ASCII letters")]
     BadTag(String),
     /// An `ip` command failed.
     #[error("ip {args}: {stderr}")]
@@ -38,8 +38,8 @@ pub enum Side {
     Operator,
 }
 
-/// Namespaces `sclr-TAGID` (robot) and `sclo-TAGID` (operator) joined by a veth pair on a
-/// `/30`: the robot's end holds `10.213.S.1`, the operator's `10.213.S.2`. Both namespaces, and
+/// Namespaces `sclr-TAGID` (robot) and `sclo-TAGID` (operator, [`names`]) joined by a veth
+/// pair on a `/30`: the robot's end holds `10.213.S.1`, the operator's `10.213.S.2`. Both namespaces, and
 /// with them the pair, are deleted on drop. Addresses inside namespaces never meet, so only the
 /// names are made unique (the tag and this process's id).
 #[derive(Debug)]
@@ -65,22 +65,51 @@ fn ip(args: &[&str]) -> Result<(), NetnsError> {
     }
 }
 
+/// `TAG` then the last five digits of a process id: unique among the pairs live at once, short
+/// enough for an interface name (15 bytes: `vr` + 3 + 5).
+fn suffix(tag: &str, pid: u32) -> String {
+    format!("{tag}{}", pid % 100_000)
+}
+
+fn tag_ok(tag: &str) -> bool {
+    (1..=3).contains(&tag.len()) && tag.bytes().all(|b| b.is_ascii_lowercase())
+}
+
+/// The robot's and the operator's namespace of the [`VethPair`] with `tag` that process `pid`
+/// makes.
+pub fn names(tag: &str, pid: u32) -> [String; 2] {
+    let n = suffix(tag, pid);
+    [format!("sclr-{n}"), format!("sclo-{n}")]
+}
+
+/// Whether namespace `name` is one that process `pid` makes for a [`VethPair`], whatever its
+/// tag: how a check finds what a process left behind.
+pub fn made_by(name: &str, pid: u32) -> bool {
+    let Some(rest) = name
+        .strip_prefix("sclr-")
+        .or_else(|| name.strip_prefix("sclo-"))
+    else {
+        return false;
+    };
+    let digits = rest.trim_start_matches(|c: char| c.is_ascii_lowercase());
+    tag_ok(&rest[..rest.len() - digits.len()]) && digits == (pid % 100_000).to_string()
+}
+
 impl VethPair {
-    /// Makes the two namespaces and their link, both interfaces and loopbacks up. `tag` (up to
-    /// 3 ASCII letters or digits) tells apart the pairs one process makes.
+    /// Makes the two namespaces and their link, both interfaces and loopbacks up. `tag` (1 to
+    /// 3 lowercase ASCII letters) tells apart the pairs one process makes.
     pub fn new(tag: &str) -> Result<Self, NetnsError> {
-        if tag.len() > 3 || !tag.bytes().all(|b| b.is_ascii_alphanumeric()) {
+        if !tag_ok(tag) {
             return Err(NetnsError::BadTag(tag.to_owned()));
         }
         if !nix::unistd::geteuid().is_root() {
             return Err(NetnsError::NotRoot);
         }
-        // Interface names hold 15 bytes: "vr" + 3 + 5 digits.
-        let id = std::process::id() % 100_000;
-        let n = format!("{tag}{id}");
-        let subnet = u8::try_from(1 + id % 250).unwrap_or(1);
+        let pid = std::process::id();
+        let n = suffix(tag, pid);
+        let subnet = u8::try_from(1 + pid % 250).unwrap_or(1);
         let mut pair = Self {
-            names: [format!("sclr-{n}"), format!("sclo-{n}")],
+            names: names(tag, pid),
             devs: [format!("vr{n}"), format!("vo{n}")],
             made: Vec::new(),
             subnet,
@@ -167,11 +196,31 @@ mod tests {
 
     #[test]
     fn a_long_or_odd_tag_is_refused_before_anything_is_made() {
-        for tag in ["abcd", "a-b", "é"] {
+        for tag in ["abcd", "a-b", "é", "", "a1", "B"] {
             assert!(
                 matches!(VethPair::new(tag), Err(NetnsError::BadTag(t)) if t == tag),
                 "{tag}"
             );
+        }
+    }
+
+    #[test]
+    fn the_names_a_process_makes_are_recognised_and_no_others() {
+        let [robot, op] = names("b", 123_456);
+        assert_eq!(
+            (robot.as_str(), op.as_str()),
+            ("sclr-b23456", "sclo-b23456")
+        );
+        assert!(made_by(&robot, 123_456) && made_by(&op, 23_456));
+        for other in [
+            "sclr-b2345",
+            "sclr-b234567",
+            "sclr-23456",
+            "sclx-b23456",
+            "sclo-abcd23456",
+            "sclo-B23456",
+        ] {
+            assert!(!made_by(other, 123_456), "{other}");
         }
     }
 }

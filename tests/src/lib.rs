@@ -47,7 +47,12 @@ pub fn unique_prefix(tag: &str) -> Prefix {
 
 /// Files of graph `prefix` left in `/dev/shm` or iceoryx2's directory.
 pub fn leftovers(prefix: &Prefix) -> Vec<String> {
-    let needle = prefix.file_prefix();
+    files_named(&prefix.file_prefix())
+}
+
+/// Files under `/dev/shm` and iceoryx2's directory whose name holds `needle` (a graph's file
+/// prefix, or a part every graph of one run shares).
+pub fn files_named(needle: &str) -> Vec<String> {
     let mut found = Vec::new();
     let mut stack = vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")];
     while let Some(dir) = stack.pop() {
@@ -59,7 +64,7 @@ pub fn leftovers(prefix: &Prefix) -> Vec<String> {
             if p.is_dir() {
                 stack.push(p.clone());
             }
-            if e.file_name().to_string_lossy().contains(&needle) {
+            if e.file_name().to_string_lossy().contains(needle) {
                 found.push(p.display().to_string());
             }
         }

@@ -339,20 +339,17 @@ fn bench_latency_remote_measures_the_operator_over_each_link() {
         .output()
         .unwrap();
     let netns = String::from_utf8_lossy(&netns.stdout);
-    let id = pid % 100_000;
-    for n in [format!("sclbr-{id}"), format!("sclbo-{id}")] {
-        assert!(
-            !netns
-                .lines()
-                .any(|l| l.split_whitespace().next() == Some(n.as_str())),
-            "namespace {n} left: {netns}"
-        );
-    }
+    let left: Vec<&str> = netns
+        .lines()
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|n| scl_net::netns::made_by(n, pid))
+        .collect();
+    assert!(left.is_empty(), "namespaces left: {left:?}");
     // Every run's prefix starts `bench<pid>` (`bench<pid>iceoryx2-lo`, ...).
     let needle = format!("scl_bench{pid}");
     let t0 = std::time::Instant::now();
     let left = loop {
-        let left = files_named(&needle);
+        let left = scl_tests::files_named(&needle);
         if left.is_empty() || t0.elapsed() > std::time::Duration::from_secs(5) {
             break left;
         }
@@ -380,28 +377,4 @@ fn bench_latency_remote_refuses_a_bad_link_naming_it() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("`wifi`"), "{stderr}");
-}
-
-/// Files under `/dev/shm` and iceoryx2's directory whose name holds `needle`.
-fn files_named(needle: &str) -> Vec<String> {
-    let mut found = Vec::new();
-    let mut stack = vec![
-        std::path::PathBuf::from("/dev/shm"),
-        std::path::PathBuf::from("/tmp/iceoryx2"),
-    ];
-    while let Some(dir) = stack.pop() {
-        let Ok(rd) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p.clone());
-            }
-            if e.file_name().to_string_lossy().contains(needle) {
-                found.push(p.display().to_string());
-            }
-        }
-    }
-    found
 }
