@@ -461,19 +461,7 @@ mod tests {
 
     #[test]
     fn a_mapper_of_the_bundled_model_embeds_it_with_its_digest() {
-        let p = ProcessSeen {
-            role: NodeRole::Mapper,
-            pid: 42,
-            mapper_id: 3,
-            t_ns: 7,
-            argv: Ok(vec![
-                "scl".into(),
-                "mapper".into(),
-                "--model".into(),
-                "bundled".into(),
-            ]),
-            cwd: None,
-        };
+        let p = bundled_mapper();
         let bundled = mapper::model::bundled(kinematics::RobotProfile::default_robot()).unwrap();
         let path = Path::new("p.mcap");
         let mut w = LogWriter::new(Vec::new(), path, None).unwrap();
