@@ -3,6 +3,7 @@
 //! its queryables: what each mapper and safety process runs ([`crate::wire::PROCESS_CAPTURE`])
 //! and the robot PC's clocks ([`ClockPair`]).
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use ipc_types::control::{self, EstopCommand, SafetyControl};
@@ -12,8 +13,103 @@ use recording::Payload;
 
 use crate::keys::Keys;
 use crate::ports::{self, Got};
-use crate::session::SessionError;
+use crate::session::{ClientError, SessionError};
 use crate::wire::{ClockPair, DecodeError, PROCESS_CAPTURE};
+
+/// How long an observer waits for the gateway's first answer (its clocks).
+pub const GATEWAY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long one question to the gateway about a process waits.
+pub const CAPTURE_TIMEOUT: Duration = Duration::from_secs(1);
+/// How often an observer asks what a process runs before it gives up on it (the gateway
+/// captures a process when its first heartbeat arrives, within milliseconds): see
+/// [`until_answered`].
+pub const CAPTURE_ATTEMPTS: u32 = 20;
+/// Between two questions about the same process.
+pub const CAPTURE_RETRY: Duration = Duration::from_millis(250);
+
+/// `--remote`: where a graph's gateway is and how to reach it, for an observer (`scl record
+/// --remote`, `scl live --remote`).
+#[derive(Debug, Clone)]
+pub struct RemoteGraph {
+    /// The gateway's endpoint.
+    pub endpoint: String,
+    /// The credentials file, if any.
+    pub credentials: Option<PathBuf>,
+    /// The graph's namespace (`[network] namespace`, by default `scl/<prefix>`).
+    pub namespace: String,
+    /// Zenoh's lease (ms).
+    pub lease_ms: u64,
+}
+
+/// Why an observer could not join a remote graph.
+#[derive(Debug, thiserror::Error)]
+pub enum ObserveError {
+    /// The session to the gateway could not be opened.
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    /// The gateway did not answer (its clocks).
+    #[error("--remote {endpoint}: {source}")]
+    Gateway {
+        /// The endpoint.
+        endpoint: String,
+        /// Why.
+        #[source]
+        source: FetchError,
+    },
+}
+
+/// An observer joined to a remote graph: its session, the graph's keys and the robot PC's
+/// clocks at joining.
+pub struct Observer {
+    /// The session to the gateway.
+    pub session: zenoh::Session,
+    /// The graph's keys.
+    pub keys: Keys,
+    /// The robot PC's clocks.
+    pub clock: ClockPair,
+}
+
+impl RemoteGraph {
+    /// The gateway at `endpoint` of graph `prefix` as `network` (`[network]`) reaches it;
+    /// `credentials` (the command's `--credentials`) before the configuration's file.
+    pub fn new(
+        endpoint: &str,
+        credentials: Option<PathBuf>,
+        network: &scl_config::NetworkConfig,
+        prefix: &str,
+    ) -> Self {
+        Self {
+            endpoint: endpoint.to_owned(),
+            credentials: credentials.or_else(|| {
+                (!network.credentials.is_empty()).then(|| PathBuf::from(&network.credentials))
+            }),
+            namespace: network.namespace_for(prefix),
+            lease_ms: network.lease_ms,
+        }
+    }
+
+    /// Opens a session to the gateway and asks it the robot PC's clocks (waiting at most
+    /// [`GATEWAY_TIMEOUT`]).
+    pub fn connect(&self) -> Result<Observer, ObserveError> {
+        let (session, _) = crate::session::open_client(
+            &self.endpoint,
+            self.credentials.as_deref(),
+            self.lease_ms,
+        )?;
+        let keys = Keys::new(&self.namespace);
+        let clock = fetch_clock(&session, &keys, GATEWAY_TIMEOUT).map_err(|source| {
+            ObserveError::Gateway {
+                endpoint: self.endpoint.clone(),
+                source,
+            }
+        })?;
+        Ok(Observer {
+            session,
+            keys,
+            clock,
+        })
+    }
+}
 
 /// The outbound topics an observer subscribes to, by their names below the namespace (the
 /// graph's own topic names).

@@ -32,6 +32,7 @@ use graph_client::process::{self, ProcessSeen};
 use ipc_types::{NodeRole, NodeStatus, Prefix};
 use recording::{LogClock, Payload, SchemaInfo, Topic};
 use scl_config::GraphConfig;
+use scl_net::observe::RemoteGraph;
 use transport::{Graph, TopicSubscriber, signals};
 use viz::{Viz, VizMessage, VizTopic};
 
@@ -73,21 +74,12 @@ pub enum LiveError {
         /// Why.
         source: foxglove::FoxgloveError,
     },
-    /// `--remote`: the session to the gateway could not be opened.
+    /// `--remote`: the gateway could not be reached or did not answer (its clocks).
     #[error(transparent)]
-    Remote(#[from] scl_net::session::ClientError),
+    Remote(#[from] scl_net::observe::ObserveError),
     /// `--remote`: a subscription to the gateway's topics could not be declared.
     #[error(transparent)]
     Session(#[from] scl_net::SessionError),
-    /// `--remote`: the gateway did not answer (its clocks).
-    #[error("--remote {endpoint}: {source}")]
-    Gateway {
-        /// The endpoint.
-        endpoint: String,
-        /// Why.
-        #[source]
-        source: scl_net::observe::FetchError,
-    },
     /// A thread did not start (`what`: the server's runtime, the view thread).
     #[error("cannot start {what}: {source}")]
     Thread {
@@ -128,26 +120,6 @@ pub struct LiveArgs {
     #[arg(long, value_name = "FILE", requires = "remote")]
     pub credentials: Option<std::path::PathBuf>,
 }
-
-/// `--remote`: where the graph's gateway is and how to reach it.
-#[derive(Debug, Clone)]
-pub struct RemoteSource {
-    /// The gateway's endpoint.
-    pub endpoint: String,
-    /// The credentials file, if any.
-    pub credentials: Option<std::path::PathBuf>,
-    /// The graph's namespace (`[network] namespace`, by default `scl/<prefix>`).
-    pub namespace: String,
-    /// Zenoh's lease (ms).
-    pub lease_ms: u64,
-}
-
-/// How long `scl live --remote` waits for the gateway's first answer (its clocks).
-const GATEWAY_TIMEOUT: Duration = Duration::from_secs(10);
-/// How long one question to the gateway about a process waits, how often it is asked.
-const FETCH_TIMEOUT: Duration = Duration::from_secs(1);
-const FETCH_ATTEMPTS: u32 = 20;
-const FETCH_RETRY: Duration = Duration::from_millis(250);
 
 /// Parses `ADDR:PORT`; says whether it is a loopback address.
 pub fn parse_listen(s: &str) -> Result<(SocketAddr, bool), LiveError> {
@@ -417,7 +389,7 @@ pub struct LiveOptions {
     /// Announce readiness on stdout (`node_rt::ready`) once serving, with the address bound.
     pub announce: bool,
     /// Serve a graph on another machine through its gateway, not this machine's.
-    pub remote: Option<RemoteSource>,
+    pub remote: Option<RemoteGraph>,
 }
 
 /// Starts the view thread, mapping the messages' monotonic stamps with `clock`.
@@ -482,17 +454,12 @@ struct Remote {
 }
 
 impl Remote {
-    fn open(r: &RemoteSource, producer: &mut Producer) -> Result<Self, LiveError> {
-        let (session, _) =
-            scl_net::session::open_client(&r.endpoint, r.credentials.as_deref(), r.lease_ms)?;
-        let keys = scl_net::Keys::new(&r.namespace);
-        let c =
-            scl_net::observe::fetch_clock(&session, &keys, GATEWAY_TIMEOUT).map_err(|source| {
-                LiveError::Gateway {
-                    endpoint: r.endpoint.clone(),
-                    source,
-                }
-            })?;
+    fn open(r: &RemoteGraph, producer: &mut Producer) -> Result<Self, LiveError> {
+        let scl_net::observe::Observer {
+            session,
+            keys,
+            clock: c,
+        } = r.connect()?;
         let (seen_tx, seen_rx) = crossbeam_channel::unbounded::<(NodeStatus, NodeRole)>();
         producer.remote_procs = Some(seen_tx);
         let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -515,11 +482,11 @@ impl Remote {
                                     &session,
                                     &keys,
                                     st.pid,
-                                    FETCH_TIMEOUT,
+                                    scl_net::observe::CAPTURE_TIMEOUT,
                                 )
                             },
-                            FETCH_ATTEMPTS,
-                            FETCH_RETRY,
+                            scl_net::observe::CAPTURE_ATTEMPTS,
+                            scl_net::observe::CAPTURE_RETRY,
                             &stopping,
                         );
                         let captured = got.map_err(|e| e.to_string()).and_then(|b| {
@@ -682,14 +649,13 @@ pub fn cli(
             listen: args.listen.clone(),
             queue: args.queue,
             announce: args.announce,
-            remote: args.remote.as_ref().map(|endpoint| RemoteSource {
-                endpoint: endpoint.clone(),
-                credentials: args.credentials.clone().or_else(|| {
-                    (!config.network.credentials.is_empty())
-                        .then(|| std::path::PathBuf::from(&config.network.credentials))
-                }),
-                namespace: config.network.namespace_for(prefix.as_str()),
-                lease_ms: config.network.lease_ms,
+            remote: args.remote.as_ref().map(|endpoint| {
+                RemoteGraph::new(
+                    endpoint,
+                    args.credentials.clone(),
+                    &config.network,
+                    prefix.as_str(),
+                )
             }),
             config,
         },

@@ -39,21 +39,13 @@ pub enum RecorderError {
     /// `--json`: the report could not be encoded.
     #[error("cannot encode the report: {0}")]
     Report(#[source] serde_json::Error),
-    /// `--remote`: the session to the gateway could not be opened.
+    /// `--remote`: the gateway could not be reached or did not answer (its clocks), so
+    /// nothing was recorded.
     #[error(transparent)]
-    Remote(#[from] scl_net::session::ClientError),
+    Remote(#[from] scl_net::observe::ObserveError),
     /// `--remote`: a subscription to the gateway's topics could not be declared.
     #[error(transparent)]
     Session(#[from] scl_net::SessionError),
-    /// `--remote`: the gateway did not answer (its clocks), so nothing was recorded.
-    #[error("--remote {endpoint}: {source}")]
-    Gateway {
-        /// The endpoint.
-        endpoint: String,
-        /// Why.
-        #[source]
-        source: scl_net::observe::FetchError,
-    },
 }
 
 use graph_client::process;
@@ -73,6 +65,7 @@ use serde::Serialize;
 use transport::{Graph, TopicSubscriber};
 
 use recording::{self, LogClock, LogWriter, Payload, RecordError, Topic};
+use scl_net::observe::RemoteGraph;
 use transport::signals;
 
 /// How often the writer closes a chunk: the most a crash of the recorder loses.
@@ -132,22 +125,6 @@ pub struct RecordArgs {
     pub credentials: Option<PathBuf>,
 }
 
-/// `--remote`: where the graph's gateway is and how to reach it.
-#[derive(Debug, Clone)]
-pub struct RemoteSource {
-    /// The gateway's endpoint.
-    pub endpoint: String,
-    /// The credentials file, if any.
-    pub credentials: Option<PathBuf>,
-    /// The graph's namespace (`[network] namespace`, by default `scl/<prefix>`).
-    pub namespace: String,
-    /// Zenoh's lease (ms).
-    pub lease_ms: u64,
-}
-
-/// How long `scl record --remote` waits for the gateway's first answer (its clocks).
-const GATEWAY_TIMEOUT: Duration = Duration::from_secs(10);
-
 /// What a recording run is asked to do.
 #[derive(Debug, Clone)]
 pub struct RecordOptions {
@@ -164,7 +141,7 @@ pub struct RecordOptions {
     /// A JSON object of strings read at the stop, written as `scl.trial.outcome`.
     pub meta_at_stop: Option<PathBuf>,
     /// Record a graph on another machine through its gateway, not this machine's.
-    pub remote: Option<RemoteSource>,
+    pub remote: Option<RemoteGraph>,
 }
 
 /// The metadata record of a recording's trial (`scl record --meta`).
@@ -1120,13 +1097,8 @@ pub fn cli(
         flush_every: FLUSH_EVERY,
         trial,
         meta_at_stop: args.meta_at_stop.clone(),
-        remote: args.remote.as_ref().map(|endpoint| RemoteSource {
-            endpoint: endpoint.clone(),
-            credentials: args.credentials.clone().or_else(|| {
-                (!network.credentials.is_empty()).then(|| PathBuf::from(&network.credentials))
-            }),
-            namespace: network.namespace_for(prefix.as_str()),
-            lease_ms: network.lease_ms,
+        remote: args.remote.as_ref().map(|endpoint| {
+            RemoteGraph::new(endpoint, args.credentials.clone(), network, prefix.as_str())
         }),
     };
     let r = run(prefix, &opts)?;

@@ -18,21 +18,13 @@ use graph_client::process::Captured;
 use ipc_types::{NodeRole, NodeStatus, Prefix};
 use recording::{Payload, Topic};
 use scl_net::Keys;
-use scl_net::observe::{self, FetchError};
+use scl_net::observe::{self, FetchError, RemoteGraph};
 use transport::signals;
 
 use crate::{
-    ProcessItem, RecordOptions, RecordReport, RecorderError, RemoteSource, WriterOutcome, create,
+    ProcessItem, RecordOptions, RecordReport, RecorderError, WriterOutcome, create,
     outcome_at_stop, remove_unrecorded, report, start_pipeline,
 };
-
-/// How long one question to the gateway about a process waits.
-const FETCH_TIMEOUT: Duration = Duration::from_secs(1);
-/// How often the fetcher asks before it writes the process's record with the error (the
-/// gateway captures a process when its first heartbeat arrives, within milliseconds).
-const FETCH_ATTEMPTS: u32 = 20;
-/// Between two questions about the same process.
-const FETCH_RETRY: Duration = Duration::from_millis(250);
 
 /// Ticks between the newest first tick of the topics a command depends on and the first
 /// command a remote recording keeps: a mapper command at tick `k` may use a joystick sample
@@ -108,22 +100,15 @@ impl StartGate {
 pub(crate) fn run(
     prefix: &Prefix,
     opts: &RecordOptions,
-    remote: &RemoteSource,
+    remote: &RemoteGraph,
 ) -> Result<RecordReport, RecorderError> {
     let started = Instant::now();
     // The gateway first: when it cannot be reached, no file is made.
-    let (session, _) = scl_net::session::open_client(
-        &remote.endpoint,
-        remote.credentials.as_deref(),
-        remote.lease_ms,
-    )?;
-    let keys = Keys::new(&remote.namespace);
-    let gateway_err = |source| RecorderError::Gateway {
-        endpoint: remote.endpoint.clone(),
-        source,
-    };
-    let clock =
-        observe::fetch_clock(&session, &keys, crate::GATEWAY_TIMEOUT).map_err(gateway_err)?;
+    let observe::Observer {
+        session,
+        keys,
+        clock,
+    } = remote.connect()?;
     let mut extra = BTreeMap::new();
     extra.insert("remote".to_owned(), remote.endpoint.clone());
     extra.insert("namespace".to_owned(), remote.namespace.clone());
@@ -249,7 +234,7 @@ fn fetch_loop(
     node_rt::rt::lower_priority();
     while let Ok((st, role)) = seen.recv() {
         let item = fetch_capture(
-            |pid| observe::fetch_process(session, keys, pid, FETCH_TIMEOUT),
+            |pid| observe::fetch_process(session, keys, pid, observe::CAPTURE_TIMEOUT),
             from,
             &st,
             role,
@@ -260,7 +245,7 @@ fn fetch_loop(
 }
 
 /// Asks (`ask`) what process `st.pid` runs until it is answered, at most
-/// [`FETCH_ATTEMPTS`] times (once when `stopping`): the capture, or a record naming why not.
+/// [`observe::CAPTURE_ATTEMPTS`] times (once when `stopping`): the capture, or a record naming why not.
 pub(crate) fn fetch_capture(
     ask: impl Fn(u32) -> Result<Vec<u8>, FetchError>,
     from: &str,
@@ -274,7 +259,12 @@ pub(crate) fn fetch_capture(
         t_ns: st.t_ns,
         error,
     };
-    let r = observe::until_answered(|| ask(st.pid), FETCH_ATTEMPTS, FETCH_RETRY, stopping);
+    let r = observe::until_answered(
+        || ask(st.pid),
+        observe::CAPTURE_ATTEMPTS,
+        observe::CAPTURE_RETRY,
+        stopping,
+    );
     match r {
         Ok(bytes) => match Captured::read(&bytes, st.pid, from) {
             Ok(c) => ProcessItem::Captured(Box::new(c)),
@@ -399,7 +389,7 @@ mod tests {
                 if asked.fetch_add(1, Ordering::Relaxed) < 2 {
                     Err(FetchError::NoAnswer {
                         key: format!("scl/g/process/{pid}"),
-                        timeout: FETCH_TIMEOUT,
+                        timeout: observe::CAPTURE_TIMEOUT,
                     })
                 } else {
                     Ok(bundled(pid))
@@ -426,7 +416,7 @@ mod tests {
                 asked.fetch_add(1, Ordering::Relaxed);
                 Err(FetchError::NoAnswer {
                     key: format!("scl/g/process/{pid}"),
-                    timeout: FETCH_TIMEOUT,
+                    timeout: observe::CAPTURE_TIMEOUT,
                 })
             },
             FROM,
