@@ -10,12 +10,30 @@
 //! writes, as a small MCAP file of its own); a remote recorder reads it back ([`Captured`])
 //! and writes exactly those records into its recording.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use ipc_types::{NodeRole, NodeStatus};
 use recording::{LogWriter, RecordError};
 use scl_config::GraphConfig;
+
+/// Which heartbeats name a process to capture: a mapper's or safety's, the first from each
+/// pid (the local recorder, the live server, the gateway and the remote observers all keep
+/// one).
+#[derive(Debug, Default)]
+pub struct NewProcesses {
+    seen: BTreeSet<u32>,
+}
+
+impl NewProcesses {
+    /// The role of the process `st` comes from, if it is a mapper or safety process not seen
+    /// before (it is seen from now on).
+    pub fn first(&mut self, st: &NodeStatus) -> Option<NodeRole> {
+        let role = NodeRole::from_u32(st.role)?;
+        (matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid))
+            .then_some(role)
+    }
+}
 
 /// A process seen for the first time, with what `/proc` said about it.
 #[derive(Debug, Clone)]
@@ -383,6 +401,33 @@ mod tests {
             ]),
             cwd: None,
         }
+    }
+
+    #[test]
+    fn a_mapper_or_safety_process_is_new_once_and_other_roles_never() {
+        let status = |role: NodeRole, pid: u32| {
+            let mut st = NodeStatus::new(role, ipc_types::phase::RUNNING, 5);
+            st.pid = pid;
+            st
+        };
+        let mut n = NewProcesses::default();
+        assert_eq!(
+            n.first(&status(NodeRole::Mapper, 7)),
+            Some(NodeRole::Mapper)
+        );
+        assert_eq!(n.first(&status(NodeRole::Mapper, 7)), None);
+        assert_eq!(
+            n.first(&status(NodeRole::Safety, 8)),
+            Some(NodeRole::Safety)
+        );
+        assert_eq!(n.first(&status(NodeRole::Bridge, 9)), None);
+        let mut bad = status(NodeRole::Mapper, 10);
+        bad.role = 999;
+        assert_eq!(n.first(&bad), None);
+        assert_eq!(
+            n.first(&status(NodeRole::Mapper, 10)),
+            Some(NodeRole::Mapper)
+        );
     }
 
     /// Written through its bytes, a capture is the same records as written directly.

@@ -766,7 +766,7 @@ impl Gateway<'_> {
 struct Captures {
     /// Processes seen, to the capture thread (rare: unbounded; never waits).
     tx: Option<Sender<(NodeStatus, ipc_types::NodeRole)>>,
-    seen: std::collections::BTreeSet<u32>,
+    seen: graph_client::process::NewProcesses,
     kept: Arc<std::sync::Mutex<Kept>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -841,7 +841,7 @@ impl Captures {
             })?;
         Ok(Self {
             tx: Some(tx),
-            seen: std::collections::BTreeSet::new(),
+            seen: graph_client::process::NewProcesses::default(),
             kept,
             thread: Some(thread),
         })
@@ -850,13 +850,7 @@ impl Captures {
     /// Notes the process a heartbeat comes from; a mapper or safety process seen for the
     /// first time is captured.
     fn note(&mut self, st: &NodeStatus) {
-        let Some(role) = ipc_types::NodeRole::from_u32(st.role) else {
-            return;
-        };
-        if matches!(
-            role,
-            ipc_types::NodeRole::Mapper | ipc_types::NodeRole::Safety
-        ) && self.seen.insert(st.pid)
+        if let Some(role) = self.seen.first(st)
             && let Some(tx) = &self.tx
         {
             let _ = tx.send((*st, role));

@@ -20,7 +20,7 @@
 //! by accident.
 #![cfg_attr(test, allow(clippy::unwrap_used))]
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -304,7 +304,7 @@ struct Subscriptions {
 struct Producer {
     tx: Sender<Item>,
     counters: Arc<Counters>,
-    seen: BTreeSet<u32>,
+    seen: process::NewProcesses,
     /// `--remote`: processes seen for the first time, to the thread that asks the gateway
     /// what they run; `None`: read from this machine's `/proc`.
     remote_procs: Option<Sender<(NodeStatus, NodeRole)>>,
@@ -329,10 +329,7 @@ impl Producer {
     }
 
     fn note_process(&mut self, st: &NodeStatus) {
-        let Some(role) = NodeRole::from_u32(st.role) else {
-            return;
-        };
-        if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
+        if let Some(role) = self.seen.first(st) {
             if let Some(tx) = &self.remote_procs {
                 let _ = tx.send((*st, role));
                 return;
@@ -594,7 +591,7 @@ pub fn run(prefix: &Prefix, opts: &LiveOptions) -> Result<LiveReport, LiveError>
     let mut producer = Producer {
         tx,
         counters: counters.clone(),
-        seen: BTreeSet::new(),
+        seen: process::NewProcesses::default(),
         remote_procs: None,
     };
     // A remote graph's gateway first: a wrong endpoint or login starts no server.

@@ -51,7 +51,7 @@ pub enum RecorderError {
 use graph_client::process;
 
 mod remote;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -292,7 +292,7 @@ pub struct Producer {
     /// what they run (rare: unbounded); `None`: read from this machine's `/proc`.
     remote_procs: Option<Sender<(NodeStatus, NodeRole)>>,
     /// Pids of the mapper and safety processes seen so far.
-    seen: BTreeSet<u32>,
+    seen: process::NewProcesses,
     /// Metadata records to the writer thread (rare: unbounded).
     metas: Sender<recording::Metadata>,
     /// The processes' own log records to the writer thread (`/scl/log`); a full hand-off
@@ -345,10 +345,7 @@ impl Producer {
     /// first time has its command line read now and what it runs embedded by the writer
     /// ([`process::capture`]).
     pub fn note_process(&mut self, st: &NodeStatus) {
-        let Some(role) = NodeRole::from_u32(st.role) else {
-            return;
-        };
-        if matches!(role, NodeRole::Mapper | NodeRole::Safety) && self.seen.insert(st.pid) {
+        if let Some(role) = self.seen.first(st) {
             match &self.remote_procs {
                 Some(tx) => {
                     let _ = tx.send((*st, role));
@@ -533,7 +530,7 @@ pub fn start_pipeline<W: Write + Send + 'static>(
             last_tick: None,
             procs,
             remote_procs: None,
-            seen: BTreeSet::new(),
+            seen: process::NewProcesses::default(),
             metas,
             logs,
         },
