@@ -563,7 +563,11 @@ fn a_restarted_scripted_joystick_does_not_rearm_the_arm() {
     );
     // The new process numbers its samples from 0.
     let t_new = run.sample_after(t_kill, |j| j.seq == 0);
-    // Every command mapped from the new joystick's samples is a stop, waiting for neutral.
+    // Every command mapped from the new joystick's samples is a stop that never speeds a
+    // joint up, waiting for neutral unless the supervisor's hold or a stale input is (also) a
+    // reason (`AWAITING_NEUTRAL` marks only the ticks it is the sole reason), and the arm
+    // ends at rest waiting for neutral. A restart quicker than the stop ramp brings the new
+    // samples while the arm still brakes at the acceleration limit: those stops still move.
     let new: Vec<&SafeCommand> = run
         .rec
         .safe_commands
@@ -571,13 +575,39 @@ fn a_restarted_scripted_joystick_does_not_rearm_the_arm() {
         .filter(|c| c.joystick_t_ns >= t_new)
         .collect();
     assert!(new.len() > 40, "{} commands", new.len());
+    let fastest = |c: &SafeCommand| c.qdot_rad_s.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    let first = run
+        .rec
+        .safe_commands
+        .iter()
+        .position(|c| c.joystick_t_ns >= t_new)
+        .unwrap_or(0);
+    let mut prev_speed = first
+        .checked_sub(1)
+        .map_or(0.0, |i| fastest(&run.rec.safe_commands[i]));
     for c in &new {
+        let speed = fastest(c);
+        let other_reason = safe_flags::HOLD
+            | safe_flags::STALE_JOYSTICK
+            | safe_flags::STALE_COMMAND
+            | safe_flags::STALE_STATE;
+        let waiting = c.flags & (safe_flags::AWAITING_NEUTRAL | other_reason) != 0;
+        let braking = c.flags & safe_flags::STOP != 0 && speed <= prev_speed;
         assert!(
-            c.flags & safe_flags::AWAITING_NEUTRAL != 0 && !moving(c),
-            "tick {}: the restarted joystick's deflected stick moved the arm (flags {:#x})",
+            waiting && braking,
+            "tick {}: the restarted joystick's deflected stick moved the arm (flags {:#x}, \
+             fastest joint {speed} rad/s, {prev_speed} rad/s the command before)",
             c.tick,
             c.flags
         );
+        prev_speed = speed;
     }
+    let last = new[new.len() - 1];
+    assert!(
+        last.flags & safe_flags::AWAITING_NEUTRAL != 0 && !moving(last),
+        "tick {}: the arm did not end stopped waiting for neutral (flags {:#x})",
+        last.tick,
+        last.flags
+    );
     run.finish();
 }
