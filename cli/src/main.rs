@@ -440,7 +440,7 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
         Cmd::Plot(args) => cmd::learn::plot(args),
         Cmd::Train(t) => cmd::learn::train(&t),
         Cmd::Import(args) => cmd::learn::import(args),
-        Cmd::Eval { config, what } => cmd::learn::eval(what, config.load()?.period_s()),
+        Cmd::Eval { config, what } => cmd::learn::eval(what, &config.load()?),
     }
 }
 

@@ -35,6 +35,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use crate::dataset::{Dataset, Trajectory};
 use crate::demos::DT;
+use crate::goals::Scene;
 use mapper::rng::Rng;
 
 /// A task the generator knows.
@@ -227,6 +228,20 @@ pub fn generate_for(
     n_val: usize,
     seed: u64,
 ) -> Result<Dataset, TaskError> {
+    generate_scenes_for(task, robot, n_train, n_val, seed).map(|(ds, _)| ds)
+}
+
+/// [`generate_for`], and the scene each demonstration was made in (the training ones, then
+/// the validation ones; none for the planar reaches): what its goals are laid out around
+/// ([`crate::goals::TaskGoals::in_scene`]).
+pub fn generate_scenes_for(
+    task: Task,
+    robot: &'static RobotProfile,
+    n_train: usize,
+    n_val: usize,
+    seed: u64,
+) -> Result<(Dataset, Vec<Scene>), TaskError> {
+    let mut scenes = Vec::new();
     let mut rng = Rng::new(seed ^ (task as u64).wrapping_mul(0x5851_F42D_4C95_7F2D));
     let (mean_train, mean_val) = task.mean_lengths();
     let mut make = |n: usize, mean: f64, prefix: &str| -> Result<Vec<Trajectory>, TaskError> {
@@ -234,7 +249,7 @@ pub fn generate_for(
         let mut out = Vec::with_capacity(n);
         for (i, len) in lengths.into_iter().enumerate() {
             let name = format!("{prefix}_{i:02}.csv");
-            let plan = match task {
+            let (plan, scene) = match task {
                 Task::TableCleaning => table_cleaning(robot, &name, len, &mut rng)?,
                 Task::PickAndPlace => pick_and_place(robot, &mut rng)?,
                 Task::Pouring => pouring(robot, &mut rng)?,
@@ -243,6 +258,7 @@ pub fn generate_for(
                     continue;
                 }
             };
+            scenes.push(scene);
             let (traj, stats) =
                 run_arm(task, robot, &name, &plan, len, TRACKING_LIMIT_M, &mut rng)?;
             tracing::debug!(
@@ -259,11 +275,14 @@ pub fn generate_for(
     };
     let train = make(n_train, mean_train, "train")?;
     let val = make(n_val, mean_val, "val")?;
-    Ok(Dataset {
-        train,
-        val,
-        hash: String::new(),
-    })
+    Ok((
+        Dataset {
+            train,
+            val,
+            hash: String::new(),
+        },
+        scenes,
+    ))
 }
 
 /// Lengths (ticks) of `n` trajectories around `mean` (±15 %), adjusted so that they total
@@ -739,6 +758,23 @@ fn clean_seed(robot: &RobotProfile) -> Vec<f64> {
     }
 }
 
+/// Where an attempt at `task` starts on `robot`'s arm, as its demonstrations do: the grasping
+/// tasks at the `home` pose; table cleaning with the tool pointing down 7.5 cm over the middle
+/// of the patch ([`crate::goals::TABLE_CENTRE`], moved out by [`scene_shift_m`]), an IK
+/// solution from [`clean_seed`].
+pub fn start_pose(robot: &RobotProfile, task: Task) -> Result<Vec<f64>, TaskError> {
+    match task {
+        Task::TableCleaning => {
+            let c = crate::goals::TABLE_CENTRE;
+            let at = Vector3::new(c[0] + scene_shift_m(robot, task)?, c[1], 0.075);
+            let target = pose(at, pointing_down(0.0));
+            start_at(task, "start", robot.arm(), &target, &clean_seed(robot))
+        }
+        Task::PlanarReach => Ok(PLANAR_START.to_vec()),
+        Task::PickAndPlace | Task::Pouring => home_of(robot, task).map(<[f64]>::to_vec),
+    }
+}
+
 /// The step [`scene_shift_m`] rounds up to (m).
 const SCENE_STEP_M: f64 = 0.05;
 
@@ -774,7 +810,7 @@ fn table_cleaning(
     name: &str,
     ticks: usize,
     rng: &mut Rng,
-) -> Result<Plan, TaskError> {
+) -> Result<(Plan, Scene), TaskError> {
     let centre = Vector3::new(rng.range(0.35, 0.41), rng.range(-0.06, 0.06), 0.0)
         + Vector3::x() * scene_shift_m(robot, Task::TableCleaning)?;
     let radius = rng.range(0.04, 0.06);
@@ -828,13 +864,18 @@ fn table_cleaning(
     ];
     let seed = clean_seed(robot);
     let q0 = start_at(Task::TableCleaning, name, robot.arm(), &start, &seed)?;
-    Ok(Plan {
-        q0,
-        segments: segments.to_vec(),
-    })
+    Ok((
+        Plan {
+            q0,
+            segments: segments.to_vec(),
+        },
+        Scene::TableCleaning {
+            centre: centre.xy(),
+        },
+    ))
 }
 
-fn pick_and_place(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError> {
+fn pick_and_place(robot: &RobotProfile, rng: &mut Rng) -> Result<(Plan, Scene), TaskError> {
     let q_home = home_of(robot, Task::PickAndPlace)?;
     let home = robot
         .arm()
@@ -923,13 +964,20 @@ fn pick_and_place(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError
             rng,
         ),
     ];
-    Ok(Plan {
-        q0: q_home.to_vec(),
-        segments: segments.to_vec(),
-    })
+    Ok((
+        Plan {
+            q0: q_home.to_vec(),
+            segments: segments.to_vec(),
+        },
+        Scene::PickAndPlace {
+            bottle: bottle.xy(),
+            mark: mark.xy(),
+            grasp_z,
+        },
+    ))
 }
 
-fn pouring(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError> {
+fn pouring(robot: &RobotProfile, rng: &mut Rng) -> Result<(Plan, Scene), TaskError> {
     let q_home = home_of(robot, Task::Pouring)?;
     let home = robot
         .arm()
@@ -1041,10 +1089,17 @@ fn pouring(robot: &RobotProfile, rng: &mut Rng) -> Result<Plan, TaskError> {
             rng,
         ),
     ];
-    Ok(Plan {
-        q0: q_home.to_vec(),
-        segments,
-    })
+    Ok((
+        Plan {
+            q0: q_home.to_vec(),
+            segments,
+        },
+        Scene::Pouring {
+            cup: cup.xy(),
+            bowl: bowl.xy(),
+            grasp_z,
+        },
+    ))
 }
 
 /// Start configuration of the planar reaches (rad): a relaxed, bent arm.

@@ -30,7 +30,7 @@ pub use crate::operator::OperatorKind;
 use crate::operator::expert::{Expert, ExpertParams, Learner};
 use crate::operator::internal::InternalModel;
 use crate::operator::practiced::{Explorer, PracticedParams};
-use crate::operator::{Operate, Seen, operator};
+use crate::operator::{Demos, Operate, Seen, operator};
 
 use crate::data::{Appender, Outcome, STUDY_COPY, TRIALS, TrialRow};
 use crate::plan::{StartPose, Study};
@@ -195,6 +195,8 @@ pub struct AttemptSetup<'a> {
     pub aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
     /// What the practiced operator learned in practice with this map ([`practice`]).
     pub learned: Option<&'a InternalModel>,
+    /// The demonstrations the follower reproduces.
+    pub demos: Option<&'a Demos>,
 }
 
 /// What the operator does with a robot state ([`AttemptDriver::on_state`]).
@@ -241,6 +243,7 @@ impl<'a> AttemptDriver<'a> {
             s.model,
             s.aim_out.clone(),
             s.learned,
+            s.demos,
         )?;
         Ok(Self::with_operator(s, op))
     }
@@ -346,6 +349,13 @@ pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
     run_driver(s, AttemptDriver::new(s)?).map(|(r, _)| r)
 }
 
+/// [`run_attempt`], and how far a follower got along its demonstration.
+pub fn run_attempt_followed(
+    s: &AttemptSetup<'_>,
+) -> Result<(AttemptResult, Option<crate::operator::follower::Followed>), SimError> {
+    run_driver(s, AttemptDriver::new(s)?).map(|(r, op)| (r, op.followed()))
+}
+
 /// [`run_attempt`] with the operator of `driver`; gives the operator back.
 fn run_driver(
     s: &AttemptSetup<'_>,
@@ -419,6 +429,7 @@ pub fn practice(s: &AttemptSetup<'_>, practice_s: f64) -> Result<InternalModel, 
             seed: attempt_seed(s.seed, &[round]),
             aim_out: s.aim_out.clone(),
             learned: None,
+            demos: None,
         };
         let op: Box<dyn Operate> = if round == 0 {
             Box::new(Explorer::new(s.params, dt, model))
@@ -490,6 +501,30 @@ pub fn study_goals(study: &Study, robot: &RobotProfile) -> Result<Vec<TaskGoals>
                 .ok_or_else(|| bad(format!("`{which}` has no scene to simulate")))
         })
         .collect()
+}
+
+/// The seed of the demonstrations the shipped study models were trained on
+/// (`scripts/study-models.sh`: `scl demos --task T --seed 1`), which the follower reproduces
+/// in a study.
+pub const DEMOS_SEED: u64 = 1;
+
+/// The training demonstrations of `task` on `robot`'s arm that a follower reproduces in a
+/// study (the nearest to the tool), and whose paths are the expert's route: the generator's,
+/// at the paper's counts and [`DEMOS_SEED`].
+pub fn task_demos(task: GoalTask, robot: &'static RobotProfile) -> Result<Demos, SimError> {
+    let (n_train, _) = task.default_counts();
+    let ds = learning::tasks::generate_for(task, robot, n_train, 0, DEMOS_SEED)
+        .map_err(|e| SimError::Setup(format!("the follower's demonstrations: {e}")))?;
+    let paths = ds
+        .train
+        .iter()
+        .map(|t| crate::operator::follower::DemoPath::of(robot, t))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| SimError::Setup(format!("the follower's demonstrations: {e}")))?;
+    Ok(Demos {
+        paths: Arc::new(paths),
+        only: None,
+    })
 }
 
 /// The start pose of a task as joint angles.
@@ -660,6 +695,14 @@ pub fn simulate_participant_with(
             key: format!("tasks[{ti}].start"),
             reason: "not a pose of the robot".into(),
         })?;
+        let demos = if matches!(
+            params.operator,
+            OperatorKind::Follower | OperatorKind::Expert
+        ) {
+            Some(task_demos(goals[ti].task, sim.robot)?)
+        } else {
+            None
+        };
         for (pos, &ci) in study.order(p).iter().enumerate() {
             let c = &study.file.conditions[ci];
             if !only.condition(c) {
@@ -686,6 +729,7 @@ pub fn simulate_participant_with(
                     seed: attempt_seed(seed, &[u64::from(p.0), ti as u64, ci as u64, 0]),
                     aim_out: None,
                     learned: None,
+                    demos: None,
                 };
                 Some(practice(&setup, task.practice_s)?)
             } else {
@@ -711,6 +755,7 @@ pub fn simulate_participant_with(
                     ),
                     aim_out: None,
                     learned: learned.as_ref(),
+                    demos: demos.as_ref(),
                 };
                 let info = AttemptInfo {
                     spec,
@@ -863,6 +908,7 @@ mod tests {
             seed,
             aim_out: (map == Map::Perfect).then_some(cell),
             learned: None,
+            demos: None,
         })
         .unwrap()
     }
@@ -884,6 +930,7 @@ mod tests {
             seed,
             aim_out: Some(cell),
             learned: None,
+            demos: None,
         })
         .unwrap()
     }
@@ -1114,6 +1161,7 @@ candidates = 16
                 seed,
                 aim_out: None,
                 learned: None,
+                demos: None,
             },
             practice_s,
         )
@@ -1135,6 +1183,7 @@ candidates = 16
             seed: seed + 100,
             aim_out: None,
             learned: Some(&learned),
+            demos: None,
         })
         .unwrap();
         (r, calls.into_inner())
@@ -1183,6 +1232,7 @@ candidates = 16
             seed: 1,
             aim_out: None,
             learned: None,
+            demos: None,
         })
         .unwrap();
         assert!(expert_calls.into_inner() > 10);
@@ -1209,6 +1259,7 @@ candidates = 16
             seed: 1,
             aim_out: None,
             learned: None,
+            demos: None,
         })
         .unwrap_err();
         assert!(e.to_string().contains("not practised"), "{e}");
@@ -1341,7 +1392,7 @@ model = "modeswitch"
         )
         .unwrap();
         let at = |g: &Subgoal| match g {
-            Subgoal::Reach { at, .. } => *at,
+            Subgoal::Reach { at, .. } | Subgoal::Approach { at, .. } => *at,
             other => panic!("{other:?}"),
         };
         let d = at(&goals[1].subgoals[0]) - at(&lite.subgoals[0]);

@@ -119,6 +119,12 @@ pub(crate) enum EvalCmd {
     /// defaults (hours): resumable, and --seeds / --epochs / --test-trajectories give a quick
     /// look.
     GreedyUser(learning::experiments::greedy_user::GreedyUserArgs),
+    /// Whether a map can do one of the paper's tasks before a person sits down: the expert
+    /// operator's success rate from the study's start (`--operator expert`, `--seeds N`), or
+    /// the share of the task's training demonstrations the follower tracks to the end
+    /// through the map (`--operator follower`). In process, through the graph's safety
+    /// filter (`--config`) and the mock arm; see docs/simulated-participants.md.
+    Capability(scl_study::CapabilityArgs),
 }
 
 /// `scl train`: every option, with the paper's defaults.
@@ -367,7 +373,8 @@ pub(crate) fn import(args: ImportArgs) -> Result<ExitCode, SclError> {
 }
 
 /// `scl eval EXPERIMENT`: exit code 1 when the theorem's inequality failed.
-pub(crate) fn eval(what: EvalCmd, period_s: f64) -> Result<ExitCode, SclError> {
+pub(crate) fn eval(what: EvalCmd, cfg: &scl_config::GraphConfig) -> Result<ExitCode, SclError> {
+    let period_s = cfg.period_s();
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     use learning::experiments as ex;
     let (out, verdict) = match what {
@@ -400,6 +407,10 @@ pub(crate) fn eval(what: EvalCmd, period_s: f64) -> Result<ExitCode, SclError> {
         EvalCmd::Reconstruction(args) => {
             let o = ex::reconstruction::run(&args, &command)?;
             (o.out, format!("{} models evaluated", o.entries.len()))
+        }
+        EvalCmd::Capability(args) => {
+            scl_study::capability(cfg.graph.profile()?, cfg, &args)?;
+            return Ok(ExitCode::SUCCESS);
         }
         EvalCmd::GreedyUser(args) => {
             let o = ex::greedy_user::run(&args, &command)?;

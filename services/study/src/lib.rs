@@ -1324,3 +1324,133 @@ pub fn simulate(
     println!("summary: {}", report.join("summary.md").display());
     Ok(())
 }
+
+/// `scl eval capability`: whether a map can do one of the paper's tasks before a person sits
+/// down ([`study::capability`]).
+#[derive(clap::Args, Debug, Clone)]
+pub struct CapabilityArgs {
+    /// The model file (`*.safetensors`) or a built-in map (`modeswitch`).
+    pub model: String,
+    /// The task: table-cleaning, pick-and-place or pouring.
+    #[arg(long)]
+    pub task: String,
+    /// `expert` (plans with the map from the study's start: the success rate) or `follower`
+    /// (reproduces each of the task's training demonstrations from its start, in its scene:
+    /// the share tracked to the end); `greedy` and `practiced` run from the start too.
+    #[arg(long, default_value = "expert")]
+    pub operator: String,
+    /// Attempts from the study's start, each with its own seed (the follower makes one per
+    /// training demonstration instead).
+    #[arg(long, default_value = "10")]
+    pub seeds: u64,
+    /// A study file whose `[simulation]` section sets the operator's hand and planner
+    /// (default: the defaults in docs/simulated-participants.md).
+    #[arg(long, value_name = "FILE")]
+    pub study: Option<PathBuf>,
+    /// Attempts run at once (default: the cores available).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Print one JSON object (task, operator, successes, attempts, rate, each attempt).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `scl eval capability` on `robot` with `graph`'s safety configuration and period;
+/// prints the result.
+pub fn capability(
+    robot: &'static kinematics::RobotProfile,
+    graph: &scl_config::GraphConfig,
+    args: &CapabilityArgs,
+) -> Result<study::capability::Capability, StudyRunError> {
+    let task = learning::tasks::Task::from_name(&args.task)
+        .map_err(|e| StudyRunError::Graph(format!("--task: {e}")))?;
+    let operator = study::operator::OperatorKind::from_name(&args.operator).ok_or_else(|| {
+        StudyRunError::Graph(format!(
+            "--operator: no operator `{}`; the operators: {}",
+            args.operator,
+            study::operator::OperatorKind::NAMES.join(", ")
+        ))
+    })?;
+    if args.seeds == 0 {
+        return Err(StudyRunError::Graph("--seeds 0: run at least one".into()));
+    }
+    let mut params = match &args.study {
+        Some(path) => Study::load(path, robot)?.file.simulation,
+        None => study::simulate::SimParams::default(),
+    };
+    params.operator = operator;
+    let sim = study::simulate::Loop {
+        robot,
+        safety: graph.safety.clone(),
+        period_s: graph.period_s(),
+    };
+    let bar = if std::io::stderr().is_terminal() {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:40}] {pos}/{len} attempts, {eta} left",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    let progress = || bar.inc(1);
+    let check = study::capability::CapabilityCheck {
+        sim: &sim,
+        spec: &args.model,
+        task,
+        params: &params,
+        seeds: args.seeds,
+        progress: &progress,
+    };
+    bar.set_length(check.attempts());
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.jobs.unwrap_or(0))
+        .build()
+        .map_err(|e| StudyRunError::Graph(format!("--jobs: {e}")))?;
+    let c = pool
+        .install(|| check.run())
+        .map_err(study::StudyError::from)?;
+    bar.finish_and_clear();
+    if args.json {
+        let attempts: Vec<_> = c
+            .attempts
+            .iter()
+            .map(|a| {
+                serde_json::json!({
+                    "name": a.name,
+                    "outcome": a.result.outcome.name(),
+                    "completion_pct": a.result.completion_pct,
+                    "duration_s": a.result.duration_s,
+                    "mode_switches": a.result.mode_switches,
+                    "followed_pct": a.followed_pct,
+                })
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({
+                "model": args.model,
+                "task": task.name(),
+                "operator": operator.name(),
+                "successes": c.successes(),
+                "attempts": c.attempts.len(),
+                "rate": c.rate(),
+                "each": attempts,
+            })
+        );
+    } else {
+        for a in &c.attempts {
+            let followed = a
+                .followed_pct
+                .map(|f| format!(", followed {f:.0} % of it"))
+                .unwrap_or_default();
+            println!(
+                "  {:<14} {:<8} {:>5.1} s, {:>3.0} % of the subgoals{followed}",
+                a.name, a.result.outcome.name(), a.result.duration_s, a.result.completion_pct
+            );
+        }
+        println!("{}", c.summary());
+    }
+    Ok(c)
+}

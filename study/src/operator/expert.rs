@@ -79,6 +79,18 @@ pub struct ExpertParams {
     pub back_off_s: f64,
     /// How far it backs off (m). Default 0.08.
     pub back_off_m: f64,
+    /// The route: what a predicted tool position further than [`ExpertParams::route_radius_m`]
+    /// from the task's demonstrated paths costs, per metre beyond (m per m; 0: the
+    /// straight line to the next subgoal only). Default 1: a person who practised the task
+    /// keeps to its route (in front of the cup, then in; lift, carry, lower), where the map
+    /// was taught to move.
+    pub route_weight: f64,
+    /// How far from the demonstrated paths the route costs nothing (m). Default 0.02.
+    pub route_radius_m: f64,
+    /// On the way to an object and at it, what a turn of the fingers away from facing it
+    /// costs (m per rad; [`learning::goals::Aim::facing_error`]). Default 0.1, as a tilt:
+    /// a bottle or cup is grasped from the side with the fingers level and facing it.
+    pub face_weight_m_per_rad: f64,
 }
 
 impl Default for ExpertParams {
@@ -93,6 +105,9 @@ impl Default for ExpertParams {
             stuck_s: 3.0,
             back_off_s: 1.0,
             back_off_m: 0.08,
+            route_weight: 1.0,
+            route_radius_m: 0.02,
+            face_weight_m_per_rad: 0.1,
         }
     }
 }
@@ -118,6 +133,9 @@ impl ExpertParams {
             ("spread", self.spread),
             ("back_off_s", self.back_off_s),
             ("back_off_m", self.back_off_m),
+            ("route_weight", self.route_weight),
+            ("route_radius_m", self.route_radius_m),
+            ("face_weight_m_per_rad", self.face_weight_m_per_rad),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(k, "must be 0 or more");
@@ -131,6 +149,41 @@ impl ExpertParams {
             return bad("horizon_s", "must be at most 200 steps of step_s");
         }
         Ok(())
+    }
+}
+
+/// The task's route as the expert knows it: the tool positions of the task's demonstrations,
+/// with the gripper open or closed there (every [`ROUTE_STRIDE`]th tick).
+#[derive(Debug, Clone, Default)]
+pub struct Route {
+    points: Vec<(Vector3<f64>, bool)>,
+}
+
+/// Every how many ticks of a demonstration the route keeps a point (0.1 s at 40 Hz: at most
+/// 3 cm apart at the demonstrations' speeds).
+pub const ROUTE_STRIDE: usize = 4;
+
+impl Route {
+    /// The route of `demos`.
+    pub fn of(demos: &super::Demos) -> Self {
+        let points = demos
+            .paths
+            .iter()
+            .flat_map(|p| p.points.iter().step_by(ROUTE_STRIDE))
+            .map(|x| (x.tool.translation.vector, x.c >= 0.5))
+            .collect();
+        Self { points }
+    }
+
+    /// How far `p` is from the route where the gripper is as `closed` says (m; infinite for
+    /// an empty route).
+    pub fn distance(&self, p: &Vector3<f64>, closed: bool) -> f64 {
+        self.points
+            .iter()
+            .filter(|(_, c)| *c == closed)
+            .map(|(x, _)| (x - p).norm_squared())
+            .fold(f64::INFINITY, f64::min)
+            .sqrt()
     }
 }
 
@@ -273,6 +326,8 @@ pub(crate) struct Expert {
     clearance_now: f64,
     /// The joint angles at the end of the last prediction.
     predicted_q: [f64; MAX_JOINTS],
+    /// The task's route (the expert's knowledge of it), if it has one.
+    route: Option<Route>,
 }
 
 impl Expert {
@@ -284,6 +339,7 @@ impl Expert {
         dt: f64,
         make: &ModelFactory<'_>,
         aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
+        route: Option<Route>,
     ) -> Result<Self, SimError> {
         let ex = params.expert.clone();
         let first = make()?;
@@ -319,6 +375,7 @@ impl Expert {
             aim_out,
         );
         op.speed_scale = speed_scale;
+        op.route = route.filter(|_| op.ex.route_weight > 0.0);
         Ok(op)
     }
 
@@ -348,6 +405,10 @@ impl Expert {
         );
         // It sees the table and the arm stop at it; its own floor stands for that.
         op.whole_arm = None;
+        // It is not given the task's route or the facing of a grasp (its calibration on mode
+        // switching was made without them): what it knows, it learned in practice.
+        op.ex.route_weight = 0.0;
+        op.ex.face_weight_m_per_rad = 0.0;
         op.rotation_weight = pr.rotation_weight_m_per_rad;
         op.slip = pr.mode_slip;
         op
@@ -400,12 +461,13 @@ impl Expert {
                 .map(|a| (a, safety.stop_distance_m)),
             clearance_now: f64::INFINITY,
             predicted_q: [0.0; MAX_JOINTS],
+            route: None,
             ex,
         }
     }
 
-    fn error(&self, aim: &Aim, p: &Vector3<f64>, t: f64) -> f64 {
-        aim_error(aim, p, t, self.params.tilt_weight_m_per_rad)
+    fn error(&self, aim: &Aim, p: &Vector3<f64>, r: &nalgebra::UnitQuaternion<f64>) -> f64 {
+        aim_error(aim, p, r, self.params.tilt_weight_m_per_rad, self.ex.face_weight_m_per_rad)
     }
 
     /// The knots before the plan starts in mode `m` (`cur` the mode now): what the hand still
@@ -472,6 +534,7 @@ impl Expert {
         let step = self.ex.step_s;
         let rate = self.params.stick_rate_per_s * step;
         let tilt_weight = self.params.tilt_weight_m_per_rad;
+        let face_weight = self.ex.face_weight_m_per_rad;
         let mut q = [0.0; MAX_JOINTS];
         q[..n].copy_from_slice(&seen.state.q()[..n]);
         let mut c = seen.state.gripper;
@@ -496,7 +559,7 @@ impl Expert {
             a = [a[0] + d[0] * k, a[1] + d[1] * k];
             if let Some(g) = aim
                 && let Some(close) = g.grip
-                && (g.position - p).norm() <= self.tol.position_m
+                && g.distance(&p) <= self.tol.position_m
             {
                 c = (c + if close { step } else { -step }).clamp(0.0, 1.0);
             }
@@ -505,9 +568,11 @@ impl Expert {
                     Target::Task => aim,
                     Target::Point(w) => Some(Aim {
                         position: w,
+                        zone: learning::goals::Zone::Point,
                         tilt: None,
                         grip: None,
                         down: false,
+                        face: false,
                     }),
                 };
                 if let (Some(g), Ok(mut e)) = (g, cell.lock()) {
@@ -565,11 +630,18 @@ impl Expert {
                     let done = run.subgoals_done() - before;
                     bonus += done as f64 * SUBGOAL_M * (2.0 - i as f64 / h as f64);
                     aim.map_or(0.0, |g| {
-                        aim_error(&g, &p, tilt(&tool.rotation), tilt_weight)
+                        aim_error(&g, &p, &tool.rotation, tilt_weight, face_weight)
                     })
                 }
                 (None, Target::Point(w)) => (w - p).norm(),
                 (None, Target::Task) => 0.0,
+            };
+            let off_route = match (&self.route, target) {
+                (Some(route), Target::Task) => {
+                    self.ex.route_weight
+                        * (route.distance(&p, c >= 0.5) - self.ex.route_radius_m).max(0.0)
+                }
+                _ => 0.0,
             };
             let turn = if self.rotation_weight > 0.0 {
                 let tilt_asked = aim.is_some_and(|g| g.tilt.is_some());
@@ -577,7 +649,7 @@ impl Expert {
             } else {
                 0.0
             };
-            cost += e + turn;
+            cost += e + turn + off_route;
         }
         self.predicted_q = q;
         cost / h as f64 - bonus
@@ -683,7 +755,7 @@ impl Expert {
     fn progress(&mut self, seen: &Seen<'_>, aim: &Aim, rng: &mut Rng) -> Target {
         let p = seen.tool.translation.vector;
         let now = seen.run.subgoals_done() as f64 * SUBGOAL_M
-            - self.error(aim, &p, tilt(&seen.tool.rotation));
+            - self.error(aim, &p, &seen.tool.rotation);
         if let Some((w, left)) = self.back_off {
             if left > 1 {
                 self.back_off = Some((w, left - 1));
@@ -719,8 +791,15 @@ impl Expert {
 
 /// The distance to `aim` at `p` with the tilt `t` (a tilt error weighs `tilt_weight` m per
 /// rad).
-fn aim_error(aim: &Aim, p: &Vector3<f64>, t: f64, tilt_weight: f64) -> f64 {
-    let e = (aim.position - p).norm();
+fn aim_error(
+    aim: &Aim,
+    p: &Vector3<f64>,
+    r: &nalgebra::UnitQuaternion<f64>,
+    tilt_weight: f64,
+    face_weight: f64,
+) -> f64 {
+    let t = tilt(r);
+    let e = aim.distance(p) + face_weight * aim.facing_error(r);
     match aim.tilt {
         Some(goal) => e + tilt_weight * (goal - t).abs(),
         None => e,
@@ -815,7 +894,7 @@ impl Operate for Expert {
                 }
             }
             if let Some(close) = aim.grip
-                && (aim.position - p).norm() <= self.tol.position_m
+                && aim.distance(&p) <= self.tol.position_m
             {
                 gripper = if close { 1.0 } else { -1.0 };
             }
@@ -904,6 +983,7 @@ mod tests {
                 Tolerances::default(),
                 0.025,
                 &make,
+                None,
                 None,
             )
             .unwrap();

@@ -55,7 +55,7 @@ impl Probes {
     }
 
     /// Mode `m`'s output for action `a` at `(q, c)` into `out`; the speed scale.
-    fn eval(
+    pub(crate) fn eval(
         &mut self,
         make: &ModelFactory<'_>,
         m: usize,
@@ -108,7 +108,7 @@ impl Greedy {
     }
 
     fn error(&self, p: &Vector3<f64>, t: f64, aim: &Aim) -> f64 {
-        let e = (aim.position - p).norm();
+        let e = aim.distance(p);
         match aim.tilt {
             Some(goal) => e + self.params.tilt_weight_m_per_rad * (goal - t).abs(),
             None => e,
@@ -147,7 +147,7 @@ impl Greedy {
             let pn = p + Vector3::new(v[0], v[1], v[2]) * self.dt;
             let tn = t0 + Vector3::new(v[3], v[4], v[5]).dot(&z) * self.dt;
             let e = {
-                let e = (aim.position - pn).norm();
+                let e = aim.distance(&pn);
                 match aim.tilt {
                     Some(goal) => e + self.params.tilt_weight_m_per_rad * (goal - tn).abs(),
                     None => e,
@@ -195,7 +195,7 @@ impl Greedy {
             let modes = self.probes.maps.len();
             // Within the tolerance of a position (a grip, the end of a reach) there is nothing
             // to switch for.
-            let settled = aim.tilt.is_none() && (aim.position - p).norm() <= self.tol.position_m;
+            let settled = aim.tilt.is_none() && aim.distance(&p) <= self.tol.position_m;
             if modes > 1 && !settled {
                 let gain = now - e;
                 let mut other: Option<(usize, f64)> = None;
@@ -216,7 +216,7 @@ impl Greedy {
                 }
             }
             if let Some(close) = aim.grip
-                && (aim.position - p).norm() <= self.tol.position_m
+                && aim.distance(&p) <= self.tol.position_m
             {
                 gripper = if close { 1.0 } else { -1.0 };
             }

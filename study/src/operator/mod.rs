@@ -14,8 +14,12 @@
 //!   internal model of the map from what it saw in the study's practice time
 //!   ([`internal::InternalModel`]), then plans like the expert with that model, never with the
 //!   map.
+//! * [`OperatorKind::Follower`] ([`follower`]): reproduces the nearest demonstration's motion
+//!   through the served map: the map's limit along the route its demonstrations took, apart
+//!   from any planner's.
 
 pub mod expert;
+pub mod follower;
 pub mod greedy;
 pub mod internal;
 pub mod practiced;
@@ -46,11 +50,14 @@ pub enum OperatorKind {
     /// Learns the map in the study's practice time from what it sees, then plans with what
     /// it learned: a person after practice.
     Practiced,
+    /// Reproduces the nearest demonstration's motion through the served map, one tick ahead:
+    /// what the map allows along its demonstrations' route.
+    Follower,
 }
 
 impl OperatorKind {
     /// Every kind, as the study file spells it.
-    pub const NAMES: [&'static str; 3] = ["greedy", "practiced", "expert"];
+    pub const NAMES: [&'static str; 4] = ["greedy", "practiced", "expert", "follower"];
 
     /// Its name in the study file.
     pub fn name(self) -> &'static str {
@@ -58,12 +65,13 @@ impl OperatorKind {
             Self::Greedy => "greedy",
             Self::Expert => "expert",
             Self::Practiced => "practiced",
+            Self::Follower => "follower",
         }
     }
 
     /// The kind the study file names `name`.
     pub fn from_name(name: &str) -> Option<Self> {
-        [Self::Greedy, Self::Practiced, Self::Expert]
+        [Self::Greedy, Self::Practiced, Self::Expert, Self::Follower]
             .into_iter()
             .find(|k| k.name() == name)
     }
@@ -117,6 +125,20 @@ pub trait Operate: Send {
     fn into_learned(self: Box<Self>) -> Option<internal::InternalModel> {
         None
     }
+    /// How far it got along its demonstration (the follower).
+    fn followed(&self) -> Option<follower::Followed> {
+        None
+    }
+}
+
+/// The demonstrations a follower reproduces: their paths, and which one (a demonstration's
+/// own start and scene) or the nearest.
+#[derive(Debug, Clone)]
+pub struct Demos {
+    /// The paths.
+    pub paths: Arc<Vec<follower::DemoPath>>,
+    /// Only this one; else the nearest to the tool.
+    pub only: Option<usize>,
 }
 
 /// The operator of one attempt of kind `params.operator` on `robot` (`safety`: the graph's
@@ -135,6 +157,7 @@ pub fn operator(
     make: &ModelFactory<'_>,
     aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
     learned: Option<&internal::InternalModel>,
+    demos: Option<&Demos>,
 ) -> Result<Box<dyn Operate>, SimError> {
     Ok(match params.operator {
         OperatorKind::Greedy => Box::new(greedy::Greedy::new(
@@ -144,8 +167,28 @@ pub fn operator(
             greedy::Probes::new(make)?,
         )),
         OperatorKind::Expert => Box::new(expert::Expert::new(
-            params, robot, safety, tol, dt, make, aim_out,
+            params,
+            robot,
+            safety,
+            tol,
+            dt,
+            make,
+            aim_out,
+            demos.map(expert::Route::of),
         )?),
+        OperatorKind::Follower => {
+            let demos = demos.ok_or_else(|| {
+                SimError::Setup("the follower has no demonstrations to follow".into())
+            })?;
+            Box::new(follower::Follower::new(
+                params,
+                tol,
+                dt,
+                greedy::Probes::new(make)?,
+                demos.paths.clone(),
+                demos.only,
+            ))
+        }
         OperatorKind::Practiced => {
             let model = learned.ok_or_else(|| {
                 SimError::Setup("the practiced operator has not practised this map".into())
