@@ -70,12 +70,17 @@ fn the_gen3_demonstrations_pass_their_own_goals() {
 #[ignore = "prints the figures behind Tolerances::hold_s"]
 fn pour_holds() {
     use learning::goals::{Scene, tilt};
-    for robot in [RobotProfile::default_robot(), RobotProfile::by_name("gen3").unwrap()] {
+    for robot in [
+        RobotProfile::default_robot(),
+        RobotProfile::by_name("gen3").unwrap(),
+    ] {
         let mut holds = Vec::new();
         for seed in 1..101 {
             let (ds, scenes) = generate_scenes_for(Task::Pouring, robot, 8, 2, seed).unwrap();
             for (traj, scene) in ds.train.iter().chain(&ds.val).zip(&scenes) {
-                let Scene::Pouring { .. } = scene else { panic!() };
+                let Scene::Pouring { .. } = scene else {
+                    panic!()
+                };
                 let tol = Tolerances::default();
                 let mut best = 0.0f64;
                 let mut run = 0.0;

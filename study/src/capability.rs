@@ -244,3 +244,41 @@ fn goals_on(task: Task, robot: &RobotProfile) -> Result<TaskGoals, SimError> {
     TaskGoals::on(task, Tolerances::default(), robot)
         .ok_or_else(|| SimError::Setup(format!("{} has no scene to simulate", task.name())))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mode switching, which the expert drives through every task, passes the check from the
+    /// study's start; a map that does not load is refused before anything runs.
+    #[test]
+    fn mode_switching_is_capable_of_pick_and_place_and_a_missing_model_is_refused() {
+        let robot = RobotProfile::default_robot();
+        let sim = Loop {
+            robot,
+            safety: safety::SafetyConfig::for_robot(robot),
+            period_s: 0.025,
+        };
+        let params = SimParams {
+            operator: OperatorKind::Expert,
+            ..SimParams::default()
+        };
+        let check = CapabilityCheck {
+            sim: &sim,
+            spec: "modeswitch",
+            task: Task::PickAndPlace,
+            params: &params,
+            seeds: 1,
+            progress: &|| {},
+        };
+        assert_eq!(check.attempts(), 1);
+        let c = check.run().expect("the check runs");
+        assert_eq!((c.successes(), c.attempts.len()), (1, 1), "{c:?}");
+        assert!(c.summary().contains("1 / 1"), "{}", c.summary());
+        let missing = CapabilityCheck {
+            spec: "/nonexistent/model.safetensors",
+            ..check
+        };
+        assert!(matches!(missing.run(), Err(SimError::Model { .. })));
+    }
+}

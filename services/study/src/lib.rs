@@ -1447,7 +1447,10 @@ pub fn capability(
                 .unwrap_or_default();
             println!(
                 "  {:<14} {:<8} {:>5.1} s, {:>3.0} % of the subgoals{followed}",
-                a.name, a.result.outcome.name(), a.result.duration_s, a.result.completion_pct
+                a.name,
+                a.result.outcome.name(),
+                a.result.duration_s,
+                a.result.completion_pct
             );
         }
         println!("{}", c.summary());

@@ -467,7 +467,13 @@ impl Expert {
     }
 
     fn error(&self, aim: &Aim, p: &Vector3<f64>, r: &nalgebra::UnitQuaternion<f64>) -> f64 {
-        aim_error(aim, p, r, self.params.tilt_weight_m_per_rad, self.ex.face_weight_m_per_rad)
+        aim_error(
+            aim,
+            p,
+            r,
+            self.params.tilt_weight_m_per_rad,
+            self.ex.face_weight_m_per_rad,
+        )
     }
 
     /// The knots before the plan starts in mode `m` (`cur` the mode now): what the hand still
@@ -754,8 +760,8 @@ impl Expert {
     /// for.
     fn progress(&mut self, seen: &Seen<'_>, aim: &Aim, rng: &mut Rng) -> Target {
         let p = seen.tool.translation.vector;
-        let now = seen.run.subgoals_done() as f64 * SUBGOAL_M
-            - self.error(aim, &p, &seen.tool.rotation);
+        let now =
+            seen.run.subgoals_done() as f64 * SUBGOAL_M - self.error(aim, &p, &seen.tool.rotation);
         if let Some((w, left)) = self.back_off {
             if left > 1 {
                 self.back_off = Some((w, left - 1));

@@ -32,6 +32,10 @@ use crate::simulate::{ModelFactory, SimParams};
 /// How far ahead along the demonstration the follower aims (s): the motion it reproduces.
 pub const FOLLOW_AHEAD_S: f64 = 0.25;
 
+/// How fast it steers back towards the demonstration where the map lets it (s: the time
+/// constant of the correction added to the demonstration's own motion).
+const CORRECT_S: f64 = 1.0;
+
 /// How far along its path it looks for where the tool is now (s): it never jumps further
 /// than this, nor back.
 const SEARCH_S: f64 = 2.0;
@@ -181,8 +185,7 @@ impl Follower {
                 }
             }
         }
-        best.map(|(pi, i, _)| (pi, i))
-            .or(self.at)
+        best.map(|(pi, i, _)| (pi, i)).or(self.at)
     }
 
     /// The point the follower aims at from tick `i` of path `pi`: [`FOLLOW_AHEAD_S`] ahead,
@@ -343,22 +346,31 @@ impl Operate for Follower {
             self.at = self.locate(seen.state.q(), c);
             if let Some((pi, i)) = self.at {
                 self.note(pi, i, &p);
-                if let (Some(target), Some(here)) =
-                    (self.target(pi, i, c), self.paths.get(pi).and_then(|x| x.points.get(i)))
-                {
+                if let (Some(target), Some(here)) = (
+                    self.target(pi, i, c),
+                    self.paths.get(pi).and_then(|x| x.points.get(i)),
+                ) {
                     // The demonstration's next motion from the nearest point, from where the
-                    // arm is: the arm's own offset from the demonstration is left as it is
-                    // (a 2-D map cannot in general steer it back).
+                    // arm is, and a slow pull back onto the demonstration (as far as the map's
+                    // two directions allow).
+                    let k = FOLLOW_AHEAD_S / CORRECT_S;
                     let q: Vec<f64> = target
                         .q
                         .iter()
                         .zip(&here.q)
                         .zip(seen.state.q())
-                        .map(|((t, h), now)| now + (t - h))
+                        .map(|((t, h), now)| now + (t - h) + k * (h - now))
                         .collect();
-                    let off_m = (target.tool.translation.vector - p).norm();
+                    let off_m = (here.tool.translation.vector - p).norm();
+                    let off_rad: f64 = here
+                        .q
+                        .iter()
+                        .zip(seen.state.q())
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum::<f64>()
+                        .sqrt();
                     choice = self.choose(make, seen, &q, rng);
-                    tracing::trace!(path = pi, at = i, off_m, ?choice, "the follower");
+                    tracing::trace!(path = pi, at = i, off_m, off_rad, ?choice, "the follower");
                 }
             }
             if let Some(close) = aim.grip
@@ -387,5 +399,92 @@ impl Operate for Follower {
 
     fn followed(&self) -> Option<Followed> {
         self.followed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::SimError;
+    use mapper::LoadedModel;
+
+    fn follower(paths: Vec<DemoPath>) -> Follower {
+        let robot = RobotProfile::default_robot();
+        let make = || {
+            LoadedModel::load_for("modeswitch", robot).map_err(|e| SimError::Setup(e.to_string()))
+        };
+        let probes = Probes::new(&make).expect("the map");
+        Follower::new(
+            &SimParams::default(),
+            Tolerances::default(),
+            0.025,
+            probes,
+            Arc::new(paths),
+            None,
+        )
+    }
+
+    /// A straight path along joint 1 with the gripper closing at tick 20.
+    fn path() -> DemoPath {
+        let robot = RobotProfile::default_robot();
+        let points = (0..40)
+            .map(|k| {
+                let q = vec![0.01 * k as f64, -0.28, 1.309, 0.0, -1.047, 0.0];
+                DemoPoint {
+                    tool: robot.arm().fk(&q).expect("fk"),
+                    q,
+                    c: if k >= 20 { 1.0 } else { 0.0 },
+                }
+            })
+            .collect();
+        DemoPath {
+            name: "line".into(),
+            points,
+        }
+    }
+
+    #[test]
+    fn it_aims_ahead_but_not_past_a_grip_it_has_not_made() {
+        let f = follower(vec![path()]);
+        let ahead = f.ahead;
+        assert_eq!(ahead, 10);
+        let t = f.target(0, 2, 0.0).expect("a target");
+        assert_eq!(t.q[0], 0.01 * 12.0);
+        // Open, near the grasp: it waits at the last open tick.
+        let t = f.target(0, 15, 0.0).expect("a target");
+        assert_eq!(t.q[0], 0.01 * 19.0);
+        // Closed: on it goes.
+        let t = f.target(0, 20, 1.0).expect("a target");
+        assert_eq!(t.q[0], 0.01 * 30.0);
+    }
+
+    #[test]
+    fn it_never_goes_back_along_the_path_nor_past_a_grip() {
+        let mut f = follower(vec![path()]);
+        let q = |x: f64| [x, -0.28, 1.309, 0.0, -1.047, 0.0];
+        assert_eq!(f.locate(&q(0.05), 0.0), Some((0, 5)));
+        f.at = Some((0, 5));
+        // Nearer to tick 2, but it does not go back.
+        assert_eq!(f.locate(&q(0.02), 0.0), Some((0, 5)));
+        // Past the grasp with the gripper still open: the last open tick.
+        assert_eq!(f.locate(&q(0.25), 0.0), Some((0, 19)));
+    }
+
+    #[test]
+    fn the_path_of_a_trajectory_is_its_forward_kinematics() {
+        let robot = RobotProfile::default_robot();
+        let traj = Trajectory {
+            name: "t".into(),
+            t: vec![0.0, 0.025],
+            q: vec![vec![0.0, -0.28, 1.309, 0.0, -1.047, 0.0]; 2],
+            c: vec![0.0, 0.5],
+            qdot: vec![vec![0.0; 6]; 2],
+            cdot: vec![0.0; 2],
+        };
+        let p = DemoPath::of(robot, &traj).expect("fk");
+        assert_eq!(p.len(), 2);
+        assert_eq!(p.points[1].c, 0.5);
+        let home = robot.arm().fk(&traj.q[0]).expect("fk");
+        assert_eq!(p.points[0].tool, home);
     }
 }
