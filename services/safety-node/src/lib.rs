@@ -80,28 +80,6 @@ fn safety_state_bits(f: &SafetyFilter) -> u32 {
     bits
 }
 
-/// Hands every pending message of a control-plane topic to `f`, oldest first.
-fn for_each_pending<T, E: Into<transport::graph::IoError>>(
-    prefix: &Prefix,
-    topic: &str,
-    mut receive: impl FnMut() -> Result<Option<T>, E>,
-    mut f: impl FnMut(T),
-) -> Result<(), SafetyNodeError> {
-    loop {
-        match receive() {
-            Ok(Some(m)) => f(m),
-            Ok(None) => return Ok(()),
-            Err(e) => {
-                return Err(SafetyNodeError::Ipc(transport::IpcError::Io {
-                    service: prefix.service(topic),
-                    op: "receive",
-                    source: e.into(),
-                }));
-            }
-        }
-    }
-}
-
 /// The supervisor's control message: the active mapper from its tick, the hold, and a
 /// relayed e-stop when its counter changed since `estop_seq`.
 fn apply_control(filter: &mut SafetyFilter, c: &SafetyControl, estop_seq: &mut u32) {
@@ -389,19 +367,9 @@ pub fn run(
     // history.
     let mut estop_seq = 0;
     let mut apply_inputs = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
-        let control_topic = ipc_types::control::SAFETY_CONTROL;
-        for_each_pending(
-            prefix,
-            control_topic,
-            || control.receive().map(|m| m.map(|s| *s)),
-            |c| apply_control(filter, &c, &mut estop_seq),
-        )?;
-        for_each_pending(
-            prefix,
-            ipc_types::control::ESTOP,
-            || estops.receive().map(|m| m.map(|s| *s)),
-            |e| apply_estop(filter, &e),
-        )
+        control.drain(|c| apply_control(filter, c, &mut estop_seq))?;
+        estops.drain(|e| apply_estop(filter, e))?;
+        Ok(())
     };
     let mut f = Forwarder::new(filter, period_s, faults.safety_stall_at_tick);
     apply_inputs(&mut f.filter)?;
