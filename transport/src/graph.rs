@@ -803,6 +803,29 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Wakeable for Topic
     }
 }
 
+/// An input a control-path loop polls before its event wait (`node_rt::poller::Poller`).
+pub trait Pollable {
+    /// Whether a message is waiting, without taking it.
+    fn has_pending(&self) -> bool;
+    /// Blocks until the input's event fires or the monotonic clock reaches `until_ns`;
+    /// returns whether it fired.
+    fn wait_until(&self, until_ns: u64) -> bool;
+    /// Drops the pending notifications of the input's event.
+    fn consume_notifications(&self);
+}
+
+impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Pollable for TopicSubscriber<T> {
+    fn has_pending(&self) -> bool {
+        TopicSubscriber::has_pending(self)
+    }
+    fn wait_until(&self, until_ns: u64) -> bool {
+        TopicSubscriber::wait_until(self, until_ns)
+    }
+    fn consume_notifications(&self) {
+        TopicSubscriber::consume_notifications(self)
+    }
+}
+
 /// An eventfd that a thread rings after handing something over (through a channel) to a loop
 /// that waits on it beside its subscribers ([`wait_any`]): the joystick's reader threads, the
 /// gateway's network callbacks.

@@ -19,4 +19,4 @@ pub mod uds;
 /// process that opens the graph reaches it through one dependency.
 pub use scl_signals as signals;
 
-pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber, Waker, wait_any};
+pub use graph::{Graph, IpcError, Pollable, TopicPublisher, TopicSubscriber, Waker, wait_any};
