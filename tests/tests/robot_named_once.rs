@@ -6,8 +6,6 @@
 //! The crates come from `cargo metadata`; those not checked are named in [`NOT_READ`] with the
 //! reason. The fake Kortex robot plays the arm of any profile, so it names none either.
 
-use std::path::{Path, PathBuf};
-
 /// The crates not read, with the reason; every other crate of the workspace (from `cargo
 /// metadata`) is.
 const NOT_READ: &[(&str, &str)] = &[
@@ -25,20 +23,6 @@ const ALLOWED: &[(&str, &str)] = &[];
 
 /// What names the robot in code.
 const NAMES: &[&str] = &["gen3_lite", "Gen3Lite"];
-
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "rs") {
-            out.push(p);
-        }
-    }
-}
 
 /// The part of a source file before its inline test module.
 fn without_tests(text: &str) -> &str {
@@ -74,9 +58,7 @@ fn the_graphs_crates_name_no_robot() {
         .iter()
         .filter(|p| !NOT_READ.iter().any(|(n, _)| *n == p.name))
     {
-        let mut files = Vec::new();
-        rust_files(&root.join(&p.dir).join("src"), &mut files);
-        for f in files {
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
             let rel = f.strip_prefix(&root).unwrap_or(&f).display().to_string();
             if ALLOWED.iter().any(|(p, _)| *p == rel) {
                 continue;

@@ -250,3 +250,40 @@ fn the_rules_catch_a_forbidden_edge() {
     assert!(links(&crates, "ipc-types").contains("iceoryx2"));
     assert!(!links(&crates, "b").contains("iceoryx2"));
 }
+
+/// One way to poll for an input: `node_rt::poller::Poller`, which every control-path loop
+/// owns; a second `Poller` type anywhere in the workspace fails here.
+#[test]
+fn there_is_one_poller_type() {
+    let root = scl_tests::workspace::root();
+    let mut found = Vec::new();
+    for p in scl_tests::workspace::packages(&[]) {
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
+            let text = std::fs::read_to_string(&f).unwrap_or_default();
+            if text.contains("struct Poller") {
+                found.push(f.strip_prefix(&root).unwrap_or(&f).display().to_string());
+            }
+        }
+    }
+    assert_eq!(found, ["node-rt/src/poller.rs"], "Poller types: {found:?}");
+}
+
+/// ARCHITECTURE.md names every crate of the workspace (in backquotes) and the ROS 2 bridge.
+#[test]
+fn the_architecture_names_every_crate_and_the_ros2_bridge() {
+    let root = scl_tests::workspace::root();
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap_or_default();
+    let missing: Vec<_> = scl_tests::workspace::packages(&[])
+        .into_iter()
+        .map(|p| p.name)
+        .filter(|n| !text.contains(&format!("`{n}`")))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "ARCHITECTURE.md does not name {missing:?}"
+    );
+    assert!(
+        text.contains("ROS 2 bridge (`ros2`"),
+        "ARCHITECTURE.md does not name the ROS 2 bridge (net/src/ros2.rs)"
+    );
+}
