@@ -72,7 +72,34 @@ pub enum SclError {
     /// A learning option could not be read.
     #[error(transparent)]
     Learning(#[from] learning::cli::LearningError),
-    /// The command line itself (an option out of range, an output that cannot be written).
+    /// A report or summary could not be encoded as JSON.
+    #[error("cannot encode the {what}: {source}")]
+    Encode {
+        /// What was being encoded.
+        what: &'static str,
+        /// What serde_json said.
+        source: serde_json::Error,
+    },
+    /// An output file could not be written.
+    #[error("{}: {source}", path.display())]
+    Write {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// `--remote`: a link that cannot be read.
+    #[error("--remote {0}")]
+    Link(#[source] scl_bench::remote::LinkError),
+    /// `--rates`: a rate the graph configuration refuses.
+    #[error("--rates {rate}: {source}")]
+    Rate {
+        /// The rate (Hz).
+        rate: f64,
+        /// What the configuration's checks said.
+        source: scl_config::ConfigError,
+    },
+    /// The command line itself (an option out of range or that does not go with another).
     #[error("{0}")]
     Other(String),
 }

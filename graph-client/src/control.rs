@@ -79,7 +79,7 @@ pub fn estop(
     let status = graph.status_subscriber()?;
     let publisher = graph.estop_publisher()?;
     publisher
-        .send_copy(EstopCommand {
+        .send(EstopCommand {
             t_ns: now_ns(),
             action,
             source_pid: std::process::id(),

@@ -40,7 +40,7 @@ pub enum ControlError {
     },
     /// The e-stop command could not be sent.
     #[error("cannot send the e-stop command: {0}")]
-    SendEstop(#[source] iceoryx2::port::SendError),
+    SendEstop(#[source] transport::IpcError),
 }
 
 /// Fails with [`ControlError::NoGraph`] when no process of graph `prefix` is alive, without

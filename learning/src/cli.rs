@@ -15,7 +15,7 @@ use mapper::model::{self, EncoderKind, ModelKind, ObsInputs};
 use mapper::rng::Rng;
 
 use crate::ToolError;
-use transport::signals;
+use scl_signals as signals;
 
 /// Why writing a training artefact failed.
 #[derive(Debug, thiserror::Error)]

@@ -2,12 +2,13 @@
 //! path ([`rt`]: SCHED_FIFO, memory locking, CPU pinning, CPU DMA latency, from the graph
 //! TOML's `[graph]` table) and the latency percentiles the supervisor, the benchmark and the
 //! dashboard report ([`stats`]), and how the control-path loops wait for their input
-//! ([`wait`]: `[graph] wait`). The stop flag every loop polls is `transport::signals`.
+//! ([`wait`]: `[graph] wait`; [`poller`]: the one poller the loops own). The stop flag every loop polls is `scl-signals` (`transport::signals`).
 //! Besides: how a child tells its parent it is ready ([`ready`]), and the process's own log
 //! records on the graph's `log` topic ([`log`]).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod log;
+pub mod poller;
 pub mod ready;
 pub mod rt;
 pub mod stats;

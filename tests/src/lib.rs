@@ -2,6 +2,8 @@
 //! recorder of the graph's topics, and the check that a graph left nothing behind.
 #![allow(clippy::unwrap_used)]
 
+pub mod workspace;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;

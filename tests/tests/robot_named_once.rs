@@ -3,33 +3,19 @@
 //! robot module of their own. This test reads their sources (tests excluded) and refuses any
 //! mention of the Gen3 lite's module or type outside `kinematics`.
 //!
-//! Not checked: `kinematics` (where the robots and their profiles live) and `learning` (the
-//! paper's tasks and data sets are the Gen3 lite's by design, offline). The fake Kortex robot
-//! plays the arm of any profile, so it names none either.
+//! The crates come from `cargo metadata`; those not checked are named in [`NOT_READ`] with the
+//! reason. The fake Kortex robot plays the arm of any profile, so it names none either.
 
-use std::path::{Path, PathBuf};
-
-/// The graph's crates, relative to the workspace root: their `src/` folders are read.
-const GRAPH_CRATES: &[&str] = &[
-    "ipc-types",
-    "safety",
-    "hw-bridge",
-    "mapper",
-    "recording",
-    "cli",
-    "config",
-    "node-rt",
-    "graph-client",
-    "net",
-    "services/joystick",
-    "services/gateway",
-    "services/mapper-node",
-    "services/safety-node",
-    "services/bridge-node",
-    "services/supervisor",
-    "services/recorder",
-    "services/dashboard",
-    "services/bench",
+/// The crates not read, with the reason; every other crate of the workspace (from `cargo
+/// metadata`) is.
+const NOT_READ: &[(&str, &str)] = &[
+    ("kinematics", "where the robots and their profiles live"),
+    (
+        "learning",
+        "the paper's tasks and data sets are the Gen3 lite's by design, offline",
+    ),
+    ("scl-tests", "tests name the arm they run"),
+    ("test-support", "test helpers"),
 ];
 
 /// Files allowed to name the robot, with the reason (none now).
@@ -37,20 +23,6 @@ const ALLOWED: &[(&str, &str)] = &[];
 
 /// What names the robot in code.
 const NAMES: &[&str] = &["gen3_lite", "Gen3Lite"];
-
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "rs") {
-            out.push(p);
-        }
-    }
-}
 
 /// The part of a source file before its inline test module.
 fn without_tests(text: &str) -> &str {
@@ -72,13 +44,21 @@ fn without_tests(text: &str) -> &str {
 
 #[test]
 fn the_graphs_crates_name_no_robot() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let root = scl_tests::workspace::root();
     let mut found = Vec::new();
     let mut read = 0;
-    for krate in GRAPH_CRATES {
-        let mut files = Vec::new();
-        rust_files(&root.join(krate).join("src"), &mut files);
-        for f in files {
+    let packages = scl_tests::workspace::packages(&[]);
+    for name in NOT_READ.iter().map(|(n, _)| n) {
+        assert!(
+            packages.iter().any(|p| p.name == *name),
+            "{name} is not a crate of the workspace: drop it from NOT_READ"
+        );
+    }
+    for p in packages
+        .iter()
+        .filter(|p| !NOT_READ.iter().any(|(n, _)| *n == p.name))
+    {
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
             let rel = f.strip_prefix(&root).unwrap_or(&f).display().to_string();
             if ALLOWED.iter().any(|(p, _)| *p == rel) {
                 continue;

@@ -28,10 +28,11 @@
 //!    (directly or not, normal dependencies) depends on it or on `transport`.
 //! 6. The control path's crates (`mapper`, `safety`, `hw-bridge` and their three loops) do
 //!    not link `zenoh`: the network reaches the graph through the gateway only.
+//! 7. The research crates (`learning`, `study`) do not link `transport` or `iceoryx2`: they
+//!    build without shared memory (the stop flag they poll is `scl-signals`).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 /// Where a crate sits in the workspace.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,8 +51,8 @@ struct Krate {
     deps: Vec<(String, String)>,
 }
 
-/// The crates that must not link iceoryx2.
-const NO_ICEORYX2: &[&str] = &["ipc-types", "recording", "viz"];
+/// The crates that must not link iceoryx2 (nor `transport`).
+const NO_ICEORYX2: &[&str] = &["ipc-types", "recording", "viz", "learning", "study"];
 
 /// The control path's crates, which must not link the network (zenoh): only the gateway, a
 /// remote joystick and what starts them reach another machine.
@@ -65,61 +66,27 @@ const NO_ZENOH: &[&str] = &[
 ];
 
 fn workspace() -> BTreeMap<String, Krate> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .args([
-            "metadata",
-            "--format-version",
-            "1",
-            "--no-deps",
-            "--offline",
-        ])
-        .current_dir(&root)
-        .output()
-        .expect("cargo metadata runs");
-    assert!(
-        out.status.success(),
-        "cargo metadata failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("metadata is JSON");
-    let root = PathBuf::from(meta["workspace_root"].as_str().expect("workspace_root"));
-    let packages = meta["packages"].as_array().expect("packages");
-    let names: BTreeSet<&str> = packages.iter().filter_map(|p| p["name"].as_str()).collect();
-    let mut crates = BTreeMap::new();
-    for p in packages {
-        let name = p["name"].as_str().expect("name").to_owned();
-        let manifest = PathBuf::from(p["manifest_path"].as_str().expect("manifest_path"));
-        let dir = manifest
-            .parent()
-            .and_then(|d| d.strip_prefix(&root).ok())
-            .map(Path::to_path_buf)
-            .unwrap_or_default();
-        let group = if dir == Path::new("cli") {
-            Group::Cli
-        } else if dir == Path::new("tests") {
-            Group::Tests
-        } else if dir.starts_with("services") {
-            Group::Service
-        } else {
-            Group::Library
-        };
-        let deps = p["dependencies"]
-            .as_array()
-            .expect("dependencies")
-            .iter()
-            .filter_map(|d| {
-                let dep = d["name"].as_str()?;
-                (names.contains(dep) || dep == "iceoryx2" || dep == "zenoh").then(|| {
-                    let kind = d["kind"].as_str().unwrap_or("normal").to_owned();
-                    (dep.to_owned(), kind)
-                })
-            })
-            .collect();
-        crates.insert(name, Krate { group, deps });
-    }
-    crates
+    scl_tests::workspace::packages(&["iceoryx2", "zenoh"])
+        .into_iter()
+        .map(|p| {
+            let group = if p.dir == Path::new("cli") {
+                Group::Cli
+            } else if p.dir == Path::new("tests") {
+                Group::Tests
+            } else if p.dir.starts_with("services") {
+                Group::Service
+            } else {
+                Group::Library
+            };
+            (
+                p.name,
+                Krate {
+                    group,
+                    deps: p.deps,
+                },
+            )
+        })
+        .collect()
 }
 
 /// Every edge that breaks rules 1 to 4.
@@ -207,7 +174,7 @@ fn dependencies_point_down() {
 }
 
 #[test]
-fn messages_recording_and_viz_do_not_link_iceoryx2() {
+fn messages_recording_viz_and_research_do_not_link_iceoryx2() {
     let crates = workspace();
     for name in NO_ICEORYX2 {
         assert!(crates.contains_key(*name), "no crate {name}");
@@ -282,4 +249,41 @@ fn the_rules_catch_a_forbidden_edge() {
     }
     assert!(links(&crates, "ipc-types").contains("iceoryx2"));
     assert!(!links(&crates, "b").contains("iceoryx2"));
+}
+
+/// One way to poll for an input: `node_rt::poller::Poller`, which every control-path loop
+/// owns; a second `Poller` type anywhere in the workspace fails here.
+#[test]
+fn there_is_one_poller_type() {
+    let root = scl_tests::workspace::root();
+    let mut found = Vec::new();
+    for p in scl_tests::workspace::packages(&[]) {
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
+            let text = std::fs::read_to_string(&f).unwrap_or_default();
+            if text.contains("struct Poller") {
+                found.push(f.strip_prefix(&root).unwrap_or(&f).display().to_string());
+            }
+        }
+    }
+    assert_eq!(found, ["node-rt/src/poller.rs"], "Poller types: {found:?}");
+}
+
+/// ARCHITECTURE.md names every crate of the workspace (in backquotes) and the ROS 2 bridge.
+#[test]
+fn the_architecture_names_every_crate_and_the_ros2_bridge() {
+    let root = scl_tests::workspace::root();
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap_or_default();
+    let missing: Vec<_> = scl_tests::workspace::packages(&[])
+        .into_iter()
+        .map(|p| p.name)
+        .filter(|n| !text.contains(&format!("`{n}`")))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "ARCHITECTURE.md does not name {missing:?}"
+    );
+    assert!(
+        text.contains("ROS 2 bridge (`ros2`"),
+        "ARCHITECTURE.md does not name the ROS 2 bridge (net/src/ros2.rs)"
+    );
 }

@@ -12,7 +12,7 @@ use ipc_types::control::{
     SafetyControl,
 };
 
-use crate::graph::{Graph, IoError, Ipc, IpcError, OpenError, TopicSubscriber};
+use crate::graph::{Graph, IoError, Ipc, IpcError, OpenError, TopicPublisher, TopicSubscriber};
 
 type ControlFactory = iceoryx2::service::port_factory::request_response::PortFactory<
     Ipc,
@@ -30,11 +30,13 @@ pub type ControlClient = Client<Ipc, ControlRequest, (), ControlResponse, ()>;
 pub type ActiveControlRequest =
     iceoryx2::active_request::ActiveRequest<Ipc, ControlRequest, (), ControlResponse, ()>;
 /// A publisher of e-stop commands.
-pub type EstopPublisher = iceoryx2::port::publisher::Publisher<Ipc, EstopCommand, ()>;
-/// Safety's subscriber of e-stop commands.
-pub type EstopSubscriber = iceoryx2::port::subscriber::Subscriber<Ipc, EstopCommand, ()>;
+pub type EstopPublisher = TopicPublisher<EstopCommand>;
+/// A subscriber of e-stop commands (safety, the supervisor), drained like any other topic.
+pub type EstopSubscriber = TopicSubscriber<EstopCommand>;
 /// The supervisor's publisher of active-mapper switches.
-pub type SafetyControlPublisher = iceoryx2::port::publisher::Publisher<Ipc, SafetyControl, ()>;
+pub type SafetyControlPublisher = TopicPublisher<SafetyControl>;
+/// Safety's subscriber of active-mapper switches.
+pub type SafetyControlSubscriber = TopicSubscriber<SafetyControl>;
 
 impl Graph {
     fn safety_control_service(
@@ -52,23 +54,17 @@ impl Graph {
     /// Publisher of active-mapper switches (the supervisor).
     pub fn safety_control_publisher(&self) -> Result<SafetyControlPublisher, IpcError> {
         let (service, f) = self.safety_control_service()?;
-        f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service,
+        let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
+            service: service.clone(),
             port: "publisher",
             source: e.into(),
-        })
+        })?;
+        Ok(TopicPublisher::without_notifier(service, publisher))
     }
 
     /// Subscriber of active-mapper switches (safety); receives the newest switch at once.
-    pub fn safety_control_subscriber(
-        &self,
-    ) -> Result<iceoryx2::port::subscriber::Subscriber<Ipc, SafetyControl, ()>, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        f.subscriber_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "subscriber",
-            source: e.into(),
-        })
+    pub fn safety_control_subscriber(&self) -> Result<SafetyControlSubscriber, IpcError> {
+        self.safety_control_observer()
     }
 
     /// A read-only observer of the active-mapper switches (recorder, dashboard): the same
@@ -102,21 +98,17 @@ impl Graph {
     /// of a publisher that is gone is not delivered.
     pub fn estop_publisher(&self) -> Result<EstopPublisher, IpcError> {
         let (service, f) = self.estop_service()?;
-        f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service,
+        let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
+            service: service.clone(),
             port: "publisher",
             source: e.into(),
-        })
+        })?;
+        Ok(TopicPublisher::without_notifier(service, publisher))
     }
 
     /// Subscriber of e-stop commands (safety); receives the newest at once.
     pub fn estop_subscriber(&self) -> Result<EstopSubscriber, IpcError> {
-        let (service, f) = self.estop_service()?;
-        f.subscriber_builder().create().map_err(|e| IpcError::Port {
-            service,
-            port: "subscriber",
-            source: e.into(),
-        })
+        self.estop_observer()
     }
 
     /// A read-only observer of e-stop commands (recorder).

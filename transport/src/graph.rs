@@ -349,7 +349,7 @@ impl Graph {
             service,
             inner: PubInner::Iox {
                 publisher,
-                notifier,
+                notifier: Some(notifier),
             },
         })
     }
@@ -575,7 +575,8 @@ pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
 enum PubInner<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {
     Iox {
         publisher: Publisher<Ipc, T, ()>,
-        notifier: Notifier<Ipc>,
+        /// The topic's event; none on the control topics, which nobody waits on.
+        notifier: Option<Notifier<Ipc>>,
     },
     Uds(std::cell::RefCell<crate::uds::UdsPublisher<T>>),
 }
@@ -588,6 +589,18 @@ pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Datagram + 'stati
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> {
+    /// Wraps a publisher of a topic opened elsewhere in this crate (the control topics),
+    /// without a notifier: nobody waits on their event.
+    pub(crate) fn without_notifier(service: String, publisher: Publisher<Ipc, T, ()>) -> Self {
+        Self {
+            service,
+            inner: PubInner::Iox {
+                publisher,
+                notifier: None,
+            },
+        }
+    }
+
     /// Sends `msg` (iceoryx2: loan, write, send through shared memory, then notify) and
     /// returns the number of subscribers that received it.
     pub fn send(&self, msg: T) -> Result<usize, IpcError> {
@@ -606,7 +619,9 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> 
                     .write_payload(msg)
                     .send()
                     .map_err(|e| io("send", e.into()))?;
-                notifier.notify().map_err(|e| io("notify", e.into()))?;
+                if let Some(notifier) = notifier {
+                    notifier.notify().map_err(|e| io("notify", e.into()))?;
+                }
                 Ok(n)
             }
             PubInner::Uds(p) => Ok(p.borrow_mut().send(&msg)),
@@ -785,6 +800,29 @@ impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Wakeable for Topic
     }
     fn consume_wake(&self) {
         self.consume();
+    }
+}
+
+/// An input a control-path loop polls before its event wait (`node_rt::poller::Poller`).
+pub trait Pollable {
+    /// Whether a message is waiting, without taking it.
+    fn has_pending(&self) -> bool;
+    /// Blocks until the input's event fires or the monotonic clock reaches `until_ns`;
+    /// returns whether it fired.
+    fn wait_until(&self, until_ns: u64) -> bool;
+    /// Drops the pending notifications of the input's event.
+    fn consume_notifications(&self);
+}
+
+impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> Pollable for TopicSubscriber<T> {
+    fn has_pending(&self) -> bool {
+        TopicSubscriber::has_pending(self)
+    }
+    fn wait_until(&self, until_ns: u64) -> bool {
+        TopicSubscriber::wait_until(self, until_ns)
+    }
+    fn consume_notifications(&self) {
+        TopicSubscriber::consume_notifications(self)
     }
 }
 

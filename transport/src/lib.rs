@@ -13,7 +13,10 @@
 
 pub mod control;
 pub mod graph;
-pub mod signals;
 pub mod uds;
 
-pub use graph::{Graph, IpcError, TopicPublisher, TopicSubscriber, Waker, wait_any};
+/// The stop flag every process's loop polls: the `scl-signals` crate, re-exported here so a
+/// process that opens the graph reaches it through one dependency.
+pub use scl_signals as signals;
+
+pub use graph::{Graph, IpcError, Pollable, TopicPublisher, TopicSubscriber, Waker, wait_any};

@@ -178,10 +178,7 @@ fn run_remote(
         if l == "default" {
             parsed.extend(Link::DEFAULT);
         } else {
-            parsed.push(
-                l.parse::<Link>()
-                    .map_err(|e| SclError::Other(format!("--remote {e}")))?,
-            );
+            parsed.push(l.parse::<Link>().map_err(SclError::Link)?);
         }
     }
     if opts.transports.len() > 1 || opts.waits.len() > 1 {
@@ -190,11 +187,16 @@ fn run_remote(
         ));
     }
     let report = scl_bench::remote::remote(opts, &parsed)?;
-    let text = serde_json::to_string_pretty(&report)
-        .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+    let text = serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
+        what: "report",
+        source,
+    })?;
     if let Some(dir) = out {
         let p = dir.join("report.json");
-        std::fs::write(&p, &text).map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+        std::fs::write(&p, &text).map_err(|source| SclError::Write {
+            path: p.clone(),
+            source,
+        })?;
     }
     if json {
         println!("{text}");
@@ -252,12 +254,17 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 return run_remote(&opts, &remote, json, out.as_deref());
             }
             let report = scl_bench::latency(&opts)?;
-            let text = serde_json::to_string_pretty(&report)
-                .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+            let text =
+                serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
+                    what: "report",
+                    source,
+                })?;
             if let Some(dir) = &out {
                 let p = dir.join("report.json");
-                std::fs::write(&p, &text)
-                    .map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+                std::fs::write(&p, &text).map_err(|source| SclError::Write {
+                    path: p.clone(),
+                    source,
+                })?;
             }
             if json {
                 println!("{text}");
@@ -288,7 +295,7 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 let mut c = cfg.clone();
                 c.set_rate_hz(*r);
                 c.validate()
-                    .map_err(|e| SclError::Other(format!("--rates {r}: {e}")))?;
+                    .map_err(|source| SclError::Rate { rate: *r, source })?;
             }
             let opts = scl_bench::headroom::HeadroomOptions {
                 rates,
@@ -300,12 +307,17 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 out: out.clone(),
             };
             let report = scl_bench::headroom::headroom(&opts)?;
-            let text = serde_json::to_string_pretty(&report)
-                .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+            let text =
+                serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
+                    what: "report",
+                    source,
+                })?;
             if let Some(dir) = &out {
                 let p = dir.join("report.json");
-                std::fs::write(&p, &text)
-                    .map_err(|e| SclError::Other(format!("{}: {e}", p.display())))?;
+                std::fs::write(&p, &text).map_err(|source| SclError::Write {
+                    path: p.clone(),
+                    source,
+                })?;
             }
             if json {
                 println!("{text}");
@@ -332,8 +344,11 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
             };
             let report = scl_bench::hops::hops(&opts)?;
             if json {
-                let text = serde_json::to_string_pretty(&report)
-                    .map_err(|e| SclError::Other(format!("cannot encode the report: {e}")))?;
+                let text =
+                    serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
+                        what: "report",
+                        source,
+                    })?;
                 println!("{text}");
             } else {
                 print!("{}", scl_bench::hops::render(&report));

@@ -86,8 +86,10 @@ pub(crate) fn status(
         return Ok(ExitCode::from(1));
     }
     if json {
-        let text = serde_json::to_string_pretty(&st)
-            .map_err(|e| SclError::Other(format!("cannot encode the status: {e}")))?;
+        let text = serde_json::to_string_pretty(&st).map_err(|source| SclError::Encode {
+            what: "status",
+            source,
+        })?;
         println!("{text}");
     } else {
         print!("{}", graph_client::control::render(&st));

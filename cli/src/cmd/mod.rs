@@ -36,8 +36,12 @@ pub(crate) fn parse_duration(s: &str) -> Result<Duration, String> {
 
 /// `scl layout`: the messages' memory layout as JSON on stdout.
 pub(crate) fn layout() -> Result<ExitCode, SclError> {
-    let text = serde_json::to_string_pretty(&ipc_types::layout::describe())
-        .map_err(|e| SclError::Other(format!("cannot encode the layout: {e}")))?;
+    let text = serde_json::to_string_pretty(&ipc_types::layout::describe()).map_err(|source| {
+        SclError::Encode {
+            what: "layout",
+            source,
+        }
+    })?;
     println!("{text}");
     Ok(ExitCode::SUCCESS)
 }

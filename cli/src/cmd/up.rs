@@ -93,8 +93,10 @@ pub(crate) fn run(
         let _ = transport::graph::release_domain(&opts.prefix);
     })?;
     if json {
-        let text = serde_json::to_string(&summary)
-            .map_err(|e| SclError::Other(format!("cannot encode the summary: {e}")))?;
+        let text = serde_json::to_string(&summary).map_err(|source| SclError::Encode {
+            what: "summary",
+            source,
+        })?;
         println!("{text}");
     } else {
         eprintln!(

@@ -44,7 +44,7 @@ use super::reversibility::Check;
 use super::stats::{self, RankTests};
 use super::{CommonArgs, ExperimentError, Run, Variant};
 use crate::ToolError;
-use transport::signals;
+use scl_signals as signals;
 
 /// The paper's epochs for this experiment.
 pub const DEFAULT_EPOCHS: usize = 1000;

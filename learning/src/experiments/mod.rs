@@ -35,7 +35,7 @@ use crate::train::{self, Progress, TrainConfig};
 use mapper::model::{EncoderKind, ModelHeader, ModelKind};
 
 use crate::ToolError;
-use transport::signals;
+use scl_signals as signals;
 
 /// Why an experiment could not run.
 #[derive(Debug, thiserror::Error)]

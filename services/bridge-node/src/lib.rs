@@ -462,10 +462,8 @@ struct Ticker<'a, R: Robot> {
     late: late::LateCommands,
     /// Until the first tick has begun (a restarted bridge counts its downtime then).
     first_tick: bool,
-    /// When the commands are published after their state (`predictive`).
-    phase: node_rt::wait::Phase,
-    /// Time spent polling for commands.
-    spin: node_rt::wait::SpinStats,
+    /// Polls for the tick's command (`[graph] wait`), in a window placed after the state.
+    poller: node_rt::poller::Poller,
 }
 
 impl<'a, R: Robot> Ticker<'a, R> {
@@ -502,8 +500,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
             st,
             late: late::LateCommands::default(),
             first_tick: true,
-            phase: node_rt::wait::Phase::new(period_ns),
-            spin: node_rt::wait::SpinStats::default(),
+            poller: node_rt::poller::Poller::new(ctx.wait, period_ns).polling_every_tick(),
         })
     }
 
@@ -553,7 +550,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
 
     /// Waits until the command of `state`'s tick comes or `deadline_ns` passes; late commands
     /// for missed ticks add their verdicts to `verdicts`. With `predictive` or `spin` the
-    /// subscriber is polled first ([`node_rt::wait::wait_input`]: in the window learned from
+    /// subscriber is polled first ([`node_rt::poller::Poller`]: in the window learned from
     /// the commands' stamps, or up to the deadline), then the event wait takes over; nothing
     /// is waited for past the deadline.
     fn await_command(
@@ -562,12 +559,12 @@ impl<'a, R: Robot> Ticker<'a, R> {
         deadline_ns: u64,
         verdicts: &mut Vec<late::Verdict>,
     ) -> Result<Reply, BridgeNodeError> {
-        use node_rt::wait::{Monotonic, Poll, wait_input};
+        use node_rt::poller::{Polled, TickStart};
         let tick = state.tick;
         let mut reply = Reply::default();
         let late = &mut self.late;
-        let mut poll = Poll::of(self.ctx.wait, self.phase.window_at(state.t_ns));
-        self.spin.ticks += 1;
+        let mut polled = false;
+        self.poller.spin.ticks += 1;
         loop {
             self.commands.drain(|c| {
                 if c.tick == tick {
@@ -581,7 +578,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
             let now = now_ns();
             if let Some(c) = &reply.found {
                 reply.received_ns = now;
-                self.phase.observe_offset(c.t_ns as i64 - state.t_ns as i64);
+                self.poller.took_offset(c.t_ns as i64 - state.t_ns as i64);
                 break;
             }
             // A stop requested meanwhile waits for the command all the same: the supervisor
@@ -591,19 +588,13 @@ impl<'a, R: Robot> Ticker<'a, R> {
             if now >= deadline_ns {
                 break;
             }
-            if poll != Poll::No {
-                // Once per tick: poll, then the event wait below.
-                self.commands.consume_notifications();
-                let commands = &self.commands;
-                let w = wait_input(
-                    std::mem::replace(&mut poll, Poll::No),
-                    deadline_ns,
-                    &mut Monotonic,
-                    |until| u64::from(commands.wait_until(until)),
-                    || u64::from(commands.has_pending()),
-                    |_| 0,
-                );
-                self.spin.add(&w);
+            // Once per tick: poll, then the event wait below.
+            if !std::mem::replace(&mut polled, true)
+                && self
+                    .poller
+                    .poll(TickStart::At(state.t_ns), deadline_ns, &self.commands, None)
+                    != Polled::Skipped
+            {
                 continue;
             }
             self.commands
@@ -725,9 +716,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
     /// then says so: the last state, a `STOPPING` heartbeat, the link's counts. Returns the
     /// robot's error, if any.
     fn shutdown(mut self, mut failure: Option<RobotError>) -> Result<(), BridgeNodeError> {
-        if self.ctx.wait.polls() {
-            self.spin.log("bridge", self.ctx.wait);
-        }
+        self.poller.log("bridge");
         let (last, stopped) = self.core.shutdown(now_ns());
         if let Err(e) = stopped {
             match &failure {

@@ -498,7 +498,6 @@ struct Gateway<'a> {
     link: OperatorLink,
     joystick: Option<transport::TopicPublisher<JoystickInput>>,
     estop: Option<transport::control::EstopPublisher>,
-    prefix: &'a Prefix,
     seq: u64,
     st: NodeStatus,
     outbound_dropped: u64,
@@ -689,15 +688,10 @@ impl Gateway<'_> {
             "{} from the network: sent to safety",
             if reset { "reset" } else { "E-STOP" }
         );
-        p.send_copy(EstopCommand {
+        p.send(EstopCommand {
             t_ns: now_ns(),
             action: c.action,
             source_pid: std::process::id(),
-        })
-        .map_err(|e| transport::IpcError::Io {
-            service: self.prefix.service(ipc_types::control::ESTOP),
-            op: "send",
-            source: e.into(),
         })?;
         self.count(if reset {
             gateway_counts::RESETS
@@ -927,7 +921,6 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         link: OperatorLink::new(),
         joystick,
         estop,
-        prefix,
         seq: 0,
         st: NodeStatus::new(NodeRole::Gateway, phase::READY, now_ns()),
         outbound_dropped: 0,

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender};
 use ipc_types::control::EstopCommand;
-use ipc_types::{JoystickInput, NodeStatus, Prefix, RobotState};
+use ipc_types::{JoystickInput, NodeStatus, RobotState};
 use scl_net::ports::{self, Out, Urgency};
 use scl_net::session;
 use scl_net::wire::link_state;
@@ -46,8 +46,7 @@ pub(crate) trait Endpoint {
 }
 
 /// The graph on this machine.
-pub(crate) struct Local<'a> {
-    pub(crate) prefix: &'a Prefix,
+pub(crate) struct Local {
     pub(crate) samples: transport::TopicPublisher<JoystickInput>,
     /// Kept for the process's life: a sample of a publisher that is gone is not delivered.
     pub(crate) estop: transport::control::EstopPublisher,
@@ -56,7 +55,7 @@ pub(crate) struct Local<'a> {
     pub(crate) heartbeats: Option<transport::TopicSubscriber<NodeStatus>>,
 }
 
-impl Endpoint for Local<'_> {
+impl Endpoint for Local {
     fn wait(&self, waker: Option<&Waker>, timeout: Duration) -> Result<(), JoystickError> {
         match waker {
             Some(w) => {
@@ -80,13 +79,7 @@ impl Endpoint for Local<'_> {
     }
 
     fn send_estop(&mut self, c: EstopCommand) -> Result<(), JoystickError> {
-        self.estop.send_copy(c).map_err(|e| {
-            JoystickError::Ipc(transport::IpcError::Io {
-                service: self.prefix.service(ipc_types::control::ESTOP),
-                op: "send",
-                source: e.into(),
-            })
-        })?;
+        self.estop.send(c)?;
         Ok(())
     }
 

@@ -600,7 +600,6 @@ pub fn run(
         None
     };
     let mut local = endpoint::Local {
-        prefix,
         samples: graph.joystick_publisher()?,
         estop: graph.estop_publisher()?,
         states: graph.robot_state_subscriber(true)?,

@@ -20,6 +20,7 @@ use std::time::Duration;
 
 use ipc_types::{NodeRole, NodeStatus, Prefix, phase, time::now_ns};
 use mapper::step::MapperStep;
+use node_rt::poller::{Polled, Poller, TickStart};
 use transport::Graph;
 
 use scl_config::{FaultConfig, GraphSection, RtRole};
@@ -59,11 +60,18 @@ pub fn run(
     let mut joy_rx_ns = 0;
     let wakes: [&dyn transport::graph::Wakeable; 2] = [&states, &joystick];
     let mut prewarm = Prewarm::new(graph_cfg);
-    let mut poller = Poller::new(wait, graph_cfg.period_ns());
+    // Polls for the state before the event wait (`spin`: also for joystick samples).
+    let mut poller = Poller::new(wait, graph_cfg.period_ns()).with_early_arrival();
     while !signals::stop_requested() {
-        let woke = match poller.poll(&states, &joystick) {
-            Some(bits) => Some(bits),
-            None => prewarm.wait(&wakes, &mut step),
+        let polled = poller.poll(
+            TickStart::Grid,
+            now_ns() + 100_000_000,
+            &states,
+            Some(&joystick),
+        );
+        let woke = match polled {
+            Polled::Came(bits) => Some(bits),
+            _ => prewarm.wait(&wakes, &mut step),
         };
         let Some(woke) = woke else {
             continue;
@@ -80,101 +88,20 @@ pub fn run(
             continue;
         };
         prewarm.last = Some(state);
-        poller.took(&state, rx_ns);
+        // A state carries no stamp of its publication (its `t_ns` is its tick's start): its
+        // arrival is the time it was taken, exact when polled.
+        poller.took(state.tick, state.t_ns, rx_ns);
         let joy_rx = if joy.is_some() { joy_rx_ns } else { 0 };
         let cmd = map_state(&mut step, &state, joy.as_ref(), rx_ns, joy_rx, faults);
         commands.send(cmd)?;
         count_tick(&mut st, &step, &cmd, state.tick, id);
         status.send(st)?;
     }
-    if wait.polls() {
-        poller.spin.log("mapper", wait);
-    }
+    poller.log("mapper");
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     status.send(st)?;
     Ok(())
-}
-
-/// `[graph] wait` = `predictive` or `spin`: polls for the robot state before the event wait
-/// (`spin` also for joystick samples); `event`: nothing.
-struct Poller {
-    wait: node_rt::wait::WaitStrategy,
-    /// When the states are published on the tick grid.
-    phase: node_rt::wait::Phase,
-    /// A window passed without the state: the event wait until it comes, no new window.
-    awaiting: bool,
-    /// The state came before the window opened at this time (its event woke the mapper).
-    early_before: Option<u64>,
-    spin: node_rt::wait::SpinStats,
-}
-
-impl Poller {
-    fn new(wait: node_rt::wait::WaitStrategy, period_ns: u64) -> Self {
-        Self {
-            wait,
-            phase: node_rt::wait::Phase::new(period_ns),
-            awaiting: false,
-            early_before: None,
-            spin: node_rt::wait::SpinStats::default(),
-        }
-    }
-
-    /// Polls as the strategy says: the bits of [`transport::wait_any`] for what came (1:
-    /// a state, 2: a joystick sample), or `None` for the event wait.
-    fn poll(
-        &mut self,
-        states: &transport::TopicSubscriber<ipc_types::RobotState>,
-        joystick: &transport::TopicSubscriber<ipc_types::JoystickInput>,
-    ) -> Option<u64> {
-        use node_rt::wait::{Monotonic, Poll, WaitStrategy, wait_input};
-        if !self.wait.polls() || self.awaiting {
-            return None;
-        }
-        let now = now_ns();
-        let window = self.phase.next_window(now);
-        let poll = Poll::of(self.wait, window);
-        if poll == Poll::No {
-            return None;
-        }
-        // The notifications of what is taken by polling would wake the next event wait.
-        states.consume_notifications();
-        joystick.consume_notifications();
-        let spin = self.wait == WaitStrategy::Spin;
-        let w = wait_input(
-            poll,
-            now + 100_000_000,
-            &mut Monotonic,
-            |until| u64::from(states.wait_until(until)),
-            || {
-                let j = if spin && joystick.has_pending() { 2 } else { 0 };
-                u64::from(states.has_pending()) | j
-            },
-            |_| 0,
-        );
-        self.spin.add(&w);
-        if w.fell_back {
-            self.awaiting = true;
-        }
-        self.early_before = window.filter(|_| w.early).map(|w| w.open_ns);
-        (w.ready != 0).then_some(w.ready)
-    }
-
-    /// A state taken at `rx_ns` was mapped: learn its phase, poll again from the next. A
-    /// state carries no stamp of its publication (its `t_ns` is its tick's start, before the
-    /// robot is read), so its arrival is the time it was taken: exact when polled, a
-    /// wake-up late after an event. A state that came before its window opened counts as
-    /// arriving a margin before the opening, so the window moves earlier until it opens
-    /// before the state and polling measures the arrival.
-    fn took(&mut self, state: &ipc_types::RobotState, rx_ns: u64) {
-        let arrived = match self.early_before.take() {
-            Some(open) => open.saturating_sub(node_rt::wait::MARGIN_NS).min(rx_ns),
-            None => rx_ns,
-        };
-        self.phase.observe(state.tick, state.t_ns, arrived);
-        self.spin.ticks += 1;
-        self.awaiting = false;
-    }
 }
 
 /// Says which model the mapper serves.

@@ -36,6 +36,7 @@ use ipc_types::{
     MapperCommand, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags,
     phase, safe_flags, safety_state, time::now_ns,
 };
+use node_rt::poller::{Poller, TickStart};
 use safety::{SafetyConfig, SafetyFilter};
 use transport::{Graph, TopicPublisher, TopicSubscriber};
 
@@ -78,28 +79,6 @@ fn safety_state_bits(f: &SafetyFilter) -> u32 {
         bits |= safety_state::AWAITING_NEUTRAL;
     }
     bits
-}
-
-/// Hands every pending message of a control-plane topic to `f`, oldest first.
-fn for_each_pending<T, E: Into<transport::graph::IoError>>(
-    prefix: &Prefix,
-    topic: &str,
-    mut receive: impl FnMut() -> Result<Option<T>, E>,
-    mut f: impl FnMut(T),
-) -> Result<(), SafetyNodeError> {
-    loop {
-        match receive() {
-            Ok(Some(m)) => f(m),
-            Ok(None) => return Ok(()),
-            Err(e) => {
-                return Err(SafetyNodeError::Ipc(transport::IpcError::Io {
-                    service: prefix.service(topic),
-                    op: "receive",
-                    source: e.into(),
-                }));
-            }
-        }
-    }
 }
 
 /// The supervisor's control message: the active mapper from its tick, the hold, and a
@@ -389,19 +368,9 @@ pub fn run(
     // history.
     let mut estop_seq = 0;
     let mut apply_inputs = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
-        let control_topic = ipc_types::control::SAFETY_CONTROL;
-        for_each_pending(
-            prefix,
-            control_topic,
-            || control.receive().map(|m| m.map(|s| *s)),
-            |c| apply_control(filter, &c, &mut estop_seq),
-        )?;
-        for_each_pending(
-            prefix,
-            ipc_types::control::ESTOP,
-            || estops.receive().map(|m| m.map(|s| *s)),
-            |e| apply_estop(filter, &e),
-        )
+        control.drain(|c| apply_control(filter, c, &mut estop_seq))?;
+        estops.drain(|e| apply_estop(filter, e))?;
+        Ok(())
     };
     let mut f = Forwarder::new(filter, period_s, faults.safety_stall_at_tick);
     apply_inputs(&mut f.filter)?;
@@ -422,7 +391,15 @@ pub fn run(
         // Polling only while commands flow (the e-stop's and a quiet graph's timed answers
         // keep the event wait).
         let now = now_ns();
-        let polled = !(f.quiet(now) || f.filter.estopped()) && poller.poll(&ports.commands);
+        let polled = !(f.quiet(now) || f.filter.estopped())
+            && poller
+                .poll(
+                    TickStart::Grid,
+                    now + MAX_WAIT.as_nanos() as u64,
+                    &ports.commands,
+                    None,
+                )
+                .came();
         let woke = polled || f.wait(&ports)?;
         let rx_ns = now_ns();
         apply_inputs(&mut f.filter)?;
@@ -431,7 +408,7 @@ pub fn run(
             Some((safe, cmd)) => {
                 ports.out.send(safe)?;
                 if let Some(c) = &cmd {
-                    poller.took(c);
+                    poller.took(c.tick, c.state_t_ns, c.t_ns);
                 }
                 f.published(&safe, cmd.as_ref());
                 ports.status.send(f.st)?;
@@ -444,65 +421,9 @@ pub fn run(
             None => {}
         }
     }
-    if wait.polls() {
-        poller.spin.log("safety", wait);
-    }
+    poller.log("safety");
     f.st.phase = phase::STOPPING;
     f.st.t_ns = now_ns();
     ports.status.send(f.st)?;
     Ok(())
-}
-
-/// `[graph] wait` = `predictive` or `spin`: polls for the mapper's command before the event
-/// wait; `event`: nothing.
-struct Poller {
-    wait: node_rt::wait::WaitStrategy,
-    /// When the commands are published on the tick grid.
-    phase: node_rt::wait::Phase,
-    /// A window passed without the command: the event wait until one comes.
-    awaiting: bool,
-    spin: node_rt::wait::SpinStats,
-}
-
-impl Poller {
-    fn new(wait: node_rt::wait::WaitStrategy, period_ns: u64) -> Self {
-        Self {
-            wait,
-            phase: node_rt::wait::Phase::new(period_ns),
-            awaiting: false,
-            spin: node_rt::wait::SpinStats::default(),
-        }
-    }
-
-    /// Polls as the strategy says; whether a command came (else: the event wait).
-    fn poll(&mut self, commands: &TopicSubscriber<MapperCommand>) -> bool {
-        use node_rt::wait::{Monotonic, Poll, wait_input};
-        if !self.wait.polls() || self.awaiting {
-            return false;
-        }
-        let now = now_ns();
-        let poll = Poll::of(self.wait, self.phase.next_window(now));
-        if poll == Poll::No {
-            return false;
-        }
-        commands.consume_notifications();
-        let w = wait_input(
-            poll,
-            now + MAX_WAIT.as_nanos() as u64,
-            &mut Monotonic,
-            |until| u64::from(commands.wait_until(until)),
-            || u64::from(commands.has_pending()),
-            |_| 0,
-        );
-        self.spin.add(&w);
-        self.awaiting = w.fell_back;
-        w.ready != 0
-    }
-
-    /// A command was forwarded: learn its phase, poll again from the next.
-    fn took(&mut self, c: &MapperCommand) {
-        self.phase.observe(c.tick, c.state_t_ns, c.t_ns);
-        self.spin.ticks += 1;
-        self.awaiting = false;
-    }
 }

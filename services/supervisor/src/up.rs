@@ -764,12 +764,7 @@ impl<'a> Supervisor<'a> {
             estop_seq: self.estop.0,
             estop: u32::from(self.estop.1),
         };
-        publisher
-            .send_copy(msg)
-            .map_err(|e| SupervisorError::Control {
-                what: "cannot send the switch to safety",
-                source: e.into(),
-            })?;
+        publisher.send(msg)?;
         // Keep the publisher (and with it the topic's history for a restarted safety).
         self.switch_publisher = Some(publisher);
         Ok(())
@@ -1236,10 +1231,9 @@ impl<'a> Supervisor<'a> {
         &mut self,
         estops: &transport::control::EstopSubscriber,
     ) -> Result<(), SupervisorError> {
-        while let Some(e) = estops.receive().map_err(|e| SupervisorError::Control {
-            what: "cannot read the e-stop topic",
-            source: e.into(),
-        })? {
+        let mut pending = Vec::new();
+        estops.drain(|e| pending.push(*e))?;
+        for e in pending {
             self.estop = (
                 self.estop.0.wrapping_add(1),
                 e.action == ipc_types::control::estop_action::ESTOP,

@@ -2,6 +2,7 @@
 //! handlers are installed without `SA_RESTART`, so a blocking wait (the bridge's
 //! `clock_nanosleep`) returns at once and the loop can stop the arm without waiting out a
 //! period.
+#![cfg_attr(test, allow(clippy::unwrap_used))]
 
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
