@@ -162,6 +162,63 @@ pub fn capture<W: std::io::Write>(
     if let Some(c) = &config_path {
         m.insert("config_path".to_owned(), c.display().to_string());
     }
+    let spec = (p.role == NodeRole::Mapper)
+        .then(|| option(&argv, "model").or_else(|| cfg.as_ref().map(|c| c.mapper.model.clone())))
+        .flatten();
+    let runs = Runs {
+        role: p.role,
+        pid: p.pid,
+        mapper_id: p.mapper_id,
+        t_ns: p.t_ns,
+        cfg: cfg.as_ref(),
+        model_spec: spec,
+        cwd,
+    };
+    write_runs(w, &runs, m, errors)
+}
+
+/// What a mapper or safety process runs, as [`embed`] is told it.
+#[derive(Debug, Clone)]
+pub struct Runs<'a> {
+    /// Its role.
+    pub role: NodeRole,
+    /// Its pid (or a stand-in: the attachments are named by it).
+    pub pid: u32,
+    /// Mapper id (mappers).
+    pub mapper_id: u32,
+    /// When it was first seen (ns): the attachments' log time.
+    pub t_ns: u64,
+    /// The graph configuration it reads.
+    pub cfg: Option<&'a GraphConfig>,
+    /// A mapper's model spec (a file against `cwd`).
+    pub model_spec: Option<String>,
+    /// Its working directory.
+    pub cwd: Option<&'a Path>,
+}
+
+/// Writes what a process runs into the recording as [`capture`] does, told rather than read
+/// from `/proc` (a graph run in process: `scl study simulate --record`).
+pub fn embed<W: std::io::Write>(w: &mut LogWriter<W>, r: &Runs<'_>) -> Result<(), RecordError> {
+    let mut m = BTreeMap::new();
+    m.insert("role".to_owned(), r.role.name().to_owned());
+    m.insert("pid".to_owned(), r.pid.to_string());
+    m.insert("t_ns".to_owned(), r.t_ns.to_string());
+    if r.role == NodeRole::Mapper {
+        m.insert("mapper_id".to_owned(), r.mapper_id.to_string());
+    }
+    write_runs(w, r, m, Vec::new())
+}
+
+/// The configuration and model entries and attachments of `r`, then the record `m`.
+fn write_runs<W: std::io::Write>(
+    w: &mut LogWriter<W>,
+    r: &Runs<'_>,
+    mut m: BTreeMap<String, String>,
+    mut errors: Vec<String>,
+) -> Result<(), RecordError> {
+    let cfg = r.cfg;
+    let cwd = r.cwd;
+    let p = r;
     if let Some(cfg) = &cfg {
         m.insert("robot".to_owned(), cfg.graph.robot.clone());
         m.insert("period_s".to_owned(), cfg.period_s().to_string());
@@ -184,9 +241,7 @@ pub fn capture<W: std::io::Write>(
             }
         }
         NodeRole::Mapper => {
-            let spec =
-                option(&argv, "model").or_else(|| cfg.as_ref().map(|c| c.mapper.model.clone()));
-            if let Some(spec) = spec {
+            if let Some(spec) = p.model_spec.clone() {
                 let builtin = mapper::model::is_builtin(&spec);
                 m.insert("model_spec".to_owned(), spec.clone());
                 let bytes = if spec == mapper::model::BUNDLED_NAME {

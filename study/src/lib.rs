@@ -15,6 +15,7 @@
 
 pub mod capability;
 pub mod data;
+pub mod diagnose;
 pub mod figures;
 pub mod operator;
 pub mod plan;

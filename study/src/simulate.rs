@@ -15,7 +15,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use ipc_types::{JoystickInput, RobotState, state_flags};
+use ipc_types::{JoystickInput, MapperCommand, RobotState, SafeCommand, state_flags};
 use kinematics::{Jacobian, RobotProfile};
 use learning::goals::{GoalRun, Subgoal, TaskGoals};
 use learning::tasks::Task as GoalTask;
@@ -33,6 +33,8 @@ use crate::operator::practiced::{Explorer, PracticedParams};
 use crate::operator::{Demos, Operate, Seen, operator};
 
 use crate::data::{Appender, Outcome, STUDY_COPY, TRIALS, TrialRow};
+use crate::diagnose::Diagnoser;
+pub use crate::diagnose::{Diagnosis, TickNote};
 use crate::plan::{StartPose, Study};
 use crate::{Participant, StudyError};
 
@@ -169,6 +171,10 @@ pub struct AttemptResult {
     pub duration_s: f64,
     /// Mode presses.
     pub mode_switches: u32,
+    /// Why it ended where it did ([`run_attempt`] gives it; the live graph's runner does not).
+    pub diagnosis: Option<Diagnosis>,
+    /// The attempt's recording, relative to the participant's directory (`--record`).
+    pub recording: Option<String>,
 }
 
 /// Makes a fresh instance of the served model (the map served and the operator's copies).
@@ -229,6 +235,7 @@ pub struct AttemptDriver<'a> {
     jac: Jacobian,
     first_tick: Option<u64>,
     last_k: u64,
+    note: TickNote,
 }
 
 impl<'a> AttemptDriver<'a> {
@@ -264,6 +271,7 @@ impl<'a> AttemptDriver<'a> {
             jac: Jacobian::zeros(s.sim.robot.n_joints()),
             first_tick: None,
             last_k: 0,
+            note: TickNote::default(),
         }
     }
 
@@ -285,12 +293,23 @@ impl<'a> AttemptDriver<'a> {
         let elapsed = (k - self.last_k.min(k)) as f64 * self.dt;
         self.last_k = k;
         self.run.update(&tool, state.gripper, elapsed);
+        self.note = TickNote {
+            tick: k,
+            t_ns: state.t_ns,
+            subgoals_done: self.run.subgoals_done(),
+            subgoal: self.run.current().map(Subgoal::name),
+            tool: tool.translation.vector.into(),
+            mode,
+            ..TickNote::default()
+        };
         if self.run.done() {
             return Ok(Answer::Done(AttemptResult {
                 outcome: Outcome::Success,
                 completion_pct: 100.0,
                 duration_s: k as f64 * self.dt,
                 mode_switches: self.op.presses(),
+                diagnosis: None,
+                recording: None,
             }));
         }
         if k >= self.ticks || self.op.finished() {
@@ -303,6 +322,8 @@ impl<'a> AttemptDriver<'a> {
                     self.time_limit_s
                 },
                 mode_switches: self.op.presses(),
+                diagnosis: None,
+                recording: None,
             }));
         }
         let aim = self
@@ -312,6 +333,11 @@ impl<'a> AttemptDriver<'a> {
             && let Ok(mut e) = cell.lock()
         {
             *e = a.error(&tool);
+        }
+        if let Some(a) = &aim {
+            self.note.distance_m = Some(a.distance(&tool.translation.vector));
+            self.note.aim = Some(a.position.into());
+            self.note.facing_error_rad = a.face.then(|| a.facing_error(&tool.rotation));
         }
         let seen = Seen {
             state,
@@ -338,6 +364,33 @@ impl<'a> AttemptDriver<'a> {
         );
         Ok(Answer::Sample(joy))
     }
+
+    /// What the tracker and the operator saw at the last state given.
+    pub fn note(&self) -> &TickNote {
+        &self.note
+    }
+}
+
+/// One tick of an in-process attempt as the graph would publish it, for a recording
+/// ([`run_attempt_observed`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Observed<'a> {
+    /// The robot state of the tick.
+    pub state: &'a RobotState,
+    /// The operator's answer to it (the mapper uses it at the next tick).
+    pub sample: &'a JoystickInput,
+    /// The mapper's command of the tick.
+    pub mapper: &'a MapperCommand,
+    /// Safety's command of the tick.
+    pub safe: &'a SafeCommand,
+    /// What the tracker and the operator saw.
+    pub note: &'a TickNote,
+}
+
+/// Takes each tick of an in-process attempt (`scl study simulate --record` writes them).
+pub trait Observe {
+    /// One tick; an error ends the attempt.
+    fn tick(&mut self, t: &Observed<'_>) -> Result<(), SimError>;
 }
 
 /// Runs one attempt from the start pose until every subgoal is done or the time runs out, in
@@ -346,27 +399,38 @@ impl<'a> AttemptDriver<'a> {
 /// the operator gave for tick `k - 1` (the live graph's mapper has computed tick `k` before
 /// the operator's answer to it arrives); safety filters; the mock arm executes.
 pub fn run_attempt(s: &AttemptSetup<'_>) -> Result<AttemptResult, SimError> {
-    run_driver(s, AttemptDriver::new(s)?).map(|(r, _)| r)
+    run_driver(s, AttemptDriver::new(s)?, None).map(|(r, _)| r)
+}
+
+/// [`run_attempt`], each tick given to `obs` as it is published.
+pub fn run_attempt_observed(
+    s: &AttemptSetup<'_>,
+    obs: &mut dyn Observe,
+) -> Result<AttemptResult, SimError> {
+    run_driver(s, AttemptDriver::new(s)?, Some(obs)).map(|(r, _)| r)
 }
 
 /// [`run_attempt`], and how far a follower got along its demonstration.
 pub fn run_attempt_followed(
     s: &AttemptSetup<'_>,
 ) -> Result<(AttemptResult, Option<crate::operator::follower::Followed>), SimError> {
-    run_driver(s, AttemptDriver::new(s)?).map(|(r, op)| (r, op.followed()))
+    run_driver(s, AttemptDriver::new(s)?, None).map(|(r, op)| (r, op.followed()))
 }
 
-/// [`run_attempt`] with the operator of `driver`; gives the operator back.
+/// [`run_attempt`] with the operator of `driver`, each tick to `obs`; gives the operator back.
+/// The result carries its [`Diagnosis`] (the map's directions only for a failed attempt).
 fn run_driver(
     s: &AttemptSetup<'_>,
     mut driver: AttemptDriver<'_>,
+    mut obs: Option<&mut dyn Observe>,
 ) -> Result<(AttemptResult, Box<dyn Operate>), SimError> {
     let robot = s.sim.robot;
     let n = robot.n_joints();
     let dt = s.sim.period_s;
     let period_ns = (dt * 1e9).round() as u64;
     let served = (s.model)()?;
-    let mut step = MapperStep::new(0, served, n).map_err(|source| SimError::Model {
+    // As the mapper process serves it: continuous joints wrapped for the map.
+    let mut step = MapperStep::for_robot(0, served, robot).map_err(|source| SimError::Model {
         spec: "the served model".into(),
         source,
     })?;
@@ -380,6 +444,7 @@ fn run_driver(
     state.q_rad[..n].copy_from_slice(&s.start_q[..n.min(s.start_q.len())]);
     state.flags = state_flags::MOCK;
     let mut newest: Option<JoystickInput> = None;
+    let mut diag = Diagnoser::default();
     let mut k = 0u64;
     loop {
         let t_ns = (k + 1) * period_ns;
@@ -388,14 +453,33 @@ fn run_driver(
         // The screen shows the mode of the mapper's last heartbeat: after tick k - 1.
         let mode = step.mode().map(|m| m.index as usize);
         let joy = match driver.on_state(&state, mode, t_ns)? {
-            Answer::Done(r) => return Ok((r, driver.op)),
+            Answer::Done(mut r) => {
+                let map = if r.outcome == Outcome::Success {
+                    None
+                } else {
+                    (s.model)().ok()
+                };
+                r.diagnosis = Some(diag.finish(robot, dt, map));
+                return Ok((r, driver.op));
+            }
             Answer::Sample(j) => j,
         };
         let mut cmd = step.step(&state, newest.as_ref());
         newest = Some(joy);
         cmd.t_ns = t_ns;
-        let safe = filter.step(&cmd, &state, t_ns);
+        let mut safe = filter.step(&cmd, &state, t_ns);
+        safe.t_ns = t_ns;
         tracing::trace!(tick = k, safety_flags = safe.flags, "simulated tick");
+        diag.tick(driver.note(), &state, safe.flags);
+        if let Some(o) = obs.as_deref_mut() {
+            o.tick(&Observed {
+                state: &state,
+                sample: &joy,
+                mapper: &cmd,
+                safe: &safe,
+                note: driver.note(),
+            })?;
+        }
         arm.set_command(&safe.qdot_rad_s[..n], safe.gripper_rate);
         let r = arm.step(dt);
         state.q_rad = r.q_rad;
@@ -443,7 +527,7 @@ pub fn practice(s: &AttemptSetup<'_>, practice_s: f64) -> Result<InternalModel, 
                 Learner::new(model, true, dt),
             ))
         };
-        let (r, op) = run_driver(&part, AttemptDriver::with_operator(&part, op))?;
+        let (r, op) = run_driver(&part, AttemptDriver::with_operator(&part, op), None)?;
         model = op
             .into_learned()
             .ok_or_else(|| SimError::Setup("practice: the operator learned nothing".into()))?;
@@ -683,7 +767,15 @@ pub fn simulate_participant_with(
     let copy = dir.join(STUDY_COPY);
     std::fs::write(&copy, &study.text)
         .map_err(|source| StudyError::Write { path: copy, source })?;
+    let diagnosis = dir.join(crate::diagnose::DIAGNOSIS);
+    if diagnosis.exists() {
+        return Err(StudyError::Data {
+            path: diagnosis,
+            reason: "exists: simulated data is never written over; choose another --out".into(),
+        });
+    }
     let mut out = Appender::open(&trials)?;
+    let mut diag_out = Appender::open(&diagnosis)?;
     let mut rows = Vec::new();
     let mut clock = 0.0;
     for (ti, task) in study.file.tasks.iter().enumerate() {
@@ -778,11 +870,14 @@ pub fn simulate_participant_with(
                     duration_s: r.duration_s,
                     mode_switches: r.mode_switches,
                     estops: 0,
-                    recording: String::new(),
+                    recording: r.recording.clone().unwrap_or_default(),
                     started_unix_s: clock,
                 };
                 clock += r.duration_s;
                 out.push(&row)?;
+                if let Some(d) = &r.diagnosis {
+                    diag_out.push(&crate::diagnose::DiagnosisRow::of(&row, d))?;
+                }
                 rows.push(row);
                 progress();
             }

@@ -32,6 +32,7 @@ use study::plan::{Participant, Question, Study};
 use transport::{Graph, TopicSubscriber};
 
 pub mod simlive;
+pub mod simrecord;
 
 /// Why a study run stopped, each with the message the experimenter sees.
 #[derive(Debug, thiserror::Error)]
@@ -1051,6 +1052,12 @@ pub enum StudyCmd {
         /// Only this condition (by label or name); the Latin-square positions are kept.
         #[arg(long)]
         condition: Option<String>,
+        /// Record each attempt as DIR/Pnn/recordings/Pnn-tT-cC-aA.mcap, in the format `scl up
+        /// --record` writes (`scl replay` re-executes it bit for bit; Foxglove shows it in 3D),
+        /// with what the goal tracker and the operator saw each tick on /scl/sim/operator.
+        /// Not with --live.
+        #[arg(long)]
+        record: bool,
     },
     /// Print the plan: each participant's order of the conditions (blind labels), checking
     /// the study file on the way.
@@ -1080,6 +1087,7 @@ pub fn cli(
             live,
             task,
             condition,
+            record,
         } => {
             let only = study::simulate::Selection {
                 task: task.clone(),
@@ -1090,6 +1098,12 @@ pub fn cli(
             } else {
                 Run::InProcess { jobs: *jobs }
             };
+            if *live && *record {
+                return Err(StudyRunError::Graph(
+                    "--record with --live: the live graph's attempts are recorded by `scl                      record` beside it; --record records the in-process attempts"
+                        .into(),
+                ));
+            }
             if *live && jobs.is_some_and(|j| j != 1) {
                 return Err(StudyRunError::Graph(
                     "--jobs with --live: the live graphs run one at a time (each takes the \
@@ -1104,6 +1118,7 @@ pub fn cli(
                 seed: *seed,
                 only,
                 how,
+                record: *record,
             };
             simulate(robot, graph, &req)?;
             Ok(std::process::ExitCode::SUCCESS)
@@ -1200,6 +1215,8 @@ pub struct SimulateRequest<'a> {
     pub only: study::simulate::Selection,
     /// In process or through the live graph.
     pub how: Run<'a>,
+    /// Record each in-process attempt ([`simrecord`]).
+    pub record: bool,
 }
 
 /// `scl study simulate`: the request's simulated participants into its `out` (one directory
@@ -1217,6 +1234,7 @@ pub fn simulate(
         seed,
         ref only,
         how,
+        record,
     } = *req;
     if participants == 0 {
         return Err(StudyRunError::Graph(
@@ -1267,7 +1285,17 @@ pub fn simulate(
                             only,
                             &|| bar.inc(1),
                             &transport::signals::stop_requested,
-                            &|setup, _| study::simulate::run_attempt(setup),
+                            &|setup, info| {
+                                if record {
+                                    let mut trial = BTreeMap::new();
+                                    trial.insert("attempt".to_owned(), info.name.clone());
+                                    trial.insert("model".to_owned(), info.spec.to_owned());
+                                    trial.insert("seed".to_owned(), setup.seed.to_string());
+                                    simrecord::run_recorded(setup, info, dir, graph, trial)
+                                } else {
+                                    study::simulate::run_attempt(setup)
+                                }
+                            },
                         )
                     })
                     .collect()
