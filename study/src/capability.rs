@@ -139,9 +139,9 @@ impl CapabilityCheck<'_> {
         // Refuse a model that does not load before anything runs.
         make()?;
         let attempts = if self.params.operator == OperatorKind::Follower {
-            self.along_demonstrations(&make)?
+            self.attempts_along_demonstrations(&make)?
         } else {
-            self.from_the_start(&make)?
+            self.attempts_from_the_start(&make)?
         };
         Ok(Capability {
             task: self.task,
@@ -150,7 +150,7 @@ impl CapabilityCheck<'_> {
         })
     }
 
-    fn from_the_start(
+    fn attempts_from_the_start(
         &self,
         make: &(dyn Fn() -> Result<LoadedModel, SimError> + Sync),
     ) -> Result<Vec<CapabilityAttempt>, SimError> {
@@ -186,7 +186,7 @@ impl CapabilityCheck<'_> {
             .collect()
     }
 
-    fn along_demonstrations(
+    fn attempts_along_demonstrations(
         &self,
         make: &(dyn Fn() -> Result<LoadedModel, SimError> + Sync),
     ) -> Result<Vec<CapabilityAttempt>, SimError> {

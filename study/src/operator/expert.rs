@@ -331,6 +331,7 @@ pub(crate) struct Expert {
 }
 
 impl Expert {
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         params: &SimParams,
         robot: &'static RobotProfile,
