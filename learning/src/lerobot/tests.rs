@@ -109,7 +109,7 @@ fn another_arms_dataset_is_refused_naming_both() {
     let dir = tmp("mismatch");
     let rec = recording(&dir, "a.mcap", 0.0);
     let lr = dir.join("lerobot");
-    to_dataset::export_lerobot(&[rec.clone()], &lr, "gen3_lite", "wave").unwrap();
+    to_dataset::export_lerobot(std::slice::from_ref(&rec), &lr, "gen3_lite", "wave").unwrap();
     // Its robot_type is gen3_lite, so it trains for that arm without --robot.
     assert!(load_training_data(&lr, &ImportOptions::default()).is_ok());
     let e = load_training_data(
@@ -131,7 +131,7 @@ fn another_arms_dataset_is_refused_naming_both() {
         "{e}"
     );
     // The export refuses a recording of another arm, and an --out with files in it.
-    let e = to_dataset::export_lerobot(&[rec.clone()], &dir.join("x"), "gen3", "t")
+    let e = to_dataset::export_lerobot(std::slice::from_ref(&rec), &dir.join("x"), "gen3", "t")
         .unwrap_err()
         .to_string();
     assert!(e.contains("has 6 joints, but robot profile gen3 "), "{e}");
