@@ -105,6 +105,7 @@ pub fn parse_encoder(text: &str) -> Result<EncoderKind, LearningError> {
 pub fn train_network(
     cfg: &TrainConfig,
     data: &Path,
+    data_opts: &crate::lerobot::import::ImportOptions,
     out: &Path,
     force: bool,
     command: &str,
@@ -121,7 +122,7 @@ pub fn train_network(
             }
         }
     }
-    let ds = dataset::load_dir(data)?;
+    let ds = crate::lerobot::import::load_training_data(data, data_opts)?;
     tracing::info!(
         kind = %cfg.kind,
         train = ds.n_train(),
@@ -556,7 +557,15 @@ mod tests {
             seeds: 2,
             ..TrainConfig::default()
         };
-        let outcome = train_network(&cfg, &data, &out, false, "scl train test").unwrap();
+        let outcome = train_network(
+            &cfg,
+            &data,
+            &Default::default(),
+            &out,
+            false,
+            "scl train test",
+        )
+        .unwrap();
         let model = model::LoadedModel::load(out.to_str().unwrap()).unwrap();
         assert_eq!(model.header.kind, ModelKind::Scl);
         assert_eq!(model.header.training.command, "scl train test");
@@ -569,12 +578,12 @@ mod tests {
         assert_eq!(&png[1..4], b"PNG");
         assert_eq!(outcome.runs.len(), 2);
         // Every file is protected without --force, and replaced with it.
-        let e = train_network(&cfg, &data, &out, false, "t").unwrap_err();
+        let e = train_network(&cfg, &data, &Default::default(), &out, false, "t").unwrap_err();
         assert!(e.to_string().contains("--force"), "{e}");
         std::fs::remove_file(&out).unwrap();
-        let e = train_network(&cfg, &data, &out, false, "t").unwrap_err();
+        let e = train_network(&cfg, &data, &Default::default(), &out, false, "t").unwrap_err();
         assert!(e.to_string().contains("loss.csv"), "{e}");
-        train_network(&cfg, &data, &out, true, "t").unwrap();
+        train_network(&cfg, &data, &Default::default(), &out, true, "t").unwrap();
         // The table and the reversibility report run on the result.
         let table = eval_reconstruction(&data, std::slice::from_ref(&out)).unwrap();
         assert!(table.contains("| m.safetensors | scl | 2 |"), "{table}");

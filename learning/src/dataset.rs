@@ -530,6 +530,57 @@ fn load_files(
     })
 }
 
+/// The data set that [`load_dir`] would read back from a directory that [`write_dir`] wrote
+/// with `train` and `val`: each split sorted by name, every value at the files' precision,
+/// the same hash. Other sources (a LeRobot dataset) so train exactly as the same tuples
+/// written by `scl dataset` do; `origin` names the source in errors.
+pub fn through_files(
+    origin: &Path,
+    mut train: Vec<Trajectory>,
+    mut val: Vec<Trajectory>,
+) -> Result<Dataset, DatasetError> {
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    let mut m: Option<usize> = None;
+    let mut read = |trajs: &mut Vec<Trajectory>| -> Result<Vec<Trajectory>, DatasetError> {
+        trajs.sort_by(|a, b| a.name.cmp(&b.name));
+        let mut out = Vec::with_capacity(trajs.len());
+        for t in trajs.iter().filter(|t| !t.is_empty()) {
+            let path = origin.join(&t.name);
+            let mut bytes = Vec::new();
+            write_csv(&mut bytes, t).map_err(|e| DatasetError::Row {
+                path: path.clone(),
+                line: 1,
+                reason: e.to_string(),
+            })?;
+            fnv1a(&mut hash, &bytes);
+            let back = parse_csv(&String::from_utf8_lossy(&bytes), &path)?;
+            match m {
+                None => m = Some(back.n_joints()),
+                Some(expected) if expected != back.n_joints() => {
+                    return Err(DatasetError::JointCount {
+                        path,
+                        found: back.n_joints(),
+                        expected,
+                    });
+                }
+                Some(_) => {}
+            }
+            out.push(back);
+        }
+        Ok(out)
+    };
+    let train = read(&mut train)?;
+    let val = read(&mut val)?;
+    if train.is_empty() {
+        return Err(DatasetError::Empty(origin.to_owned()));
+    }
+    Ok(Dataset {
+        train,
+        val,
+        hash: format!("{hash:016x}"),
+    })
+}
+
 /// Writes a data set to `dir/train/*.csv` and `dir/val/*.csv`. Refuses to replace existing
 /// files: nothing a user recorded is overwritten.
 pub fn write_dir(dir: &Path, ds: &Dataset) -> Result<Vec<PathBuf>, DatasetError> {

@@ -26,6 +26,7 @@ pub mod experiments;
 pub mod goals;
 pub mod greedy;
 pub mod import;
+pub mod lerobot;
 pub mod pca;
 pub mod plot;
 pub mod rollout;
@@ -60,6 +61,9 @@ pub enum ToolError {
     /// Training a network failed.
     #[error(transparent)]
     Train(#[from] train::TrainError),
+    /// A LeRobot dataset could not be written or read.
+    #[error(transparent)]
+    LeRobot(#[from] lerobot::LeRobotError),
     /// Importing weights failed.
     #[error(transparent)]
     Import(#[from] import::ImportError),

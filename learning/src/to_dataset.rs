@@ -42,6 +42,17 @@ pub struct DatasetArgs {
     /// Cut trajectories longer than this (s) into equal pieces.
     #[arg(long, default_value_t = 20.0)]
     pub max_length_s: f64,
+    /// Output format: `csv` (train/ and val/ trajectories for `scl train`) or `lerobot` (a
+    /// LeRobot v3.0 dataset, one episode per recording, every tick a frame; docs/lerobot.md).
+    #[arg(long, default_value = "csv", value_parser = ["csv", "lerobot"])]
+    pub format: String,
+    /// The task's text for `--format lerobot` (every episode's).
+    #[arg(long, default_value = "teleoperation")]
+    pub task: String,
+    /// The arm of the recordings for `--format lerobot`: a robot profile (names the joints,
+    /// sets `robot_type` and fps).
+    #[arg(long, value_name = "PROFILE", default_value_t = kinematics::RobotProfile::default_name().to_owned())]
+    pub robot: String,
 }
 
 /// How recordings are cut into trajectories.
@@ -56,6 +67,13 @@ pub struct Options {
 }
 
 impl Options {
+    /// `scl dataset`'s defaults.
+    pub const DEFAULT: Options = Options {
+        val_fraction: 0.25,
+        rest_s: 1.0,
+        max_length_s: 20.0,
+    };
+
     /// Checks the values, naming the flag of a bad one.
     pub fn validate(&self) -> Result<(), ToolError> {
         let bad = |flag: &str, v: f64, want: &str| {
@@ -89,13 +107,19 @@ pub struct LeftOut {
 
 /// One tuple before it goes into a trajectory.
 #[derive(Debug, Clone)]
-struct Tuple {
-    tick: u64,
-    t_ns: u64,
-    q: Vec<f64>,
-    c: f64,
-    qd: Vec<f64>,
-    cd: f64,
+pub(crate) struct Tuple {
+    /// The state's tick.
+    pub(crate) tick: u64,
+    /// The state's time stamp (ns).
+    pub(crate) t_ns: u64,
+    /// Joint angles (rad).
+    pub(crate) q: Vec<f64>,
+    /// Gripper state.
+    pub(crate) c: f64,
+    /// The velocity executed next (rad/s).
+    pub(crate) qd: Vec<f64>,
+    /// The gripper rate next (1/s).
+    pub(crate) cd: f64,
 }
 
 impl Tuple {
@@ -107,25 +131,36 @@ impl Tuple {
 const NOT_A_DEMONSTRATION: u32 =
     state_flags::MISSED | state_flags::STOPPING | state_flags::SAFETY_STOP | state_flags::SHUTDOWN;
 
-/// The runs of valid consecutive tuples of `states` (any order; sorted by tick here).
-fn runs(states: &[RobotState]) -> Vec<Vec<Tuple>> {
+/// `states` sorted by tick, one per tick (any order in; duplicates dropped).
+pub(crate) fn sorted_states(states: &[RobotState]) -> Vec<&RobotState> {
     let mut sorted: Vec<&RobotState> = states.iter().collect();
     // The bridge's shutdown state repeats its last tick: the running state comes first and
     // is the one kept.
     sorted.sort_by_key(|s| (s.tick, s.flags & state_flags::SHUTDOWN != 0));
     sorted.dedup_by_key(|s| s.tick);
+    sorted
+}
+
+/// Whether state `a` with the motion reported by its successor `b` is a demonstration
+/// tuple: consecutive ticks, neither a miss nor a stop nor shutdown, same arm, time moved.
+pub(crate) fn is_demonstration(a: &RobotState, b: &RobotState) -> bool {
+    b.tick == a.tick + 1
+        && a.flags & state_flags::SHUTDOWN == 0
+        && b.flags & NOT_A_DEMONSTRATION == 0
+        && a.n_joints == b.n_joints
+        && !a.q().is_empty()
+        && b.t_ns > a.t_ns
+}
+
+/// The runs of valid consecutive tuples of `states` (any order; sorted by tick here).
+fn runs(states: &[RobotState]) -> Vec<Vec<Tuple>> {
+    let sorted = sorted_states(states);
     let mut out: Vec<Vec<Tuple>> = Vec::new();
     let mut cur: Vec<Tuple> = Vec::new();
     for w in sorted.windows(2) {
         let (a, b) = (w[0], w[1]);
         let dt_s = b.t_ns.saturating_sub(a.t_ns) as f64 / 1e9;
-        let ok = b.tick == a.tick + 1
-            && a.flags & state_flags::SHUTDOWN == 0
-            && b.flags & NOT_A_DEMONSTRATION == 0
-            && a.n_joints == b.n_joints
-            && !a.q().is_empty()
-            && dt_s > 0.0;
-        if !ok {
+        if !is_demonstration(a, b) {
             if !cur.is_empty() {
                 out.push(std::mem::take(&mut cur));
             }
@@ -215,9 +250,14 @@ fn cut_length(piece: Vec<Tuple>, max_s: f64) -> Vec<Vec<Tuple>> {
 /// The trajectories of one recording's robot states; `stem` names them
 /// (`<stem>-<index>-tick<first tick>.csv`).
 pub fn trajectories(states: &[RobotState], stem: &str, o: &Options) -> (Vec<Trajectory>, LeftOut) {
+    cut(runs(states), stem, o)
+}
+
+/// Cuts runs of consecutive tuples into trajectories as [`trajectories`] does.
+pub(crate) fn cut(runs: Vec<Vec<Tuple>>, stem: &str, o: &Options) -> (Vec<Trajectory>, LeftOut) {
     let mut left = LeftOut::default();
     let mut out = Vec::new();
-    for run in runs(states) {
+    for run in runs {
         for piece in cut_rests(run, o.rest_s, &mut left) {
             for part in cut_length(piece, o.max_length_s) {
                 if part.len() < 2 {
@@ -350,8 +390,57 @@ pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertRepor
     })
 }
 
+/// `scl dataset --format lerobot`: each recording one episode.
+pub fn export_lerobot(
+    from: &[PathBuf],
+    out: &Path,
+    robot: &str,
+    task: &str,
+) -> Result<crate::lerobot::export::ExportReport, ToolError> {
+    let profile = kinematics::RobotProfile::by_name(robot)
+        .map_err(|e| ToolError::Graph(format!("--robot: {e}")))?;
+    let fps = profile.control_rate_hz().round() as u32;
+    let mut sources = Vec::with_capacity(from.len());
+    for path in from {
+        let (states, summary) = robot_states(path)?;
+        if !summary.complete {
+            tracing::warn!(
+                "{}: the recording is cut; exporting its {} readable messages",
+                path.display(),
+                summary.messages
+            );
+        }
+        if states.is_empty() {
+            return Err(ToolError::Graph(format!(
+                "{}: no robot states in the recording (was /robot_state recorded?)",
+                path.display()
+            )));
+        }
+        sources.push(crate::lerobot::export::Source {
+            name: path.file_stem().map_or_else(
+                || "recording".to_owned(),
+                |s| s.to_string_lossy().into_owned(),
+            ),
+            task: task.to_owned(),
+            states,
+        });
+    }
+    Ok(crate::lerobot::export::write(out, profile, fps, &sources)?)
+}
+
 /// `scl dataset`.
 pub fn cli(args: &DatasetArgs) -> Result<std::process::ExitCode, ToolError> {
+    if args.format == "lerobot" {
+        let r = export_lerobot(&args.from, &args.out, &args.robot, &args.task)?;
+        eprintln!(
+            "wrote a LeRobot v3.0 dataset of {} episodes, {} frames ({} flagged as no demonstration: missed, stopped, gaps, episode ends) to {}",
+            r.episodes,
+            r.frames,
+            r.flagged,
+            args.out.display()
+        );
+        return Ok(std::process::ExitCode::SUCCESS);
+    }
     let o = Options {
         val_fraction: args.val_fraction,
         rest_s: args.rest_s,

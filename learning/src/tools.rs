@@ -131,6 +131,8 @@ pub struct TrainOptions<'a> {
     pub force: bool,
     /// The command line, recorded in the header.
     pub command: String,
+    /// How to read `data` when it is a LeRobot dataset.
+    pub lerobot: crate::lerobot::import::ImportOptions,
 }
 
 /// Fits PCA on a data set and writes the model file. Returns the header written.
@@ -138,7 +140,7 @@ pub fn train_pca(o: &TrainOptions<'_>) -> Result<ModelHeader, ToolError> {
     if o.out.exists() && !o.force {
         return Err(mapper::ModelError::Exists(o.out.to_owned()).into());
     }
-    let ds = dataset::load(o.data)?;
+    let ds = crate::lerobot::import::load_training_data(o.data, &o.lerobot)?;
     let train = ds.train_qdot();
     let m = train.first().map_or(0, Vec::len);
     let map = pca::fit(&train, o.latent_dim)?;

@@ -59,6 +59,7 @@ fn the_shipped_study_models_are_what_the_script_makes() {
                     speed_scale: None,
                     force: false,
                     command: h.training.command.clone(),
+                    lerobot: Default::default(),
                 })
                 .unwrap();
                 assert!(

@@ -133,9 +133,18 @@ pub(crate) struct TrainArgs {
     /// Model kind: `pca`, `scl` or `cae`.
     #[arg(long, default_value = "pca")]
     pub(crate) kind: String,
-    /// Data set directory (train/*.csv, val/*.csv).
+    /// Data set directory (train/*.csv, val/*.csv), or a LeRobot v3.0 dataset directory
+    /// (meta/info.json; see docs/lerobot.md).
     #[arg(long, value_name = "DIR")]
     pub(crate) data: PathBuf,
+    /// A LeRobot dataset's arm: a robot profile (default: its `robot_type` when that names
+    /// one, else the default profile). Its joints are looked up by name.
+    #[arg(long, value_name = "PROFILE")]
+    pub(crate) robot: Option<String>,
+    /// A LeRobot dataset's `observation.state` columns for the arm's joints, base to tip,
+    /// then optionally the gripper's, comma-separated (default: by the profile's joint names).
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+    pub(crate) state_columns: Option<Vec<String>>,
     /// Action dimension d.
     #[arg(long, default_value_t = 2)]
     pub(crate) latent_dim: usize,
@@ -207,6 +216,14 @@ pub(crate) struct TrainArgs {
 }
 
 impl TrainArgs {
+    /// How to read `--data` when it is a LeRobot dataset.
+    pub(crate) fn lerobot(&self) -> learning::lerobot::import::ImportOptions {
+        learning::lerobot::import::ImportOptions {
+            robot: self.robot.clone(),
+            state_columns: self.state_columns.clone(),
+        }
+    }
+
     /// The training configuration of a network kind.
     pub(crate) fn config(&self, kind: ModelKind) -> Result<TrainConfig, SclError> {
         use learning::cli::{parse_encoder, parse_inputs, parse_list};
@@ -303,6 +320,7 @@ pub(crate) fn train(t: &TrainArgs) -> Result<ExitCode, SclError> {
                 speed_scale: t.speed_scale,
                 force: t.force,
                 command,
+                lerobot: t.lerobot(),
             })?;
         }
         "scl" | "cae" => {
@@ -312,7 +330,7 @@ pub(crate) fn train(t: &TrainArgs) -> Result<ExitCode, SclError> {
                 ModelKind::Cae
             };
             let cfg = t.config(kind)?;
-            learning::cli::train_network(&cfg, &t.data, &t.out, t.force, &command)?;
+            learning::cli::train_network(&cfg, &t.data, &t.lerobot(), &t.out, t.force, &command)?;
         }
         other => {
             return Err(SclError::Other(format!(

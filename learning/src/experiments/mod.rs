@@ -469,6 +469,7 @@ impl Run {
                 speed_scale: None,
                 force: false,
                 command: self.command.clone(),
+                lerobot: Default::default(),
             })?;
             self.done(1);
             return Ok(());

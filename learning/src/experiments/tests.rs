@@ -248,6 +248,7 @@ fn reconstruction_reuses_prepopulated_models_and_refuses_bad_ones() {
         speed_scale: None,
         force: false,
         command: "scl train --kind pca".into(),
+        lerobot: Default::default(),
     })
     .unwrap();
     let t0 = std::fs::metadata(&pca).unwrap().modified().unwrap();
