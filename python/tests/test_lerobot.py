@@ -1,7 +1,7 @@
 """LeRobot datasets checked with LeRobot itself: `scl dataset --format lerobot` output loads
 with ``LeRobotDataset`` frame for frame equal to the recording, and a dataset written by
 LeRobot's own writer trains with `scl train --data`. Needs the ``lerobot`` extra
-(``pip install "./python[lerobot]"``; scripts/test-all installs it)."""
+X
 
 from __future__ import annotations
 
