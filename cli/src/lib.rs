@@ -66,6 +66,9 @@ pub enum SclError {
     /// The benchmark.
     #[error(transparent)]
     Bench(#[from] scl_bench::BenchError),
+    /// `scl drill` could not run.
+    #[error(transparent)]
+    Drill(#[from] scl_drill::DrillError),
     /// A learning command (`train`, `eval`, `demos`, `plot`, `import`, `dataset`).
     #[error(transparent)]
     Tool(#[from] learning::ToolError),

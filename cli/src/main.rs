@@ -11,12 +11,13 @@ use transport::signals;
 
 mod cmd;
 
-/// Teleoperate a 6-joint arm with a 2-axis joystick through a learned action map.
+/// Teleoperate a 6- or 7-joint arm (Kinova Gen3 lite, Gen3) with a 2-axis joystick through a
+/// learned action map.
 ///
 /// The graph is four processes talking through iceoryx2 shared memory: joystick -> mapper ->
 /// safety -> bridge, with the bridge as the only clock (`[graph] rate_hz`, 40 Hz by default,
-/// up to 1000). `scl up` runs all four on the
-/// mock Gen3 lite with a scripted joystick and the bundled model.
+/// up to 1000). `scl up` runs all four on the mock arm of `[graph] robot` (the Gen3 lite by
+/// default) with a scripted joystick and the profile's bundled model.
 #[derive(Parser, Debug)]
 #[command(name = "scl", version, propagate_version = true)]
 struct Cli {
@@ -56,9 +57,10 @@ impl Cmd {
     /// The command's `--config`, if it takes one.
     fn config_args(&mut self) -> Option<&mut ConfigArgs> {
         match self {
-            Cmd::Bench { config, .. } | Cmd::Doctor { config, .. } | Cmd::Eval { config, .. } => {
-                Some(config)
-            }
+            Cmd::Bench { config, .. }
+            | Cmd::Doctor { config, .. }
+            | Cmd::Eval { config, .. }
+            | Cmd::Drill { config, .. } => Some(config),
             other => other.graph_args().map(|g| &mut g.config),
         }
     }
@@ -226,6 +228,19 @@ enum Cmd {
         config: ConfigArgs,
         #[command(flatten)]
         args: scl::doctor::DoctorArgs,
+    },
+    /// Run the fault drills on this machine with this configuration: the graph (the mock arm
+    /// unless `--arm`) records itself while a scripted stick keeps the arm moving, and each
+    /// fault in turn (kill -9 or SIGSTOP of each process, stale and non-finite input, the
+    /// e-stop with and without a mapper, live swaps) is measured from the recording against
+    /// the documented promise: ticks to the stop, travel and time to rest, no speed-up, motion
+    /// only after neutral input, missed ticks, shared memory left. Prints one PASS / FAIL row
+    /// per drill; exit code 1 on any FAIL. See docs/safety-drills.md.
+    Drill {
+        #[command(flatten)]
+        config: ConfigArgs,
+        #[command(flatten)]
+        args: scl_drill::DrillArgs,
     },
     /// Show the running graph: nodes, pids, liveness, active mapper, counters.
     Status {
@@ -435,6 +450,22 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             let _log = graph_log(&prefix, "gateway");
             cmd::nodes::gateway(&prefix, &cfg)
         }
+        Cmd::Drill { config, args } => {
+            let cfg = config.load()?;
+            let report = scl_drill::run(config.config.as_deref(), &cfg, &args)?;
+            if args.json {
+                let text = serde_json::to_string(&report)
+                    .map_err(|e| SclError::Other(format!("cannot encode the drill: {e}")))?;
+                println!("{text}");
+            } else {
+                print!("{}", scl_drill::render(&report));
+            }
+            Ok(if report.passed {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            })
+        }
         Cmd::FakeKortex(args) => cmd::nodes::fake_kortex(args),
         Cmd::Demos(args) => cmd::learn::demos(args),
         Cmd::Plot(args) => cmd::learn::plot(args),
@@ -469,6 +500,7 @@ fn main() -> ExitCode {
         Cmd::Replay(_) => "replay",
         Cmd::Top { .. } => "top",
         Cmd::Doctor { .. } => "doctor",
+        Cmd::Drill { .. } => "drill",
         Cmd::Train(_) => "train",
         Cmd::Import(_) => "import",
         Cmd::Eval { .. } => "eval",
@@ -618,7 +650,7 @@ mod tests {
             "up", "record", "study", "live", "top", "swap", "estop", "reset", "status", "joystick",
             "mapper", "safety", "bridge", "gateway",
         ];
-        const CONFIG_ONLY: [&str; 3] = ["bench", "doctor", "eval"];
+        const CONFIG_ONLY: [&str; 4] = ["bench", "doctor", "eval", "drill"];
         const OFFLINE: [&str; 8] = [
             "dataset",
             "replay",
@@ -760,6 +792,19 @@ mod tests {
             ])
             .is_err()
         );
+    }
+
+    /// A negative duration reaches the duration parser, which refuses it as negative (not
+    /// clap's "unexpected argument '-5'").
+    #[test]
+    fn a_negative_duration_is_refused_as_negative() {
+        for argv in [
+            &["scl", "up", "--for", "-5s"][..],
+            &["scl", "bench", "latency", "--for", "-5s"][..],
+        ] {
+            let e = Cli::try_parse_from(argv).expect_err("refused").to_string();
+            assert!(e.contains("`-5s` is negative"), "{e}");
+        }
     }
 
     #[test]

@@ -60,6 +60,10 @@ pub struct FaultConfig {
     pub mapper_nan_at_tick: u64,
     /// The joystick stops publishing samples after this many ticks (the process lives on).
     pub joystick_silent_after_ticks: u64,
+    /// The joystick publishes NaN axes for [`NAN_INPUT_TICKS`] ticks from this one
+    /// (non-finite operator input; more than one, so the mapper sees it whichever sample it
+    /// takes).
+    pub joystick_nan_at_tick: u64,
     /// The bridge stops publishing robot states after this many ticks (its clock goes on).
     pub bridge_states_stop_after_ticks: u64,
     /// Safety stalls for 1.2 periods before it filters this one tick's command, as if the
@@ -67,6 +71,9 @@ pub struct FaultConfig {
     /// which counts the miss as held up (`NodeStatus::held_up`).
     pub safety_stall_at_tick: u64,
 }
+
+/// How many ticks `[faults] joystick_nan_at_tick` lasts.
+pub const NAN_INPUT_TICKS: u64 = 4;
 
 /// What the supervisor does when a process exits on its own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -506,6 +513,31 @@ pub enum ConfigError {
         /// What is wrong.
         reason: String,
     },
+    /// A value of a configuration file is out of range ([`ConfigError::in_file`]).
+    #[error("config {}: {key}: {reason}", path.display())]
+    FileValue {
+        /// The file.
+        path: PathBuf,
+        /// The dotted key.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+impl ConfigError {
+    /// The error of a configuration read from `path` (if it came from a file): a value out
+    /// of range names the file too; every other error already does or is not the file's.
+    pub fn in_file(self, path: Option<&Path>) -> Self {
+        match (self, path) {
+            (Self::Value { key, reason }, Some(path)) => Self::FileValue {
+                path: path.to_owned(),
+                key,
+                reason,
+            },
+            (e, _) => e,
+        }
+    }
 }
 
 /// The evdev mappings built into the joystick process (`scl_joystick::mapping::BUILTIN`
@@ -682,6 +714,12 @@ impl GraphConfig {
             }
         }
         Ok(cfg)
+    }
+
+    /// [`GraphConfig::validate`] of the configuration read from `path` (`None`: the
+    /// defaults): an error names the file as well as the key.
+    pub fn validate_file(&self, path: Option<&Path>) -> Result<(), ConfigError> {
+        self.validate().map_err(|e| e.in_file(path))
     }
 
     /// Checks every value that no single crate checks; the crates check their own tables
@@ -1049,6 +1087,19 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("graph.rate_hz") && e.contains("1000"), "{e}");
+        // Checked as the file's, the error names the file too.
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate_file(Some(&p))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(&format!(
+                "config {}: graph.rate_hz: 1001 is outside",
+                p.display()
+            )),
+            "{e}"
+        );
         // The pre-warm is at most half a period: 12.5 ms at 40 Hz, 0.5 ms at 1 kHz.
         std::fs::write(&p, "[graph]\nrt_prewarm_us = 12500\n").unwrap();
         GraphConfig::load(Some(&p)).unwrap().validate().unwrap();

@@ -6,6 +6,7 @@
 mod config;
 mod network;
 pub mod placement;
+pub mod secret;
 
 pub use config::*;
 pub use network::*;

@@ -1,10 +1,10 @@
 //! Credentials for Zenoh's user/password authentication: a file of `user:password` lines
-//! (blank lines skipped, no comments: Zenoh reads the same file as its dictionary) that only its owner may read (mode 0600 or 0400;
-//! anything else is refused, naming the mode). The gateway accepts the peers it lists and
+//! (blank lines skipped, no comments: Zenoh reads the same file as its dictionary) that only
+//! its owner may read (mode 0600 or 0400; anything else is refused, naming the mode: the rule
+//! of every credentials file, `scl_config::secret`). The gateway accepts the peers it lists and
 //! names itself with the first line; a remote operator names itself with the first line.
 //! Never on the command line, never in a log (`Debug` hides the passwords).
 
-use std::os::unix::fs::PermissionsExt as _;
 use std::path::{Path, PathBuf};
 
 /// One `user:password` pair.
@@ -37,24 +37,10 @@ pub struct Credentials {
 /// Why a credentials file was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum CredentialsError {
-    /// It could not be read.
-    #[error("credentials file {path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The OS error.
-        source: std::io::Error,
-    },
-    /// Others may read or write it.
-    #[error(
-        "credentials file {path} has mode {mode:04o}: others than its owner may read or change it; run `chmod 600 {path}`"
-    )]
-    Mode {
-        /// The file.
-        path: PathBuf,
-        /// Its permission bits.
-        mode: u32,
-    },
+    /// It could not be read, or others than its owner may read or change it (the one rule of
+    /// the graph's credentials files, `scl_config::secret`).
+    #[error(transparent)]
+    File(#[from] scl_config::secret::SecretFileError),
     /// A line is not `user:password`.
     #[error("credentials file {path}, line {line}: {reason}")]
     Line {
@@ -76,23 +62,12 @@ pub enum CredentialsError {
 impl Credentials {
     /// Reads and checks `path`.
     pub fn load(path: &Path) -> Result<Self, CredentialsError> {
-        let io = |source| CredentialsError::Io {
-            path: path.to_owned(),
-            source,
-        };
-        let meta = std::fs::metadata(path).map_err(io)?;
-        let mode = meta.permissions().mode() & 0o7777;
-        if mode & 0o077 != 0 {
-            return Err(CredentialsError::Mode {
-                path: path.to_owned(),
-                mode,
-            });
-        }
-        let text = std::fs::read_to_string(path).map_err(io)?;
+        let text = scl_config::secret::read_owner_only(path)?;
         Self::parse(path, &text)
     }
 
-    fn parse(path: &Path, text: &str) -> Result<Self, CredentialsError> {
+    /// Parses the text of the file `path` (its mode checked by the caller).
+    pub(crate) fn parse(path: &Path, text: &str) -> Result<Self, CredentialsError> {
         let mut logins = Vec::new();
         for (i, line) in text.lines().enumerate() {
             let line = line.trim();
@@ -139,6 +114,7 @@ impl Credentials {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::os::unix::fs::PermissionsExt as _;
 
     fn write(dir: &Path, name: &str, text: &str, mode: u32) -> PathBuf {
         let p = dir.join(name);

@@ -17,7 +17,7 @@ pub(crate) enum BenchCmd {
     /// sockets, or both one after the other with the ratio of each figure.
     Latency {
         /// How long each transport runs.
-        #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = parse_duration)]
+        #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = parse_duration, allow_hyphen_values = true)]
         duration: Duration,
         #[command(flatten)]
         rt: RtArgs,
@@ -109,7 +109,7 @@ pub(crate) enum BenchCmd {
         #[arg(long, default_value_t = 5000)]
         count: usize,
         /// Time between two messages (the graph's period at 1 kHz by default).
-        #[arg(long, value_name = "DURATION", default_value = "1ms", value_parser = parse_duration)]
+        #[arg(long, value_name = "DURATION", default_value = "1ms", value_parser = parse_duration, allow_hyphen_values = true)]
         interval: Duration,
         /// `iceoryx2`, `uds` or `both`.
         #[arg(long, default_value = "both")]

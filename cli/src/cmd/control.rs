@@ -19,7 +19,7 @@ pub(crate) struct SwapArgs {
     /// deadman is held: a "go home" button).
     pub(crate) model: String,
     /// How long to wait for the switch-over.
-    #[arg(long, default_value = "30s", value_parser = parse_duration)]
+    #[arg(long, default_value = "30s", value_parser = parse_duration, allow_hyphen_values = true)]
     pub(crate) timeout: Duration,
 }
 

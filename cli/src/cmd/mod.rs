@@ -15,6 +15,11 @@ pub(crate) mod up;
 /// A duration on the command line: `60s`, `2m`, `500ms`, `1h`, or seconds without a unit.
 pub(crate) fn parse_duration(s: &str) -> Result<Duration, String> {
     let s = s.trim();
+    if s.starts_with('-') {
+        return Err(format!(
+            "`{s}` is negative; a duration must be positive, e.g. 60s, 2m or 500ms"
+        ));
+    }
     let (num, unit) = s
         .find(|c: char| !(c.is_ascii_digit() || c == '.'))
         .map_or((s, "s"), |i| (&s[..i], &s[i..]));
@@ -57,7 +62,8 @@ mod tests {
         assert_eq!(parse_duration("500ms"), Ok(Duration::from_millis(500)));
         assert_eq!(parse_duration("5"), Ok(Duration::from_secs(5)));
         assert!(parse_duration("5 parsecs").is_err());
-        assert!(parse_duration("-1s").is_err());
+        let e = parse_duration("-1s").err().unwrap_or_default();
+        assert!(e.contains("`-1s` is negative"), "{e}");
         assert!(parse_duration("0s").is_err());
     }
 }

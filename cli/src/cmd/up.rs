@@ -14,7 +14,7 @@ use super::parse_duration;
 #[derive(clap::Args, Debug)]
 pub(crate) struct UpArgs {
     /// Stop after this long (e.g. `60s`, `2m`, `500ms`); default: until Ctrl-C.
-    #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration)]
+    #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration, allow_hyphen_values = true)]
     pub(crate) duration: Option<Duration>,
     /// Print one JSON summary object on stdout at the end. Its `joint_travel_rad` is the
     /// arm's joint-space path length: the Euclidean norm of each tick's change of the
@@ -75,7 +75,7 @@ pub(crate) fn run(
     }
     // `[joystick]` and its files are the joystick crate's to check: refused here,
     // before the supervisor starts anything (after the checks of the whole file).
-    cfg.validate()?;
+    cfg.validate_file(config_path.as_deref())?;
     scl_joystick::validate(&cfg.joystick)?;
     let opts = scl_supervisor::up::UpOptions {
         prefix,

@@ -530,6 +530,20 @@ pub fn kortex_not_used(backend: &str) -> Finding {
     )
 }
 
+/// The fault drills, which the doctor does not run (they drive the arm): how to prove on this
+/// machine, with this configuration (`config`, as the user named it), that every fault stops
+/// the arm as promised.
+pub fn drills(config: &str) -> Finding {
+    Finding {
+        item: "fault drills",
+        level: Level::Ok,
+        detail: "not run by the doctor: they drive the arm".into(),
+        fix: format!(
+            "before a person sits down, run `scl drill{config}` (the mock arm; docs/safety-drills.md)"
+        ),
+    }
+}
+
 /// The exit code of a report: non-zero on any fail.
 pub fn exit_code(findings: &[Finding]) -> i32 {
     i32::from(findings.iter().any(|f| f.level == Level::Fail))

@@ -73,7 +73,7 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     );
     let loaded = GraphConfig::load(config)
         .and_then(|c| {
-            c.validate()?;
+            c.validate_file(config)?;
             scl_joystick::validate(&c.joystick)?;
             Ok(c)
         })
@@ -142,6 +142,9 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
     } else {
         checks::kortex_not_used(&cfg.bridge.robot)
     });
+    out.push(checks::drills(&config.map_or_else(String::new, |p| {
+        format!(" --config {}", p.display())
+    })));
     out
 }
 

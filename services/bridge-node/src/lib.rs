@@ -52,27 +52,10 @@ pub enum BridgeNodeError {
 /// Why the Kortex credentials could not be had. No variant holds or shows them.
 #[derive(Debug, thiserror::Error)]
 pub enum CredentialsError {
-    /// The credentials file could not be read.
-    #[error("cannot read credentials file {}: {source}", path.display())]
-    Read {
-        /// `[bridge.kortex] credentials_file`.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// The credentials file is not the expected TOML. The parser's own error is left out on
-    /// purpose: it quotes the offending line, which may hold the password.
-    #[error(
-        "credentials file {}{}: expected `username = \"...\"` and `password = \"...\"` (TOML strings) and nothing else",
-        path.display(),
-        line.map_or(String::new(), |l| format!(", line {l}"))
-    )]
-    Parse {
-        /// `[bridge.kortex] credentials_file`.
-        path: PathBuf,
-        /// The line the parser stopped at, if it said.
-        line: Option<usize>,
-    },
+    /// `[bridge.kortex] credentials_file` could not be read, others may read it, or it is
+    /// not the expected TOML.
+    #[error(transparent)]
+    File(#[from] scl_config::secret::KortexCredentialsError),
     /// Neither the arguments, their environment variables nor the file gave them.
     #[error(
         "no Kortex {missing}: set {USER_ENV} and {PASSWORD_ENV}, or bridge.kortex.credentials_file (a TOML file with username and password)"
@@ -83,7 +66,7 @@ pub enum CredentialsError {
     },
 }
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 use hw_bridge::clock::{Clock, Wake};
@@ -94,7 +77,6 @@ use hw_bridge::{Robot, RobotError};
 use ipc_types::{
     NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, TickReport, phase, time::now_ns,
 };
-use serde::Deserialize;
 use transport::Graph;
 
 use scl_config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
@@ -147,36 +129,6 @@ impl std::fmt::Debug for CredentialArgs {
     }
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CredentialsFile {
-    username: Option<String>,
-    password: Option<String>,
-}
-
-fn read_credentials_file(path: &Path) -> Result<CredentialsFile, CredentialsError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CredentialsError::Read {
-        path: path.to_owned(),
-        source,
-    })?;
-    #[cfg(unix)]
-    if let Ok(meta) = std::fs::metadata(path) {
-        use std::os::unix::fs::PermissionsExt;
-        if meta.permissions().mode() & 0o077 != 0 {
-            tracing::warn!(
-                "credentials file {} can be read by other users; chmod 600 it",
-                path.display()
-            );
-        }
-    }
-    toml::from_str(&text).map_err(|e| CredentialsError::Parse {
-        path: path.to_owned(),
-        line: e
-            .span()
-            .map(|s| text[..s.start.min(text.len())].lines().count().max(1)),
-    })
-}
-
 /// The credentials for the Kortex session: `--user` / `--password` (or their environment
 /// variables) first, then `credentials_file`. Both must be found.
 pub fn kortex_credentials(
@@ -186,7 +138,8 @@ pub fn kortex_credentials(
     let mut user = args.user.clone().filter(|s| !s.is_empty());
     let mut password = args.password.clone().filter(|s| !s.is_empty());
     if (user.is_none() || password.is_none()) && !cfg.credentials_file.is_empty() {
-        let file = read_credentials_file(&PathBuf::from(&cfg.credentials_file))?;
+        let file = scl_config::secret::read_kortex_credentials(Path::new(&cfg.credentials_file))
+            .map_err(CredentialsError::File)?;
         user = user.or(file.username);
         password = password.or(file.password);
     }
@@ -752,11 +705,19 @@ impl<'a, R: Robot> Ticker<'a, R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     fn dir(tag: &str) -> PathBuf {
         let d = std::env::temp_dir().join(format!("scl-creds-{tag}-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    /// A credentials file only its owner may read (the rule of every credentials file).
+    fn write_private(f: &Path, text: &str) {
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::write(f, text).unwrap();
+        std::fs::set_permissions(f, std::fs::Permissions::from_mode(0o600)).unwrap();
     }
 
     /// The command deadline and the hold-up count at 40 Hz and at 1 kHz: the default
@@ -803,7 +764,7 @@ mod tests {
     fn flags_and_environment_come_before_the_file() {
         let d = dir("order");
         let f = d.join("kortex.toml");
-        std::fs::write(&f, "username = \"file-user\"\npassword = \"file-pw\"\n").unwrap();
+        write_private(&f, "username = \"file-user\"\npassword = \"file-pw\"\n");
         let cfg = KortexConfig {
             credentials_file: f.display().to_string(),
             ..KortexConfig::default()
@@ -842,7 +803,7 @@ mod tests {
         let d = dir("bad");
         let f = d.join("kortex.toml");
         // An unquoted password: the TOML parser would quote the line; the message must not.
-        std::fs::write(&f, "username = \"admin\"\npassword = sup3r-s3cret\n").unwrap();
+        write_private(&f, "username = \"admin\"\npassword = sup3r-s3cret\n");
         let cfg = KortexConfig {
             credentials_file: f.display().to_string(),
             ..KortexConfig::default()
@@ -851,7 +812,9 @@ mod tests {
         assert!(
             matches!(
                 e,
-                BridgeNodeError::Credentials(CredentialsError::Parse { line: Some(2), .. })
+                BridgeNodeError::Credentials(CredentialsError::File(
+                    scl_config::secret::KortexCredentialsError::Parse { line: Some(2), .. }
+                ))
             ),
             "{e:?}"
         );
@@ -871,6 +834,9 @@ mod tests {
         let e = kortex_credentials(&cfg, &CredentialArgs::default())
             .unwrap_err()
             .to_string();
-        assert!(e.contains("cannot read credentials file"), "{e}");
+        assert!(
+            e.contains("credentials file") && e.contains("No such file"),
+            "{e}"
+        );
     }
 }

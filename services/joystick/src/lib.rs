@@ -473,23 +473,38 @@ impl ReplaySource {
     }
 }
 
-/// Where a script's time starts.
+/// Where a script's time starts. Either way the stick rests for [`script::START_REST_S`]
+/// from the first tick this process sees: a joystick restarted in a running graph starts
+/// from the documented rest as a fresh one does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Origin {
-    /// At the graph's tick 0.
-    Graph,
+    /// At the graph's tick 0 (the first tick seen, `None` before it, starts the rest).
+    Graph(Option<u64>),
     /// At the first tick seen (`None` before it).
     FirstSeen(Option<u64>),
 }
 
 impl Origin {
-    /// `tick` counted from the origin (fixing it at the first tick seen).
+    /// `tick` counted from the origin (fixing the first tick seen).
     fn relative(&mut self, tick: u64) -> u64 {
+        if tick == NO_TICK {
+            return NO_TICK;
+        }
         match self {
-            Self::Graph => tick,
-            Self::FirstSeen(_) if tick == NO_TICK => NO_TICK,
+            Self::Graph(first) => {
+                first.get_or_insert(tick);
+                tick
+            }
             Self::FirstSeen(first) => tick.saturating_sub(*first.get_or_insert(tick)),
         }
+    }
+
+    /// Whether `tick` falls in the rest that starts at the first tick seen.
+    fn resting(&self, tick: u64, period_s: f64) -> bool {
+        let (Self::Graph(Some(first)) | Self::FirstSeen(Some(first))) = *self else {
+            return false;
+        };
+        tick != NO_TICK && (tick.saturating_sub(first) as f64 * period_s) < script::START_REST_S
     }
 }
 
@@ -530,7 +545,7 @@ impl Source {
                     })
                 })?,
                 period_s,
-                origin: Origin::Graph,
+                origin: Origin::Graph(None),
             },
         })
     }
@@ -572,10 +587,18 @@ impl Source {
                 script,
                 period_s,
                 origin,
-            } => Input {
-                axes: script.sample(origin.relative(tick), *period_s, 0, 0).axes,
-                ..Input::NEUTRAL
-            },
+            } => {
+                let at = origin.relative(tick);
+                let axes = if origin.resting(tick, *period_s) {
+                    [0.0, 0.0]
+                } else {
+                    script.sample(at, *period_s, 0, 0).axes
+                };
+                Input {
+                    axes,
+                    ..Input::NEUTRAL
+                }
+            }
             Self::Device(d) => d.input(),
             Self::Keyboard(k) => k.input(now, gripper),
             Self::Replay(r) => r.input(now, tick),
@@ -669,7 +692,17 @@ fn drive(
             ep.heartbeats(&mut |s| k.heartbeat(s))?;
         }
         let now = Instant::now();
-        let input = source.input(now, tick, gripper);
+        let mut input = source.input(now, tick, gripper);
+        let nan_from = faults.joystick_nan_at_tick;
+        if nan_from != 0
+            && tick != NO_TICK
+            && (nan_from..nan_from + scl_config::NAN_INPUT_TICKS).contains(&tick)
+        {
+            if new_state.is_some() {
+                tracing::warn!(tick, "fault injection: the joystick sends NaN axes");
+            }
+            input.axes = [f32::NAN, f32::NAN];
+        }
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
             out.send_estop(ep, &input)?;
@@ -1017,12 +1050,42 @@ mod tests {
 
     #[test]
     fn a_remote_script_starts_at_the_first_tick_it_sees() {
-        let mut graph = Origin::Graph;
+        let mut graph = Origin::Graph(None);
         assert_eq!(graph.relative(120), 120);
         let mut remote = Origin::FirstSeen(None);
         assert_eq!(remote.relative(NO_TICK), NO_TICK);
         assert_eq!(remote.relative(120), 0);
         assert_eq!(remote.relative(125), 5);
+    }
+
+    /// A scripted joystick started (or restarted) in a running graph rests for
+    /// `START_REST_S` from the first tick it sees, then follows the script at the graph's
+    /// time; one started with the graph rests as the script says, from tick 0.
+    #[test]
+    fn a_restarted_script_rests_first_then_follows_the_graph_time() {
+        let cfg = JoystickConfig {
+            script: "circle".into(),
+            ..JoystickConfig::default()
+        };
+        let period_s = 0.025;
+        let rest_ticks = (script::START_REST_S / period_s).round() as u64;
+        let script = Script::from_config(&cfg).unwrap();
+        let now = Instant::now();
+        for first in [0, 400] {
+            let mut src = Source::open(&cfg, period_s).unwrap();
+            assert_eq!(src.input(now, NO_TICK, None).axes, [0.0, 0.0]);
+            for k in 0..rest_ticks {
+                assert_eq!(
+                    src.input(now, first + k, None).axes,
+                    [0.0, 0.0],
+                    "{first}+{k}"
+                );
+            }
+            let k = first + rest_ticks + 7;
+            let axes = src.input(now, k, None).axes;
+            assert_eq!(axes, script.sample(k, period_s, 0, 0).axes, "{first}");
+            assert_ne!(axes, [0.0, 0.0]);
+        }
     }
 
     /// A synthetic session in `evtest`'s output format (written for this test, not captured

@@ -8,7 +8,9 @@ use ipc_types::{JoystickInput, NO_TICK};
 use scl_config::JoystickConfig;
 
 /// Every script holds the stick at rest this long from the first robot tick (s), then
-/// starts its pattern from its beginning.
+/// starts its pattern from its beginning; a joystick process started later in a running graph
+/// (restarted) rests this long from the first tick it sees, then joins the pattern at the
+/// graph's time.
 pub const START_REST_S: f64 = 0.5;
 
 /// The scripts by name: what `[joystick] script`, `scl up --script` and `scl joystick

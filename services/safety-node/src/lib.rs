@@ -53,6 +53,15 @@ const NO_COMMANDS_NS: u64 = 100_000_000;
 /// bridge's command deadline (`[bridge] command_deadline`, 0.6 of the period by default).
 pub const ANSWER_AFTER: f64 = 0.25;
 
+/// The stop reasons of a normal start: no usable joystick sample yet (stale), the deadman not
+/// yet pressed, the wait for neutral input, and the stop's own flags. Until the arm is first
+/// allowed to move, a stop for these alone is the start, logged as information, not a fault.
+const START_REASONS: u32 = safe_flags::STOP
+    | safe_flags::STALE_JOYSTICK
+    | safe_flags::DEADMAN
+    | safe_flags::AWAITING_NEUTRAL
+    | safe_flags::ACCEL_LIMITED;
+
 /// The longest wait for a command (also how often the heartbeat goes out without one).
 const MAX_WAIT: Duration = Duration::from_millis(100);
 
@@ -145,6 +154,9 @@ struct Forwarder {
     deadman: bool,
     /// `[faults] safety_stall_at_tick`.
     stall_at_tick: u64,
+    /// The arm has been allowed to move since this process started (restart prevention
+    /// passed once): stops from now on are faults.
+    started: bool,
 }
 
 impl Forwarder {
@@ -161,6 +173,7 @@ impl Forwarder {
             last_command_ns: now,
             period_ns: (period_s * 1e9).round() as u64,
             stall_at_tick,
+            started: false,
         }
     }
 
@@ -213,9 +226,13 @@ impl Forwarder {
             Some(at) => at - now,
             None => self.next_look(now) - now,
         };
+        // A poll on the event's descriptor (ppoll: the timer's own precision), not the
+        // listener's timed wait, whose socket timeout counts in jiffies: with 250 Hz kernels
+        // it slept up to 4 ms past the answer time (e-stop answers 10.3 to 13.3 ms after the
+        // state instead of a quarter period, measured by `scl drill --only estop-no-mapper`).
         let woke = p
             .commands
-            .wait(Duration::from_nanos(timeout).min(MAX_WAIT))?;
+            .wait_until(now + timeout.min(MAX_WAIT.as_nanos() as u64));
         self.take_newest_state(p)?;
         let now = now_ns();
         Ok(woke || self.answer_at(now).is_some_and(|at| now >= at))
@@ -321,8 +338,21 @@ impl Forwarder {
         } else {
             0
         };
+        let starting = !self.started && stop_flags & !START_REASONS == 0;
+        self.started |= !self.filter.awaiting_neutral() && stop_flags == 0;
         if stop_flags != self.last_stop_flags {
-            if stop_flags != 0 {
+            if stop_flags != 0 && starting {
+                tracing::info!(
+                    tick = safe.tick,
+                    rules = %bit_names(stop_flags, &safe_flags::NAMES),
+                    "starting with the arm stopped: it moves once the stick is at rest{}",
+                    if self.deadman {
+                        " and the deadman pressed"
+                    } else {
+                        ""
+                    }
+                );
+            } else if stop_flags != 0 {
                 let input = mapper.map_or_else(
                     || "no mapper command for the tick".into(),
                     |c| bit_names(c.flags, &mapper_flags::NAMES),

@@ -22,6 +22,9 @@ pub enum SupervisorError {
     /// The network gateway's credentials file is unusable.
     #[error(transparent)]
     Credentials(#[from] scl_net::CredentialsError),
+    /// The Kortex credentials file (`[bridge.kortex] credentials_file`) is unusable.
+    #[error(transparent)]
+    KortexCredentials(#[from] scl_config::secret::KortexCredentialsError),
     /// A recording cannot be made (`--record` over an existing file).
     #[error(transparent)]
     Record(#[from] recording::RecordError),

@@ -1029,11 +1029,11 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     Ok(summary)
 }
 
-/// Refuses a bad configuration or model, or a recording over an existing file, before
-/// anything starts.
+/// Refuses a bad configuration, model or credentials file, or a recording over an existing
+/// file, before anything starts.
 fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
     let cfg = &opts.config;
-    cfg.validate()?;
+    cfg.validate_file(opts.config_path.as_deref())?;
     // A polling process that would starve another is refused here, before any starts.
     let placement = cfg.graph.placement(&node_rt::wait::machine_cpus())?;
     for note in &placement.notes {
@@ -1048,10 +1048,17 @@ fn check_before_start(opts: &UpOptions) -> Result<(), SupervisorError> {
     if let Some(p) = opts.record.as_ref().filter(|p| p.exists()) {
         return Err(recording::RecordError::Exists(p.clone()).into());
     }
+    // Both credentials files, by the one rule (`scl_config::secret`): refused here, naming
+    // the file and its mode, rather than by the gateway or the bridge once the others run.
     let net = &cfg.network;
     if net.enabled && !net.credentials.is_empty() {
-        // Refused here, naming the file and its mode, rather than by the gateway child.
         scl_net::Credentials::load(std::path::Path::new(&net.credentials))?;
+    }
+    let kortex = &cfg.bridge.kortex;
+    if cfg.bridge.robot == "kortex" && !kortex.credentials_file.is_empty() {
+        scl_config::secret::read_kortex_credentials(std::path::Path::new(
+            &kortex.credentials_file,
+        ))?;
     }
     Ok(())
 }
@@ -1343,6 +1350,37 @@ mod tests {
     use scl_config::RestartPolicies;
 
     const MS: fn(u64) -> Duration = Duration::from_millis;
+
+    /// Both credentials files follow one rule, checked before anything starts: a Kortex
+    /// file others may read is refused naming its mode, as the network's is; a private one
+    /// passes (and with the mock arm the Kortex file is not read).
+    #[test]
+    fn a_kortex_credentials_file_others_may_read_is_refused_before_the_start() {
+        use std::os::unix::fs::PermissionsExt as _;
+        let dir = std::env::temp_dir().join(format!("scl-up-creds-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("kortex.toml");
+        std::fs::write(&f, "username = \"u\"\npassword = \"p\"\n").unwrap();
+        let mut config = GraphConfig::default();
+        config.bridge.kortex.credentials_file = f.display().to_string();
+        let mut opts = UpOptions {
+            prefix: Prefix::new("upcreds").unwrap(),
+            config_path: None,
+            config,
+            duration: None,
+            json: false,
+            record: None,
+            live: None,
+        };
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o644)).unwrap();
+        check_before_start(&opts).unwrap();
+        opts.config.bridge.robot = "kortex".into();
+        let e = check_before_start(&opts).unwrap_err().to_string();
+        assert!(e.contains("0644") && e.contains("kortex.toml"), "{e}");
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)).unwrap();
+        check_before_start(&opts).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn config(policy: RestartPolicy) -> SupervisorConfig {
         SupervisorConfig {

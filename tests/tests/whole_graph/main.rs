@@ -8,6 +8,7 @@
 
 mod bench;
 mod deploy;
+mod drill;
 mod graph;
 mod joystick;
 mod kortex;
