@@ -147,10 +147,56 @@ pub fn decode_joy(bytes: &[u8]) -> Result<Joy, CdrError> {
         len: bytes.len(),
         source,
     };
-    if bytes.len() as u64 > MAX_PAYLOAD {
+    if bytes.len() as u64 > MAX_PAYLOAD || !joy_lengths_fit(bytes) {
         return Err(err(cdr::Error::SizeLimit));
     }
     cdr::deserialize_from(bytes, cdr::Bounded(MAX_PAYLOAD)).map_err(err)
+}
+
+/// Every length prefix of a `Joy` in CDR (the frame id's, the axes' and the buttons' counts)
+/// fits in what is left of `bytes`. The `cdr` crate allocates a string or sequence of the
+/// length it reads before its size bound refuses it: a 17-byte message whose frame id
+/// claimed 3.8 GB made the gateway allocate that much (found by the `joy_cdr` fuzz target,
+/// `fuzz/regressions/joy_cdr-oom`). A message that fails this check is refused as too large.
+fn joy_lengths_fit(bytes: &[u8]) -> bool {
+    // The encapsulation header: representation (0x0000 big-endian, 0x0001 little-endian),
+    // then two bytes of options; alignment counts from after it.
+    let Some((head, body)) = bytes.split_first_chunk::<4>() else {
+        return false;
+    };
+    let little = head[1] & 1 == 1;
+    let u32_at = |at: usize| -> Option<usize> {
+        let b: [u8; 4] = body.get(at..at + 4)?.try_into().ok()?;
+        let v = if little {
+            u32::from_le_bytes(b)
+        } else {
+            u32::from_be_bytes(b)
+        };
+        usize::try_from(v).ok()
+    };
+    let align4 = |at: usize| at.div_ceil(4) * 4;
+    // header.stamp (sec, nanosec), then header.frame_id's length and bytes.
+    let Some(id_len) = u32_at(8) else {
+        return false;
+    };
+    let Some(mut at) = 12usize.checked_add(id_len) else {
+        return false;
+    };
+    // axes (float32), then buttons (int32): a count and four bytes each.
+    for _ in 0..2 {
+        at = align4(at);
+        let Some(count) = u32_at(at) else {
+            return false;
+        };
+        let Some(end) = count.checked_mul(4).and_then(|n| n.checked_add(at + 4)) else {
+            return false;
+        };
+        if end > body.len() {
+            return false;
+        }
+        at = end;
+    }
+    at <= body.len()
 }
 
 /// How a `Joy` becomes the operator's input (`[network] ros2_joy_*`).
@@ -307,6 +353,39 @@ pub fn mangle(name: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The fuzzer's out-of-memory input (a frame id claiming 3.8 GB in 17 bytes) and every
+    /// truncation of a good message are refused without allocating what they claim; a good
+    /// message in either byte order still decodes.
+    #[test]
+    fn a_joy_whose_lengths_do_not_fit_is_refused_before_decoding() {
+        let oom = std::fs::read(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/joy_cdr-oom"),
+        )
+        .expect("the regression input");
+        assert!(matches!(
+            decode_joy(&oom),
+            Err(CdrError::Decode {
+                source: cdr::Error::SizeLimit,
+                ..
+            })
+        ));
+        let joy = Joy {
+            header: Header {
+                stamp: Time { sec: 3, nanosec: 4 },
+                frame_id: "pad".into(),
+            },
+            axes: vec![0.5, -0.25],
+            buttons: vec![1, 0, 1],
+        };
+        let le = encode(&joy, "Joy").unwrap();
+        assert_eq!(decode_joy(&le).unwrap(), joy);
+        let be = cdr::serialize::<_, _, cdr::CdrBe>(&joy, cdr::Infinite).unwrap();
+        assert_eq!(decode_joy(&be).unwrap(), joy);
+        for n in 0..le.len() {
+            assert!(decode_joy(&le[..n]).is_err(), "{n} bytes");
+        }
+    }
 
     #[test]
     fn a_joint_state_is_cdr_with_its_alignment() {
