@@ -692,10 +692,16 @@ fn drive(
             Some(c) if c.learnt() => c.due(now_ns()),
             _ => None,
         };
-        let answer = match &clock {
-            Some(c) if c.learnt() => due.is_some(),
-            _ => new_state.is_some(),
+        let on_grid = clock.as_ref().is_some_and(sampling::SampleClock::learnt);
+        let answer = if on_grid {
+            due.is_some()
+        } else {
+            new_state.is_some()
         };
+        // On the grid nothing goes out as a state arrives, not even a change: a script's
+        // input changes with the tick, and its answer would race the mapper for this tick's
+        // sample, which the late one before the state already is.
+        let hold = on_grid && new_state.is_some() && due.is_none();
         if let Source::Keyboard(k) = &mut source {
             ep.heartbeats(&mut |s| k.heartbeat(s))?;
         }
@@ -704,7 +710,7 @@ fn drive(
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
             out.send_estop(ep, &input)?;
-            if tick != NO_TICK || source.has_input_before_a_tick() {
+            if (tick != NO_TICK || source.has_input_before_a_tick()) && !hold {
                 out.publish(ep, input, tick, answer, now)?;
             }
         } else if st.handled == silent && new_state.is_some() {
