@@ -395,6 +395,12 @@ pub struct JoystickConfig {
     /// Any source: also record the published input to this file (same CSV; an existing file
     /// is refused); empty: off.
     pub record_input: String,
+    /// With `[graph] wait` = `predictive` or `spin`: the joystick reads its input this long
+    /// (µs) before each tick and publishes it then, so the mapper maps a sample about this
+    /// old instead of one read right after the previous tick. 0 (default): 1 ms, at most a
+    /// quarter of a period. At most half a period. Not used with `event`, nor by a remote
+    /// operator (`scl joystick --remote`).
+    pub sample_margin_us: u32,
 }
 
 impl Default for JoystickConfig {
@@ -415,6 +421,7 @@ impl Default for JoystickConfig {
             keyboard_repeat_hold_ms: 150,
             replay_file: String::new(),
             record_input: String::new(),
+            sample_margin_us: 0,
         }
     }
 }
@@ -788,6 +795,15 @@ impl GraphConfig {
                 ),
             ));
         }
+        if f64::from(self.joystick.sample_margin_us) > half_period_us {
+            return Err(err(
+                "joystick.sample_margin_us",
+                format!(
+                    "{} µs is more than half a period ({half_period_us:.0} µs at {rate} Hz)",
+                    self.joystick.sample_margin_us
+                ),
+            ));
+        }
         if let Some(r) = b.rate_hz {
             // Only a configuration built in code gets here with the alias set.
             return Err(err(
@@ -1111,6 +1127,21 @@ mod tests {
             .to_string();
         assert!(
             e.contains("graph.rt_prewarm_us") && e.contains("500 µs"),
+            "{e}"
+        );
+        // So is the joystick's sampling margin.
+        std::fs::write(
+            &p,
+            "[graph]\nrate_hz = 1000\n[joystick]\nsample_margin_us = 501\n",
+        )
+        .unwrap();
+        let e = GraphConfig::load(Some(&p))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("joystick.sample_margin_us") && e.contains("500 µs"),
             "{e}"
         );
         std::fs::write(&p, "[bridge]\nrate_hz = -4\n").unwrap();

@@ -1,6 +1,10 @@
 //! The graph's one clock: an absolute-deadline timer on `CLOCK_MONOTONIC`
 //! (`clock_nanosleep(TIMER_ABSTIME)`), which does not drift the way a relative sleep does, and
 //! the real-time settings the bridge asks for.
+//!
+//! A sleep wakes tens to hundreds of µs late on a virtual machine. [`Clock::wait_hybrid`]
+//! sleeps until a margin before the deadline and spins on the clock for the rest; [`Hybrid`]
+//! learns the margin from the sleeps' own lateness and counts the time spun, its CPU cost.
 
 use nix::errno::Errno;
 use nix::sys::mman::{MlockAllFlags, mlockall};
@@ -62,6 +66,32 @@ impl Clock {
         self.on_wake(ipc_types::time::now_ns())
     }
 
+    /// Sleeps until `hybrid`'s margin before the next deadline, then spins on the clock until
+    /// the deadline: the tick starts within the clock's own resolution of it unless the
+    /// sleep woke later than the margin. The sleep's lateness teaches `hybrid` its margin.
+    pub fn wait_hybrid(&mut self, hybrid: &mut Hybrid) -> Wake {
+        let target = self.next_ns.saturating_sub(hybrid.margin_ns());
+        if ipc_types::time::now_ns() < target {
+            let rc = clock_nanosleep(
+                ClockId::CLOCK_MONOTONIC,
+                ClockNanosleepFlags::TIMER_ABSTIME,
+                &to_timespec(target),
+            );
+            if rc == Err(Errno::EINTR) {
+                return Wake::Interrupted;
+            }
+            hybrid.observe(ipc_types::time::now_ns().saturating_sub(target));
+        }
+        let woke = ipc_types::time::now_ns();
+        let mut now = woke;
+        while now < self.next_ns {
+            std::hint::spin_loop();
+            now = ipc_types::time::now_ns();
+        }
+        hybrid.spun(now - woke);
+        self.on_wake(now)
+    }
+
     /// Accounts a wake-up at `now_ns` (split out of [`Clock::wait`] for tests): returns the
     /// tick and moves the deadline on by one period, or past `now_ns` if more than a whole
     /// period was lost (those periods are reported as skipped, never caught up in a burst).
@@ -81,6 +111,83 @@ impl Clock {
     /// The next deadline (ns).
     pub fn next_deadline_ns(&self) -> u64 {
         self.next_ns
+    }
+}
+
+/// How many recent sleeps' lateness [`Hybrid`] keeps.
+pub const HYBRID_KEPT: usize = 128;
+
+/// [`Hybrid`]'s first margin, before it has seen a sleep (ns).
+pub const HYBRID_START_NS: u64 = 100_000;
+
+/// Added to the latest sleep's lateness seen recently (ns).
+pub const HYBRID_GUARD_NS: u64 = 5_000;
+
+/// The least margin (ns).
+pub const HYBRID_MIN_NS: u64 = 10_000;
+
+/// The margin is at most this share of a period ...
+pub const HYBRID_MAX_SHARE: f64 = 0.05;
+
+/// ... and at most this long (ns): a machine whose sleeps are later than that does not get a
+/// CPU spinning for it; its ticks start late instead.
+pub const HYBRID_MAX_NS: u64 = 1_000_000;
+
+/// The margin of [`Clock::wait_hybrid`]: the largest lateness of the last [`HYBRID_KEPT`]
+/// sleeps plus [`HYBRID_GUARD_NS`], between [`HYBRID_MIN_NS`] and [`HYBRID_MAX_SHARE`] of a
+/// period (at most [`HYBRID_MAX_NS`]); and the time spun, the hybrid wait's CPU cost.
+#[derive(Debug, Clone)]
+pub struct Hybrid {
+    late: [u64; HYBRID_KEPT],
+    len: usize,
+    next: usize,
+    max_ns: u64,
+    margin_ns: u64,
+    /// Time spun on the clock (ns).
+    pub spin_ns: u64,
+    /// Waits.
+    pub ticks: u64,
+}
+
+impl Hybrid {
+    /// A margin for ticks of `period_ns`.
+    pub fn new(period_ns: u64) -> Self {
+        let max_ns =
+            ((period_ns as f64 * HYBRID_MAX_SHARE) as u64).clamp(HYBRID_MIN_NS, HYBRID_MAX_NS);
+        Self {
+            late: [0; HYBRID_KEPT],
+            len: 0,
+            next: 0,
+            max_ns,
+            margin_ns: HYBRID_START_NS.clamp(HYBRID_MIN_NS, max_ns),
+            spin_ns: 0,
+            ticks: 0,
+        }
+    }
+
+    /// The margin now (ns).
+    pub fn margin_ns(&self) -> u64 {
+        self.margin_ns
+    }
+
+    /// A sleep woke `lateness_ns` after its target.
+    pub fn observe(&mut self, lateness_ns: u64) {
+        self.late[self.next] = lateness_ns;
+        self.next = (self.next + 1) % HYBRID_KEPT;
+        self.len = (self.len + 1).min(HYBRID_KEPT);
+        let worst = self.late[..self.len].iter().copied().max().unwrap_or(0);
+        self.margin_ns = (worst + HYBRID_GUARD_NS).clamp(HYBRID_MIN_NS, self.max_ns);
+    }
+
+    /// One wait spun `ns` on the clock.
+    pub fn spun(&mut self, ns: u64) {
+        self.spin_ns += ns;
+        self.ticks += 1;
+    }
+
+    /// Time spun per tick (µs).
+    pub fn per_tick_us(&self) -> f64 {
+        self.spin_ns as f64 * 1e-3 / self.ticks.max(1) as f64
     }
 }
 
@@ -195,6 +302,53 @@ impl DmaLatency {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_hybrid_margin_follows_the_latest_recent_sleep_within_its_bounds() {
+        let mut h = Hybrid::new(25_000_000);
+        assert_eq!(h.margin_ns(), HYBRID_START_NS);
+        h.observe(40_000);
+        assert_eq!(h.margin_ns(), 45_000);
+        h.observe(240_000);
+        h.observe(60_000);
+        assert_eq!(h.margin_ns(), 245_000);
+        // The late one is forgotten after HYBRID_KEPT sleeps.
+        for _ in 0..HYBRID_KEPT {
+            h.observe(30_000);
+        }
+        assert_eq!(h.margin_ns(), 35_000);
+        // Never below the least margin, nor above the cap (5 % of 25 ms, at most 1 ms).
+        for _ in 0..HYBRID_KEPT {
+            h.observe(0);
+        }
+        assert_eq!(h.margin_ns(), HYBRID_MIN_NS);
+        h.observe(50_000_000);
+        assert_eq!(h.margin_ns(), HYBRID_MAX_NS);
+        // At 1 kHz the cap is 50 µs.
+        let mut k = Hybrid::new(1_000_000);
+        assert_eq!(k.margin_ns(), 50_000);
+        k.observe(5_000);
+        assert_eq!(k.margin_ns(), HYBRID_MIN_NS);
+        k.spun(30_000);
+        k.spun(10_000);
+        assert!((k.per_tick_us() - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_hybrid_wait_starts_the_tick_at_its_deadline_not_before() {
+        let period = 2_000_000;
+        let mut h = Hybrid::new(period);
+        let mut c = Clock::new(ipc_types::time::now_ns() + period, period);
+        for _ in 0..5 {
+            let deadline = c.next_deadline_ns();
+            match c.wait_hybrid(&mut h) {
+                Wake::Tick { ideal_ns, .. } => assert!(ideal_ns >= deadline),
+                Wake::Interrupted => {}
+            }
+            assert!(ipc_types::time::now_ns() >= deadline);
+        }
+        assert!(h.ticks >= 4);
+    }
 
     #[test]
     fn on_time_and_late_wakes() {

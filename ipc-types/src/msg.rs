@@ -617,7 +617,9 @@ pub struct NodeStatus {
     pub mode_switches: u32,
     /// Bridge: how many of `faults` the machine took (the bridge process not run through
     /// a period, or a command that came late while the chain's own work fit the deadline;
-    /// see `scl_bridge_node`); 0 for the other roles. Was padding: older recordings read 0.
+    /// see `scl_bridge_node`). Joystick: its late samples (`[graph] wait` = `predictive` or
+    /// `spin`) that missed their tick, so the previous sample served (`scl_joystick::sampling`).
+    /// 0 for the other roles. Was padding: older recordings read 0.
     #[cfg_attr(feature = "json", serde(default))]
     pub held_up: u32,
 }

@@ -12,9 +12,11 @@ use super::parse_duration;
 
 #[derive(Subcommand, Debug)]
 pub(crate) enum BenchCmd {
-    /// Run the full graph and report per-hop, end-to-end, sample-age, tick-lateness and
-    /// compute figures (p50 / p90 / p99 / p99.9 / max), on iceoryx2, on Unix-domain datagram
-    /// sockets, or both one after the other with the ratio of each figure.
+    /// Run the full graph and report what the operator feels first (joystick -> executed:
+    /// the stick's sample read -> the bridge executing the command that carries it), then
+    /// per-hop, end-to-end, sample-age, tick-lateness and compute figures (p50 / p90 / p99 /
+    /// p99.9 / max), on iceoryx2, on Unix-domain datagram sockets, or both one after the
+    /// other with the ratio of each figure.
     Latency {
         /// How long each transport runs.
         #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = parse_duration, allow_hyphen_values = true)]
@@ -32,7 +34,9 @@ pub(crate) enum BenchCmd {
         rate_hz: Option<f64>,
         /// How the mapper, safety and the bridge wait for their input (`[graph] wait`):
         /// `event` (a wake-up per hop), `predictive` (sleep until shortly before the input is
-        /// due, then poll briefly) or `spin` (poll always). Comma-separated, each runs on each
+        /// due, then poll briefly) or `spin` (poll always); with either of the last two the
+        /// joystick reads its input a margin before each tick (`[joystick] sample_margin_us`)
+        /// and the report counts its samples that missed. Comma-separated, each runs on each
         /// transport in turn and the report compares every polling strategy with `event`.
         /// The report adds each polling process's time spent polling per tick. Default: the
         /// config's.

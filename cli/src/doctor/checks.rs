@@ -640,10 +640,63 @@ pub fn wait_strategy(
     }
 }
 
+/// What the operator feels with `graph`'s `wait`: with `event` the joystick answers each
+/// state on its arrival, so its sample reaches the arm about a period after it was read; with
+/// `predictive` or `spin` it reads the stick `margin_us` before each tick
+/// (`scl_joystick::sampling`). A robot PC should poll: `predictive` anywhere, `spin` where each
+/// polling process has a CPU of its own.
+pub fn stick_latency(graph: &scl_config::GraphSection, margin_us: u32) -> Finding {
+    const ITEM: &str = "stick to arm";
+    let period_ns = graph.period_ns();
+    let ms = |ns: u64| ns as f64 * 1e-6;
+    if graph.wait.polls() {
+        let margin = scl_joystick::sampling::margin_ns(margin_us, period_ns);
+        Finding::ok(
+            ITEM,
+            format!(
+                "wait = {}: the joystick reads the stick {:.2} ms before each tick, and its \
+                 sample is executed about that much later",
+                graph.wait,
+                ms(margin)
+            ),
+        )
+    } else {
+        Finding::warn(
+            ITEM,
+            format!(
+                "wait = event: the joystick answers each robot state on its arrival, so its \
+                 sample is executed about a period ({:.1} ms) after it was read",
+                ms(period_ns)
+            ),
+            "on a robot PC use [graph] wait = \"predictive\" (the joystick reads the stick 1 ms \
+             before each tick; \"spin\" where each process has a CPU of its own): \
+             docs/benchmarks.md",
+        )
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_stick_latency_says_a_robot_pc_should_poll() {
+        let mut g = scl_config::GraphSection::default();
+        let f = stick_latency(&g, 0);
+        assert_eq!(f.level, Level::Warn, "{f:?}");
+        assert!(
+            f.detail.contains("25.0 ms") && f.fix.contains("predictive"),
+            "{f:?}"
+        );
+        g.wait = scl_config::WaitStrategy::Predictive;
+        let f = stick_latency(&g, 0);
+        assert_eq!(f.level, Level::Ok, "{f:?}");
+        assert!(f.detail.contains("1.00 ms before each tick"), "{f:?}");
+        g.rate_hz = 1000.0;
+        assert!(stick_latency(&g, 0).detail.contains("0.25 ms"));
+        assert!(stick_latency(&g, 300).detail.contains("0.30 ms"));
+    }
 
     #[test]
     fn the_wait_strategy_says_how_each_process_waits_and_what_the_machine_allows() {

@@ -119,6 +119,10 @@ pub fn examine(config: Option<&Path>) -> Vec<Finding> {
         &cfg.graph,
         &node_rt::wait::machine_cpus(),
     ));
+    out.push(checks::stick_latency(
+        &cfg.graph,
+        cfg.joystick.sample_margin_us,
+    ));
     let robot = match cfg.profile() {
         Ok(r) => r,
         Err(e) => {

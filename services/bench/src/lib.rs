@@ -3,6 +3,11 @@
 //! tick's timestamps collected from the bridge's `TickReport`s.
 //!
 //! Figures, each as p50 / p90 / p99 / p99.9 / max (µs):
+//! * first, what the operator feels: the joystick sample read -> the command that carries it
+//!   received by the bridge, which executes it at once (`joystick_executed_us`); with
+//!   `--wait predictive` or `spin` the joystick reads its input a margin before each tick
+//!   (`scl_joystick::sampling`), and its samples that missed are counted
+//!   (`joystick_late_missed`);
 //! * per hop: joystick -> mapper (sample produced -> received), bridge -> mapper (RobotState
 //!   published -> received), mapper -> safety, safety -> bridge;
 //! * end to end within a tick: RobotState(k) published -> SafeCommand(k) received by the
@@ -276,6 +281,10 @@ impl Samples {
 /// The figures of one transport's run.
 #[derive(Debug, Clone, Serialize)]
 pub struct RunReport {
+    /// The joystick sample produced -> the command that used it received by the bridge,
+    /// which executes it at once (µs): the operator's input to the arm's motion, the figure
+    /// a user reads first.
+    pub joystick_executed_us: Dist,
     /// The transport.
     pub transport: Transport,
     /// How the control path waited (`[graph] wait`).
@@ -295,9 +304,6 @@ pub struct RunReport {
     pub e2e_us: Dist,
     /// Age of the joystick sample when the mapper used it (µs).
     pub joystick_age_us: Dist,
-    /// The joystick sample produced -> the command that used it received by the bridge,
-    /// which executes it at once (µs): the operator's input to the arm's motion.
-    pub joystick_executed_us: Dist,
     /// The bridge's lateness against the ideal grid (µs).
     pub tick_lateness_us: Dist,
     /// Compute inside the processes (µs).
@@ -310,6 +316,9 @@ pub struct RunReport {
     pub rate_hz: f64,
     /// Misses the machine took (the bridge's `held_up`): part of `missed`.
     pub held_up: u64,
+    /// The joystick's late samples that missed their tick, so the previous one served (its
+    /// heartbeat's `held_up`; 0 with `event`, which samples on each state's arrival).
+    pub joystick_late_missed: u64,
     /// Each process's CPU time per tick (µs, user + system, every thread), measured between
     /// its first heartbeat and the end of the run: bridge, safety, mapper, joystick, the
     /// gateway (with `[network] enabled`) and the supervisor (`scl up`).
@@ -421,6 +430,7 @@ impl RunReport {
             cpu_share: Vec::new(),
             rate_hz,
             held_up: 0,
+            joystick_late_missed: 0,
             cpu_per_tick_us: Vec::new(),
             memory: Vec::new(),
             operator: None,
@@ -449,13 +459,13 @@ impl RunReport {
     /// The named figures, for tables and ratios.
     pub fn figures(&self) -> Vec<(&'static str, Dist)> {
         vec![
+            ("joystick -> executed", self.joystick_executed_us),
             ("joystick -> mapper", self.hops_us.joystick_mapper),
             ("bridge -> mapper", self.hops_us.bridge_mapper),
             ("mapper -> safety", self.hops_us.mapper_safety),
             ("safety -> bridge", self.hops_us.safety_bridge),
             ("end to end", self.e2e_us),
             ("joystick sample age", self.joystick_age_us),
-            ("joystick -> executed", self.joystick_executed_us),
             ("tick lateness", self.tick_lateness_us),
             ("mapper compute", self.compute_us.mapper),
             ("safety compute", self.compute_us.safety),
@@ -818,6 +828,7 @@ pub(crate) fn run_with(
     let mut samples = Samples::default();
     let mut cpu = proc_cpu::CpuWatch::new(up.id());
     let mut held_up = 0u64;
+    let mut late_missed = 0u64;
     let t0 = Instant::now();
     let mut next = 10.0;
     let mut next_cpu = 0.0;
@@ -843,9 +854,7 @@ pub(crate) fn run_with(
         })?;
         heartbeats.drain(|s| {
             cpu.heartbeat(s);
-            if s.role == ipc_types::NodeRole::Bridge as u32 {
-                held_up = u64::from(s.held_up);
-            }
+            counts(s, &mut held_up, &mut late_missed);
         })?;
         if signals::stop_requested() {
             // Our own child; an error means it has exited, which try_wait sees next.
@@ -905,11 +914,7 @@ pub(crate) fn run_with(
     let operator_pid = operator.child.as_ref().map(Child::id);
     let operator_exit = operator.finish();
     let live_messages = live.map(LiveClient::finish);
-    heartbeats.drain(|s| {
-        if s.role == ipc_types::NodeRole::Bridge as u32 {
-            held_up = u64::from(s.held_up);
-        }
-    })?;
+    heartbeats.drain(|s| counts(s, &mut held_up, &mut late_missed))?;
     drop(burners);
     drop(heartbeats);
     drop(reports);
@@ -931,6 +936,7 @@ pub(crate) fn run_with(
     }
     let mut report = RunReport::new(transport, &samples, realtime, cfg.graph.rate_hz);
     report.held_up = held_up;
+    report.joystick_late_missed = late_missed;
     report.wait = wait;
     report.spin_us_per_tick = spin_from_log(&log_text);
     report.cpu_per_tick_us = cpu.per_tick_us();
@@ -953,6 +959,16 @@ pub(crate) fn run_with(
         });
     }
     Ok((report, samples))
+}
+
+/// The counts a heartbeat carries: the bridge's misses held up by the machine, the
+/// joystick's late samples that missed.
+fn counts(s: &ipc_types::NodeStatus, held_up: &mut u64, late_missed: &mut u64) {
+    if s.role == ipc_types::NodeRole::Bridge as u32 {
+        *held_up = u64::from(s.held_up);
+    } else if s.role == ipc_types::NodeRole::Joystick as u32 {
+        *late_missed = u64::from(s.held_up);
+    }
 }
 
 /// A free port on the loopback, or the error saying there is none.
@@ -1254,6 +1270,13 @@ pub fn render(r: &LatencyReport) -> String {
             "\n{}, wait {}: {} ticks, {} missed ({} held up by the machine)",
             run.transport, run.wait, run.ticks, run.missed, run.held_up
         );
+        if run.wait.polls() {
+            let _ = writeln!(
+                s,
+                "  the joystick sampled late, a margin before each tick: {} missed it",
+                run.joystick_late_missed
+            );
+        }
         if let Some(n) = run.live_client_messages {
             let _ = writeln!(
                 s,

@@ -57,13 +57,14 @@ pub(crate) struct Local {
 
 impl Endpoint for Local {
     fn wait(&self, waker: Option<&Waker>, timeout: Duration) -> Result<(), JoystickError> {
+        // `wait_any` keeps the timeout's nanoseconds: a late sample is due at its time.
         match waker {
             Some(w) => {
                 let wakes: [&dyn Wakeable; 2] = [&self.states, w];
                 transport::wait_any(&wakes, timeout);
             }
             None => {
-                self.states.wait(timeout)?;
+                transport::wait_any(&[&self.states as &dyn Wakeable], timeout);
             }
         }
         Ok(())

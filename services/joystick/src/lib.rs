@@ -20,9 +20,15 @@
 //! ([`EstopButton`]), so it latches with safety alone, whatever the mappers are doing.
 //! `--record-input FILE` writes every change to a file [`replay`] reads.
 //!
+//! With `[graph] wait = "predictive"` or `"spin"` the answer to a state goes out late instead,
+//! a margin (`[joystick] sample_margin_us`) before the next tick, read from the device then
+//! ([`sampling`]): the sample the mapper takes at tick `k` was read about a millisecond
+//! before it, not a period. A remote operator (`scl joystick --remote`) answers each state on
+//! its arrival: its clock is not the graph's, and its sample crosses the link after.
+//!
 //! The loop waits on the robot state's event and, for the threaded sources, on an eventfd
-//! ([`Waker`]) their threads ring after handing something over: it never polls and never
-//! blocks on a device or the terminal.
+//! ([`Waker`]) their threads ring after handing something over, with a timeout at the next
+//! sample due: it never polls and never blocks on a device or the terminal.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod device;
@@ -31,6 +37,7 @@ pub mod keyboard;
 pub mod mapping;
 pub mod pad;
 pub mod replay;
+pub mod sampling;
 pub mod script;
 
 use std::path::{Path, PathBuf};
@@ -174,15 +181,10 @@ pub struct Outbox {
 
 impl Outbox {
     /// The sample to publish now, if any, for `input` with `tick` the newest robot tick seen
-    /// (`new_tick`: it arrived since the last call). The first call always publishes.
-    pub fn next(
-        &mut self,
-        input: Input,
-        tick: u64,
-        new_tick: bool,
-        t_ns: u64,
-    ) -> Option<JoystickInput> {
-        if !new_tick && self.last == Some(input) {
+    /// (`due`: a sample is due whatever the input: a new tick arrived since the last call,
+    /// or [`sampling::SampleClock`] says so). The first call always publishes.
+    pub fn next(&mut self, input: Input, tick: u64, due: bool, t_ns: u64) -> Option<JoystickInput> {
+        if !due && self.last == Some(input) {
             return None;
         }
         let s = JoystickInput {
@@ -630,7 +632,16 @@ pub fn run(
         heartbeats,
     };
     node_rt::rt::elevate(graph_cfg, RtRole::Joystick);
-    drive(source, &mut local, cfg, faults)
+    let clock = graph_cfg.wait.polls().then(|| {
+        let period_ns = graph_cfg.period_ns();
+        let margin_ns = sampling::margin_ns(cfg.sample_margin_us, period_ns);
+        tracing::info!(
+            margin_us = margin_ns / 1000,
+            "sampling the input late, a margin before each tick"
+        );
+        sampling::SampleClock::new(period_ns, margin_ns)
+    });
+    drive(source, &mut local, cfg, faults, clock)
 }
 
 /// Runs the joystick as a remote operator of a graph on another machine, through its gateway
@@ -646,17 +657,20 @@ pub fn run_remote(
         *origin = Origin::FirstSeen(None);
     }
     let mut ep = endpoint::Remote::open(remote)?;
-    drive(source, &mut ep, cfg, faults)
+    drive(source, &mut ep, cfg, faults, None)
 }
 
-/// The loop. Each turn: wait for a robot state or the source's thread, take the newest
-/// state, read the source, send an e-stop press and the sample (unless a fault injection
-/// silenced the joystick), show the input, and on a new state send the heartbeat.
+/// The loop. Each turn: wait for a robot state, the source's thread or the next sample due
+/// on `clock`, take the newest state, read the source, send an e-stop press and the sample
+/// (unless a fault injection silenced the joystick), show the input, and on a new state send
+/// the heartbeat. Without `clock` (or until it knows the grid) a sample answers each state on
+/// its arrival; with it, at the times it says.
 fn drive(
     mut source: Source,
     ep: &mut dyn Endpoint,
     cfg: &JoystickConfig,
     faults: &FaultConfig,
+    mut clock: Option<sampling::SampleClock>,
 ) -> Result<(), JoystickError> {
     let recorder = if cfg.record_input.is_empty() {
         None
@@ -682,12 +696,34 @@ fn drive(
     let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
     let mut screen = StatusScreen::new(matches!(source, Source::Keyboard(_)));
     while !signals::stop_requested() && !source.quit() {
-        ep.wait(source.waker(), source.timeout(Instant::now()))?;
+        let mut timeout = source.timeout(Instant::now());
+        if let Some(at) = clock.as_ref().and_then(sampling::SampleClock::next_due_ns) {
+            timeout = timeout.min(Duration::from_nanos(at.saturating_sub(now_ns())));
+        }
+        ep.wait(source.waker(), timeout)?;
         let new_state = ep.latest_state()?;
         if let Some(s) = &new_state {
             tick = s.tick;
             gripper = Some(s.gripper);
+            if let Some(c) = &mut clock {
+                c.state(s.tick, s.t_ns);
+            }
         }
+        // On the grid, what the clock says is due; otherwise an answer to each new state.
+        let due = match &clock {
+            Some(c) if c.learnt() => c.due(now_ns()),
+            _ => None,
+        };
+        let on_grid = clock.as_ref().is_some_and(sampling::SampleClock::learnt);
+        let answer = if on_grid {
+            due.is_some()
+        } else {
+            new_state.is_some()
+        };
+        // On the grid nothing goes out as a state arrives, not even a change: a script's
+        // input changes with the tick, and its answer would race the mapper for this tick's
+        // sample, which the late one before the state already is.
+        let hold = on_grid && new_state.is_some() && due.is_none();
         if let Source::Keyboard(k) = &mut source {
             ep.heartbeats(&mut |s| k.heartbeat(s))?;
         }
@@ -706,11 +742,15 @@ fn drive(
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
             out.send_estop(ep, &input)?;
-            if tick != NO_TICK || source.has_input_before_a_tick() {
-                out.publish(ep, input, tick, new_state.is_some(), now)?;
+            if (tick != NO_TICK || source.has_input_before_a_tick()) && !hold {
+                out.publish(ep, input, tick, answer, now)?;
             }
         } else if st.handled == silent && new_state.is_some() {
             tracing::warn!(tick, "fault injection: the joystick goes silent");
+        }
+        // (Silenced too: the sample is done with, and the loop sleeps until the next.)
+        if let (Some(c), Some(d)) = (&mut clock, due) {
+            c.sent(d, now_ns());
         }
         if let Source::Keyboard(k) = &mut source {
             k.show(&input);
@@ -718,6 +758,7 @@ fn drive(
         screen.show(ep, now);
         if let Some(s) = new_state {
             count_tick(&mut st, s.tick, &input);
+            st.held_up = clock.as_ref().map_or(0, sampling::SampleClock::missed);
             ep.send_status(st)?;
         }
     }
@@ -811,16 +852,16 @@ impl Outputs {
     }
 
     /// Publishes `input` as the answer to `tick` when the [`Outbox`] says a sample is due
-    /// (a change, or a `new_state` to answer), and records it as read at `at`.
+    /// (a change, or `due`: a state to answer), and records it as read at `at`.
     fn publish(
         &mut self,
         ep: &mut dyn Endpoint,
         input: Input,
         tick: u64,
-        new_state: bool,
+        due: bool,
         at: Instant,
     ) -> Result<(), JoystickError> {
-        if let Some(sample) = self.outbox.next(input, tick, new_state, now_ns()) {
+        if let Some(sample) = self.outbox.next(input, tick, due, now_ns()) {
             ep.send_sample(sample)?;
             if let Some(r) = self.recorder.as_mut() {
                 r.record(at.duration_since(self.t0).as_secs_f64(), &input);

@@ -98,6 +98,12 @@ fn bench_latency_measures_both_transports() {
             check_dist(&format!("{t} {hop}"), &run["hops_us"][hop], min);
         }
         check_dist(&format!("{t} sample age"), &run["joystick_age_us"], min);
+        // What the operator feels, the report's first row.
+        check_dist(
+            &format!("{t} joystick -> executed"),
+            &run["joystick_executed_us"],
+            min,
+        );
         check_dist(
             &format!("{t} compute mapper"),
             &run["compute_us"]["mapper"],

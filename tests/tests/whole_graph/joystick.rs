@@ -193,3 +193,85 @@ fn a_missing_device_gives_neutral_flagged_samples_and_no_motion() {
         Vec::<String>::new()
     );
 }
+
+#[test]
+fn a_late_sampling_joystick_is_executed_a_fraction_of_a_period_after_it_read_the_stick() {
+    // With `wait = "predictive"` the joystick reads its input a margin (here 2 ms) before
+    // each tick, so the command executed at tick k carries a sample read shortly before
+    // tick k's state: not one read a period earlier, right after tick k-1's, nor one that
+    // answers tick k itself. Counts carried in the messages, no wall-clock limit: the share
+    // of commands whose sample was read in the quarter period before their state.
+    let _serial = serial();
+    let dir = temp_dir("latejoy");
+    let prefix = unique_prefix("latejoy");
+    let _domain = DomainGuard(prefix.clone());
+    let config = dir.join("graph.toml");
+    std::fs::write(
+        &config,
+        "[graph]\nwait = \"predictive\"\nrealtime = false\n[joystick]\nsample_margin_us = 2000\n",
+    )
+    .unwrap();
+    let file = dir.join("run.mcap");
+    let mut rec = Recorder::join(&prefix);
+    let mut cmd = scl(&prefix);
+    cmd.arg("up")
+        .arg("--config")
+        .arg(&config)
+        .args(["--for", "5s", "--json", "--record"])
+        .arg(&file)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let mut guard = ChildGuard(Some(cmd.spawn().unwrap()));
+    let out = rec.record_until_exit(&mut guard);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let period_ns = 25_000_000i64;
+    // From tick 10 on: the joystick places the grid after a few states.
+    let used: Vec<i64> = rec
+        .safe_commands
+        .iter()
+        .filter(|c| c.tick >= 10 && c.joystick_t_ns != 0)
+        .map(|c| c.state_t_ns as i64 - c.joystick_t_ns as i64)
+        .collect();
+    assert!(used.len() > 120, "{} commands", used.len());
+    let fresh = used
+        .iter()
+        .filter(|age| **age > 0 && **age < period_ns / 4)
+        .count();
+    let missed = rec
+        .statuses
+        .iter()
+        .filter(|s| s.role == NodeRole::Joystick as u32)
+        .map(|s| s.held_up)
+        .max()
+        .unwrap();
+    let mut ages: Vec<i64> = used.clone();
+    ages.sort_unstable();
+    let what = format!(
+        "{fresh} of {} commands carry a sample read in the quarter period before their \
+         state; the joystick counted {missed} late samples missed; sample age at the state \
+         p50 {} µs",
+        used.len(),
+        ages[ages.len() / 2] / 1000
+    );
+    eprintln!("{what}");
+    assert!(fresh * 10 >= used.len() * 8, "{what}");
+    assert!(u64::from(missed) * 5 <= used.len() as u64, "{what}");
+    // The extra samples change nothing for replay: it is still bit for bit.
+    let replay = std::process::Command::new(scl_tests::scl_binary())
+        .env("SCL_LOG", "warn")
+        .args(["replay", "--json"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    assert_eq!(replay.status.code(), Some(0), "{v}");
+    assert_eq!(v["diverged"].as_u64(), Some(0), "{v}");
+    assert_eq!(v["identical"], v["ticks"], "{v}");
+    drop(rec);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
