@@ -360,7 +360,8 @@ mod tests {
     #[test]
     fn a_joy_whose_lengths_do_not_fit_is_refused_before_decoding() {
         let oom = std::fs::read(
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/joy_cdr-oom"),
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../fuzz/regressions/joy_cdr-oom"),
         )
         .expect("the regression input");
         assert!(matches!(
