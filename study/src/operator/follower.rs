@@ -239,14 +239,7 @@ impl Follower {
             *w = (t - qj) / horizon;
         }
         let mode = seen.mode.unwrap_or(0);
-        self.cands.clear();
-        self.cands.push([0.0; 2]);
-        self.cands.push(self.chosen);
-        for _ in 0..self.params.candidates {
-            let r = rng.uniform().sqrt();
-            let th = rng.range(0.0, std::f64::consts::TAU);
-            self.cands.push([r * th.cos(), r * th.sin()]);
-        }
+        super::draw_candidates(&mut self.cands, self.chosen, self.params.candidates, rng);
         if let Some(a) = self.least_squares(make, seen, mode, &want[..n]) {
             self.cands.push(a);
         }

@@ -181,14 +181,7 @@ impl Greedy {
         } else if let Some(aim) = aim {
             let p = tool.translation.vector;
             let now = self.error(&p, tilt(&tool.rotation), &aim);
-            self.cands.clear();
-            self.cands.push([0.0; 2]);
-            self.cands.push(self.chosen);
-            for _ in 0..self.params.candidates {
-                let r = rng.uniform().sqrt();
-                let th = rng.range(0.0, std::f64::consts::TAU);
-                self.cands.push([r * th.cos(), r * th.sin()]);
-            }
+            super::draw_candidates(&mut self.cands, self.chosen, self.params.candidates, rng);
             let cur = mode.unwrap_or(0);
             let (a, e) = self.best(make, cur, state, tool, jac, &aim);
             choice = a;

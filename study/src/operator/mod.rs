@@ -205,6 +205,19 @@ pub fn operator(
     })
 }
 
+/// The stick inputs a one-tick operator weighs: rest, what it chose last, and `n` drawn
+/// uniformly over the stick's disc (into `out`, emptied first).
+pub(crate) fn draw_candidates(out: &mut Vec<[f64; 2]>, chosen: [f64; 2], n: usize, rng: &mut Rng) {
+    out.clear();
+    out.push([0.0; 2]);
+    out.push(chosen);
+    for _ in 0..n {
+        let r = rng.uniform().sqrt();
+        let th = rng.range(0.0, std::f64::consts::TAU);
+        out.push([r * th.cos(), r * th.sin()]);
+    }
+}
+
 /// The mode button as a person presses it: to switch modes, one press (a tick down, a tick
 /// up) until the wanted mode comes round, then a rest with the stick let go; the presses
 /// are counted for the attempt's figures.
