@@ -72,11 +72,12 @@ fn pour_holds() {
     use learning::goals::{Scene, tilt};
     for robot in [
         RobotProfile::default_robot(),
-        RobotProfile::by_name("gen3").unwrap(),
+        RobotProfile::by_name("gen3").expect("the Gen3"),
     ] {
         let mut holds = Vec::new();
         for seed in 1..101 {
-            let (ds, scenes) = generate_scenes_for(Task::Pouring, robot, 8, 2, seed).unwrap();
+            let (ds, scenes) =
+                generate_scenes_for(Task::Pouring, robot, 8, 2, seed).expect("pourings");
             for (traj, scene) in ds.train.iter().chain(&ds.val).zip(&scenes) {
                 let Scene::Pouring { .. } = scene else {
                     panic!()
@@ -85,7 +86,7 @@ fn pour_holds() {
                 let mut best = 0.0f64;
                 let mut run = 0.0;
                 for q in &traj.q {
-                    let x = robot.arm().fk(q).unwrap();
+                    let x = robot.arm().fk(q).expect("fk");
                     if tilt(&x.rotation).abs() >= tol.pour_angle_rad {
                         run += DT;
                         best = best.max(run);
