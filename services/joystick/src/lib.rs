@@ -475,9 +475,9 @@ impl ReplaySource {
     }
 }
 
-/// Where a script's time starts. Either way the stick rests for [`script::START_REST_S`]
-/// from the first tick this process sees: a joystick restarted in a running graph starts
-/// from the documented rest as a fresh one does.
+/// Where a script's time starts. A script whose time starts at the first tick seen rests for
+/// [`script::START_REST_S`] from there; one on the graph's time does not (see
+/// [`Origin::resting`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Origin {
     /// At the graph's tick 0 (the first tick seen, `None` before it, starts the rest).
@@ -501,9 +501,13 @@ impl Origin {
         }
     }
 
-    /// Whether `tick` falls in the rest that starts at the first tick seen.
+    /// Whether `tick` falls in the rest that starts at the first tick seen. Only for a script
+    /// whose time starts there: one on the graph's time (a joystick restarted in a running
+    /// graph) goes on with the script and no rest, so the restart itself never passes the
+    /// stick through neutral and re-arms the arm
+    /// (`restart::a_restarted_scripted_joystick_does_not_rearm_the_arm`).
     fn resting(&self, tick: u64, period_s: f64) -> bool {
-        let (Self::Graph(Some(first)) | Self::FirstSeen(Some(first))) = *self else {
+        let Self::FirstSeen(Some(first)) = *self else {
             return false;
         };
         tick != NO_TICK && (tick.saturating_sub(first) as f64 * period_s) < script::START_REST_S
@@ -1099,11 +1103,13 @@ mod tests {
         assert_eq!(remote.relative(125), 5);
     }
 
-    /// A scripted joystick started (or restarted) in a running graph rests for
-    /// `START_REST_S` from the first tick it sees, then follows the script at the graph's
-    /// time; one started with the graph rests as the script says, from tick 0.
+    /// A scripted joystick on the graph's time follows the script from the first tick it
+    /// sees: started with the graph, the script's own rest comes first; restarted in a
+    /// running graph it takes no rest of its own, so the restart never passes the stick
+    /// through neutral and re-arms the arm (safety still waits for neutral:
+    /// `restart::a_restarted_scripted_joystick_does_not_rearm_the_arm`).
     #[test]
-    fn a_restarted_script_rests_first_then_follows_the_graph_time() {
+    fn a_restarted_script_follows_the_graph_time_without_a_rest_of_its_own() {
         let cfg = JoystickConfig {
             script: "circle".into(),
             ..JoystickConfig::default()
@@ -1115,17 +1121,17 @@ mod tests {
         for first in [0, 400] {
             let mut src = Source::open(&cfg, period_s).unwrap();
             assert_eq!(src.input(now, NO_TICK, None).axes, [0.0, 0.0]);
-            for k in 0..rest_ticks {
-                assert_eq!(
-                    src.input(now, first + k, None).axes,
-                    [0.0, 0.0],
-                    "{first}+{k}"
-                );
+            for k in first..first + rest_ticks + 8 {
+                let want = script.sample(k, period_s, 0, 0).axes;
+                assert_eq!(src.input(now, k, None).axes, want, "{first}: {k}");
+                if first == 0 && k < rest_ticks {
+                    assert_eq!(want, [0.0, 0.0], "the script's own rest: {k}");
+                }
             }
-            let k = first + rest_ticks + 7;
-            let axes = src.input(now, k, None).axes;
-            assert_eq!(axes, script.sample(k, period_s, 0, 0).axes, "{first}");
-            assert_ne!(axes, [0.0, 0.0]);
+            assert_ne!(
+                src.input(now, first + rest_ticks + 9, None).axes,
+                [0.0, 0.0]
+            );
         }
     }
 

@@ -188,7 +188,11 @@ impl Greedy {
             let modes = self.probes.maps.len();
             // Within the tolerance of a position (a grip, the end of a reach) there is nothing
             // to switch for.
-            let settled = aim.tilt.is_none() && aim.distance(&p) <= self.tol.position_m;
+            // A zone (a lift, over the mark) is done once the tool is in it: never settled
+            // short of it.
+            let settled = aim.tilt.is_none()
+                && aim.zone == learning::goals::Zone::Point
+                && aim.distance(&p) <= self.tol.position_m;
             if modes > 1 && !settled {
                 let gain = now - e;
                 let mut other: Option<(usize, f64)> = None;
