@@ -376,9 +376,12 @@ fn sim_and_live_agree(study_text: &str, name: &str) {
         assert_eq!((l.len(), counts.len()), (1, 1), "{l:?} {counts:?}");
         let c = &counts[0];
         let n = |k: &str| c[k].parse::<u64>().unwrap();
-        // The operator answered the graph's states for about the attempt's length (40 Hz).
+        // The operator answered the graph's states for about the live attempt's length (40
+        // Hz). The live attempt's own length: an operator that learns on (the practiced one)
+        // may finish sooner live than in process.
+        let live_attempt_s: f64 = c["duration_s"].parse().unwrap();
         assert!(
-            n("answered") as f64 >= 0.9 * sim_s * 40.0,
+            n("answered") as f64 >= 0.9 * live_attempt_s * 40.0,
             "the operator answered the graph: {c:?}"
         );
         if n("unanswered") + n("late_samples") + n("early_samples") + n("missed") > 0 {
