@@ -128,17 +128,46 @@ impl CapabilityCheck<'_> {
     /// Runs the check.
     pub fn run(&self) -> Result<Capability, SimError> {
         let sim = self.sim;
-        let make = || {
-            LoadedModel::load_for(self.spec, sim.robot)
+        let follower = self.params.operator == OperatorKind::Follower;
+        let nearest = if self.spec == NEAREST_DEMONSTRATION {
+            if !follower {
+                return Err(SimError::Setup(format!(
+                    "the {NEAREST_DEMONSTRATION} map drives the follower only (--operator \
+                     follower): it searches every demonstrated tick on each evaluation, too \
+                     slow for the {} operator's planning",
+                    self.params.operator.name()
+                )));
+            }
+            Some(self.nearest_demonstration()?)
+        } else {
+            None
+        };
+        let make = || match &nearest {
+            Some((paths, speed)) => {
+                let mut m = LoadedModel::load_for(mapper::model::BUNDLED_NAME, sim.robot)
+                    .map_err(|source| SimError::Model {
+                        spec: self.spec.to_owned(),
+                        source,
+                    })?
+                    .at_period(sim.period_s);
+                m.map = Box::new(NearestDemonstration::new(
+                    paths.clone(),
+                    sim.robot.n_joints(),
+                    sim.period_s,
+                ));
+                m.header.speed_scale_rad_s = *speed;
+                Ok(m)
+            }
+            None => LoadedModel::load_for(self.spec, sim.robot)
                 .map(|m| m.at_period(sim.period_s))
                 .map_err(|source| SimError::Model {
                     spec: self.spec.to_owned(),
                     source,
-                })
+                }),
         };
         // Refuse a model that does not load before anything runs.
         make()?;
-        let attempts = if self.params.operator == OperatorKind::Follower {
+        let attempts = if follower {
             self.attempts_along_demonstrations(&make)?
         } else {
             self.attempts_from_the_start(&make)?
@@ -148,6 +177,26 @@ impl CapabilityCheck<'_> {
             operator: self.params.operator,
             attempts,
         })
+    }
+
+    /// The task's training demonstrations' paths and the speed scale a map trained on them
+    /// gets ([`learning::train::default_speed_scale`], within the robot's largest).
+    fn nearest_demonstration(&self) -> Result<(Arc<Vec<DemoPath>>, f64), SimError> {
+        let robot = self.sim.robot;
+        let (n_train, _) = self.task.default_counts();
+        let ds = learning::tasks::generate_for(self.task, robot, n_train, 0, DEMOS_SEED)
+            .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
+        let qdot: Vec<Vec<f64>> = ds.train.iter().flat_map(|t| t.qdot.clone()).collect();
+        let speed = learning::train::default_speed_scale(&qdot)
+            .ok_or_else(|| SimError::Setup("the demonstrations never move".into()))?
+            .min(mapper::model::max_speed_scale_rad_s(robot));
+        let paths = ds
+            .train
+            .iter()
+            .map(|t| DemoPath::of(robot, t))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
+        Ok((Arc::new(paths), speed))
     }
 
     fn attempts_from_the_start(
@@ -239,6 +288,101 @@ impl CapabilityCheck<'_> {
     }
 }
 
+/// The map `scl eval capability` takes by this name: the task's own training
+/// demonstrations as a map ([`NearestDemonstration`]), what any state-conditioned map learned
+/// from them could do at best.
+pub const NEAREST_DEMONSTRATION: &str = "nearest-demonstration";
+
+/// A state-conditioned map made of demonstrations: at `(q, c)` the nearest demonstrated
+/// joint angles with the same gripper state (open or closed), `H`'s first column the
+/// demonstration's motion from there over [`crate::operator::follower::FOLLOW_AHEAD_S`], the
+/// second the way back onto it, orthonormalised (Gram-Schmidt, as SCL's `H`). It reproduces
+/// the demonstrations exactly where they went, so the follower driving it along them says
+/// whether the demonstrations themselves can be reproduced in this loop (the safety filter,
+/// the hand): a learned map cannot do better than this along them. Its search is a linear
+/// scan of every demonstrated tick, fast enough for the follower's few probes per tick, not
+/// for the expert's planning.
+pub struct NearestDemonstration {
+    paths: Arc<Vec<DemoPath>>,
+    n: usize,
+    ahead: usize,
+}
+
+impl NearestDemonstration {
+    /// The map of `paths` for an arm of `n` joints at a control period of `dt` seconds.
+    pub fn new(paths: Arc<Vec<DemoPath>>, n: usize, dt: f64) -> Self {
+        let ahead = ((crate::operator::follower::FOLLOW_AHEAD_S / dt).round() as usize).max(1);
+        Self { paths, n, ahead }
+    }
+
+    /// The nearest demonstrated tick with the gripper `c`'s state: (path, tick).
+    fn nearest(&self, q: &[f64], c: f64) -> Option<(usize, usize)> {
+        let mut best: Option<(usize, usize, f64)> = None;
+        for (pi, p) in self.paths.iter().enumerate() {
+            for (i, x) in p.points.iter().enumerate() {
+                if (x.c - c).abs() >= 0.5 {
+                    continue;
+                }
+                let d: f64 = x.q.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+                if best.is_none_or(|(_, _, b)| d < b) {
+                    best = Some((pi, i, d));
+                }
+            }
+        }
+        best.map(|(pi, i, _)| (pi, i))
+    }
+}
+
+impl mapper::ActionMap for NearestDemonstration {
+    fn kind(&self) -> mapper::model::ModelKind {
+        mapper::model::ModelKind::Scl
+    }
+    fn n_joints(&self) -> usize {
+        self.n
+    }
+    fn latent_dim(&self) -> usize {
+        2
+    }
+    fn eval(&mut self, q: &[f64], c: f64, a: &[f64], out: &mut [f64]) {
+        let n = self.n.min(out.len()).min(q.len());
+        out.fill(0.0);
+        let Some((pi, i)) = self.nearest(&q[..n], c) else {
+            return;
+        };
+        let p = &self.paths[pi];
+        let mut j = i;
+        while j + 1 < p.len() && j < i + self.ahead && (p.points[j + 1].c - c).abs() < 0.5 {
+            j += 1;
+        }
+        let (here, there) = (&p.points[i].q, &p.points[j].q);
+        let mut cols = [[0.0; ipc_types::MAX_JOINTS]; 2];
+        for k in 0..n {
+            cols[0][k] = there[k] - here[k];
+            cols[1][k] = here[k] - q[k];
+        }
+        // Gram-Schmidt; a column that vanishes (a grip: the arm stands) gives way to the next.
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm(&cols[0][..n]) < 1e-9 {
+            cols.swap(0, 1);
+            cols[1] = [0.0; ipc_types::MAX_JOINTS];
+        }
+        let n0 = norm(&cols[0][..n]);
+        if n0 < 1e-12 {
+            return;
+        }
+        cols[0][..n].iter_mut().for_each(|x| *x /= n0);
+        let dot: f64 = (0..n).map(|k| cols[0][k] * cols[1][k]).sum();
+        for k in 0..n {
+            cols[1][k] -= dot * cols[0][k];
+        }
+        let n1 = norm(&cols[1][..n]);
+        let k1 = if n1 > 1e-9 { 1.0 / n1 } else { 0.0 };
+        for (k, o) in out.iter_mut().enumerate().take(n) {
+            *o = cols[0][k] * a[0] + cols[1][k] * k1 * a[1];
+        }
+    }
+}
+
 /// The goals of `task` in its study scene on `robot`'s arm.
 fn goals_on(task: Task, robot: &RobotProfile) -> Result<TaskGoals, SimError> {
     TaskGoals::on(task, Tolerances::default(), robot)
@@ -280,5 +424,49 @@ mod tests {
             ..check
         };
         assert!(matches!(missing.run(), Err(SimError::Model { .. })));
+        let nearest = CapabilityCheck {
+            spec: NEAREST_DEMONSTRATION,
+            ..check
+        };
+        let e = nearest.run().expect_err("the expert cannot plan with it");
+        assert!(e.to_string().contains("--operator follower"), "{e}");
+    }
+
+    /// On a demonstration the map's first direction is the demonstration's own motion from
+    /// there (unit length), its second is orthogonal to it; off it the second pulls back.
+    #[test]
+    fn the_nearest_demonstration_map_moves_along_its_demonstration() {
+        let robot = RobotProfile::default_robot();
+        let ds = learning::tasks::generate_for(Task::PickAndPlace, robot, 2, 0, DEMOS_SEED)
+            .expect("demonstrations");
+        let paths: Vec<DemoPath> = ds
+            .train
+            .iter()
+            .map(|t| DemoPath::of(robot, t).expect("kinematics"))
+            .collect();
+        let n = robot.n_joints();
+        let mut map = NearestDemonstration::new(Arc::new(paths.clone()), n, 0.025);
+        use mapper::ActionMap;
+        let (p, i) = (&paths[1], 40);
+        let (q, c) = (&p.points[i].q, p.points[i].c);
+        let mut h0 = vec![0.0; n];
+        let mut h1 = vec![0.0; n];
+        map.eval(q, c, &[1.0, 0.0], &mut h0);
+        map.eval(q, c, &[0.0, 1.0], &mut h1);
+        let ahead = &p.points[i + 10].q;
+        let motion: Vec<f64> = (0..n).map(|k| ahead[k] - q[k]).collect();
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        assert!((norm(&h0) - 1.0).abs() < 1e-9, "{h0:?}");
+        assert!(
+            dot(&h0, &motion) / norm(&motion) > 1.0 - 1e-9,
+            "{h0:?} {motion:?}"
+        );
+        assert!(dot(&h0, &h1).abs() < 1e-9, "{h0:?} {h1:?}");
+        // Off the demonstration (0.05 rad on the shoulder): the second direction leads back.
+        let mut off = q.clone();
+        off[1] += 0.05;
+        map.eval(&off, c, &[0.0, 1.0], &mut h1);
+        assert!(h1[1] < -0.5, "{h1:?}");
     }
 }

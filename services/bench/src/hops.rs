@@ -58,6 +58,10 @@ pub struct HopRow {
     pub us: Dist,
     /// Messages sent.
     pub sent: usize,
+    /// Messages the transport took: a socket refuses a datagram its reader's queue has no
+    /// room for (`net.unix.max_dgram_qlen`, 10 by default, when the reader is descheduled);
+    /// shared memory takes every one (its buffer holds 64).
+    pub accepted: usize,
 }
 
 /// The whole result (`--json`).
@@ -73,8 +77,13 @@ pub struct HopsReport {
     pub ratios: Vec<(Mode, f64, f64, f64)>,
 }
 
-/// Runs one hop `count` times on `transport` in `mode`; returns the latencies (ns).
-fn one(opts: &HopsOptions, transport: Transport, mode: Mode) -> Result<Vec<u64>, BenchError> {
+/// Runs one hop `count` times on `transport` in `mode`; returns the latencies (ns) and how
+/// many messages the transport took.
+fn one(
+    opts: &HopsOptions,
+    transport: Transport,
+    mode: Mode,
+) -> Result<(Vec<u64>, usize), BenchError> {
     let prefix = Prefix::new(&format!("hops{}{transport}{mode}", std::process::id()))
         .map_err(|e| BenchError::Graph(e.to_string()))?;
     let count = opts.count;
@@ -115,7 +124,7 @@ fn one(opts: &HopsOptions, transport: Transport, mode: Mode) -> Result<Vec<u64>,
         }
         Ok(out)
     });
-    let publish = || -> Result<(), BenchError> {
+    let publish = || -> Result<usize, BenchError> {
         let graph = Graph::join_with(&prefix, "hops-tx", transport)?;
         let publ = graph.robot_state_publisher()?;
         match ready_rx.recv_timeout(Duration::from_secs(10)) {
@@ -128,6 +137,7 @@ fn one(opts: &HopsOptions, transport: Transport, mode: Mode) -> Result<Vec<u64>,
         publ.send(RobotState::at_rest(u64::MAX, now_ns(), 6))?;
         std::thread::sleep(Duration::from_millis(20));
         let mut next = now_ns();
+        let mut accepted = 0;
         for i in 0..count {
             next += opts.interval.as_nanos() as u64;
             while now_ns() < next {
@@ -135,10 +145,10 @@ fn one(opts: &HopsOptions, transport: Transport, mode: Mode) -> Result<Vec<u64>,
             }
             let mut s = RobotState::at_rest(i as u64, 0, 6);
             s.t_ns = now_ns();
-            publ.send(s)?;
+            accepted += publ.send(s)?.min(1);
         }
         // Keep the publisher until the receiver is done (sockets: its files).
-        Ok(())
+        Ok(accepted)
     };
     let sent = publish();
     let got = receiver
@@ -146,8 +156,8 @@ fn one(opts: &HopsOptions, transport: Transport, mode: Mode) -> Result<Vec<u64>,
         .map_err(|_| BenchError::Graph("the receiver panicked".into()))?;
     let _ = transport::graph::release_domain(&prefix);
     transport::uds::remove_graph(prefix.as_str());
-    sent?;
-    got.map_err(BenchError::Graph)
+    let accepted = sent?;
+    Ok((got.map_err(BenchError::Graph)?, accepted))
 }
 
 /// Runs every transport in both modes.
@@ -159,12 +169,13 @@ pub fn hops(opts: &HopsOptions) -> Result<HopsReport, BenchError> {
                 break;
             }
             eprintln!("bench: hops, {t}, {mode}, {} messages", opts.count);
-            let lat = one(opts, *t, mode)?;
+            let (lat, accepted) = one(opts, *t, mode)?;
             rows.push(HopRow {
                 transport: *t,
                 mode,
                 us: Dist::of(&lat),
                 sent: opts.count,
+                accepted,
             });
         }
     }
@@ -244,11 +255,13 @@ mod tests {
         let r = hops(&opts).unwrap();
         assert_eq!(r.rows.len(), 4);
         for row in &r.rows {
-            // A socket drops a datagram its reader has no room for (counted, not hidden: the
-            // table shows received / sent); shared memory keeps every one here.
-            match row.transport {
-                Transport::Iceoryx2 => assert_eq!(row.us.n, 50, "{row:?}"),
-                Transport::Uds => assert!(row.us.n >= 48, "{row:?}"),
+            // Every message the transport took arrives. A socket refuses a datagram its
+            // reader has no room for (counted, not hidden: the table shows received / sent),
+            // as many as the machine's scheduling makes; shared memory takes every one here.
+            assert_eq!(row.us.n, row.accepted, "{row:?}");
+            assert!(row.accepted > 0, "{row:?}");
+            if row.transport == Transport::Iceoryx2 {
+                assert_eq!(row.accepted, 50, "{row:?}");
             }
             assert!(row.us.p50 > 0.0, "{row:?}");
         }

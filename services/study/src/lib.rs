@@ -1357,7 +1357,11 @@ pub fn simulate(
 /// down ([`study::capability`]).
 #[derive(clap::Args, Debug, Clone)]
 pub struct CapabilityArgs {
-    /// The model file (`*.safetensors`) or a built-in map (`modeswitch`).
+    /// The model file (`*.safetensors`), a built-in map (`modeswitch`), or
+    /// `nearest-demonstration` with `--operator follower`: the task's training
+    /// demonstrations themselves as the map (the best any map learned from them could do
+    /// along them), so a failure there is the demonstrations' or the loop's (safety, the
+    /// hand), not the learned map's.
     pub model: String,
     /// The task: table-cleaning, pick-and-place or pouring.
     #[arg(long)]
@@ -1473,8 +1477,16 @@ pub fn capability(
                 .followed_pct
                 .map(|f| format!(", followed {f:.0} % of it"))
                 .unwrap_or_default();
+            let safety = a
+                .result
+                .diagnosis
+                .as_ref()
+                .map(|d| d.safety_summary())
+                .filter(|s| !s.is_empty())
+                .map(|s| format!("; safety acted (ticks): {s}"))
+                .unwrap_or_default();
             println!(
-                "  {:<14} {:<8} {:>5.1} s, {:>3.0} % of the subgoals{followed}",
+                "  {:<14} {:<8} {:>5.1} s, {:>3.0} % of the subgoals{followed}{safety}",
                 a.name,
                 a.result.outcome.name(),
                 a.result.duration_s,
