@@ -372,8 +372,9 @@ impl mapper::ActionMap for NearestDemonstration {
         }
         cols[0][..n].iter_mut().for_each(|x| *x /= n0);
         let dot: f64 = (0..n).map(|k| cols[0][k] * cols[1][k]).sum();
-        for k in 0..n {
-            cols[1][k] -= dot * cols[0][k];
+        let [c0, c1] = &mut cols;
+        for (x, y) in c1.iter_mut().zip(c0.iter()).take(n) {
+            *x -= dot * y;
         }
         let n1 = norm(&cols[1][..n]);
         let k1 = if n1 > 1e-9 { 1.0 / n1 } else { 0.0 };
