@@ -31,7 +31,7 @@ use crate::operator::follower::DemoPath;
 use crate::operator::{Demos, OperatorKind};
 use crate::simulate::{
     AttemptResult, AttemptSetup, DEMOS_SEED, Loop, SimError, SimParams, attempt_seed,
-    run_attempt_followed,
+    run_attempt_followed, training_demos,
 };
 
 /// The paper's time limit of an attempt at `task` (s): 60 for table cleaning, 90 for
@@ -183,20 +183,16 @@ impl CapabilityCheck<'_> {
     /// gets ([`learning::train::default_speed_scale`], within the robot's largest).
     fn nearest_demonstration(&self) -> Result<(Arc<Vec<DemoPath>>, f64), SimError> {
         let robot = self.sim.robot;
-        let (n_train, _) = self.task.default_counts();
-        let ds = learning::tasks::generate_for(self.task, robot, n_train, 0, DEMOS_SEED)
-            .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
-        let qdot: Vec<Vec<f64>> = ds.train.iter().flat_map(|t| t.qdot.clone()).collect();
+        let demos = training_demos(self.task, robot)?;
+        let qdot: Vec<Vec<f64>> = demos
+            .trajectories
+            .iter()
+            .flat_map(|t| t.qdot.iter().cloned())
+            .collect();
         let speed = learning::train::default_speed_scale(&qdot)
             .ok_or_else(|| SimError::Setup("the demonstrations never move".into()))?
             .min(mapper::model::max_speed_scale_rad_s(robot));
-        let paths = ds
-            .train
-            .iter()
-            .map(|t| DemoPath::of(robot, t))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
-        Ok((Arc::new(paths), speed))
+        Ok((demos.paths.clone(), speed))
     }
 
     fn attempts_from_the_start(
@@ -239,22 +235,13 @@ impl CapabilityCheck<'_> {
         &self,
         make: &(dyn Fn() -> Result<LoadedModel, SimError> + Sync),
     ) -> Result<Vec<CapabilityAttempt>, SimError> {
-        let robot = self.sim.robot;
-        let (n_train, _) = self.task.default_counts();
-        let (ds, scenes) =
-            learning::tasks::generate_scenes_for(self.task, robot, n_train, 0, DEMOS_SEED)
-                .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
-        let paths = ds
-            .train
-            .iter()
-            .map(|t| DemoPath::of(robot, t))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| SimError::Setup(format!("the demonstrations: {e}")))?;
-        let paths = Arc::new(paths);
+        let demos = training_demos(self.task, self.sim.robot)?;
+        let paths = demos.paths.clone();
         let tol = Tolerances::default();
-        ds.train
+        demos
+            .trajectories
             .par_iter()
-            .zip(&scenes)
+            .zip(&demos.scenes)
             .enumerate()
             .map(|(i, (traj, scene))| {
                 let goals = TaskGoals::in_scene(scene, tol);

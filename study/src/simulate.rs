@@ -592,21 +592,61 @@ pub fn study_goals(study: &Study, robot: &RobotProfile) -> Result<Vec<TaskGoals>
 /// in a study.
 pub const DEMOS_SEED: u64 = 1;
 
-/// The training demonstrations of `task` on `robot`'s arm that a follower reproduces in a
-/// study (the nearest to the tool), and whose paths are the expert's route: the generator's,
-/// at the paper's counts and [`DEMOS_SEED`].
-pub fn task_demos(task: GoalTask, robot: &'static RobotProfile) -> Result<Demos, SimError> {
+/// The training demonstrations of a task on an arm: the generator's at the paper's counts
+/// and [`DEMOS_SEED`], the ones the shipped study models learned from.
+#[derive(Debug)]
+pub struct TrainingDemos {
+    /// Each demonstration.
+    pub trajectories: Vec<learning::dataset::Trajectory>,
+    /// The scene each was made in (its goals: [`TaskGoals::in_scene`]).
+    pub scenes: Vec<learning::goals::Scene>,
+    /// Each one's path (the forward kinematics of its ticks), as the follower and the expert's
+    /// route take them.
+    pub paths: Arc<Vec<crate::operator::follower::DemoPath>>,
+}
+
+/// The [`TrainingDemos`] of `task` on `robot`'s arm, made once per process (every participant
+/// and check of a run shares them; the generator is deterministic, so they are the same
+/// either way).
+pub fn training_demos(
+    task: GoalTask,
+    robot: &'static RobotProfile,
+) -> Result<Arc<TrainingDemos>, SimError> {
+    type Made = std::collections::HashMap<(GoalTask, String), Arc<TrainingDemos>>;
+    static MADE: std::sync::OnceLock<Mutex<Made>> = std::sync::OnceLock::new();
+    let key = (task, robot.name().to_owned());
+    let made = MADE.get_or_init(Default::default);
+    if let Some(d) = made.lock().map_err(|_| poisoned())?.get(&key) {
+        return Ok(d.clone());
+    }
     let (n_train, _) = task.default_counts();
-    let ds = learning::tasks::generate_for(task, robot, n_train, 0, DEMOS_SEED)
-        .map_err(|e| SimError::Setup(format!("the follower's demonstrations: {e}")))?;
+    let (ds, scenes) = learning::tasks::generate_scenes_for(task, robot, n_train, 0, DEMOS_SEED)
+        .map_err(|e| SimError::Setup(format!("the training demonstrations: {e}")))?;
     let paths = ds
         .train
         .iter()
         .map(|t| crate::operator::follower::DemoPath::of(robot, t))
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| SimError::Setup(format!("the follower's demonstrations: {e}")))?;
-    Ok(Demos {
+        .map_err(|e| SimError::Setup(format!("the training demonstrations: {e}")))?;
+    let d = Arc::new(TrainingDemos {
+        trajectories: ds.train,
+        scenes,
         paths: Arc::new(paths),
+    });
+    made.lock().map_err(|_| poisoned())?.insert(key, d.clone());
+    Ok(d)
+}
+
+fn poisoned() -> SimError {
+    SimError::Setup("the training demonstrations' store was poisoned by a panic".into())
+}
+
+/// The training demonstrations of `task` on `robot`'s arm that a follower reproduces in a
+/// study (the nearest to the tool), and whose paths are the expert's route
+/// ([`training_demos`]).
+pub fn task_demos(task: GoalTask, robot: &'static RobotProfile) -> Result<Demos, SimError> {
+    Ok(Demos {
+        paths: training_demos(task, robot)?.paths.clone(),
         only: None,
     })
 }

@@ -1477,14 +1477,18 @@ pub fn capability(
                 .followed_pct
                 .map(|f| format!(", followed {f:.0} % of it"))
                 .unwrap_or_default();
-            let safety = a
-                .result
-                .diagnosis
-                .as_ref()
+            let d = a.result.diagnosis.as_ref();
+            let failed = a.result.outcome != study::data::Outcome::Success;
+            let stuck = d
+                .filter(|_| failed)
+                .and_then(|d| Some((d.next.as_ref()?, d.closest_m?)))
+                .map(|(next, m)| format!("; {next} never done, closest {:.1} cm", m * 100.0))
+                .unwrap_or_default();
+            let safety = d
                 .map(|d| d.safety_summary())
                 .filter(|s| !s.is_empty())
-                .map(|s| format!("; safety acted (ticks): {s}"))
-                .unwrap_or_default();
+                .map(|s| format!("{stuck}; safety acted (ticks): {s}"))
+                .unwrap_or(stuck);
             println!(
                 "  {:<14} {:<8} {:>5.1} s, {:>3.0} % of the subgoals{followed}{safety}",
                 a.name,
