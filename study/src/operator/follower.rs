@@ -354,16 +354,21 @@ impl Operate for Follower {
                         .zip(seen.state.q())
                         .map(|((t, h), now)| now + (t - h) + k * (h - now))
                         .collect();
-                    let off_m = (here.tool.translation.vector - p).norm();
-                    let off_rad: f64 = here
-                        .q
-                        .iter()
-                        .zip(seen.state.q())
-                        .map(|(a, b)| (a - b) * (a - b))
-                        .sum::<f64>()
-                        .sqrt();
+                    // How far off the demonstration: computed only when traced.
+                    let off = tracing::enabled!(tracing::Level::TRACE).then(|| {
+                        let off_rad: f64 = here
+                            .q
+                            .iter()
+                            .zip(seen.state.q())
+                            .map(|(a, b)| (a - b) * (a - b))
+                            .sum::<f64>()
+                            .sqrt();
+                        ((here.tool.translation.vector - p).norm(), off_rad)
+                    });
                     choice = self.choose(make, seen, &q, rng);
-                    tracing::trace!(path = pi, at = i, off_m, off_rad, ?choice, "the follower");
+                    if let Some((off_m, off_rad)) = off {
+                        tracing::trace!(path = pi, at = i, off_m, off_rad, ?choice, "the follower");
+                    }
                 }
             }
             if let Some(close) = aim.grip
