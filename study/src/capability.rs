@@ -208,20 +208,8 @@ impl CapabilityCheck<'_> {
         (1..=self.seeds)
             .into_par_iter()
             .map(|i| {
-                let setup = AttemptSetup {
-                    sim: self.sim,
-                    start_q: &q0,
-                    goals: &goals,
-                    time_limit_s: time_limit_s(self.task),
-                    params: self.params,
-                    model: make,
-                    seed: attempt_seed(i, &[self.task as u64]),
-                    aim_out: None,
-                    learned: None,
-                    demos: Some(&demos),
-                };
-                let (result, _) = run_attempt_followed(&setup)?;
-                (self.progress)();
+                let seed = attempt_seed(i, &[self.task as u64]);
+                let (result, _) = self.attempt(make, &q0, &goals, seed, &demos)?;
                 Ok(CapabilityAttempt {
                     name: format!("seed {i}"),
                     result,
@@ -229,6 +217,32 @@ impl CapabilityCheck<'_> {
                 })
             })
             .collect()
+    }
+
+    /// One attempt from `q0` at `goals` with the task's time limit; progress told after it.
+    fn attempt(
+        &self,
+        make: &(dyn Fn() -> Result<LoadedModel, SimError> + Sync),
+        q0: &[f64],
+        goals: &TaskGoals,
+        seed: u64,
+        demos: &Demos,
+    ) -> Result<(AttemptResult, Option<crate::operator::follower::Followed>), SimError> {
+        let setup = AttemptSetup {
+            sim: self.sim,
+            start_q: q0,
+            goals,
+            time_limit_s: time_limit_s(self.task),
+            params: self.params,
+            model: make,
+            seed,
+            aim_out: None,
+            learned: None,
+            demos: Some(demos),
+        };
+        let r = run_attempt_followed(&setup)?;
+        (self.progress)();
+        Ok(r)
     }
 
     fn attempts_along_demonstrations(
@@ -250,20 +264,8 @@ impl CapabilityCheck<'_> {
                     only: Some(i),
                 };
                 let q0 = traj.q.first().cloned().unwrap_or_default();
-                let setup = AttemptSetup {
-                    sim: self.sim,
-                    start_q: &q0,
-                    goals: &goals,
-                    time_limit_s: time_limit_s(self.task),
-                    params: self.params,
-                    model: make,
-                    seed: attempt_seed(DEMOS_SEED, &[self.task as u64, i as u64]),
-                    aim_out: None,
-                    learned: None,
-                    demos: Some(&demos),
-                };
-                let (result, followed) = run_attempt_followed(&setup)?;
-                (self.progress)();
+                let seed = attempt_seed(DEMOS_SEED, &[self.task as u64, i as u64]);
+                let (result, followed) = self.attempt(make, &q0, &goals, seed, &demos)?;
                 Ok(CapabilityAttempt {
                     name: traj.name.clone(),
                     result,

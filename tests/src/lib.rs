@@ -53,25 +53,12 @@ pub fn leftovers(prefix: &Prefix) -> Vec<String> {
 }
 
 /// Files under `/dev/shm` and iceoryx2's directory whose name holds `needle` (a graph's file
-/// prefix, or a part every graph of one run shares).
+/// prefix, or a part every graph of one run shares): [`transport::graph::files_named`].
 pub fn files_named(needle: &str) -> Vec<String> {
-    let mut found = Vec::new();
-    let mut stack = vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")];
-    while let Some(dir) = stack.pop() {
-        let Ok(rd) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p.clone());
-            }
-            if e.file_name().to_string_lossy().contains(needle) {
-                found.push(p.display().to_string());
-            }
-        }
-    }
-    found
+    transport::graph::files_named(needle)
+        .into_iter()
+        .map(|p| p.display().to_string())
+        .collect()
 }
 
 /// Releases the domain of graph `prefix` (the test's recorder was the last node) and waits

@@ -570,6 +570,31 @@ pub fn release_domain(prefix: &Prefix) -> Result<bool, IpcError> {
     })
 }
 
+/// Files under `/dev/shm` and iceoryx2's directory (`/tmp/iceoryx2`) whose name holds
+/// `needle`: a graph's [`Prefix::file_prefix`] finds what the graph left behind.
+pub fn files_named(needle: &str) -> Vec<std::path::PathBuf> {
+    let mut found = Vec::new();
+    let mut stack = vec![
+        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from("/tmp/iceoryx2"),
+    ];
+    while let Some(dir) = stack.pop() {
+        let Ok(rd) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p.clone());
+            }
+            if e.file_name().to_string_lossy().contains(needle) {
+                found.push(p);
+            }
+        }
+    }
+    found
+}
+
 // One per port, made once per process: the size of the variants does not matter.
 #[allow(clippy::large_enum_variant)]
 enum PubInner<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> {

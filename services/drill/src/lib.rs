@@ -409,24 +409,7 @@ fn wait_exit(child: &mut Child, timeout: Duration) -> Option<std::process::ExitS
 
 /// Files of graph `prefix` left in `/dev/shm` or iceoryx2's directory.
 pub fn leftovers(prefix: &Prefix) -> Vec<PathBuf> {
-    let needle = prefix.file_prefix();
-    let mut found = Vec::new();
-    let mut stack = vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")];
-    while let Some(dir) = stack.pop() {
-        let Ok(rd) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p.clone());
-            }
-            if e.file_name().to_string_lossy().contains(&needle) {
-                found.push(p);
-            }
-        }
-    }
-    found
+    transport::graph::files_named(&prefix.file_prefix())
 }
 
 /// Reads the run's recording. A message with a non-finite value (a fault drill's NaN) is
