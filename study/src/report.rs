@@ -15,6 +15,7 @@ use learning::experiments::stats::{self, RankTests};
 
 use crate::StudyError;
 use crate::data::{AnswerRow, Outcome, QUESTIONNAIRE, TRIALS, TrialRow, read_rows};
+use crate::diagnose::{DIAGNOSIS, DiagnosisRow};
 
 /// The significance level of the tests.
 pub const ALPHA: f64 = 0.05;
@@ -26,6 +27,8 @@ pub struct Data {
     pub trials: Vec<TrialRow>,
     /// The answers.
     pub answers: Vec<AnswerRow>,
+    /// Why each simulated attempt ended where it did (`diagnosis.csv`; none for people).
+    pub diagnoses: Vec<DiagnosisRow>,
 }
 
 impl Data {
@@ -37,6 +40,7 @@ impl Data {
         for dir in dirs {
             let trials: Vec<TrialRow> = read_rows(&dir.join(TRIALS))?;
             let answers: Vec<AnswerRow> = read_rows(&dir.join(QUESTIONNAIRE))?;
+            let diagnoses: Vec<DiagnosisRow> = read_rows(&dir.join(DIAGNOSIS))?;
             if trials.is_empty() && answers.is_empty() {
                 return Err(StudyError::Data {
                     path: dir.clone(),
@@ -61,6 +65,7 @@ impl Data {
             }
             data.trials.extend(trials);
             data.answers.extend(answers);
+            data.diagnoses.extend(diagnoses);
         }
         Ok(data)
     }
@@ -133,6 +138,91 @@ pub struct Report {
     pub measures: Vec<Tested>,
     /// The condition the radar's stars compare against.
     pub reference: usize,
+    /// Why the failed final attempts failed, per task and condition (simulated participants
+    /// only: their `diagnosis.csv`).
+    pub failures: Vec<Failures>,
+}
+
+/// The failed final attempts of one task and condition, from their diagnoses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Failures {
+    /// The task.
+    pub task: String,
+    /// The condition.
+    pub condition: String,
+    /// Failed final attempts with a diagnosis.
+    pub failed: usize,
+    /// The subgoal never done, with how many attempts stopped before it, most first.
+    pub stuck_at: Vec<(String, usize)>,
+    /// The median of the closest the tool came to it (m).
+    pub median_closest_m: Option<f64>,
+    /// The safety rules that acted, ticks summed over these attempts, most first.
+    pub safety: Vec<(String, u64)>,
+}
+
+/// [`Failures`] of the failed final attempts among `diagnoses`.
+fn failures(
+    finals: &[&TrialRow],
+    diagnoses: &[DiagnosisRow],
+    tasks: &[String],
+    conditions: &[String],
+) -> Vec<Failures> {
+    let is_final = |d: &DiagnosisRow| {
+        finals.iter().any(|t| {
+            t.participant == d.participant
+                && t.task == d.task
+                && t.label == d.label
+                && t.attempt == d.attempt
+        })
+    };
+    let mut out = Vec::new();
+    for task in tasks {
+        for c in conditions {
+            let rows: Vec<&DiagnosisRow> = diagnoses
+                .iter()
+                .filter(|d| {
+                    &d.task == task
+                        && &d.condition == c
+                        && d.outcome != Outcome::Success
+                        && is_final(d)
+                })
+                .collect();
+            if rows.is_empty() {
+                continue;
+            }
+            let mut stuck: BTreeMap<&str, usize> = BTreeMap::new();
+            let mut safety: BTreeMap<String, u64> = BTreeMap::new();
+            let mut closest = Vec::new();
+            for d in &rows {
+                *stuck.entry(d.next.as_str()).or_default() += 1;
+                closest.extend(d.closest_m);
+                // `position 120, acceleration 8`
+                for part in d.safety.split(", ") {
+                    if let Some((rule, n)) = part.rsplit_once(' ')
+                        && let Ok(n) = n.parse::<u64>()
+                    {
+                        *safety.entry(rule.to_owned()).or_default() += n;
+                    }
+                }
+            }
+            let mut stuck_at: Vec<(String, usize)> = stuck
+                .into_iter()
+                .map(|(k, n)| (if k.is_empty() { "-" } else { k }.to_owned(), n))
+                .collect();
+            stuck_at.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            let mut safety: Vec<(String, u64)> = safety.into_iter().collect();
+            safety.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            out.push(Failures {
+                task: task.clone(),
+                condition: c.clone(),
+                failed: rows.len(),
+                stuck_at,
+                median_closest_m: (!closest.is_empty()).then(|| median(&closest)),
+                safety,
+            });
+        }
+    }
+    out
 }
 
 /// Analyses `data`; `reference` names the condition the Likert radar compares against
@@ -237,6 +327,7 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
             }
         }
     }
+    let failures = failures(&finals, &data.diagnoses, &tasks, &conditions);
     Ok(Report {
         study: study.into_iter().collect::<Vec<_>>().join(", "),
         tasks,
@@ -245,6 +336,7 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
         successes,
         measures,
         reference,
+        failures,
     })
 }
 
@@ -447,6 +539,45 @@ pub fn summary(r: &Report) -> String {
             .map(|x| format!("{} / {}", x.successes, x.attempts))
             .collect();
         let _ = writeln!(s, "| {task} | {} |", cells.join(" | "));
+    }
+    if !r.failures.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n## Why attempts failed\n\nThe failed final attempts' `{DIAGNOSIS}`: the subgoal \
+             they never did (how many stopped before it), the median of the closest the tool \
+             came to it, and the safety rules that acted most (ticks, summed).\n"
+        );
+        let _ = writeln!(
+            s,
+            "| task | condition | failed | never done | closest, median | safety acted |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|");
+        for f in &r.failures {
+            let stuck: Vec<String> = f
+                .stuck_at
+                .iter()
+                .map(|(g, n)| format!("{g} ({n})"))
+                .collect();
+            let safety: Vec<String> = f
+                .safety
+                .iter()
+                .take(3)
+                .map(|(rule, n)| format!("{rule} {n}"))
+                .collect();
+            let closest = f
+                .median_closest_m
+                .map(|m| format!("{:.1} cm", m * 100.0))
+                .unwrap_or_else(|| "-".into());
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {closest} | {} |",
+                f.task,
+                f.condition,
+                f.failed,
+                stuck.join(", "),
+                safety.join(", ")
+            );
+        }
     }
     for task in &r.tasks {
         let _ = writeln!(s, "\n## {task}\n");
@@ -784,7 +915,76 @@ mod tests {
                 });
             }
         }
-        Data { trials, answers }
+        // Why two of them failed (simulated participants' diagnosis.csv).
+        let diagnosis =
+            |p: &str, label: &str, name: &str, next: &str, m: f64, safety: &str| DiagnosisRow {
+                participant: p.into(),
+                task: "t".into(),
+                label: label.into(),
+                condition: name.into(),
+                attempt: 1,
+                outcome: Outcome::Failure,
+                subgoals_done: 1,
+                reached: "first".into(),
+                next: next.into(),
+                closest_m: Some(m),
+                closest_at_s: Some(3.0),
+                safety: safety.into(),
+                joints_at_limit: String::new(),
+                off_map_deg: None,
+                towards_m_s: None,
+                recording: String::new(),
+            };
+        let diagnoses = vec![
+            diagnosis(
+                "P01",
+                "B",
+                "PCA",
+                "to the bottle",
+                0.05,
+                "clearance 30, velocity 2",
+            ),
+            diagnosis(
+                "P02",
+                "B",
+                "PCA",
+                "to the bottle",
+                0.07,
+                "clearance 10, acceleration 5",
+            ),
+            diagnosis("P03", "B", "PCA", "lift", 0.02, "velocity 1"),
+            // A success's row is left out.
+            DiagnosisRow {
+                outcome: Outcome::Success,
+                ..diagnosis("P01", "A", "SCL", "", 0.0, "")
+            },
+        ];
+        Data {
+            trials,
+            answers,
+            diagnoses,
+        }
+    }
+
+    /// The failed attempts' diagnoses, summed per task and condition: the subgoal most
+    /// often never done, the median closest distance, the rules that acted most.
+    #[test]
+    fn the_summary_says_why_attempts_failed() {
+        let r = analyse(&data(), None).unwrap();
+        assert_eq!(r.failures.len(), 1, "{:?}", r.failures);
+        let f = &r.failures[0];
+        assert_eq!((f.condition.as_str(), f.failed), ("PCA", 3));
+        assert_eq!(
+            f.stuck_at,
+            [("to the bottle".to_owned(), 2), ("lift".to_owned(), 1)]
+        );
+        assert_eq!(f.median_closest_m, Some(0.05));
+        assert_eq!(f.safety[0], ("clearance".to_owned(), 40));
+        let md = summary(&r);
+        assert!(
+            md.contains("| t | PCA | 3 | to the bottle (2), lift (1) | 5.0 cm | clearance 40, acceleration 5, velocity 3 |"),
+            "{md}"
+        );
     }
 
     #[test]
