@@ -43,8 +43,12 @@ impl Drop for Temp {
     }
 }
 
+/// Each file gets a directory of its own: tests run in parallel, and one removing its
+/// emptied directory must not pull it from under another's file.
 fn temp(name: &str) -> Temp {
-    let dir = std::env::temp_dir().join(format!("scl-replay-unit-{}", std::process::id()));
+    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("scl-replay-unit-{}-{n}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join(name);
     let _ = std::fs::remove_file(&p);
