@@ -300,25 +300,13 @@ pub struct NearestDemonstration {
 impl NearestDemonstration {
     /// The map of `paths` for an arm of `n` joints at a control period of `dt` seconds.
     pub fn new(paths: Arc<Vec<DemoPath>>, n: usize, dt: f64) -> Self {
-        let ahead = ((crate::operator::follower::FOLLOW_AHEAD_S / dt).round() as usize).max(1);
+        let ahead = crate::operator::follower::ahead_ticks(dt);
         Self { paths, n, ahead }
     }
 
     /// The nearest demonstrated tick with the gripper `c`'s state: (path, tick).
     fn nearest(&self, q: &[f64], c: f64) -> Option<(usize, usize)> {
-        let mut best: Option<(usize, usize, f64)> = None;
-        for (pi, p) in self.paths.iter().enumerate() {
-            for (i, x) in p.points.iter().enumerate() {
-                if (x.c - c).abs() >= 0.5 {
-                    continue;
-                }
-                let d: f64 = x.q.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
-                if best.is_none_or(|(_, _, b)| d < b) {
-                    best = Some((pi, i, d));
-                }
-            }
-        }
-        best.map(|(pi, i, _)| (pi, i))
+        crate::operator::follower::nearest_of(self.paths.iter().enumerate(), q, c)
     }
 }
 
@@ -339,10 +327,7 @@ impl mapper::ActionMap for NearestDemonstration {
             return;
         };
         let p = &self.paths[pi];
-        let mut j = i;
-        while j + 1 < p.len() && j < i + self.ahead && (p.points[j + 1].c - c).abs() < 0.5 {
-            j += 1;
-        }
+        let j = p.ahead(i, c, self.ahead);
         let (here, there) = (&p.points[i].q, &p.points[j].q);
         let mut cols = [[0.0; ipc_types::MAX_JOINTS]; 2];
         for k in 0..n {

@@ -167,13 +167,24 @@ fn failures(
     tasks: &[String],
     conditions: &[String],
 ) -> Vec<Failures> {
-    let is_final = |d: &DiagnosisRow| {
-        finals.iter().any(|t| {
-            t.participant == d.participant
-                && t.task == d.task
-                && t.label == d.label
-                && t.attempt == d.attempt
+    let finals: BTreeSet<(&str, &str, &str, u32)> = finals
+        .iter()
+        .map(|t| {
+            (
+                t.participant.as_str(),
+                t.task.as_str(),
+                t.label.as_str(),
+                t.attempt,
+            )
         })
+        .collect();
+    let is_final = |d: &DiagnosisRow| {
+        finals.contains(&(
+            d.participant.as_str(),
+            d.task.as_str(),
+            d.label.as_str(),
+            d.attempt,
+        ))
     };
     let mut out = Vec::new();
     for task in tasks {

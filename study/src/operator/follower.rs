@@ -90,6 +90,53 @@ impl DemoPath {
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
+
+    /// The tick among `lo..hi` whose joint angles are nearest `q` (squared distance) with
+    /// the gripper `c`'s state (open or closed); `None` if no tick there has it.
+    pub fn nearest(&self, q: &[f64], c: f64, lo: usize, hi: usize) -> Option<(usize, f64)> {
+        let mut best: Option<(usize, f64)> = None;
+        for (i, x) in self.points.iter().enumerate().take(hi).skip(lo) {
+            if (x.c - c).abs() >= 0.5 {
+                continue;
+            }
+            let d: f64 = x.q.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if best.is_none_or(|(_, b)| d < b) {
+                best = Some((i, d));
+            }
+        }
+        best
+    }
+
+    /// The tick `ticks` after `i`, but not past the path's end nor past a change of the
+    /// gripper from `c`'s state.
+    pub fn ahead(&self, i: usize, c: f64, ticks: usize) -> usize {
+        let mut j = i;
+        while j + 1 < self.len() && j < i + ticks {
+            if (self.points[j + 1].c - c).abs() >= 0.5 {
+                break;
+            }
+            j += 1;
+        }
+        j
+    }
+}
+
+/// [`FOLLOW_AHEAD_S`] in ticks of `dt` seconds (at least one).
+pub fn ahead_ticks(dt: f64) -> usize {
+    ((FOLLOW_AHEAD_S / dt).round() as usize).max(1)
+}
+
+/// The nearest tick of all of `paths` (numbered) to `q` with the gripper `c`'s state:
+/// (path, tick).
+pub fn nearest_of<'a>(
+    paths: impl Iterator<Item = (usize, &'a DemoPath)>,
+    q: &[f64],
+    c: f64,
+) -> Option<(usize, usize)> {
+    paths
+        .filter_map(|(pi, p)| p.nearest(q, c, 0, p.len()).map(|(i, d)| (pi, i, d)))
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(pi, i, _)| (pi, i))
 }
 
 /// How far a follower got along its demonstration.
@@ -146,7 +193,7 @@ impl Follower {
             paths,
             only,
             at: None,
-            ahead: ((FOLLOW_AHEAD_S / dt).round() as usize).max(1),
+            ahead: ahead_ticks(dt),
             search: ((SEARCH_S / dt).round() as usize).max(1),
             cands: Vec::with_capacity(params.candidates + 4),
             out: [0.0; MAX_JOINTS],
@@ -159,47 +206,32 @@ impl Follower {
     /// with the same gripper state (open or closed), on the path followed from where it was,
     /// no further than the search window.
     fn locate(&mut self, q: &[f64], c: f64) -> Option<(usize, usize)> {
-        let same_grip = |dc: f64| (dc - c).abs() < 0.5;
-        let mut best: Option<(usize, usize, f64)> = None;
-        let mut consider = |pi: usize, lo: usize, hi: usize, path: &DemoPath| {
-            for (i, x) in path.points.iter().enumerate().take(hi).skip(lo) {
-                if !same_grip(x.c) {
-                    continue;
-                }
-                let d: f64 = x.q.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
-                if best.is_none_or(|(_, _, b)| d < b) {
-                    best = Some((pi, i, d));
-                }
-            }
-        };
-        match self.at {
+        let best = match self.at {
             Some((pi, i)) => {
                 let path = self.paths.get(pi)?;
-                consider(pi, i, (i + self.search).min(path.len()), path);
+                path.nearest(q, c, i, (i + self.search).min(path.len()))
+                    .map(|(i, _)| (pi, i))
             }
             None => {
-                for (pi, path) in self.paths.iter().enumerate() {
-                    if self.only.is_none_or(|o| o == pi) {
-                        consider(pi, 0, path.len(), path);
-                    }
-                }
+                let only = self.only;
+                nearest_of(
+                    self.paths
+                        .iter()
+                        .enumerate()
+                        .filter(|(pi, _)| only.is_none_or(|o| o == *pi)),
+                    q,
+                    c,
+                )
             }
-        }
-        best.map(|(pi, i, _)| (pi, i)).or(self.at)
+        };
+        best.or(self.at)
     }
 
     /// The point the follower aims at from tick `i` of path `pi`: [`FOLLOW_AHEAD_S`] ahead,
     /// but not past a change of the gripper it has not made yet.
     fn target(&self, pi: usize, i: usize, c: f64) -> Option<&DemoPoint> {
         let path = self.paths.get(pi)?;
-        let mut j = i;
-        while j + 1 < path.len() && j < i + self.ahead {
-            if (path.points[j + 1].c - c).abs() >= 0.5 {
-                break;
-            }
-            j += 1;
-        }
-        path.points.get(j)
+        path.points.get(path.ahead(i, c, self.ahead))
     }
 
     fn note(&mut self, pi: usize, i: usize, p: &Vector3<f64>) {
