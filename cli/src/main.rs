@@ -592,6 +592,51 @@ mod tests {
         }
     }
 
+    /// `scl train` checks a model on the paper's task its data directory is named after, or
+    /// the one `--check-task` names; none with `--no-check` or for other data.
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn train_checks_the_task_its_data_is_named_after() {
+        use learning::tasks::Task;
+        let task = |argv: &[&str]| {
+            let mut all = vec!["scl", "train", "--out", "m.safetensors"];
+            all.extend_from_slice(argv);
+            let Cmd::Train(t) = Cli::try_parse_from(all).unwrap().cmd else {
+                panic!("not train")
+            };
+            t.check_task()
+        };
+        assert_eq!(
+            task(&["--data", "data/study/pick-and-place"]).unwrap(),
+            Some(Task::PickAndPlace)
+        );
+        assert_eq!(task(&["--data", "data/joint-reach"]).unwrap(), None);
+        assert_eq!(
+            task(&["--data", "demos", "--check-task", "pouring"]).unwrap(),
+            Some(Task::Pouring)
+        );
+        assert_eq!(
+            task(&["--data", "data/pouring", "--no-check"]).unwrap(),
+            None
+        );
+        let e = task(&["--data", "d", "--check-task", "planar-reach"]).unwrap_err();
+        assert!(e.to_string().contains("--check-task planar-reach"), "{e}");
+        assert!(
+            Cli::try_parse_from([
+                "scl",
+                "train",
+                "--data",
+                "d",
+                "--out",
+                "m",
+                "--check-task",
+                "pouring",
+                "--no-check"
+            ])
+            .is_err()
+        );
+    }
+
     /// `scl train` with nothing but the kind, the data and the output trains the paper's
     /// models: the same settings as the library's defaults.
     #[test]

@@ -4,9 +4,15 @@
 //! waypoints, arcs for carrying, holds, gripper closes and opens) tracked at 40 Hz by
 //! resolved-rate control: `qdot = DLS(J(q)) (v_ff + K (x_d - x))`, plus a little low-pass
 //! filtered velocity noise, scaled down uniformly wherever it would exceed a joint velocity
-//! limit of the URDF, and integrated: every tuple satisfies `q[k+1] = q[k] + qdot[k] * DT`
-//! exactly, and no joint leaves its position limits (a plan that would make one is an error,
-//! not a clamp). What varies from one demonstration to the next is
+//! limit of the URDF, its change limited to the arm's accelerations, and integrated: every
+//! tuple satisfies `q[k+1] = q[k] + qdot[k] * DT` exactly, and no joint leaves its position
+//! limits (a plan that would make one is an error, not a clamp).
+//!
+//! A demonstration is what the arm did, so it moves within what the arm can do (`Envelope`):
+//! the joint accelerations, the tool's speed and its turning rate of the arm's default safety
+//! limits. A segment planned faster than that is stretched in time until it fits (its path
+//! unchanged), as a person demonstrating on the arm waits for it. What varies from one
+//! demonstration to the next is
 //! what varies between a person's demonstrations: object positions, approach angles, heights,
 //! segment durations, the skew of each speed profile, the noise.
 //!
@@ -19,9 +25,12 @@
 //!   along one line by inverse-Jacobian control.
 //!
 //! The Gen3 lite tasks default to the paper's trajectory counts (3/2, 6/2, 8/2 train /
-//! validation) and each split's length is set so that the training tuples total the paper's
-//! counts (509, 2001, 5200; pouring's validation 1191). The table is the plane `z = 0` of the
-//! base frame.
+//! validation) and each split's plans are timed so that the training tuples would total the
+//! paper's counts (509, 2001, 5200; pouring's validation 1191) at the paper's pace; the
+//! stretching into the arm's envelope makes them 2.5-3 times longer (pick-and-place about
+//! 22 s instead of 8). The paper's counts are of the authors' recordings, whose rate it
+//! does not give; the arm's accelerations are the Gen3 lite's. The table is the plane
+//! `z = 0` of the base frame.
 //!
 //! Why the URDF's velocity limits and not the slower teleoperation defaults
 //! ([`gen3_lite::DEFAULT_VELOCITY_RAD_S`]): the paper's demonstrations are short (a pick and
@@ -112,6 +121,19 @@ pub enum TaskError {
         joint: usize,
         /// The value it would have reached.
         value: f64,
+    },
+    /// The plan still moved faster than the arm's accelerations, tool speed or turning rate
+    /// allow after being stretched this many times.
+    #[error(
+        "{task} {trajectory}: still faster than the arm's accelerations or tool speed allow after {rounds} rounds of slowing its plan down"
+    )]
+    Envelope {
+        /// The task.
+        task: &'static str,
+        /// The trajectory's file name.
+        trajectory: String,
+        /// Rounds run.
+        rounds: usize,
     },
     /// The task is not made on this robot (the planar reach has its own arm).
     #[error("{task} is not made on the {robot}: {reason}")]
@@ -267,6 +289,8 @@ pub fn generate_scenes_for(
                 tuples = traj.len(),
                 worst_tracking_error_m = stats.worst_error_m,
                 speed_limited_ticks = stats.saturated_ticks,
+                stretched = stats.stretched,
+                envelope_need = stats.need,
                 "generated"
             );
             out.push(traj);
@@ -492,11 +516,49 @@ const TRACKING_LIMIT_M: f64 = 0.05;
 /// release happen where the plan put them.
 const GRIP_LIMIT_M: f64 = 0.01;
 
+/// What the arm's own controller keeps a demonstration within, besides the URDF's joint
+/// speeds: the joint accelerations and the tool's speed and turning rate of the graph's
+/// default safety limits for the arm ([`safety::SafetyConfig::for_robot`]: for the Gen3 lite
+/// the simulator accelerations, within 5 % of its planning "hard" ones, the datasheet's
+/// 25 cm/s and Kinova's twist controller's 0.85 rad/s). A demonstration recorded on the arm,
+/// however it was given, moved within them: its plan is stretched in time until it fits, and
+/// every tick's change of the joint velocities, the hand's tremor included, is limited to the
+/// accelerations as the arm limits it (the safety filter's rule, `safety::limit_change`).
+#[derive(Debug, Clone)]
+struct Envelope {
+    accel: Vec<f64>,
+    tcp_m_s: f64,
+    tcp_rad_s: f64,
+}
+
+impl Envelope {
+    fn of(robot: &RobotProfile) -> Self {
+        let s = safety::SafetyConfig::for_robot(robot);
+        Self {
+            accel: s.max_acceleration_rad_s2,
+            tcp_m_s: s.max_tcp_speed_m_s,
+            tcp_rad_s: s.max_tcp_angular_speed_rad_s,
+        }
+    }
+}
+
+/// Rounds of stretching a plan's segments into the [`Envelope`] before giving up.
+const STRETCH_ROUNDS: usize = 8;
+
 struct Tracker<'a> {
     task: Task,
     name: &'a str,
     chain: &'a Chain,
     vmax: &'a [f64],
+    /// The arm's envelope (none for the planar arm's reaches).
+    envelope: Option<Envelope>,
+    /// Per segment of the last [`Tracker::follow`], how many times longer it must take for
+    /// its plan to fit the envelope (the largest ratio of a planned speed to its limit, or the
+    /// root of one of an acceleration's; at most 1 when it fits).
+    needs: Vec<f64>,
+    seg: usize,
+    last_plan: [f64; MAX_DOF],
+    last_out: [f64; MAX_DOF],
     dls: Dls,
     noise_std: f64,
     noise: [f64; MAX_DOF],
@@ -526,6 +588,11 @@ impl<'a> Tracker<'a> {
             name,
             chain,
             vmax,
+            envelope: None,
+            needs: Vec::new(),
+            seg: 0,
+            last_plan: [0.0; MAX_DOF],
+            last_out: [0.0; MAX_DOF],
             dls: Dls {
                 mask,
                 ..Dls::default()
@@ -586,6 +653,26 @@ impl<'a> Tracker<'a> {
         self.dls
             .step(&self.jac, &v, &mut qdot[..n])
             .map_err(|e| self.kin(e))?;
+        if let Some(env) = &self.envelope {
+            // How far the plan itself (before the tremor) is outside the envelope here.
+            let ff = pose_error(now, next) / DT;
+            let mut need = (Vector3::new(ff[0], ff[1], ff[2]).norm() / env.tcp_m_s)
+                .max(Vector3::new(ff[3], ff[4], ff[5]).norm() / env.tcp_rad_s);
+            for (((v, last), vmax), a) in qdot[..n]
+                .iter()
+                .zip(&self.last_plan)
+                .zip(self.vmax)
+                .zip(&env.accel)
+            {
+                need = need
+                    .max(v.abs() / vmax)
+                    .max(((v - last).abs() / (a * DT)).sqrt());
+            }
+            self.last_plan = qdot;
+            if let Some(x) = self.needs.get_mut(self.seg) {
+                *x = x.max(need);
+            }
+        }
         // Hand tremor: low-pass filtered noise on the joint rates.
         for (v, noise) in qdot[..n].iter_mut().zip(&mut self.noise) {
             *noise = 0.85 * *noise + 0.15 * self.noise_std * rng.normal();
@@ -603,6 +690,11 @@ impl<'a> Tracker<'a> {
         }
         for v in &mut qdot[..n] {
             *v *= scale;
+        }
+        if let Some(env) = &self.envelope {
+            // The arm gathers speed within its accelerations: the tremor too.
+            safety::limit_change(&self.last_out[..n], &mut qdot[..n], &env.accel[..n], DT);
+            self.last_out = qdot;
         }
         let cdot = (c_next - self.c) / DT;
         self.traj.t.push(k as f64 * DT);
@@ -627,11 +719,13 @@ impl<'a> Tracker<'a> {
         Ok(())
     }
 
-    /// Follows `segments`, `total` ticks in all, shared out by the segments' shares.
+    /// Follows `segments`, `total` ticks in all shared out by the segments' shares, each
+    /// segment's then made `stretch` times longer (1 where `stretch` has no entry).
     fn follow(
         &mut self,
         segments: &[Segment],
         total: usize,
+        stretch: &[f64],
         rng: &mut Rng,
     ) -> Result<(), TaskError> {
         let sum: f64 = segments.iter().map(|s| s.share).sum();
@@ -648,8 +742,13 @@ impl<'a> Tracker<'a> {
                 ticks[longest] = ticks[longest].saturating_sub(used - total).max(1);
             }
         }
+        for (t, f) in ticks.iter_mut().zip(stretch) {
+            *t = (*t as f64 * f).round() as usize;
+        }
+        self.needs = vec![0.0; segments.len()];
         let moving_limit = self.tracking_limit_m;
-        for (seg, &n) in segments.iter().zip(&ticks) {
+        for (i, (seg, &n)) in segments.iter().zip(&ticks).enumerate() {
+            self.seg = i;
             self.tracking_limit_m = match seg.motion {
                 Motion::Grip { .. } => moving_limit.min(GRIP_LIMIT_M),
                 _ => moving_limit,
@@ -714,9 +813,16 @@ struct Plan {
 struct RunStats {
     worst_error_m: f64,
     saturated_ticks: usize,
+    /// The most a segment was stretched to fit the arm's envelope.
+    stretched: f64,
+    /// The most a segment's plan asks of the envelope (at most 1: it fits).
+    need: f64,
 }
 
-/// Runs a plan on `robot`'s arm for `ticks` ticks.
+/// Runs a plan on `robot`'s arm, `ticks` ticks as planned, within the arm's [`Envelope`]:
+/// each segment whose plan moves faster than the envelope allows is made as much longer as it
+/// needs, and the plan run again (the same draws of the tremor), until every segment fits. A
+/// person demonstrating on the arm takes the time the arm takes.
 fn run_arm(
     task: Task,
     robot: &RobotProfile,
@@ -726,22 +832,60 @@ fn run_arm(
     tracking_limit_m: f64,
     rng: &mut Rng,
 ) -> Result<(Trajectory, RunStats), TaskError> {
-    let mut tr = Tracker::new(
-        task,
-        name,
-        robot.arm(),
-        robot.arm().velocity_limits(),
-        &plan.q0,
-        TaskMask::POSE,
-        NOISE_RAD_S,
-    );
-    tr.tracking_limit_m = tracking_limit_m;
-    tr.follow(&plan.segments, ticks, rng)?;
-    let stats = RunStats {
-        worst_error_m: tr.worst_error_m,
-        saturated_ticks: tr.saturated_ticks,
-    };
-    Ok((tr.traj, stats))
+    let mut stretch = vec![1.0; plan.segments.len()];
+    let mut round = 0;
+    loop {
+        round += 1;
+        let mut draws = rng.clone();
+        let mut tr = Tracker::new(
+            task,
+            name,
+            robot.arm(),
+            robot.arm().velocity_limits(),
+            &plan.q0,
+            TaskMask::POSE,
+            NOISE_RAD_S,
+        );
+        tr.envelope = Some(Envelope::of(robot));
+        tr.tracking_limit_m = tracking_limit_m;
+        let run = tr.follow(&plan.segments, ticks, &stretch, &mut draws);
+        // 2 % over the need, so that the next round fits rather than lands on the limit.
+        let over: Vec<(usize, f64)> = tr
+            .needs
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| **n > 1.0)
+            .map(|(i, n)| (i, *n * 1.02))
+            .collect();
+        match run {
+            Ok(()) if over.is_empty() => {
+                *rng = draws;
+                let stats = RunStats {
+                    worst_error_m: tr.worst_error_m,
+                    saturated_ticks: tr.saturated_ticks,
+                    stretched: stretch.iter().copied().fold(1.0, f64::max),
+                    need: tr.needs.iter().copied().fold(0.0, f64::max),
+                };
+                return Ok((tr.traj, stats));
+            }
+            // Too fast for the arm: it fell behind or would have run into a limit.
+            Ok(()) | Err(TaskError::Tracking { .. } | TaskError::Limits { .. })
+                if !over.is_empty() && round < STRETCH_ROUNDS =>
+            {
+                for (i, n) in over {
+                    stretch[i] *= n;
+                }
+            }
+            Ok(()) => {
+                return Err(TaskError::Envelope {
+                    task: task.name(),
+                    trajectory: name.to_owned(),
+                    rounds: round,
+                });
+            }
+            Err(e) => return Err(e),
+        }
+    }
 }
 
 /// Velocity noise of the arms' demonstrations (rad/s, before the low-pass filter).
@@ -1176,10 +1320,21 @@ mod tests {
     use kinematics::Gen3Lite;
 
     fn check_limits_and_consistency(task: Task, ds: &Dataset) {
-        check_on(task.n_joints(), limits_of(task), ds);
+        let accel = match task {
+            Task::PlanarReach => None,
+            _ => Some(Envelope::of(RobotProfile::default_robot()).accel),
+        };
+        check_on(task.n_joints(), limits_of(task), accel.as_deref(), ds);
     }
 
-    fn check_on(n_joints: usize, (lower, upper, vmax): Limits, ds: &Dataset) {
+    /// Position and velocity limits, `q[k+1] = q[k] + qdot[k] DT`, and with `accel` every
+    /// change of a joint's velocity from one tuple to the next within its acceleration.
+    fn check_on(
+        n_joints: usize,
+        (lower, upper, vmax): Limits,
+        accel: Option<&[f64]>,
+        ds: &Dataset,
+    ) {
         for t in ds.train.iter().chain(&ds.val) {
             assert_eq!(t.n_joints(), n_joints);
             for k in 0..t.len() {
@@ -1204,6 +1359,15 @@ mod tests {
                     }
                     assert!((t.c[k] + t.cdot[k] * DT - t.c[k + 1]).abs() < 1e-12);
                     assert!((t.t[k + 1] - t.t[k] - DT).abs() < 1e-12);
+                    for (j, a) in accel.unwrap_or_default().iter().enumerate() {
+                        let dv = t.qdot[k + 1][j] - t.qdot[k][j];
+                        assert!(
+                            dv.abs() <= a * DT + 1e-12,
+                            "{} tick {k} joint {j}: accelerates at {} rad/s² (limit {a})",
+                            t.name,
+                            dv / DT
+                        );
+                    }
                 }
             }
         }
@@ -1286,24 +1450,78 @@ mod tests {
     }
 
     #[test]
-    fn gen3_tasks_land_on_the_paper_counts_within_limits() {
+    fn gen3_lite_tasks_take_at_least_the_paper_counts_within_the_arms_envelope() {
         for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
             let (n_train, n_val) = task.default_counts();
             let ds = generate(task, n_train, n_val, 1).unwrap();
             assert_eq!(ds.train.len(), n_train);
             assert_eq!(ds.val.len(), n_val);
             let (paper_train, paper_val) = task.paper_tuples();
-            assert_eq!(Some(ds.n_train()), paper_train, "{task:?}");
+            assert!(ds.n_train() >= paper_train.unwrap(), "{task:?}");
             if let Some(v) = paper_val {
-                assert_eq!(ds.n_val(), v);
+                assert!(ds.n_val() >= v);
             }
             check_limits_and_consistency(task, &ds);
         }
     }
 
-    /// The Gen3 makes the three tasks at the paper's trajectory and tuple counts, within its
-    /// position and velocity limits, from its own home, in the scenes moved out by its home's
-    /// lead over the Gen3 lite's, 15 cm (the lite's own scenes stay where they were).
+    /// Every plan of the three tasks, on both arms, is run within the arm's envelope: each
+    /// segment stretched until its planned speeds and accelerations fit.
+    #[test]
+    fn every_plan_fits_the_arms_envelope() {
+        for robot in [
+            RobotProfile::default_robot(),
+            RobotProfile::by_name("gen3").unwrap(),
+        ] {
+            for seed in 1..4 {
+                let mut rng = Rng::new(seed);
+                for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
+                    let (plan, _) = match task {
+                        Task::TableCleaning => table_cleaning(robot, "t", 170, &mut rng),
+                        Task::PickAndPlace => pick_and_place(robot, &mut rng),
+                        _ => pouring(robot, &mut rng),
+                    }
+                    .unwrap();
+                    let (traj, stats) =
+                        run_arm(task, robot, "t", &plan, 300, TRACKING_LIMIT_M, &mut rng).unwrap();
+                    assert!(
+                        stats.need <= 1.0 && stats.stretched >= 1.0,
+                        "{} {task:?} seed {seed}: {stats:?}",
+                        robot.name()
+                    );
+                    assert!(traj.len() >= 300);
+                }
+            }
+        }
+    }
+
+    /// The plans are stretched into the envelope: the tool never goes much faster than the
+    /// arm's limit (the plan fits it; the tremor and the tracking add a little).
+    #[test]
+    fn the_tool_keeps_to_the_arms_speed() {
+        let robot = RobotProfile::default_robot();
+        let env = Envelope::of(robot);
+        for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
+            let ds = generate(task, 2, 0, 3).unwrap();
+            for t in &ds.train {
+                let tools: Vec<_> = t.q.iter().map(|q| robot.arm().fk(q).unwrap()).collect();
+                let fastest = tools
+                    .windows(2)
+                    .map(|w| (w[1].translation.vector - w[0].translation.vector).norm() / DT)
+                    .fold(0.0, f64::max);
+                assert!(
+                    fastest <= env.tcp_m_s * 1.25,
+                    "{task:?} {}: the tool at {fastest} m/s",
+                    t.name
+                );
+            }
+        }
+    }
+
+    /// The Gen3 makes the three tasks at the paper's trajectory counts and at least its tuple
+    /// counts, within its position, velocity and acceleration limits, from its own home, in
+    /// the scenes moved out by its home's lead over the Gen3 lite's, 15 cm (the lite's own
+    /// scenes stay where they were).
     #[test]
     fn the_gen3_makes_the_three_tasks_at_the_paper_counts_within_its_limits() {
         let gen3 = RobotProfile::by_name("gen3").unwrap();
@@ -1313,16 +1531,17 @@ mod tests {
             arm.upper().to_vec(),
             arm.velocity_limits().to_vec(),
         );
+        let accel = Envelope::of(gen3).accel;
         for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
             let (n_train, n_val) = task.default_counts();
             let ds = generate_for(task, gen3, n_train, n_val, 1).unwrap();
             assert_eq!((ds.train.len(), ds.val.len()), (n_train, n_val));
             let (paper_train, paper_val) = task.paper_tuples();
-            assert_eq!(Some(ds.n_train()), paper_train, "{task:?}");
+            assert!(ds.n_train() >= paper_train.unwrap(), "{task:?}");
             if let Some(v) = paper_val {
-                assert_eq!(ds.n_val(), v);
+                assert!(ds.n_val() >= v);
             }
-            check_on(7, limits.clone(), &ds);
+            check_on(7, limits.clone(), Some(&accel), &ds);
             if task != Task::TableCleaning {
                 assert_eq!(ds.train[0].q[0], gen3.named_pose("home").unwrap());
             }
@@ -1331,7 +1550,7 @@ mod tests {
             for task in [Task::TableCleaning, Task::PickAndPlace, Task::Pouring] {
                 let ds = generate_for(task, gen3, 2, 1, seed)
                     .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-                check_on(7, limits.clone(), &ds);
+                check_on(7, limits.clone(), Some(&accel), &ds);
             }
         }
         let shift = scene_shift_m(gen3, Task::PickAndPlace).unwrap();

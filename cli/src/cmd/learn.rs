@@ -213,6 +213,21 @@ pub(crate) struct TrainArgs {
     /// Time step (s) of the reversibility term's transition.
     #[arg(long, default_value_t = learning::train::li::DEFAULT_STEP_S)]
     pub(crate) li_step: f64,
+    /// After training, check the model on one of the paper's tasks (table-cleaning,
+    /// pick-and-place, pouring), as `scl eval capability` does, on `--robot`'s arm (default
+    /// the default profile) with the default graph: the share of the task's generated
+    /// training demonstrations the follower tracks to their end through the model, then the
+    /// expert's successes from the study's start. Default: the task `--data`'s directory is
+    /// named after (`scl demos --task T --out data/T`); no check for other data. A check
+    /// only: the model kept is the best seed by validation loss, as in the paper.
+    #[arg(long, value_name = "TASK", conflicts_with = "no_check")]
+    pub(crate) check_task: Option<String>,
+    /// The expert's attempts in the check (0: the follower only).
+    #[arg(long, default_value_t = 2)]
+    pub(crate) check_seeds: u64,
+    /// No check after training.
+    #[arg(long)]
+    pub(crate) no_check: bool,
 }
 
 impl TrainArgs {
@@ -338,7 +353,69 @@ pub(crate) fn train(t: &TrainArgs) -> Result<ExitCode, SclError> {
             )));
         }
     }
+    if let Some(task) = t.check_task()? {
+        check_trained(t, task)?;
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+impl TrainArgs {
+    /// The task the trained model is checked on: `--check-task`, else the one `--data` is
+    /// named after; none with `--no-check`.
+    pub(crate) fn check_task(&self) -> Result<Option<learning::tasks::Task>, SclError> {
+        use learning::tasks::Task;
+        if self.no_check {
+            return Ok(None);
+        }
+        if let Some(name) = &self.check_task {
+            return match Task::from_name(name) {
+                Ok(Task::PlanarReach) | Err(_) => Err(SclError::Other(format!(
+                    "--check-task {name}: expected table-cleaning, pick-and-place or pouring"
+                ))),
+                Ok(task) => Ok(Some(task)),
+            };
+        }
+        Ok(self
+            .data
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| Task::from_name(n).ok())
+            .filter(|t| *t != Task::PlanarReach))
+    }
+}
+
+/// `scl train`'s check of the model it wrote on `task`: the follower along the task's
+/// demonstrations, then the expert from the study's start.
+fn check_trained(t: &TrainArgs, task: learning::tasks::Task) -> Result<(), SclError> {
+    let robot = match &t.robot {
+        Some(name) => kinematics::RobotProfile::by_name(name)
+            .map_err(|e| SclError::Other(format!("--robot: {e}")))?,
+        None => kinematics::RobotProfile::default_robot(),
+    };
+    let graph = scl_config::GraphConfig::for_robot(robot);
+    let model = t.out.display().to_string();
+    let mut operators = vec![("follower", 1)];
+    if t.check_seeds > 0 {
+        operators.push(("expert", t.check_seeds));
+    }
+    for (operator, seeds) in operators {
+        println!(
+            "check on {} ({operator}; `scl eval capability {model} --task {} --operator {operator}`):",
+            task.name(),
+            task.name()
+        );
+        let args = scl_study::CapabilityArgs {
+            model: model.clone(),
+            task: task.name().to_owned(),
+            operator: operator.to_owned(),
+            seeds,
+            study: None,
+            jobs: None,
+            json: false,
+        };
+        scl_study::capability(robot, &graph, &args)?;
+    }
+    Ok(())
 }
 
 /// `scl import`.

@@ -1,13 +1,16 @@
 //! The demonstration-following operator (`operator = "follower"`): what the map allows along
 //! the route its demonstrations took, with a person's hand. Where the expert plans its own
-//! way to the next subgoal, the follower only reproduces a demonstration: each tick it finds
-//! where along the nearest demonstration the arm is (the nearest joint angles with the same
-//! gripper state), and picks the stick whose joint velocity through the served map
-//! (`s map(q, c, a)`, the quantity the maps were trained to reproduce) comes closest to the
-//! demonstration's motion from there: the joint velocity that takes the arm to where the
-//! demonstration is [`FOLLOW_AHEAD_S`] later. It never passes a grasp or a release of the
-//! demonstration before its own gripper has done the same, and it closes or opens the
-//! gripper as the other operators do, within the tolerance of a grip subgoal.
+//! way to the next subgoal, the follower only reproduces a demonstration, as a person
+//! follows a route: by where the gripper is and how it is turned. Each tick it finds where
+//! along the demonstration the tool is (the nearest tool pose with the same gripper state,
+//! never back along it), and picks the stick whose tool twist through the served map
+//! (`J(q) s map(q, c, a)`) comes closest to the demonstration's own motion from there (to
+//! where the demonstration's tool is [`FOLLOW_AHEAD_S`] later) plus a slow pull back onto
+//! it, turning weighed against moving by the operator's metres per radian. It never passes a
+//! grasp or a release of the demonstration before its own gripper has done the same, and it
+//! closes or opens the gripper as the other operators do, within the tolerance of a grip
+//! subgoal. When the arm stands still under a pushed stick for [`UNANSWERED_S`] (safety
+//! holds it after a stop until the stick is at rest), it lets go for a moment.
 //!
 //! So a report can tell the map's limit from the planner's: a map the follower drives along
 //! its demonstrations to their end can do what they did; where the expert then fails from
@@ -23,7 +26,7 @@ use kinematics::{KinError, RobotProfile};
 use learning::dataset::Trajectory;
 use learning::goals::Tolerances;
 use mapper::rng::Rng;
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Vector3, Vector6};
 
 use super::greedy::Probes;
 use super::{Hand, Operate, Seen};
@@ -39,6 +42,19 @@ const CORRECT_S: f64 = 1.0;
 /// How far along its path it looks for where the tool is now (s): it never jumps further
 /// than this, nor back.
 const SEARCH_S: f64 = 2.0;
+
+/// How long the arm may stand still under a pushed stick before the follower lets go of it
+/// (s): safety holds the arm after a stop until the stick is at rest, and a person told so
+/// lets go when the arm does not answer.
+pub const UNANSWERED_S: f64 = 0.5;
+
+/// How long it then leaves the stick at rest (s).
+pub const LET_GO_S: f64 = 0.3;
+
+/// How close (m, turning counted at the operator's metres per radian) the tool must be to
+/// where along the demonstration it is for the follower to go on at the demonstration's own
+/// pace where the tool alone would not carry it on (a slow start, a hold).
+pub const KEEP_UP_M: f64 = 0.02;
 
 /// One tick of a demonstration.
 #[derive(Debug, Clone, PartialEq)]
@@ -100,6 +116,31 @@ impl DemoPath {
                 continue;
             }
             let d: f64 = x.q.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if best.is_none_or(|(_, b)| d < b) {
+                best = Some((i, d));
+            }
+        }
+        best
+    }
+
+    /// The tick among `lo..hi` whose tool pose is nearest `tool` (the distance plus
+    /// `m_per_rad` times the angle between the two orientations) with the gripper `c`'s
+    /// state (open or closed); `None` if no tick there has it.
+    pub fn nearest_pose(
+        &self,
+        tool: &Isometry3<f64>,
+        c: f64,
+        m_per_rad: f64,
+        lo: usize,
+        hi: usize,
+    ) -> Option<(usize, f64)> {
+        let mut best: Option<(usize, f64)> = None;
+        for (i, x) in self.points.iter().enumerate().take(hi).skip(lo) {
+            if (x.c - c).abs() >= 0.5 {
+                continue;
+            }
+            let d = (x.tool.translation.vector - tool.translation.vector).norm()
+                + m_per_rad * x.tool.rotation.angle_to(&tool.rotation);
             if best.is_none_or(|(_, b)| d < b) {
                 best = Some((i, d));
             }
@@ -172,6 +213,10 @@ pub(crate) struct Follower {
     out: [f64; MAX_JOINTS],
     chosen: [f64; 2],
     followed: Option<Followed>,
+    /// Ticks the arm has stood still under a pushed stick.
+    unanswered: u32,
+    /// Ticks left with the stick let go.
+    let_go: u32,
 }
 
 impl Follower {
@@ -199,18 +244,37 @@ impl Follower {
             out: [0.0; MAX_JOINTS],
             chosen: [0.0; 2],
             followed: None,
+            unanswered: 0,
+            let_go: 0,
         }
     }
 
-    /// Where along the paths the arm at `q` with the gripper `c` is: the nearest joint angles
-    /// with the same gripper state (open or closed), on the path followed from where it was,
-    /// no further than the search window.
-    fn locate(&mut self, q: &[f64], c: f64) -> Option<(usize, usize)> {
+    /// Where along the paths the tool is: at first the nearest joint angles with the same
+    /// gripper state (open or closed) of all paths (the attempt starts on one); then the
+    /// nearest tool pose on the path followed, from where it was, no further than the search
+    /// window, or a tick on if the tool keeps up ([`KEEP_UP_M`]). A person follows a route by
+    /// where the gripper is and how it is turned, not by the joint angles.
+    fn locate(&mut self, q: &[f64], tool: &Isometry3<f64>, c: f64) -> Option<(usize, usize)> {
+        let w = self.params.tilt_weight_m_per_rad;
         let best = match self.at {
             Some((pi, i)) => {
                 let path = self.paths.get(pi)?;
-                path.nearest(q, c, i, (i + self.search).min(path.len()))
-                    .map(|(i, _)| (pi, i))
+                let near = path
+                    .nearest_pose(tool, c, w, i, (i + self.search).min(path.len()))
+                    .map_or(i, |(k, _)| k);
+                // The demonstration's own pace where it is slow or holds still (a start from
+                // rest, a held tilt): a tick on while the tool keeps up with it.
+                let clock = match path.points.get(i) {
+                    Some(x)
+                        if (x.tool.translation.vector - tool.translation.vector).norm()
+                            + w * x.tool.rotation.angle_to(&tool.rotation)
+                            <= KEEP_UP_M =>
+                    {
+                        path.ahead(i, c, 1)
+                    }
+                    _ => i,
+                };
+                Some((pi, near.max(clock)))
             }
             None => {
                 let only = self.only;
@@ -254,104 +318,122 @@ impl Follower {
         f.reached_end |= d <= self.tol.position_m && i + self.ahead >= path.len();
     }
 
-    /// The stick whose joint velocity through the map comes closest to the one that takes the
-    /// arm from where it is to `target` in [`FOLLOW_AHEAD_S`].
+    /// The tool twist (linear m/s, angular rad/s, in the base frame) the follower wants: the
+    /// demonstration's own motion from `here` to `target` in [`FOLLOW_AHEAD_S`], from where
+    /// the tool is, and a slow pull back onto the demonstration (time constant
+    /// [`CORRECT_S`]), as far as the map's two directions allow.
+    fn wanted(
+        &self,
+        tool: &Isometry3<f64>,
+        here: &Isometry3<f64>,
+        target: &Isometry3<f64>,
+    ) -> Vector6<f64> {
+        let horizon = self.ahead as f64 * self.dt;
+        let k = FOLLOW_AHEAD_S / CORRECT_S;
+        let dp = (target.translation.vector - here.translation.vector)
+            + k * (here.translation.vector - tool.translation.vector);
+        let dr = (target.rotation * here.rotation.inverse()).scaled_axis()
+            + k * (here.rotation * tool.rotation.inverse()).scaled_axis();
+        let mut w = Vector6::zeros();
+        w.fixed_rows_mut::<3>(0).copy_from(&(dp / horizon));
+        w.fixed_rows_mut::<3>(3).copy_from(&(dr / horizon));
+        w
+    }
+
+    /// The tool twist of stick `a` in mode `mode` through the map at the state seen
+    /// (`J(q) s map(q, c, a)`), its turning weighted by the operator's metres per radian;
+    /// `None` if the map gave nothing.
+    fn twist(
+        &mut self,
+        make: &ModelFactory<'_>,
+        seen: &Seen<'_>,
+        mode: usize,
+        a: &[f64; 2],
+    ) -> Option<Vector6<f64>> {
+        let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
+        let scale = self.probes.eval(
+            make,
+            mode,
+            seen.state.q(),
+            seen.state.gripper,
+            a,
+            &mut self.out[..n],
+        )?;
+        let jm = seen.jac.matrix();
+        let mut v = Vector6::zeros();
+        for (j, qd) in self.out[..n].iter().enumerate() {
+            if qd.is_finite() {
+                v += jm.column(j) * (qd * scale);
+            }
+        }
+        let w = self.params.tilt_weight_m_per_rad;
+        for r in 3..6 {
+            v[r] *= w;
+        }
+        Some(v)
+    }
+
+    /// The stick whose tool twist through the map comes closest to `want` (turning weighted
+    /// as in [`Self::twist`]).
     fn choose(
         &mut self,
         make: &ModelFactory<'_>,
         seen: &Seen<'_>,
-        target: &[f64],
+        want: &Vector6<f64>,
         rng: &mut Rng,
     ) -> [f64; 2] {
-        let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
-        let horizon = self.ahead as f64 * self.dt;
-        let q = seen.state.q();
-        let mut want = [0.0; MAX_JOINTS];
-        for ((w, t), qj) in want.iter_mut().zip(target).zip(q).take(n) {
-            *w = (t - qj) / horizon;
+        let mut want = *want;
+        let w = self.params.tilt_weight_m_per_rad;
+        for r in 3..6 {
+            want[r] *= w;
         }
         let mode = seen.mode.unwrap_or(0);
         super::draw_candidates(&mut self.cands, self.chosen, self.params.candidates, rng);
-        if let Some(a) = self.least_squares(make, seen, mode, &want[..n]) {
+        if let Some(a) = self.least_squares(make, seen, mode, &want) {
             self.cands.push(a);
         }
         let mut best = ([0.0; 2], f64::INFINITY);
         let cands = std::mem::take(&mut self.cands);
         for a in &cands {
-            let Some(scale) = self.probes.eval(
-                make,
-                mode,
-                seen.state.q(),
-                seen.state.gripper,
-                a,
-                &mut self.out[..n],
-            ) else {
+            let Some(v) = self.twist(make, seen, mode, a) else {
                 continue;
             };
-            let e: f64 = self.out[..n]
-                .iter()
-                .zip(&want[..n])
-                .map(|(qd, w)| {
-                    let v = if qd.is_finite() { qd * scale } else { 0.0 };
-                    (v - w) * (v - w)
-                })
-                .sum();
+            let e = (v - want).norm_squared();
             if e < best.1 {
                 best = (*a, e);
             }
         }
         self.cands = cands;
-        let wn: f64 = want[..n].iter().map(|w| w * w).sum::<f64>().sqrt();
         tracing::trace!(
-            want_rad_s = wn,
-            residual_rad_s = best.1.sqrt(),
+            want = want.norm(),
+            residual = best.1.sqrt(),
             "the follower's best stick"
         );
         best.0
     }
-}
 
-impl Follower {
-    /// The stick that best reproduces `want` if the map is linear in the stick at this state
-    /// (SCL and PCA are; the CAE's decoder nearly so for small inputs): the map's outputs for
-    /// rest and the two unit inputs give `v(a) = v0 + A a`, the least-squares `a` is brought
-    /// into the stick's disc. The random candidates cover a map that is not.
+    /// The stick that best reproduces `want` (weighted) if the map is linear in the stick at
+    /// this state (SCL and PCA are; the CAE's decoder nearly so for small inputs): the
+    /// twists for rest and the two unit inputs give `v(a) = v0 + A a`, the least-squares `a`
+    /// is brought into the stick's disc. The random candidates cover a map that is not.
     fn least_squares(
         &mut self,
         make: &ModelFactory<'_>,
         seen: &Seen<'_>,
         mode: usize,
-        want: &[f64],
+        want: &Vector6<f64>,
     ) -> Option<[f64; 2]> {
-        let n = want.len();
-        let q = seen.state.q();
-        let c = seen.state.gripper;
-        let mut cols = [[0.0; MAX_JOINTS]; 3];
-        for (col, a) in cols.iter_mut().zip([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]) {
-            let scale = self.probes.eval(make, mode, q, c, &a, &mut self.out[..n])?;
-            for (x, v) in col.iter_mut().zip(&self.out[..n]) {
-                *x = if v.is_finite() { v * scale } else { 0.0 };
-            }
-        }
-        let (mut g, mut b) = ([[0.0; 2]; 2], [0.0; 2]);
-        for j in 0..n {
-            let a0 = cols[1][j] - cols[0][j];
-            let a1 = cols[2][j] - cols[0][j];
-            let r = want[j] - cols[0][j];
-            g[0][0] += a0 * a0;
-            g[0][1] += a0 * a1;
-            g[1][1] += a1 * a1;
-            b[0] += a0 * r;
-            b[1] += a1 * r;
-        }
-        let det = g[0][0] * g[1][1] - g[0][1] * g[0][1];
+        let v0 = self.twist(make, seen, mode, &[0.0, 0.0])?;
+        let a0 = self.twist(make, seen, mode, &[1.0, 0.0])? - v0;
+        let a1 = self.twist(make, seen, mode, &[0.0, 1.0])? - v0;
+        let r = want - v0;
+        let (g00, g01, g11) = (a0.dot(&a0), a0.dot(&a1), a1.dot(&a1));
+        let (b0, b1) = (a0.dot(&r), a1.dot(&r));
+        let det = g00 * g11 - g01 * g01;
         if det.abs() < 1e-12 {
             return None;
         }
-        let a = [
-            (g[1][1] * b[0] - g[0][1] * b[1]) / det,
-            (g[0][0] * b[1] - g[0][1] * b[0]) / det,
-        ];
+        let a = [(g11 * b0 - g01 * b1) / det, (g00 * b1 - g01 * b0) / det];
         let norm = a[0].hypot(a[1]);
         Some(if norm > 1.0 {
             [a[0] / norm, a[1] / norm]
@@ -367,40 +449,42 @@ impl Operate for Follower {
         let c = seen.state.gripper;
         let mut gripper = 0.0f32;
         let mut choice = [0.0; 2];
-        if let Some(aim) = seen.aim {
-            self.at = self.locate(seen.state.q(), c);
+        let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
+        let still = seen.state.qdot_rad_s[..n].iter().all(|v| v.abs() < 1e-3);
+        if still && self.hand.stick[0].hypot(self.hand.stick[1]) > 0.2 {
+            self.unanswered += 1;
+        } else {
+            self.unanswered = 0;
+        }
+        if self.unanswered as f64 * self.dt >= UNANSWERED_S {
+            self.unanswered = 0;
+            self.let_go = (LET_GO_S / self.dt).round() as u32;
+            self.hand.let_go();
+        }
+        let resting = self.let_go > 0;
+        if resting {
+            self.let_go -= 1;
+        } else if let Some(aim) = seen.aim {
+            self.at = self.locate(seen.state.q(), seen.tool, c);
             if let Some((pi, i)) = self.at {
                 self.note(pi, i, &p);
                 if let (Some(target), Some(here)) = (
-                    self.target(pi, i, c),
-                    self.paths.get(pi).and_then(|x| x.points.get(i)),
+                    self.target(pi, i, c).map(|x| x.tool),
+                    self.paths
+                        .get(pi)
+                        .and_then(|x| x.points.get(i))
+                        .map(|x| x.tool),
                 ) {
-                    // The demonstration's next motion from the nearest point, from where the
-                    // arm is, and a slow pull back onto the demonstration (as far as the map's
-                    // two directions allow).
-                    let k = FOLLOW_AHEAD_S / CORRECT_S;
-                    let q: Vec<f64> = target
-                        .q
-                        .iter()
-                        .zip(&here.q)
-                        .zip(seen.state.q())
-                        .map(|((t, h), now)| now + (t - h) + k * (h - now))
-                        .collect();
-                    // How far off the demonstration: computed only when traced.
-                    let off = tracing::enabled!(tracing::Level::TRACE).then(|| {
-                        let off_rad: f64 = here
-                            .q
-                            .iter()
-                            .zip(seen.state.q())
-                            .map(|(a, b)| (a - b) * (a - b))
-                            .sum::<f64>()
-                            .sqrt();
-                        ((here.tool.translation.vector - p).norm(), off_rad)
-                    });
-                    choice = self.choose(make, seen, &q, rng);
-                    if let Some((off_m, off_rad)) = off {
-                        tracing::trace!(path = pi, at = i, off_m, off_rad, ?choice, "the follower");
-                    }
+                    let want = self.wanted(seen.tool, &here, &target);
+                    choice = self.choose(make, seen, &want, rng);
+                    tracing::trace!(
+                        path = pi,
+                        at = i,
+                        off_m = (here.translation.vector - p).norm(),
+                        off_rad = here.rotation.angle_to(&seen.tool.rotation),
+                        ?choice,
+                        "the follower"
+                    );
                 }
             }
             if let Some(close) = aim.grip
@@ -414,7 +498,7 @@ impl Operate for Follower {
             &self.params,
             self.dt,
             choice,
-            false,
+            resting,
             seen.state,
             seen.t_ns,
             gripper,
@@ -491,13 +575,70 @@ mod tests {
     #[test]
     fn it_never_goes_back_along_the_path_nor_past_a_grip() {
         let mut f = follower(vec![path()]);
+        let robot = RobotProfile::default_robot();
         let q = |x: f64| [x, -0.28, 1.309, 0.0, -1.047, 0.0];
-        assert_eq!(f.locate(&q(0.05), 0.0), Some((0, 5)));
+        let tool = |x: f64| robot.arm().fk(&q(x)).expect("fk");
+        // At first by the joint angles, of every path.
+        assert_eq!(f.locate(&q(0.05), &tool(0.05), 0.0), Some((0, 5)));
+        f.at = Some((0, 10));
+        // Then by the tool's pose. Nearer to tick 2, but it does not go back.
+        assert_eq!(f.locate(&q(0.02), &tool(0.02), 0.0), Some((0, 10)));
+        assert_eq!(f.locate(&q(0.14), &tool(0.14), 0.0), Some((0, 14)));
+        // Where the tool keeps up with the demonstration: a tick on at its pace.
         f.at = Some((0, 5));
-        // Nearer to tick 2, but it does not go back.
-        assert_eq!(f.locate(&q(0.02), 0.0), Some((0, 5)));
+        assert_eq!(f.locate(&q(0.05), &tool(0.05), 0.0), Some((0, 6)));
         // Past the grasp with the gripper still open: the last open tick.
-        assert_eq!(f.locate(&q(0.25), 0.0), Some((0, 19)));
+        assert_eq!(f.locate(&q(0.25), &tool(0.25), 0.0), Some((0, 19)));
+    }
+
+    /// The arm stands still under a pushed stick (safety holds it until the stick is at
+    /// rest): after [`UNANSWERED_S`] the follower lets go for [`LET_GO_S`].
+    #[test]
+    fn it_lets_go_of_a_stick_the_arm_does_not_answer() {
+        let robot = RobotProfile::default_robot();
+        let mut f = follower(vec![path()]);
+        // A hand whose stick stays where it is, without noise.
+        f.params.stick_rate_per_s = 1e-9;
+        f.params.input_noise = 0.0;
+        f.hand.stick = [0.5, 0.0];
+        let make = || {
+            LoadedModel::load_for("modeswitch", robot).map_err(|e| SimError::Setup(e.to_string()))
+        };
+        let goals = learning::goals::TaskGoals::of(
+            learning::tasks::Task::PickAndPlace,
+            Tolerances::default(),
+        )
+        .expect("goals");
+        let run = learning::goals::GoalRun::new(&goals);
+        let n = robot.n_joints();
+        let state = ipc_types::RobotState::at_rest(0, 0, n as u32);
+        let mut jac = kinematics::Jacobian::zeros(n);
+        let tool = robot
+            .arm()
+            .fk_jacobian(&state.q_rad[..n], &mut jac)
+            .expect("fk");
+        let seen = Seen {
+            state: &state,
+            tool: &tool,
+            jac: &jac,
+            aim: None,
+            run: &run,
+            mode: None,
+            t_ns: 0,
+        };
+        let mut rng = Rng::new(1);
+        let unanswered = (UNANSWERED_S / 0.025).round() as usize;
+        let let_go = (LET_GO_S / 0.025).round() as usize;
+        let axes: Vec<f32> = (0..unanswered + let_go + 1)
+            .map(|_| f.act(&make, &seen, &mut rng).axes[0])
+            .collect();
+        assert!(axes[..unanswered - 1].iter().all(|a| *a > 0.4), "{axes:?}");
+        assert!(
+            axes[unanswered..unanswered + let_go]
+                .iter()
+                .all(|a| *a == 0.0),
+            "{axes:?}"
+        );
     }
 
     #[test]

@@ -14,9 +14,9 @@
 //!   internal model of the map from what it saw in the study's practice time
 //!   ([`internal::InternalModel`]), then plans like the expert with that model, never with the
 //!   map.
-//! * [`OperatorKind::Follower`] ([`follower`]): reproduces the nearest demonstration's motion
-//!   through the served map: the map's limit along the route its demonstrations took, apart
-//!   from any planner's.
+//! * [`OperatorKind::Follower`] ([`follower`]): follows the nearest demonstration by the tool,
+//!   reproducing its motion through the served map: the map's limit along the route its
+//!   demonstrations took, apart from any planner's.
 
 pub mod expert;
 pub mod follower;
@@ -50,8 +50,8 @@ pub enum OperatorKind {
     /// Learns the map in the study's practice time from what it sees, then plans with what
     /// it learned: a person after practice.
     Practiced,
-    /// Reproduces the nearest demonstration's motion through the served map, one tick ahead:
-    /// what the map allows along its demonstrations' route.
+    /// Follows the nearest demonstration by the tool, reproducing its motion through the
+    /// served map: what the map allows along its demonstrations' route.
     Follower,
 }
 
