@@ -243,10 +243,11 @@ mod tests {
         )
         .unwrap();
         assert_eq!((ds.train.len(), ds.val.len()), (3, 2));
-        assert_eq!(ds.n_train(), 509);
+        // The paper's counts at its pace, stretched into the arm's envelope.
+        assert!(ds.n_train() >= 509, "{}", ds.n_train());
         // Read back through the loader: the same tuples.
         let back = dataset::load(&d.join("tc")).unwrap();
-        assert_eq!(back.n_train(), 509);
+        assert_eq!(back.n_train(), ds.n_train());
         assert_eq!(back.train.len(), 3);
         let e = demos("juggling", lite(), &d.join("x"), 1, (None, None), None).unwrap_err();
         assert!(e.to_string().starts_with("unknown task `juggling`"), "{e}");
