@@ -832,6 +832,7 @@ fn run_arm(
     tracking_limit_m: f64,
     rng: &mut Rng,
 ) -> Result<(Trajectory, RunStats), TaskError> {
+    let envelope = Envelope::of(robot);
     let mut stretch = vec![1.0; plan.segments.len()];
     let mut round = 0;
     loop {
@@ -846,7 +847,7 @@ fn run_arm(
             TaskMask::POSE,
             NOISE_RAD_S,
         );
-        tr.envelope = Some(Envelope::of(robot));
+        tr.envelope = Some(envelope.clone());
         tr.tracking_limit_m = tracking_limit_m;
         let run = tr.follow(&plan.segments, ticks, &stretch, &mut draws);
         // 2 % over the need, so that the next round fits rather than lands on the limit.

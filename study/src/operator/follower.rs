@@ -139,8 +139,7 @@ impl DemoPath {
             if (x.c - c).abs() >= 0.5 {
                 continue;
             }
-            let d = (x.tool.translation.vector - tool.translation.vector).norm()
-                + m_per_rad * x.tool.rotation.angle_to(&tool.rotation);
+            let d = pose_distance(&x.tool, tool, m_per_rad);
             if best.is_none_or(|(_, b)| d < b) {
                 best = Some((i, d));
             }
@@ -160,6 +159,13 @@ impl DemoPath {
         }
         j
     }
+}
+
+/// How far apart two tool poses are for the follower (m): the distance between them plus
+/// `m_per_rad` times the angle between their orientations.
+pub fn pose_distance(a: &Isometry3<f64>, b: &Isometry3<f64>, m_per_rad: f64) -> f64 {
+    (a.translation.vector - b.translation.vector).norm()
+        + m_per_rad * a.rotation.angle_to(&b.rotation)
 }
 
 /// [`FOLLOW_AHEAD_S`] in ticks of `dt` seconds (at least one).
@@ -265,13 +271,7 @@ impl Follower {
                 // The demonstration's own pace where it is slow or holds still (a start from
                 // rest, a held tilt): a tick on while the tool keeps up with it.
                 let clock = match path.points.get(i) {
-                    Some(x)
-                        if (x.tool.translation.vector - tool.translation.vector).norm()
-                            + w * x.tool.rotation.angle_to(&tool.rotation)
-                            <= KEEP_UP_M =>
-                    {
-                        path.ahead(i, c, 1)
-                    }
+                    Some(x) if pose_distance(&x.tool, tool, w) <= KEEP_UP_M => path.ahead(i, c, 1),
                     _ => i,
                 };
                 Some((pi, near.max(clock)))
@@ -359,13 +359,7 @@ impl Follower {
             a,
             &mut self.out[..n],
         )?;
-        let jm = seen.jac.matrix();
-        let mut v = Vector6::zeros();
-        for (j, qd) in self.out[..n].iter().enumerate() {
-            if qd.is_finite() {
-                v += jm.column(j) * (qd * scale);
-            }
-        }
+        let mut v = super::tool_twist(seen.jac, &self.out[..n], scale);
         let w = self.params.tilt_weight_m_per_rad;
         for r in 3..6 {
             v[r] *= w;

@@ -13,7 +13,7 @@ use kinematics::Jacobian;
 use learning::goals::{Aim, Tolerances, tilt};
 use mapper::LoadedModel;
 use mapper::rng::Rng;
-use nalgebra::{Isometry3, Vector3, Vector6};
+use nalgebra::{Isometry3, Vector3};
 
 use super::{Hand, ModeButton, Operate, Seen};
 use crate::simulate::{ModelFactory, SimError, SimParams};
@@ -130,7 +130,6 @@ impl Greedy {
         let z = tool.rotation * Vector3::z();
         let t0 = tilt(&tool.rotation);
         let mut best = ([0.0; 2], f64::INFINITY);
-        let jm = jac.matrix();
         for a in &self.cands {
             let Some(scale) =
                 self.probes
@@ -138,12 +137,7 @@ impl Greedy {
             else {
                 continue;
             };
-            let mut v = Vector6::zeros();
-            for (j, qd) in self.out[..n].iter().enumerate() {
-                if qd.is_finite() {
-                    v += jm.column(j) * (qd * scale);
-                }
-            }
+            let v = super::tool_twist(jac, &self.out[..n], scale);
             let pn = p + Vector3::new(v[0], v[1], v[2]) * self.dt;
             let tn = t0 + Vector3::new(v[3], v[4], v[5]).dot(&z) * self.dt;
             let e = {

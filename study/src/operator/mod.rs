@@ -218,6 +218,20 @@ pub(crate) fn draw_candidates(out: &mut Vec<[f64; 2]>, chosen: [f64; 2], n: usiz
     }
 }
 
+/// The tool's twist (linear, then angular, in the base frame) of the joint velocities
+/// `qdot * scale` at the Jacobian `jac`: a map's output through the arm. A joint the map gave
+/// no finite velocity contributes nothing.
+pub(crate) fn tool_twist(jac: &Jacobian, qdot: &[f64], scale: f64) -> Vector6<f64> {
+    let jm = jac.matrix();
+    let mut v = Vector6::zeros();
+    for (j, qd) in qdot.iter().enumerate() {
+        if qd.is_finite() {
+            v += jm.column(j) * (qd * scale);
+        }
+    }
+    v
+}
+
 /// The mode button as a person presses it: to switch modes, one press (a tick down, a tick
 /// up) until the wanted mode comes round, then a rest with the stick let go; the presses
 /// are counted for the attempt's figures.
