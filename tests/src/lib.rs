@@ -258,6 +258,44 @@ pub fn assert_stop_within_two_ticks(after: &[RobotState], what: &str) -> usize {
     first
 }
 
+/// Asserts that every command of `cmds` changed the arm's velocity by at most
+/// `accel[j] * dt` on each joint `j` of `accel`: against the mock arm's state of the command's
+/// own tick in `states`, the velocity safety's filter limited from (the mock arm moves at its
+/// last executed command). Consecutive commands may differ by more after a tick the machine
+/// held up: the bridge braked on its own, and the next command starts from where it braked.
+/// Returns how many commands were checked (those whose state was recorded); `what` names the
+/// run.
+pub fn assert_acceleration_limited(
+    states: &[RobotState],
+    cmds: &[SafeCommand],
+    accel: &[f64],
+    dt: f64,
+    what: &str,
+) -> usize {
+    // A shutdown state repeats the tick of the period it stopped in.
+    let by_tick: std::collections::HashMap<u64, &RobotState> = states
+        .iter()
+        .filter(|s| s.flags & ipc_types::state_flags::SHUTDOWN == 0)
+        .map(|s| (s.tick, s))
+        .collect();
+    let mut checked = 0;
+    for c in cmds {
+        let Some(s) = by_tick.get(&c.tick) else {
+            continue;
+        };
+        for (j, a) in accel.iter().enumerate() {
+            let dv = (c.qdot_rad_s[j] - s.qdot_rad_s[j]).abs();
+            assert!(
+                dv <= a * dt * (1.0 + 1e-9) + 1e-12,
+                "{what}: tick {} joint {j}: the command changes the arm's speed by {dv} rad/s",
+                c.tick
+            );
+        }
+        checked += 1;
+    }
+    checked
+}
+
 /// An `scl` command for graph `prefix`, logging warnings only.
 pub fn scl(prefix: &Prefix) -> Command {
     let mut c = Command::new(scl_binary());

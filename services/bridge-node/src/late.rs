@@ -125,6 +125,11 @@ impl LateCommands {
         self.last_mapper = Some(c.mapper_id);
     }
 
+    /// How many missed ticks still wait for their commands.
+    pub fn awaiting(&self) -> usize {
+        self.awaiting.len()
+    }
+
     /// Matches a command that came for another tick than the bridge's current one: the
     /// verdict on its tick if that tick was missed and is still remembered (once per tick).
     pub fn arrived(&mut self, c: &SafeCommand) -> Option<Verdict> {

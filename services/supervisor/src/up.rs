@@ -1008,7 +1008,7 @@ pub fn run(opts: &UpOptions) -> Result<Summary, SupervisorError> {
     if sv.swap.is_some() {
         sv.finish_swap(Err("the graph is shutting down".into()));
     }
-    sv.stop_children();
+    sv.stop_children(&ports.status);
     if let Some(child) = live.as_mut() {
         stop_live(child);
     }
@@ -1306,8 +1306,12 @@ impl<'a> Supervisor<'a> {
     }
 
     /// Stops the children: the bridge first (it stops the arm at once and publishes a final
-    /// state), the recorder last, so the file holds everything up to the end.
-    fn stop_children(&mut self) {
+    /// state), the recorder last, so the file holds everything up to the end. The heartbeats
+    /// are taken in after each process is gone: the bridge's last one carries its final
+    /// counts, and the others' heartbeats while they are stopped (one per period at 1 kHz)
+    /// would otherwise overwrite it in the subscriber's buffer before the summary reads them
+    /// (seen on a CPU-throttled machine: the summary's `held_up` 5 short of the log's).
+    fn stop_children(&mut self, status: &transport::TopicSubscriber<NodeStatus>) {
         for role in [
             NodeRole::Bridge,
             NodeRole::Safety,
@@ -1318,6 +1322,10 @@ impl<'a> Supervisor<'a> {
         ] {
             for p in self.procs.iter_mut().filter(|p| p.role == role) {
                 signal_and_wait(p, Duration::from_secs(3));
+            }
+            // Every child is stopped whatever the heartbeats say: a failed read is logged.
+            if let Err(e) = status.drain(|s| self.tel.take(s)) {
+                tracing::warn!("while stopping the graph, the heartbeats could not be read: {e}");
             }
         }
     }
