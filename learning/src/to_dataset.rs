@@ -318,6 +318,50 @@ pub fn robot_states(path: &Path) -> Result<(Vec<RobotState>, recording::ReadSumm
     Ok((states, summary))
 }
 
+/// One recording's robot states, as both outputs of `scl dataset` read them.
+struct RecordedStates {
+    states: Vec<RobotState>,
+    /// The file's name without its extension: the trajectories' or the episode's name.
+    stem: String,
+    /// Whether the file was read to its end (a cut one is read up to its last complete
+    /// chunk, and said).
+    complete: bool,
+}
+
+impl RecordedStates {
+    /// Reads recording `path`; a cut file is said (and read as far as it goes), one without
+    /// robot states is an error naming it.
+    fn read(path: &Path) -> Result<Self, ToolError> {
+        let (states, summary) = robot_states(path)?;
+        if !summary.complete {
+            tracing::warn!(
+                "{}: the recording is cut ({}); reading its {} readable messages (`scl record --recover` makes a finished copy)",
+                path.display(),
+                summary
+                    .stopped
+                    .as_ref()
+                    .map_or_else(|| "no data-end record".to_owned(), ToString::to_string),
+                summary.messages
+            );
+        }
+        if states.is_empty() {
+            return Err(ToolError::Graph(format!(
+                "{}: no robot states in the recording (was /robot_state recorded?)",
+                path.display()
+            )));
+        }
+        let stem = path.file_stem().map_or_else(
+            || "recording".to_owned(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        Ok(Self {
+            states,
+            stem,
+            complete: summary.complete,
+        })
+    }
+}
+
 /// What `scl dataset` did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConvertReport {
@@ -340,30 +384,11 @@ pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertRepor
     let mut left = LeftOut::default();
     let mut truncated = Vec::new();
     for path in from {
-        let (states, summary) = robot_states(path)?;
-        if !summary.complete {
-            tracing::warn!(
-                "{}: the recording is cut ({}); converting its {} readable messages (`scl record --recover` makes a finished copy)",
-                path.display(),
-                summary
-                    .stopped
-                    .as_ref()
-                    .map_or_else(|| "no data-end record".to_owned(), ToString::to_string),
-                summary.messages
-            );
+        let r = RecordedStates::read(path)?;
+        if !r.complete {
             truncated.push(path.clone());
         }
-        if states.is_empty() {
-            return Err(ToolError::Graph(format!(
-                "{}: no robot states in the recording (was /robot_state recorded?)",
-                path.display()
-            )));
-        }
-        let stem = path.file_stem().map_or_else(
-            || "recording".to_owned(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        let (trajs, l) = trajectories(&states, &stem, o);
+        let (trajs, l) = trajectories(&r.states, &r.stem, o);
         left.resting += l.resting;
         left.fragments += l.fragments;
         all.extend(trajs);
@@ -402,27 +427,11 @@ pub fn export_lerobot(
     let fps = profile.control_rate_hz().round() as u32;
     let mut sources = Vec::with_capacity(from.len());
     for path in from {
-        let (states, summary) = robot_states(path)?;
-        if !summary.complete {
-            tracing::warn!(
-                "{}: the recording is cut; exporting its {} readable messages",
-                path.display(),
-                summary.messages
-            );
-        }
-        if states.is_empty() {
-            return Err(ToolError::Graph(format!(
-                "{}: no robot states in the recording (was /robot_state recorded?)",
-                path.display()
-            )));
-        }
+        let r = RecordedStates::read(path)?;
         sources.push(crate::lerobot::export::Source {
-            name: path.file_stem().map_or_else(
-                || "recording".to_owned(),
-                |s| s.to_string_lossy().into_owned(),
-            ),
+            name: r.stem,
             task: task.to_owned(),
-            states,
+            states: r.states,
         });
     }
     Ok(crate::lerobot::export::write(out, profile, fps, &sources)?)
