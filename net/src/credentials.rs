@@ -157,4 +157,39 @@ mod tests {
             assert!(e.contains(want), "{text:?}: {e}");
         }
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 512, ..Default::default() })]
+
+        /// Any text (well-formed logins among arbitrary lines): its logins, or an error that
+        /// names the file and quotes none of the passwords (the `credentials` fuzz target's
+        /// rule, on stable with every `cargo test`).
+        #[test]
+        fn any_text_is_logins_or_an_error_naming_the_file_without_a_secret(
+            lines in proptest::collection::vec(
+                proptest::prop_oneof![
+                    "[a-z]{1,8}:pw[A-Za-z0-9]{6,12}",
+                    ".{0,40}",
+                    "[ \t:#a-z]{0,12}",
+                ],
+                0..8,
+            ),
+        ) {
+            let text = lines.join("\n");
+            match Credentials::parse(Path::new("prop.creds"), &text) {
+                Ok(c) => proptest::prop_assert!(!c.logins.is_empty()),
+                Err(e) => {
+                    let msg = e.to_string();
+                    proptest::prop_assert!(msg.contains("prop.creds"), "{}", msg);
+                    for l in text.lines() {
+                        if let Some((_, pw)) = l.trim().split_once(':')
+                            && pw.len() >= 4
+                        {
+                            proptest::prop_assert!(!msg.contains(pw), "{} quotes {}", msg, pw);
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

@@ -490,4 +490,56 @@ mod tests {
         assert_eq!(a[16], 16);
         assert_ne!(n.gid(1), n.gid(2));
     }
+
+    /// A `Joy` with the given frame id, axes and buttons, in CDR.
+    fn joy_bytes(frame: &str, axes: &[f32], buttons: &[i32]) -> Vec<u8> {
+        let j = Joy {
+            header: Header {
+                frame_id: frame.to_owned(),
+                ..Header::default()
+            },
+            axes: axes.to_vec(),
+            buttons: buttons.to_vec(),
+        };
+        encode(&j, "Joy").unwrap()
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 1024, ..Default::default() })]
+
+        /// Any bytes: a `Joy` or an error, never a panic (the `joy_cdr` fuzz target's rule, on
+        /// stable with every `cargo test`).
+        #[test]
+        fn any_bytes_are_a_joy_or_an_error(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..256)) {
+            let _ = decode_joy(&bytes);
+        }
+
+        /// A real `Joy` with one byte changed, cut short, or four bytes overwritten with a large
+        /// length anywhere: a `Joy` or an error; a length that does not fit what is left is an
+        /// error before anything is allocated for it.
+        #[test]
+        fn a_damaged_joy_is_a_joy_or_an_error(
+            frame in "[a-z_]{0,12}",
+            axes in proptest::collection::vec(-1.0f32..1.0, 0..8),
+            buttons in proptest::collection::vec(0i32..2, 0..12),
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            byte in proptest::prelude::any::<u8>(),
+            cut in proptest::prelude::any::<proptest::sample::Index>(),
+            huge in 1_000_000u32..,
+        ) {
+            let good = joy_bytes(&frame, &axes, &buttons);
+            let mut flipped = good.clone();
+            let i = at.index(flipped.len());
+            flipped[i] = byte;
+            let _ = decode_joy(&flipped);
+            let _ = decode_joy(&good[..cut.index(good.len())]);
+            let mut long = good.clone();
+            let i = at.index(long.len().saturating_sub(4).max(1)).min(long.len().saturating_sub(4));
+            long[i..i + 4].copy_from_slice(&huge.to_le_bytes());
+            if let Ok(j) = decode_joy(&long) {
+                let claimed = j.header.frame_id.len() + j.axes.len() * 4 + j.buttons.len() * 4;
+                proptest::prop_assert!(claimed <= long.len(), "{} bytes decoded from {}", claimed, long.len());
+            }
+        }
+    }
 }

@@ -204,4 +204,57 @@ mod tests {
             assert_eq!(graph, wire);
         }
     }
+
+    /// `bytes` read as a `T` under `encoding`: only at `T`'s own encoding and exact size, and
+    /// then the same bytes.
+    fn read_only_as_itself<T: Wire>(bytes: &[u8], encoding: &str) -> Result<(), String> {
+        if let Ok(m) = decode::<T>(bytes, encoding) {
+            if encoding != encoding_of::<T>() {
+                return Err(format!("read under {encoding}"));
+            }
+            if encode(&m) != bytes {
+                return Err("not the same bytes".into());
+            }
+        }
+        Ok(())
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 1024, ..Default::default() })]
+
+        /// Any bytes under any of the gateway's encodings, as each of its types (the
+        /// `zenoh_payload` fuzz target's rule, on stable with every `cargo test`); the sizes
+        /// drawn around the types' own.
+        #[test]
+        fn any_payload_is_read_only_at_its_types_encoding_and_size(
+            pick in 0usize..5,
+            len in proptest::prop_oneof![0usize..64, 64usize..2048],
+            fill in proptest::collection::vec(proptest::prelude::any::<u8>(), 2048),
+        ) {
+            let encodings = [
+                encoding_of::<JoystickInput>(),
+                encoding_of::<RobotState>(),
+                encoding_of::<EstopCommand>(),
+                encoding_of::<SafetyControl>(),
+                encoding_of::<NodeStatus>(),
+            ];
+            let sizes = [
+                size_of::<JoystickInput>(),
+                size_of::<RobotState>(),
+                size_of::<EstopCommand>(),
+                size_of::<SafetyControl>(),
+                size_of::<NodeStatus>(),
+            ];
+            let e = &encodings[pick];
+            proptest::prop_assert!(sizes.iter().all(|&s| s <= fill.len()));
+            for n in [len, sizes[pick]] {
+                let bytes = &fill[..n.min(fill.len())];
+                proptest::prop_assert_eq!(read_only_as_itself::<JoystickInput>(bytes, e), Ok(()));
+                proptest::prop_assert_eq!(read_only_as_itself::<RobotState>(bytes, e), Ok(()));
+                proptest::prop_assert_eq!(read_only_as_itself::<EstopCommand>(bytes, e), Ok(()));
+                proptest::prop_assert_eq!(read_only_as_itself::<SafetyControl>(bytes, e), Ok(()));
+                proptest::prop_assert_eq!(read_only_as_itself::<NodeStatus>(bytes, e), Ok(()));
+            }
+        }
+    }
 }
