@@ -11,9 +11,10 @@
 //! switch takes) and presses the mode button when another mode's plan gains more than
 //! [`SimParams::mode_switch_margin`] over the current one's.
 //!
-//! The prediction knows one rule of the safety filter, as a person sees the arm stop: a step
+//! The prediction knows two rules of the safety filter, as a person sees the arm stop: a step
 //! that brings a pair of the arm's collision model closer than the safety configuration's
-//! stop distance is not taken. A scripted map that reads the operator's aim
+//! stop distance is not taken, nor one that takes a joint further past its limit less the
+//! configuration's joint margin (the filter stops the whole arm there, not the one joint). A scripted map that reads the operator's aim
 //! ([`crate::simulate::AttemptSetup::aim_out`]) is given the predicted aim while predicting.
 //!
 //! It has the person's limits of the greedy operator: the plan starts after the reaction
@@ -322,6 +323,10 @@ pub(crate) struct Expert {
     /// distance: a predicted step that brings a pair closer than that is not taken (the
     /// safety filter stops it).
     whole_arm: Option<(WholeArm, f64)>,
+    /// Each joint's range less the safety configuration's joint margin (rad): a predicted
+    /// step that takes a joint further past it is not taken, as the filter's position rule
+    /// stops the whole arm there (it scales the whole command), not the one joint.
+    joint_bounds: Vec<(f64, f64)>,
     /// The closest pair's distance now (m).
     clearance_now: f64,
     /// The joint angles at the end of the last prediction.
@@ -460,6 +465,15 @@ impl Expert {
                 .ok()
                 .and_then(|scene| WholeArm::new(robot, scene))
                 .map(|a| (a, safety.stop_distance_m)),
+            joint_bounds: {
+                let l = robot.limits();
+                let m = safety.joint_margin_rad;
+                l.lower_rad
+                    .iter()
+                    .zip(&l.upper_rad)
+                    .map(|(lo, hi)| (lo + m, hi - m))
+                    .collect()
+            },
             clearance_now: f64::INFINITY,
             predicted_q: [0.0; MAX_JOINTS],
             route: None,
@@ -603,6 +617,20 @@ impl Expert {
                         if v.is_finite() {
                             *qj += v * self.speed_scale * step;
                         }
+                    }
+                    // The position rule's stop: a step that takes a joint further past its
+                    // margin is not taken (the filter stops the whole arm there).
+                    let past = |j: usize, (lo, hi): (f64, f64)| {
+                        (q[j] > hi && q[j] > before[j]) || (q[j] < lo && q[j] < before[j])
+                    };
+                    if self
+                        .joint_bounds
+                        .iter()
+                        .take(n)
+                        .enumerate()
+                        .any(|(j, b)| past(j, *b))
+                    {
+                        q = before;
                     }
                     chain.clamp_to_limits(&mut q[..n]);
                     // The whole-arm stop: a step that brings a pair of the collision model
@@ -949,6 +977,67 @@ mod tests {
     use kinematics::Jacobian;
     use learning::goals::TaskGoals;
     use learning::tasks::Task;
+
+    /// The prediction stops the whole arm where a joint would pass its margin, as the
+    /// filter's position rule does (it scales the whole command): with every joint's bounds
+    /// a milliradian around the start, a plan that moves the arm is predicted not to move it
+    /// at all; with the arm's own bounds it moves.
+    #[test]
+    fn the_prediction_stops_the_arm_at_a_joint_margin() {
+        let robot = RobotProfile::default_robot();
+        let safety = safety::SafetyConfig::for_robot(robot);
+        let make = || {
+            LoadedModel::load_for("modeswitch", robot)
+                .map(|m| m.at_period(0.025))
+                .map_err(|e| SimError::Setup(e.to_string()))
+        };
+        let goals = TaskGoals::of(Task::PickAndPlace, Tolerances::default()).unwrap();
+        let run = GoalRun::new(&goals);
+        let n = robot.n_joints();
+        let q0 = [0.0, -0.35, 1.9, 1.57, 0.9, 0.0];
+        let mut state = RobotState::at_rest(0, 25_000_000, n as u32);
+        state.q_rad[..n].copy_from_slice(&q0);
+        let mut jac = Jacobian::zeros(n);
+        let tool = robot.arm().fk_jacobian(&q0, &mut jac).unwrap();
+        let seen = Seen {
+            state: &state,
+            tool: &tool,
+            jac: &jac,
+            aim: None,
+            run: &run,
+            mode: Some(0),
+            t_ns: 0,
+        };
+        let ahead = Target::Point(tool.translation.vector + Vector3::x());
+        let mut moved = Vec::new();
+        for tight in [true, false] {
+            let mut ex = Expert::new(
+                &SimParams::default(),
+                robot,
+                &safety,
+                Tolerances::default(),
+                0.025,
+                &make,
+                None,
+                None,
+            )
+            .unwrap();
+            ex.whole_arm = None;
+            if tight {
+                ex.joint_bounds = q0.iter().map(|q| (q - 1e-3, q + 1e-3)).collect();
+            }
+            let plan = vec![[1.0, 0.0]; ex.knots];
+            let j = ex.rollout(&make, 0, &[], &plan, [0.0; 2], &seen, ahead);
+            assert!(j.is_finite());
+            let d: f64 = ex.predicted_q[..n]
+                .iter()
+                .zip(&q0)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            moved.push(d);
+        }
+        assert!(moved[0] <= 1e-3 + 1e-12 && moved[1] > 0.05, "{moved:?}");
+    }
 
     /// The prediction stops the arm where the safety filter's whole-arm rule stops it: mode
     /// switching's z axis (z-yaw's second) held down from 7.5 cm over the table (table cleaning's start)
