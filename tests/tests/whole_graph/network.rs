@@ -232,16 +232,27 @@ fn a_remote_operator_drives_over_the_veth_and_a_cut_stops_the_arm_until_a_new_se
         "the remote operator never drove the arm: gateway {:?}",
         gateway(&rec)
     );
-    // Cut the link: samples stop reaching the robot PC.
+    // Cut the link: samples stop reaching the robot PC. A stale stop the loaded machine
+    // caused before the cut is not this one: the event is the first heartbeat that counts
+    // one more than before the cut (not the newest heartbeat, which may be several ticks on).
+    let stale_before = count(&rec, gateway_counts::STALE_STOPS);
     ns.link(false);
     assert!(
         rec.poll_until(Duration::from_secs(5), |r| count(
             r,
             gateway_counts::STALE_STOPS
-        ) >= 1),
+        ) > stale_before),
         "the gateway never found the input stale"
     );
-    let detected = gateway(&rec).unwrap().tick;
+    let detected = rec
+        .statuses
+        .iter()
+        .find(|s| {
+            s.role == NodeRole::Gateway as u32
+                && s.rule_counts[gateway_counts::STALE_STOPS] > stale_before
+        })
+        .unwrap()
+        .tick;
     let last_forwarded = rec
         .joystick_samples
         .iter()
