@@ -973,9 +973,7 @@ impl Operate for Expert {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ipc_types::RobotState;
-    use kinematics::Jacobian;
-    use learning::goals::TaskGoals;
+    use crate::operator::AtRest;
     use learning::tasks::Task;
 
     /// The prediction stops the whole arm where a joint would pass its margin, as the
@@ -991,24 +989,10 @@ mod tests {
                 .map(|m| m.at_period(0.025))
                 .map_err(|e| SimError::Setup(e.to_string()))
         };
-        let goals = TaskGoals::of(Task::PickAndPlace, Tolerances::default()).unwrap();
-        let run = GoalRun::new(&goals);
-        let n = robot.n_joints();
         let q0 = [0.0, -0.35, 1.9, 1.57, 0.9, 0.0];
-        let mut state = RobotState::at_rest(0, 25_000_000, n as u32);
-        state.q_rad[..n].copy_from_slice(&q0);
-        let mut jac = Jacobian::zeros(n);
-        let tool = robot.arm().fk_jacobian(&q0, &mut jac).unwrap();
-        let seen = Seen {
-            state: &state,
-            tool: &tool,
-            jac: &jac,
-            aim: None,
-            run: &run,
-            mode: Some(0),
-            t_ns: 0,
-        };
-        let ahead = Target::Point(tool.translation.vector + Vector3::x());
+        let at = AtRest::new(robot, Task::PickAndPlace, &q0);
+        let (n, seen) = (robot.n_joints(), at.seen(Some(0)));
+        let ahead = Target::Point(at.tool.translation.vector + Vector3::x());
         let mut moved = Vec::new();
         for tight in [true, false] {
             let mut ex = Expert::new(
@@ -1052,24 +1036,10 @@ mod tests {
                 .map(|m| m.at_period(0.025))
                 .map_err(|e| SimError::Setup(e.to_string()))
         };
-        let goals = TaskGoals::of(Task::TableCleaning, Tolerances::default()).unwrap();
-        let run = GoalRun::new(&goals);
-        let n = robot.n_joints();
         let q0 = [-0.124, -0.703, 1.511, 1.571, 0.928, -0.124];
-        let mut state = RobotState::at_rest(0, 25_000_000, n as u32);
-        state.q_rad[..n].copy_from_slice(&q0);
-        let mut jac = Jacobian::zeros(n);
-        let tool = robot.arm().fk_jacobian(&q0, &mut jac).unwrap();
-        let seen = Seen {
-            state: &state,
-            tool: &tool,
-            jac: &jac,
-            aim: None,
-            run: &run,
-            mode: Some(1),
-            t_ns: 0,
-        };
-        let down = Target::Point(tool.translation.vector - Vector3::z());
+        let at = AtRest::new(robot, Task::TableCleaning, &q0);
+        let (n, seen) = (robot.n_joints(), at.seen(Some(1)));
+        let down = Target::Point(at.tool.translation.vector - Vector3::z());
         let mut lowest = Vec::new();
         for with_rule in [true, false] {
             let mut ex = Expert::new(

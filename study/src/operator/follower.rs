@@ -598,28 +598,8 @@ mod tests {
         let make = || {
             LoadedModel::load_for("modeswitch", robot).map_err(|e| SimError::Setup(e.to_string()))
         };
-        let goals = learning::goals::TaskGoals::of(
-            learning::tasks::Task::PickAndPlace,
-            Tolerances::default(),
-        )
-        .expect("goals");
-        let run = learning::goals::GoalRun::new(&goals);
-        let n = robot.n_joints();
-        let state = ipc_types::RobotState::at_rest(0, 0, n as u32);
-        let mut jac = kinematics::Jacobian::zeros(n);
-        let tool = robot
-            .arm()
-            .fk_jacobian(&state.q_rad[..n], &mut jac)
-            .expect("fk");
-        let seen = Seen {
-            state: &state,
-            tool: &tool,
-            jac: &jac,
-            aim: None,
-            run: &run,
-            mode: None,
-            t_ns: 0,
-        };
+        let at = crate::operator::AtRest::new(robot, learning::tasks::Task::PickAndPlace, &[]);
+        let seen = at.seen(None);
         let mut rng = Rng::new(1);
         let unanswered = (UNANSWERED_S / 0.025).round() as usize;
         let let_go = (LET_GO_S / 0.025).round() as usize;

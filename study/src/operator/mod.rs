@@ -109,6 +109,51 @@ pub struct Seen<'a> {
     pub t_ns: u64,
 }
 
+/// A test's arm at rest at some joint angles at the start of a task: what an operator sees
+/// there ([`AtRest::seen`]).
+#[cfg(test)]
+pub(crate) struct AtRest {
+    pub(crate) state: RobotState,
+    pub(crate) tool: Isometry3<f64>,
+    pub(crate) jac: Jacobian,
+    pub(crate) run: GoalRun,
+}
+
+#[cfg(test)]
+impl AtRest {
+    /// `robot`'s arm at rest at `q` (its first joints; the rest zero), at the start of `task`.
+    pub(crate) fn new(robot: &RobotProfile, task: learning::tasks::Task, q: &[f64]) -> Self {
+        let n = robot.n_joints();
+        let mut state = RobotState::at_rest(0, 0, n as u32);
+        state.q_rad[..q.len()].copy_from_slice(q);
+        let mut jac = Jacobian::zeros(n);
+        let tool = robot
+            .arm()
+            .fk_jacobian(&state.q_rad[..n], &mut jac)
+            .expect("fk");
+        let goals = learning::goals::TaskGoals::of(task, Tolerances::default()).expect("goals");
+        Self {
+            state,
+            tool,
+            jac,
+            run: GoalRun::new(&goals),
+        }
+    }
+
+    /// What the operator sees, the map in `mode`, with no aim.
+    pub(crate) fn seen(&self, mode: Option<usize>) -> Seen<'_> {
+        Seen {
+            state: &self.state,
+            tool: &self.tool,
+            jac: &self.jac,
+            aim: None,
+            run: &self.run,
+            mode,
+            t_ns: 0,
+        }
+    }
+}
+
 /// A simulated operator: answers each robot state with a joystick sample.
 pub trait Operate: Send {
     /// This tick's joystick sample. `make` gives fresh instances of the served model (the
