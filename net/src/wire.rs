@@ -231,29 +231,27 @@ mod tests {
             len in proptest::prop_oneof![0usize..64, 64usize..2048],
             fill in proptest::collection::vec(proptest::prelude::any::<u8>(), 2048),
         ) {
-            let encodings = [
-                encoding_of::<JoystickInput>(),
-                encoding_of::<RobotState>(),
-                encoding_of::<EstopCommand>(),
-                encoding_of::<SafetyControl>(),
-                encoding_of::<NodeStatus>(),
+            // Each of the gateway's types: its encoding and size.
+            let kinds = [
+                (encoding_of::<JoystickInput>(), size_of::<JoystickInput>()),
+                (encoding_of::<RobotState>(), size_of::<RobotState>()),
+                (encoding_of::<EstopCommand>(), size_of::<EstopCommand>()),
+                (encoding_of::<SafetyControl>(), size_of::<SafetyControl>()),
+                (encoding_of::<NodeStatus>(), size_of::<NodeStatus>()),
             ];
-            let sizes = [
-                size_of::<JoystickInput>(),
-                size_of::<RobotState>(),
-                size_of::<EstopCommand>(),
-                size_of::<SafetyControl>(),
-                size_of::<NodeStatus>(),
-            ];
-            let e = &encodings[pick];
-            proptest::prop_assert!(sizes.iter().all(|&s| s <= fill.len()));
-            for n in [len, sizes[pick]] {
+            proptest::prop_assert!(kinds.iter().all(|(_, s)| *s <= fill.len()));
+            let (e, size) = &kinds[pick];
+            for n in [len, *size] {
                 let bytes = &fill[..n.min(fill.len())];
-                proptest::prop_assert_eq!(read_only_as_itself::<JoystickInput>(bytes, e), Ok(()));
-                proptest::prop_assert_eq!(read_only_as_itself::<RobotState>(bytes, e), Ok(()));
-                proptest::prop_assert_eq!(read_only_as_itself::<EstopCommand>(bytes, e), Ok(()));
-                proptest::prop_assert_eq!(read_only_as_itself::<SafetyControl>(bytes, e), Ok(()));
-                proptest::prop_assert_eq!(read_only_as_itself::<NodeStatus>(bytes, e), Ok(()));
+                for read in [
+                    read_only_as_itself::<JoystickInput>,
+                    read_only_as_itself::<RobotState>,
+                    read_only_as_itself::<EstopCommand>,
+                    read_only_as_itself::<SafetyControl>,
+                    read_only_as_itself::<NodeStatus>,
+                ] {
+                    proptest::prop_assert_eq!(read(bytes, e), Ok(()));
+                }
             }
         }
     }
