@@ -130,6 +130,14 @@ impl LateCommands {
         self.awaiting.len()
     }
 
+    /// Takes in a command that came for another tick than the bridge's current one: the
+    /// verdict on its own tick, if that was a missed one ([`Self::arrived`]), and on the
+    /// misses before it ([`Self::superseded`]), into `out`.
+    pub fn other_tick(&mut self, c: &SafeCommand, out: &mut Vec<Verdict>) {
+        out.extend(self.arrived(c));
+        self.superseded(c, out);
+    }
+
     /// Matches a command that came for another tick than the bridge's current one: the
     /// verdict on its tick if that tick was missed and is still remembered (once per tick).
     pub fn arrived(&mut self, c: &SafeCommand) -> Option<Verdict> {

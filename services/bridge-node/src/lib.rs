@@ -544,11 +544,11 @@ impl<'a, R: Robot> Ticker<'a, R> {
             self.commands.drain(|c| {
                 if c.tick == tick {
                     reply.found = Some(*c);
+                    late.superseded(c, verdicts);
                 } else {
-                    verdicts.extend(late.arrived(c));
+                    late.other_tick(c, verdicts);
                     reply.other = Some(*c);
                 }
-                late.superseded(c, verdicts);
             })?;
             let now = now_ns();
             if let Some(c) = &reply.found {
@@ -702,10 +702,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
         let mut verdicts = Vec::new();
         while self.late.awaiting() > 0 && now_ns() < until {
             let late = &mut self.late;
-            self.commands.drain(|c| {
-                verdicts.extend(late.arrived(c));
-                late.superseded(c, &mut verdicts);
-            })?;
+            self.commands.drain(|c| late.other_tick(c, &mut verdicts))?;
             if self.late.awaiting() > 0 {
                 std::thread::sleep(Duration::from_micros(200));
             }
