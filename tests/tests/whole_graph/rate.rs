@@ -143,6 +143,15 @@ fn run_at(rate: u32, robot: &str) {
         .copied()
         .collect();
     let state_at = |tick: u64| states.iter().find(|s| s.tick == tick);
+    // Safety: every command changes the arm's velocity by at most max_acceleration * period.
+    let limited = scl_tests::assert_acceleration_limited(
+        &states,
+        &rec.safe_commands,
+        &defaults,
+        dt,
+        &format!("{rate} Hz"),
+    );
+    assert!(limited > 200, "{limited} commands checked");
     let cmd_at = |tick: u64| rec.safe_commands.iter().find(|c| c.tick == tick);
     let (mut checked, mut moving) = (0, 0);
     for w in states.windows(2) {
@@ -151,16 +160,7 @@ fn run_at(rate: u32, robot: &str) {
             continue;
         }
         let Some(c) = cmd_at(w[0].tick) else { continue };
-        // Safety: the command changes the arm's velocity by at most max_acceleration * period.
         assert_eq!(c.n_joints as usize, n);
-        for j in 0..n {
-            let dv = (c.qdot_rad_s[j] - w[0].qdot_rad_s[j]).abs();
-            assert!(
-                dv <= defaults[j] * dt + 1e-9,
-                "tick {} joint {j}: velocity change {dv} rad/s in one {period_ms} ms tick",
-                w[0].tick
-            );
-        }
         // The mock arm: one period of the command (no joint near its limit in this run).
         for j in 0..n {
             let moved = w[1].q_rad[j] - w[0].q_rad[j];
