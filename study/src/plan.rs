@@ -614,6 +614,39 @@ nasa_tlx = true
         }
     }
 
+    /// The study files write table cleaning's start as joint angles (a study file names a pose
+    /// or angles); they are the task's own start (`learning::tasks::start_pose`, which `scl
+    /// eval capability` uses) to the written three decimals, so the two cannot drift apart.
+    #[test]
+    fn the_example_studies_start_table_cleaning_at_the_tasks_start() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/study");
+        for (name, robot) in [
+            ("study1.toml", kinematics::RobotProfile::default_name()),
+            ("calibration.toml", kinematics::RobotProfile::default_name()),
+            ("feasibility.toml", kinematics::RobotProfile::default_name()),
+            ("gen3.toml", "gen3"),
+        ] {
+            let robot = kinematics::RobotProfile::by_name(robot).unwrap();
+            let want =
+                learning::tasks::start_pose(robot, learning::tasks::Task::TableCleaning).unwrap();
+            let want: Vec<f64> = want.iter().map(|a| (a * 1e3).round() / 1e3).collect();
+            let text = std::fs::read_to_string(dir.join(name)).unwrap();
+            let f: StudyFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let t = f.tasks.iter().find(|t| t.name == "table-cleaning");
+            let t = t.unwrap_or_else(|| panic!("{name}: no table-cleaning task"));
+            match &t.start {
+                StartPose::Joints(q) => {
+                    let off = q.iter().zip(&want).map(|(a, b)| (a - b).abs());
+                    assert!(
+                        q.len() == want.len() && off.fold(0.0, f64::max) < 6e-4,
+                        "{name}: start = {q:?}, the task's start is {want:?}"
+                    );
+                }
+                StartPose::Named(n) => panic!("{name}: start = {n:?}, not the task's start"),
+            }
+        }
+    }
+
     #[test]
     fn bad_files_name_the_file_and_the_key() {
         for (edit, key, says) in [

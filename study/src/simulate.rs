@@ -1003,13 +1003,10 @@ mod tests {
         ModeSwitch,
     }
 
-    /// The task's start pose in the study files: table cleaning over the patch, the others
-    /// at `home`.
+    /// The task's start pose, as the study files write it: table cleaning over the patch, the
+    /// others at `home`.
     fn start(task: GoalTask) -> Vec<f64> {
-        match task {
-            GoalTask::TableCleaning => vec![-0.124, -0.703, 1.511, 1.571, 0.928, -0.124],
-            _ => robot().named_pose("home").unwrap().to_vec(),
-        }
+        learning::tasks::start_pose(robot(), task).unwrap()
     }
 
     fn attempt_with(

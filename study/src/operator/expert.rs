@@ -1024,8 +1024,8 @@ mod tests {
     }
 
     /// The prediction stops the arm where the safety filter's whole-arm rule stops it: mode
-    /// switching's z axis (z-yaw's second) held down from 7.5 cm over the table (table cleaning's start)
-    /// keeps every pair of the collision model at the stop distance or more, where the map
+    /// switching's z axis (z-yaw's second) held down from table cleaning's start (the tool
+    /// 6.5 cm over the table) keeps every pair of the collision model at the stop distance or more, where the map
     /// alone would take the gripper into the table.
     #[test]
     fn the_prediction_stops_at_the_whole_arm_stop_distance() {
@@ -1036,7 +1036,7 @@ mod tests {
                 .map(|m| m.at_period(0.025))
                 .map_err(|e| SimError::Setup(e.to_string()))
         };
-        let q0 = [-0.124, -0.703, 1.511, 1.571, 0.928, -0.124];
+        let q0 = learning::tasks::start_pose(robot, Task::TableCleaning).unwrap();
         let at = AtRest::new(robot, Task::TableCleaning, &q0);
         let (n, seen) = (robot.n_joints(), at.seen(Some(1)));
         let down = Target::Point(at.tool.translation.vector - Vector3::z());

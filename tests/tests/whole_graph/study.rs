@@ -283,7 +283,7 @@ const SIM_VS_LIVE: &str = r#"name = "sim versus live"
 participants = 1
 [[tasks]]
 name = "table-cleaning"
-start = [-0.124, -0.703, 1.511, 1.571, 0.928, -0.124]
+start = [-0.124, -0.724, 1.52, 1.571, 0.897, -0.124]
 time_limit_s = 60
 attempts = 1
 [[conditions]]
