@@ -444,8 +444,9 @@ pub const DEFAULT_TASK: &str = "teleoperation";
 
 /// `scl dataset --format lerobot`: each recording one episode, each trajectory of a
 /// demonstration set (a directory `scl demos` wrote) one episode. `task` is every episode's
-/// task text; without it a study attempt's recording gets its study task's, a demonstration
-/// set its task's ([`crate::lerobot::run::task_text`]), anything else [`DEFAULT_TASK`].
+/// task text; without it a study attempt's recording gets its study task's (from its
+/// `scl.trial` record, else its participant's `trials.csv`), a demonstration set its task's
+/// ([`crate::lerobot::run::task_text`]), anything else [`DEFAULT_TASK`].
 pub fn export_lerobot(
     from: &[PathBuf],
     out: &Path,
@@ -467,10 +468,11 @@ pub fn export_lerobot(
         let operator = ticks.iter().copied().zip(r.side.operator(&ticks)).collect();
         let task = match task {
             Some(t) => t.to_owned(),
-            None => r
-                .side
-                .study_task()
-                .unwrap_or_else(|| DEFAULT_TASK.to_owned()),
+            None => match r.side.study_task() {
+                Some(t) => t,
+                None => crate::lerobot::run::study_task_from_trials(path)?
+                    .unwrap_or_else(|| DEFAULT_TASK.to_owned()),
+            },
         };
         sources.push(Source {
             model: r.side.served_model(&path.display().to_string()),

@@ -109,6 +109,14 @@ pub enum LeRobotError {
         /// What is wrong.
         reason: String,
     },
+    /// A CSV file (a study's `trials.csv`) does not read.
+    #[error("{path}: {source}")]
+    Csv {
+        /// The file.
+        path: PathBuf,
+        /// The CSV reader's error.
+        source: csv::Error,
+    },
     /// Writing would replace existing files.
     #[error("{0} already exists and is not empty; choose another --out or remove it first")]
     Exists(PathBuf),

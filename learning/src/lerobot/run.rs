@@ -247,6 +247,48 @@ impl RunSide {
     }
 }
 
+/// The study task of a simulated attempt's recording whose `scl.trial` record does not name
+/// it (recorded before it did): the `task` of the row of `trials.csv` in the participant's
+/// directory (`Pnn/`, the parent of the recording's `recordings/` directory) whose
+/// `recording` column names the file, as [`task_text`] words it. `None` when the recording
+/// is not in such a directory or no row names it; a `trials.csv` that does not read is an
+/// error naming it.
+pub fn study_task_from_trials(recording: &Path) -> Result<Option<String>, super::LeRobotError> {
+    let (Some(dir), Some(file)) = (recording.parent(), recording.file_name()) else {
+        return Ok(None);
+    };
+    if dir.file_name().and_then(|d| d.to_str()) != Some("recordings") {
+        return Ok(None);
+    }
+    let Some(participant) = dir.parent() else {
+        return Ok(None);
+    };
+    let trials = participant.join("trials.csv");
+    if !trials.is_file() {
+        return Ok(None);
+    }
+    let csv_error = |source| super::LeRobotError::Csv {
+        path: trials.clone(),
+        source,
+    };
+    let mut r = csv::Reader::from_path(&trials).map_err(csv_error)?;
+    let headers = r.headers().map_err(csv_error)?.clone();
+    let column = |name: &str| headers.iter().position(|h| h == name);
+    let (Some(rec_col), Some(task_col)) = (column("recording"), column("task")) else {
+        return Ok(None);
+    };
+    let want = Path::new("recordings").join(file);
+    for row in r.records() {
+        let row = row.map_err(csv_error)?;
+        if row.get(rec_col).map(Path::new) == Some(want.as_path())
+            && let Some(task) = row.get(task_col)
+        {
+            return Ok(Some(task_text(task, task)));
+        }
+    }
+    Ok(None)
+}
+
 /// The kind of a built-in map's spec (one served without a file).
 fn builtin_kind(spec: &str) -> Option<ModelKind> {
     if mapper::modeswitch::is_spec(spec) {

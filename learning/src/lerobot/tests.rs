@@ -475,6 +475,36 @@ fn a_study_attempt_is_an_episode_of_its_study_task() {
     );
     let info = json(&lr.join(super::INFO_PATH));
     assert_eq!(info["total_tasks"], 4);
+    // A simulated attempt recorded before its scl.trial named the task: from the
+    // participant's trials.csv (the row naming the file).
+    let p01 = dir.join("P01");
+    std::fs::create_dir_all(p01.join("recordings")).unwrap();
+    let old = operator_recording(
+        &p01.join("recordings"),
+        "P01-t2-c1-a1.mcap",
+        model,
+        Some(BTreeMap::from([(
+            "attempt".to_owned(),
+            "P01-t2-c1-a1".to_owned(),
+        )])),
+    );
+    std::fs::write(
+        p01.join("trials.csv"),
+        "study,participant,task,label,recording\n\
+         s,P01,table-cleaning,A,recordings/P01-t1-c1-a1.mcap\n\
+         s,P01,pouring,A,recordings/P01-t2-c1-a1.mcap\n",
+    )
+    .unwrap();
+    let lr3 = dir.join("lerobot3");
+    to_dataset::export_lerobot(&[old], &lr3, "gen3_lite", None).unwrap();
+    let t = &read_parquet(&lr3.join(super::TASKS_PATH))[0];
+    assert_eq!(
+        string_column(t, "__index_level_0__"),
+        vec![format!(
+            "pouring: {}",
+            crate::tasks::Task::Pouring.instructions()
+        )]
+    );
     // --task names every episode's.
     let lr2 = dir.join("lerobot2");
     to_dataset::export_lerobot(&recs[..1], &lr2, "gen3_lite", Some("given")).unwrap();
