@@ -41,7 +41,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         std::slice::from_ref(&rec),
         &out,
         "gen3_lite",
-        "hour",
+        Some("hour"),
     )?;
     let s = t0.elapsed().as_secs_f64();
     println!(

@@ -13,6 +13,76 @@ use kinematics::gen3_lite;
 use crate::dataset::{Dataset, Trajectory};
 use mapper::rng::Rng;
 
+/// The file `scl demos` writes beside `train/` and `val/`: which task and arm the
+/// demonstrations are of (JSON, [`DemosMeta`]), so that `scl dataset --format lerobot` names
+/// their episodes' task.
+pub const DEMOS_META: &str = "demos.json";
+
+/// What [`DEMOS_META`] holds.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct DemosMeta {
+    /// The task (`scl demos --task`: `pick-and-place`, `joint-reach`, ...).
+    pub task: String,
+    /// The arm's robot profile.
+    pub robot: String,
+    /// The random seed.
+    pub seed: u64,
+}
+
+/// Why [`DEMOS_META`] could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum DemosMetaError {
+    /// The file could not be read or written (writing refuses an existing file).
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file is not the JSON [`DemosMeta`] is.
+    #[error("{path}: not a demonstration set's description: {source}")]
+    Json {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The parser's error.
+        source: serde_json::Error,
+    },
+}
+
+impl DemosMeta {
+    /// Reads `dir`'s [`DEMOS_META`]; `None` when it has none (a set made before, or by
+    /// other means).
+    pub fn read(dir: &std::path::Path) -> Result<Option<Self>, DemosMetaError> {
+        let path = dir.join(DEMOS_META);
+        let bytes = match std::fs::read(&path) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => return Err(DemosMetaError::Io { path, source }),
+        };
+        serde_json::from_slice(&bytes)
+            .map(Some)
+            .map_err(|source| DemosMetaError::Json { path, source })
+    }
+
+    /// Writes it as `dir`'s [`DEMOS_META`], refusing to replace one.
+    pub fn write(&self, dir: &std::path::Path) -> Result<std::path::PathBuf, DemosMetaError> {
+        let path = dir.join(DEMOS_META);
+        let text = serde_json::to_string_pretty(self).map_err(|source| DemosMetaError::Json {
+            path: path.clone(),
+            source,
+        })?;
+        let io = |source| DemosMetaError::Io {
+            path: path.clone(),
+            source,
+        };
+        std::fs::create_dir_all(dir).map_err(io)?;
+        let mut f = std::fs::File::create_new(&path).map_err(io)?;
+        std::io::Write::write_all(&mut f, text.as_bytes()).map_err(io)?;
+        Ok(path)
+    }
+}
+
 /// Control period of the demonstrations (s): the Gen3 lite's 40 Hz.
 pub const DT: f64 = 1.0 / gen3_lite::CONTROL_RATE_HZ;
 

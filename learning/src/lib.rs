@@ -46,6 +46,9 @@ pub enum ToolError {
     /// A data set could not be read or written.
     #[error(transparent)]
     Dataset(#[from] dataset::DatasetError),
+    /// A demonstration set's description could not be read or written.
+    #[error(transparent)]
+    DemosMeta(#[from] demos::DemosMetaError),
     /// Fitting PCA failed.
     #[error(transparent)]
     Fit(#[from] pca::FitError),

@@ -169,6 +169,21 @@ impl Task {
         }
     }
 
+    /// What the operator is asked to do, one sentence (the task text of an exported
+    /// episode: `scl dataset --format lerobot`, docs/lerobot.md).
+    pub fn instructions(self) -> &'static str {
+        match self {
+            Task::TableCleaning => {
+                "wipe the table in circles with the tool pointing down, pushing the objects off the patch"
+            }
+            Task::PickAndPlace => {
+                "pick up the bottle from the side, carry it to the second mark and put it down"
+            }
+            Task::Pouring => "grasp the cup, pour it into the bowl and put it back where it was",
+            Task::PlanarReach => "reach the target on the line with the planar arm's tip",
+        }
+    }
+
     /// The task called `name`.
     pub fn from_name(name: &str) -> Result<Task, TaskError> {
         Task::ALL

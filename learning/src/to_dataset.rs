@@ -16,6 +16,7 @@ use crate::dataset::{Dataset, Trajectory};
 use ipc_types::{RobotState, state_flags};
 
 use crate::ToolError;
+use crate::lerobot::run::RunSide;
 use recording::{self, Event, Topic};
 
 /// Joint-space speed (rad/s) and gripper rate (1/s) below which the arm counts as resting.
@@ -25,7 +26,8 @@ pub const REST_SPEED: f64 = 1e-3;
 #[derive(Debug, Clone, clap::Args)]
 pub struct DatasetArgs {
     /// Recordings to convert (from `scl record` or `scl up --record`; a recording cut by a
-    /// crash is read up to its last complete chunk).
+    /// crash is read up to its last complete chunk). With `--format lerobot` also
+    /// demonstration sets (directories `scl demos` wrote), each trajectory an episode.
     #[arg(required = true, value_name = "FROM.mcap")]
     pub from: Vec<PathBuf>,
     /// Data set directory to write (gets train/ and val/); existing files are never
@@ -46,9 +48,11 @@ pub struct DatasetArgs {
     /// LeRobot v3.0 dataset, one episode per recording, every tick a frame; docs/lerobot.md).
     #[arg(long, default_value = "csv", value_parser = ["csv", "lerobot"])]
     pub format: String,
-    /// The task's text for `--format lerobot` (every episode's).
-    #[arg(long, default_value = "teleoperation")]
-    pub task: String,
+    /// The task's text for `--format lerobot` (every episode's). Default: a study attempt's
+    /// recording its study task's name and instructions, a demonstration set its task's,
+    /// anything else `teleoperation`.
+    #[arg(long)]
+    pub task: Option<String>,
     /// The arm of the recordings for `--format lerobot`: a robot profile (names the joints,
     /// sets `robot_type` and fps).
     #[arg(long, value_name = "PROFILE", default_value_t = kinematics::RobotProfile::default_name().to_owned())]
@@ -300,6 +304,14 @@ pub fn split(trajs: Vec<Trajectory>, val_fraction: f64) -> Dataset {
 
 /// The robot states of recording `path`, and how far it could be read.
 pub fn robot_states(path: &Path) -> Result<(Vec<RobotState>, recording::ReadSummary), ToolError> {
+    read_states(path, |_| Ok(()))
+}
+
+/// [`robot_states`], giving every event to `other` as well, in the same pass.
+fn read_states(
+    path: &Path,
+    mut other: impl FnMut(&Event<'_>) -> Result<(), recording::RecordError>,
+) -> Result<(Vec<RobotState>, recording::ReadSummary), ToolError> {
     let mut states = Vec::new();
     let channel = Topic::RobotState.channel();
     let summary = recording::read_file(path, |ev| {
@@ -312,8 +324,9 @@ pub fn robot_states(path: &Path) -> Result<(Vec<RobotState>, recording::ReadSumm
             && c.topic == channel
         {
             states.push(recording::decode_robot_state(path, c, sequence, data)?);
+            return Ok(());
         }
-        Ok(())
+        other(&ev)
     })?;
     Ok((states, summary))
 }
@@ -326,13 +339,22 @@ struct RecordedStates {
     /// Whether the file was read to its end (a cut one is read up to its last complete
     /// chunk, and said).
     complete: bool,
+    /// The operator's side, the served model, the study task (gathered only for
+    /// `--format lerobot`).
+    side: RunSide,
 }
 
 impl RecordedStates {
-    /// Reads recording `path`; a cut file is said (and read as far as it goes), one without
-    /// robot states is an error naming it.
-    fn read(path: &Path) -> Result<Self, ToolError> {
-        let (states, summary) = robot_states(path)?;
+    /// Reads recording `path`, with `side` also what else the LeRobot export takes from it,
+    /// in the same pass; a cut file is said (and read as far as it goes), one without robot
+    /// states is an error naming it.
+    fn read(path: &Path, side: bool) -> Result<Self, ToolError> {
+        let mut run = RunSide::default();
+        let (states, summary) = if side {
+            read_states(path, |ev| run.take(path, ev))?
+        } else {
+            robot_states(path)?
+        };
         if !summary.complete {
             tracing::warn!(
                 "{}: the recording is cut ({}); reading its {} readable messages (`scl record --recover` makes a finished copy)",
@@ -358,6 +380,7 @@ impl RecordedStates {
             states,
             stem,
             complete: summary.complete,
+            side: run,
         })
     }
 }
@@ -384,7 +407,7 @@ pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertRepor
     let mut left = LeftOut::default();
     let mut truncated = Vec::new();
     for path in from {
-        let r = RecordedStates::read(path)?;
+        let r = RecordedStates::read(path, false)?;
         if !r.complete {
             truncated.push(path.clone());
         }
@@ -415,32 +438,106 @@ pub fn convert(from: &[PathBuf], out: &Path, o: &Options) -> Result<ConvertRepor
     })
 }
 
-/// `scl dataset --format lerobot`: each recording one episode.
+/// The task text of an episode when `--task` is not given and neither a study attempt's
+/// recording nor a demonstration set names one.
+pub const DEFAULT_TASK: &str = "teleoperation";
+
+/// `scl dataset --format lerobot`: each recording one episode, each trajectory of a
+/// demonstration set (a directory `scl demos` wrote) one episode. `task` is every episode's
+/// task text; without it a study attempt's recording gets its study task's (from its
+/// `scl.trial` record, else its participant's `trials.csv`), a demonstration set its task's
+/// ([`crate::lerobot::run::task_text`]), anything else [`DEFAULT_TASK`].
 pub fn export_lerobot(
     from: &[PathBuf],
     out: &Path,
     robot: &str,
-    task: &str,
+    task: Option<&str>,
 ) -> Result<crate::lerobot::export::ExportReport, ToolError> {
+    use crate::lerobot::export::{Motion, Source};
     let profile = kinematics::RobotProfile::by_name(robot)
         .map_err(|e| ToolError::Graph(format!("--robot: {e}")))?;
     let fps = profile.control_rate_hz().round() as u32;
     let mut sources = Vec::with_capacity(from.len());
     for path in from {
-        let r = RecordedStates::read(path)?;
-        sources.push(crate::lerobot::export::Source {
+        if path.is_dir() {
+            sources.extend(demonstration_sources(path, fps, task)?);
+            continue;
+        }
+        let r = RecordedStates::read(path, true)?;
+        let ticks: Vec<u64> = sorted_states(&r.states).iter().map(|s| s.tick).collect();
+        let operator = ticks.iter().copied().zip(r.side.operator(&ticks)).collect();
+        let task = match task {
+            Some(t) => t.to_owned(),
+            None => match r.side.study_task() {
+                Some(t) => t,
+                None => crate::lerobot::run::study_task_from_trials(path)?
+                    .unwrap_or_else(|| DEFAULT_TASK.to_owned()),
+            },
+        };
+        sources.push(Source {
+            model: r.side.served_model(&path.display().to_string()),
             name: r.stem,
-            task: task.to_owned(),
-            states: r.states,
+            task,
+            motion: Motion::States(r.states),
+            operator,
         });
     }
     Ok(crate::lerobot::export::write(out, profile, fps, &sources)?)
 }
 
+/// The episodes of demonstration set `dir` (`scl demos` output: train/ then val/, one
+/// episode per trajectory, named `<dir>/<split>/<file>`), their task text `task` or that of
+/// the task its [`crate::demos::DEMOS_META`] file names. Refuses a trajectory whose time
+/// steps are not the export's `fps`.
+fn demonstration_sources(
+    dir: &Path,
+    fps: u32,
+    task: Option<&str>,
+) -> Result<Vec<crate::lerobot::export::Source>, ToolError> {
+    use crate::lerobot::export::{Motion, Source};
+    let ds = crate::dataset::load_dir(dir)?;
+    let task = match task {
+        Some(t) => t.to_owned(),
+        None => crate::demos::DemosMeta::read(dir)?.map_or_else(
+            || DEFAULT_TASK.to_owned(),
+            |m| crate::lerobot::run::task_text(&m.task, &m.task),
+        ),
+    };
+    let set = dir.file_name().map_or_else(
+        || dir.display().to_string(),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    let period_s = 1.0 / f64::from(fps);
+    let mut out = Vec::new();
+    for (split, trajs) in [("train", ds.train), ("val", ds.val)] {
+        for t in trajs {
+            let name = format!("{set}/{split}/{}", t.name);
+            if let Some(k) =
+                t.t.windows(2)
+                    .position(|w| ((w[1] - w[0]) - period_s).abs() > 1e-6)
+            {
+                return Err(ToolError::Graph(format!(
+                    "{}: tuple {k} is followed {} s later, not at the robot profile's {fps} Hz ({period_s} s); LeRobot frames are evenly spaced",
+                    dir.join(split).join(&t.name).display(),
+                    t.t[k + 1] - t.t[k]
+                )));
+            }
+            out.push(Source {
+                name,
+                task: task.clone(),
+                motion: Motion::Tuples(t),
+                operator: std::collections::BTreeMap::new(),
+                model: crate::lerobot::run::ServedModel::default(),
+            });
+        }
+    }
+    Ok(out)
+}
+
 /// `scl dataset`.
 pub fn cli(args: &DatasetArgs) -> Result<std::process::ExitCode, ToolError> {
     if args.format == "lerobot" {
-        let r = export_lerobot(&args.from, &args.out, &args.robot, &args.task)?;
+        let r = export_lerobot(&args.from, &args.out, &args.robot, args.task.as_deref())?;
         eprintln!(
             "wrote a LeRobot v3.0 dataset of {} episodes, {} frames ({} flagged as no demonstration: missed, stopped, gaps, episode ends) to {}",
             r.episodes,

@@ -55,7 +55,17 @@ pub fn demos(
         let (dt, dv) = t.default_counts();
         crate::tasks::generate_for(t, robot, n_train.unwrap_or(dt), n_val.unwrap_or(dv), seed)?
     };
+    let meta = crate::demos::DemosMeta {
+        task: task.to_owned(),
+        robot: robot.name().to_owned(),
+        seed,
+    };
+    let meta_path = out.join(crate::demos::DEMOS_META);
+    if meta_path.exists() {
+        return Err(dataset::DatasetError::Exists(meta_path).into());
+    }
     let files = dataset::write_dir(out, &ds)?;
+    meta.write(out)?;
     eprintln!(
         "wrote {} trajectories ({} train / {} validation tuples) to {}",
         files.len(),

@@ -1,7 +1,8 @@
 """LeRobot datasets checked with LeRobot itself: `scl dataset --format lerobot` output loads
 with ``LeRobotDataset`` frame for frame equal to the recording, and a dataset written by
 LeRobot's own writer trains with `scl train --data`. Needs the ``lerobot`` extra
-X
+(``scripts/check-lerobot.sh`` installs it in ``.venv-lerobot`` and runs this file; it is not
+part of scripts/test-all: see docs/lerobot.md)."""
 
 from __future__ import annotations
 
@@ -38,13 +39,51 @@ def _record(tmp_path: Path) -> Path:
     return rec
 
 
-def _states(rec: Path) -> dict:
+def _load(rec: Path) -> dict:
     sys.path.insert(0, str(EXAMPLES))
     try:
         from load_recording import load  # type: ignore[import-not-found]
     finally:
         sys.path.remove(str(EXAMPLES))
-    return load(rec)["robot_state"]
+    return load(rec)
+
+
+def _states(rec: Path) -> dict:
+    return _load(rec)["robot_state"]
+
+
+def _operator_side(rec: Path, ticks: np.ndarray) -> tuple:
+    """The stick, mode and safety flags docs/lerobot.md says each tick gets: the mapper
+    command of the mapper safety forwarded (at the tick, else last before it), that
+    mapper's heartbeat's mode latest at or before the tick, the tick's safe command's
+    flags; 0,0 / -1 / 0 where nothing was recorded."""
+    msgs = _load(rec)
+    safe: dict = {}
+    sc = msgs["safe_command"]
+    for t, m, f in zip(sc["tick"], sc["mapper_id"], sc["flags"]):
+        safe.setdefault(int(t), (int(m), int(f)))
+    sticks: dict = {}
+    mc = msgs["mapper_command"]
+    for t, m, a in zip(mc["tick"], mc["mapper_id"], mc["action"]):
+        sticks.setdefault((int(t), int(m)), (float(a[0]), float(a[1])))
+    beats: dict = {}
+    st = msgs["status"]
+    for t, m, role, mode in zip(st["tick"], st["mapper_id"], st["role"], st["mode"]):
+        if int(role) == 2 and int(t) >= 0:
+            beats.setdefault(int(m), {})[int(t)] = int(mode)
+    stick, mode, flags = [], [], []
+    for k in (int(t) for t in ticks):
+        before = [t for t in safe if t <= k]
+        active = safe[max(before)][0] if before else None
+        if active is None:
+            ids = sorted(m for (t, m) in sticks if t == k)
+            active = ids[0] if ids else None
+        stick.append(sticks.get((k, active), (0.0, 0.0)))
+        hb = beats.get(active, {})
+        at = [t for t in hb if t <= k]
+        mode.append(hb[max(at)] if at else -1)
+        flags.append(safe[k][1] if k in safe else 0)
+    return np.array(stick), np.array(mode), np.array(flags)
 
 
 def test_export_loads_in_lerobot_frame_for_frame(tmp_path: Path) -> None:
@@ -91,9 +130,22 @@ def test_export_loads_in_lerobot_frame_for_frame(tmp_path: Path) -> None:
             assert action[6] == pytest.approx((c[k + 1] - c[k]) / dt, rel=1e-6, abs=1e-6)
         else:
             assert not action.any() and int(f["scl.demonstration"]) == 0
+    # The operator's side, frame for frame as the recording has it.
+    assert ds.meta.features["scl.stick"]["names"] == ["x", "y"]
+    stick, mode, flags = _operator_side(rec, ticks[keep])
+    assert (mode >= 0).any(), mode  # the mapper's heartbeats were recorded
+    for k in range(n):
+        f = ds[k]
+        got = f["scl.stick"].numpy()
+        assert np.array_equal(got, stick[k].astype(got.dtype)), (k, got, stick[k])
+        assert int(f["scl.mode"]) == int(mode[k]), k
+        assert int(f["scl.safety_flags"]) == int(flags[k]), k
     ep = ds.meta.episodes[0]
     assert ep["dataset_from_index"] == 0 and ep["dataset_to_index"] == n
     assert ep["length"] == n and ep["tasks"] == ["reach the cube"]
+    # The served map: the default graph serves the bundled model, embedded in the recording.
+    assert ep["scl/map_kind"] in ("scl", "pca", "cae"), ep["scl/map_kind"]
+    assert len(ep["scl/model_sha256"]) == 64, ep["scl/model_sha256"]
     stats = json.loads((out / "meta/stats.json").read_text())
     assert np.allclose(stats["observation.state"]["max"], np.append(q.max(0), c.max()))
 

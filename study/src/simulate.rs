@@ -383,6 +383,11 @@ pub struct Observed<'a> {
     pub mapper: &'a MapperCommand,
     /// Safety's command of the tick.
     pub safe: &'a SafeCommand,
+    /// The map's mode after the tick's step, as the mapper's heartbeat carries it
+    /// ([`ipc_types::NodeStatus::mode`]: 0 for a map without modes, 1 + the mode's index).
+    pub mode: u32,
+    /// The map's mode switches so far ([`ipc_types::NodeStatus::mode_switches`]).
+    pub mode_switches: u32,
     /// What the tracker and the operator saw.
     pub note: &'a TickNote,
 }
@@ -472,11 +477,14 @@ fn run_driver(
         tracing::trace!(tick = k, safety_flags = safe.flags, "simulated tick");
         diag.tick(driver.note(), &state, safe.flags);
         if let Some(o) = obs.as_deref_mut() {
+            let mode = step.mode();
             o.tick(&Observed {
                 state: &state,
                 sample: &joy,
                 mapper: &cmd,
                 safe: &safe,
+                mode: mode.map_or(0, |m| m.index + 1),
+                mode_switches: mode.map_or(0, |m| m.switches),
                 note: driver.note(),
             })?;
         }
@@ -666,6 +674,10 @@ pub struct AttemptInfo<'a> {
     pub spec: &'a str,
     /// A name for its files: `P01-t1-c2-a1` (participant, task, condition, attempt; 1-based).
     pub name: String,
+    /// The study task's name (`[[tasks]] name`).
+    pub task: &'a str,
+    /// Which of the paper's tasks its goals are (`[[tasks]] goals`, else its name).
+    pub goals: &'a str,
 }
 
 /// Part of a study's protocol to simulate (`scl study simulate --task --condition`): all of
@@ -892,6 +904,8 @@ pub fn simulate_participant_with(
                 let info = AttemptInfo {
                     spec,
                     name: format!("{p}-t{}-c{}-a{attempt}", ti + 1, ci + 1),
+                    task: &task.name,
+                    goals: task.goals.as_deref().unwrap_or(&task.name),
                 };
                 let r = runner(&setup, &info)?;
                 tracing::debug!(participant = %p, task = %task.name, condition = %c.name, attempt, ?r, "simulated attempt");

@@ -15,18 +15,37 @@ use kinematics::RobotProfile;
 use parquet::arrow::ArrowWriter;
 use serde_json::{Value, json};
 
+use super::run::{OperatorTick, ServedModel};
 use super::{LeRobotError, column, format_error, io};
+use crate::dataset::Trajectory;
 use crate::to_dataset;
 
 /// One episode to write.
 #[derive(Debug, Clone)]
 pub struct Source {
-    /// What it came from (a recording's file stem); kept in the episodes metadata.
+    /// What it came from (a recording's file stem, a demonstration's file name); kept in
+    /// the episodes metadata.
     pub name: String,
     /// The task's text.
     pub task: String,
-    /// The recorded robot states, any order (sorted by tick, one per tick, when written).
-    pub states: Vec<RobotState>,
+    /// Its motion.
+    pub motion: Motion,
+    /// The operator's side by tick (a recording's; [`OperatorTick::FILL`] for a tick not
+    /// in it).
+    pub operator: BTreeMap<u64, OperatorTick>,
+    /// The map the run served (empty for demonstrations).
+    pub model: ServedModel,
+}
+
+/// The motion of an episode.
+#[derive(Debug, Clone)]
+pub enum Motion {
+    /// Recorded robot states, any order (sorted by tick, one per tick, when written): one
+    /// frame per state, the action the velocity the next state reports.
+    States(Vec<RobotState>),
+    /// Demonstration tuples (`scl demos`): one frame per tuple, each a demonstration, its
+    /// tick its index.
+    Tuples(Trajectory),
 }
 
 /// One frame's values.
@@ -40,10 +59,40 @@ struct Frame {
     /// Executed joint velocities then the gripper rate; zero where nothing followed.
     action: Vec<f64>,
     demonstration: bool,
+    operator: OperatorTick,
 }
 
-/// The frames of one source: every recorded tick, each flagged.
-fn frames(states: &[RobotState], n: usize) -> Vec<Frame> {
+/// The frames of one source: every recorded tick (every tuple), each flagged.
+fn frames(s: &Source, n: usize) -> Vec<Frame> {
+    let operator = |tick: u64| s.operator.get(&tick).copied().unwrap_or(OperatorTick::FILL);
+    match &s.motion {
+        Motion::States(states) => state_frames(states, n, operator),
+        Motion::Tuples(t) => (0..t.len())
+            .map(|k| {
+                let mut state = t.q[k].clone();
+                state.push(t.c[k]);
+                let mut action = t.qdot[k].clone();
+                action.push(t.cdot[k]);
+                Frame {
+                    tick: k as u64,
+                    t_ns: (t.t[k] * 1e9).round() as u64,
+                    flags: 0,
+                    state,
+                    action,
+                    demonstration: true,
+                    operator: operator(k as u64),
+                }
+            })
+            .collect(),
+    }
+}
+
+/// The frames of recorded states: every recorded tick, each flagged.
+fn state_frames(
+    states: &[RobotState],
+    n: usize,
+    operator: impl Fn(u64) -> OperatorTick,
+) -> Vec<Frame> {
     let sorted = to_dataset::sorted_states(states);
     let mut out = Vec::with_capacity(sorted.len());
     for (i, a) in sorted.iter().enumerate() {
@@ -68,6 +117,7 @@ fn frames(states: &[RobotState], n: usize) -> Vec<Frame> {
             state,
             action,
             demonstration,
+            operator: operator(a.tick),
         });
     }
     out
@@ -102,13 +152,23 @@ pub fn write(
     }
     let n = profile.n_joints();
     for s in sources {
-        if let Some(bad) = s.states.iter().find(|st| st.q().len() != n) {
+        let bad = match &s.motion {
+            Motion::States(states) => states
+                .iter()
+                .find(|st| st.q().len() != n)
+                .map(|st| (format!("tick {}", st.tick), st.q().len())),
+            Motion::Tuples(t) => {
+                t.q.iter()
+                    .enumerate()
+                    .find(|(_, q)| q.len() != n)
+                    .map(|(k, q)| (format!("tuple {k}"), q.len()))
+            }
+        };
+        if let Some((at, joints)) = bad {
             return Err(format_error(
                 Path::new(&s.name),
                 format!(
-                    "tick {} has {} joints, but robot profile {} has {n} ({}); pass the arm's --robot",
-                    bad.tick,
-                    bad.q().len(),
+                    "{at} has {joints} joints, but robot profile {} has {n} ({}); pass the arm's --robot",
                     profile.name(),
                     profile.joint_names().join(", ")
                 ),
@@ -126,7 +186,7 @@ pub fn write(
                 tasks.len() - 1
             }
         };
-        let fr = frames(&s.states, n);
+        let fr = frames(s, n);
         let from = cols.index.len();
         for (k, f) in fr.iter().enumerate() {
             cols.push(f, k, e, task_index, fps);
@@ -134,6 +194,7 @@ pub fn write(
         episodes.push(EpisodeRow {
             name: s.name.clone(),
             task: s.task.clone(),
+            model: s.model.clone(),
             from,
             to: cols.index.len(),
         });
@@ -170,6 +231,7 @@ pub fn write(
 struct EpisodeRow {
     name: String,
     task: String,
+    model: ServedModel,
     from: usize,
     to: usize,
 }
@@ -188,6 +250,9 @@ struct Columns {
     t_ns: Vec<i64>,
     flags: Vec<i64>,
     demonstration: Vec<i64>,
+    stick: Vec<f64>,
+    mode: Vec<i64>,
+    safety_flags: Vec<i64>,
 }
 
 impl Columns {
@@ -205,9 +270,12 @@ impl Columns {
         self.t_ns.push(i64::try_from(f.t_ns).unwrap_or(i64::MAX));
         self.flags.push(i64::from(f.flags));
         self.demonstration.push(i64::from(f.demonstration));
+        self.stick.extend_from_slice(&f.operator.stick);
+        self.mode.push(f.operator.mode);
+        self.safety_flags.push(f.operator.safety_flags);
     }
 
-    fn scalars(&self) -> [(&'static str, Vec<f64>, &'static str); 9] {
+    fn scalars(&self) -> [(&'static str, Vec<f64>, &'static str); 11] {
         let f = |v: &[i64]| v.iter().map(|x| *x as f64).collect::<Vec<_>>();
         [
             (
@@ -223,6 +291,8 @@ impl Columns {
             (column::T_NS, f(&self.t_ns), "int64"),
             (column::STATE_FLAGS, f(&self.flags), "int64"),
             (column::DEMONSTRATION, f(&self.demonstration), "int64"),
+            (column::MODE, f(&self.mode), "int64"),
+            (column::SAFETY_FLAGS, f(&self.safety_flags), "int64"),
         ]
     }
 
@@ -231,11 +301,11 @@ impl Columns {
             path: path.to_owned(),
             source,
         };
-        let vector = |values: &[f64]| -> Result<ArrayRef, LeRobotError> {
+        let vector = |values: &[f64], dim: usize| -> Result<ArrayRef, LeRobotError> {
             let item = Arc::new(Field::new("item", DataType::Float64, true));
             let a = FixedSizeListArray::try_new(
                 item,
-                (n + 1) as i32,
+                dim as i32,
                 Arc::new(Float64Array::from(values.to_vec())),
                 None,
             )
@@ -244,8 +314,8 @@ impl Columns {
         };
         let int = |v: &[i64]| -> ArrayRef { Arc::new(Int64Array::from(v.to_vec())) };
         let columns: Vec<(&str, ArrayRef)> = vec![
-            (column::STATE, vector(&self.state)?),
-            (column::ACTION, vector(&self.action)?),
+            (column::STATE, vector(&self.state, n + 1)?),
+            (column::ACTION, vector(&self.action, n + 1)?),
             (
                 "timestamp",
                 Arc::new(Float32Array::from(self.timestamp.clone())),
@@ -258,6 +328,9 @@ impl Columns {
             (column::T_NS, int(&self.t_ns)),
             (column::STATE_FLAGS, int(&self.flags)),
             (column::DEMONSTRATION, int(&self.demonstration)),
+            (column::STICK, vector(&self.stick, 2)?),
+            (column::MODE, int(&self.mode)),
+            (column::SAFETY_FLAGS, int(&self.safety_flags)),
         ];
         batch(columns, BTreeMap::new(), path)
     }
@@ -267,6 +340,7 @@ impl Columns {
         let mut out = serde_json::Map::new();
         out.insert(column::STATE.into(), vector_stats(&self.state, n + 1));
         out.insert(column::ACTION.into(), vector_stats(&self.action, n + 1));
+        out.insert(column::STICK.into(), vector_stats(&self.stick, 2));
         for (name, values, _) in self.scalars() {
             out.insert(name.into(), vector_stats(&values, 1));
         }
@@ -333,6 +407,22 @@ fn episodes_batch(rows: &[EpisodeRow], path: &Path) -> Result<RecordBatch, LeRob
             column::SOURCE,
             Arc::new(StringArray::from(
                 rows.iter().map(|r| r.name.clone()).collect::<Vec<_>>(),
+            )),
+        ),
+        (
+            column::MAP_KIND,
+            Arc::new(StringArray::from(
+                rows.iter()
+                    .map(|r| r.model.kind.clone())
+                    .collect::<Vec<_>>(),
+            )),
+        ),
+        (
+            column::MODEL_SHA256,
+            Arc::new(StringArray::from(
+                rows.iter()
+                    .map(|r| r.model.sha256.clone())
+                    .collect::<Vec<_>>(),
             )),
         ),
     ];
@@ -457,6 +547,9 @@ fn info_json(
             column::T_NS: scalar("int64"),
             column::STATE_FLAGS: scalar("int64"),
             column::DEMONSTRATION: scalar("int64"),
+            column::STICK: {"dtype": "float64", "shape": [2], "names": ["x", "y"]},
+            column::MODE: scalar("int64"),
+            column::SAFETY_FLAGS: scalar("int64"),
         }
     })
 }
@@ -477,7 +570,7 @@ mod tests {
             .collect();
         s[3].flags |= state_flags::MISSED;
         s.remove(5); // tick 5 not recorded: tick 4 has no successor
-        let f = frames(&s, 2);
+        let f = state_frames(&s, 2, |_| OperatorTick::FILL);
         assert_eq!(f.len(), 5);
         let demo: Vec<bool> = f.iter().map(|f| f.demonstration).collect();
         assert_eq!(demo, [true, true, false, true, false]);

@@ -12,6 +12,7 @@
 
 pub mod export;
 pub mod import;
+pub mod run;
 
 use std::path::{Path, PathBuf};
 
@@ -41,12 +42,28 @@ pub mod column {
     /// 1 when the frame's state and action form a demonstration tuple as `scl dataset`
     /// takes them (int64 0/1): 0 marks a missed or stopped tick, a gap, the last frame.
     pub const DEMONSTRATION: &str = "scl.demonstration";
+    /// The 2-D stick input the mapper used for the tick (float64 `x`, `y`:
+    /// `MapperCommand::action`); 0, 0 when the tick has no recorded mapper command.
+    pub const STICK: &str = "scl.stick";
+    /// The map's mode (int64): the mapper's heartbeat's `NodeStatus::mode` latest at or
+    /// before the tick (0 a map without modes, 1 + the mode's index otherwise); -1 when none
+    /// was recorded.
+    pub const MODE: &str = "scl.mode";
+    /// Safety's `ipc_types::safe_flags` bits on the tick's executed command (int64); 0 when
+    /// the tick has no recorded safe command.
+    pub const SAFETY_FLAGS: &str = "scl.safety_flags";
     /// The joint-state feature.
     pub const STATE: &str = "observation.state";
     /// The action feature.
     pub const ACTION: &str = "action";
     /// The episodes-metadata column naming the recording an episode came from.
     pub const SOURCE: &str = "scl/source";
+    /// The episodes-metadata column naming the kind of map the run served (`scl`, `pca`,
+    /// `cae`, `modeswitch`, ...; empty when the recording does not say).
+    pub const MAP_KIND: &str = "scl/map_kind";
+    /// The episodes-metadata column with the SHA-256 (hex) of the served model's file as
+    /// the recording embeds it (empty for a built-in map or a recording without one).
+    pub const MODEL_SHA256: &str = "scl/model_sha256";
 }
 
 /// Why a LeRobot dataset could not be written or read.
@@ -91,6 +108,14 @@ pub enum LeRobotError {
         path: PathBuf,
         /// What is wrong.
         reason: String,
+    },
+    /// A CSV file (a study's `trials.csv`) does not read.
+    #[error("{path}: {source}")]
+    Csv {
+        /// The file.
+        path: PathBuf,
+        /// The CSV reader's error.
+        source: csv::Error,
     },
     /// Writing would replace existing files.
     #[error("{0} already exists and is not empty; choose another --out or remove it first")]

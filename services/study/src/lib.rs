@@ -642,6 +642,10 @@ impl Protocol<'_> {
             ("study", study.file.name.clone()),
             ("participant", self.participant.to_string()),
             ("task", task.name.clone()),
+            (
+                "goals",
+                task.goals.clone().unwrap_or_else(|| task.name.clone()),
+            ),
             ("label", cond.label.clone()),
             ("condition", cond.name.clone()),
             ("model", study.models[ci][ti].clone()),
@@ -1291,6 +1295,8 @@ pub fn simulate(
                                     trial.insert("attempt".to_owned(), info.name.clone());
                                     trial.insert("model".to_owned(), info.spec.to_owned());
                                     trial.insert("seed".to_owned(), setup.seed.to_string());
+                                    trial.insert("task".to_owned(), info.task.to_owned());
+                                    trial.insert("goals".to_owned(), info.goals.to_owned());
                                     simrecord::run_recorded(setup, info, dir, graph, trial)
                                 } else {
                                     study::simulate::run_attempt(setup)

@@ -24,9 +24,10 @@ pub const OPERATOR_TOPIC: &str = "/scl/sim/operator";
 pub const MAPPER_PID: u32 = 1;
 /// The stand-in pid of the in-process safety filter.
 pub const SAFETY_PID: u32 = 2;
-/// The metadata record naming the simulated attempt (participant, task, condition, attempt,
-/// model, seed), as `scl study run` names a live one (`scl.trial`).
-pub const TRIAL_METADATA: &str = "scl.trial";
+/// The metadata record naming the simulated attempt (its name, the study task and its goals,
+/// the model, the seed), as `scl study run` names a live one (`scl.trial`; `scl dataset
+/// --format lerobot` takes the episode's task from it).
+pub const TRIAL_METADATA: &str = learning::lerobot::run::TRIAL_METADATA;
 
 /// One attempt being written.
 pub struct AttemptRecording {
@@ -222,6 +223,15 @@ impl Observe for AttemptRecording {
         self.put(&Payload::MapperCommand(*t.mapper))?;
         self.put(&Payload::SafeCommand(*t.safe))?;
         self.put(&Payload::Joystick(*t.sample))?;
+        // The mapper's heartbeat of the tick, as the live mapper publishes one: its mode.
+        let mut st = NodeStatus::new(NodeRole::Mapper, phase::RUNNING, t.mapper.t_ns);
+        st.pid = MAPPER_PID;
+        st.mapper_id = t.mapper.mapper_id;
+        st.tick = t.state.tick;
+        st.handled = self.ticks + 1;
+        st.mode = t.mode;
+        st.mode_switches = t.mode_switches;
+        self.put(&Payload::Status(st))?;
         self.json.clear();
         serde_json::to_writer(&mut self.json, t.note).map_err(|e| werr(&self.path, e))?;
         self.operator_seq = self.operator_seq.wrapping_add(1);
@@ -342,8 +352,14 @@ mod tests {
             let info = AttemptInfo {
                 spec,
                 name: format!("P01-t1-c1-a1-{spec}"),
+                task: "pick-and-place",
+                goals: "pick-and-place",
             };
-            let r = run_recorded(&setup, &info, &dir, &graph, BTreeMap::new()).unwrap();
+            let trial = BTreeMap::from([
+                ("task".to_owned(), info.task.to_owned()),
+                ("goals".to_owned(), info.goals.to_owned()),
+            ]);
+            let r = run_recorded(&setup, &info, &dir, &graph, trial).unwrap();
             let rel = r.recording.clone().unwrap();
             assert_eq!(rel, format!("recordings/P01-t1-c1-a1-{spec}.mcap"));
             let path = dir.join(&rel);
@@ -370,6 +386,41 @@ mod tests {
             })
             .unwrap();
             assert_eq!(notes, ticks);
+            // Exported to LeRobot: an episode of its study task, every tick with the stick
+            // and safety's flags the recording has and the map's mode of the tick.
+            let lr = dir.join(format!("lerobot-{spec}"));
+            let x = learning::to_dataset::export_lerobot(
+                std::slice::from_ref(&path),
+                &lr,
+                robot.name(),
+                None,
+            )
+            .unwrap();
+            assert_eq!(x.frames as u64, ticks);
+            let tasks = std::fs::read(lr.join(learning::lerobot::TASKS_PATH)).unwrap();
+            let want = format!(
+                "pick-and-place: {}",
+                learning::tasks::Task::PickAndPlace.instructions()
+            );
+            assert!(
+                tasks.windows(want.len()).any(|w| w == want.as_bytes()),
+                "{spec}: the task text is in tasks.parquet"
+            );
+            let info_json: serde_json::Value = serde_json::from_slice(
+                &std::fs::read(lr.join(learning::lerobot::INFO_PATH)).unwrap(),
+            )
+            .unwrap();
+            assert_eq!(info_json["total_tasks"], 1);
+            let stats: serde_json::Value = serde_json::from_slice(
+                &std::fs::read(lr.join(learning::lerobot::STATS_PATH)).unwrap(),
+            )
+            .unwrap();
+            let mode = &stats[learning::lerobot::column::MODE];
+            if spec == "modeswitch" {
+                assert!(mode["min"][0].as_f64().unwrap() >= 1.0, "{spec}: {mode}");
+            } else {
+                assert_eq!(mode["max"][0], 0.0, "{spec}: a map without modes: {mode}");
+            }
             // Nothing is written over.
             let e = run_recorded(&setup, &info, &dir, &graph, BTreeMap::new()).unwrap_err();
             assert!(e.to_string().contains(&rel), "{e}");
