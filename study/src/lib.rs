@@ -20,6 +20,7 @@ pub mod figures;
 pub mod operator;
 pub mod plan;
 pub mod report;
+pub mod setup;
 pub mod simulate;
 
 use std::path::PathBuf;

@@ -12,7 +12,7 @@
 //! the map allows at best). All act through the same hand: a reaction delay, a bounded rate
 //! of change of the stick, Gaussian input noise, time to press the mode button.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use ipc_types::{JoystickInput, MapperCommand, RobotState, SafeCommand, state_flags};
@@ -20,134 +20,21 @@ use kinematics::{Jacobian, RobotProfile};
 use learning::goals::{GoalRun, Subgoal, TaskGoals};
 use learning::tasks::Task as GoalTask;
 use mapper::LoadedModel;
-use mapper::model::ModelError;
 use mapper::rng::Rng;
 use mapper::step::MapperStep;
 use nalgebra::Vector6;
-use serde::{Deserialize, Serialize};
 
-pub use crate::operator::OperatorKind;
-use crate::operator::expert::{Expert, ExpertParams, Learner};
-use crate::operator::internal::InternalModel;
-use crate::operator::practiced::{Explorer, PracticedParams};
+use crate::operator::expert::{Expert, Learner};
+use crate::operator::internal::{InternalModel, Widths};
+use crate::operator::practiced::Explorer;
 use crate::operator::{Demos, Operate, Seen, operator};
+pub use crate::setup::{ModelFactory, OperatorKind, SimError, SimParams};
 
 use crate::data::{Appender, Outcome, STUDY_COPY, TRIALS, TrialRow};
 use crate::diagnose::Diagnoser;
 pub use crate::diagnose::{Diagnosis, TickNote};
 use crate::plan::{StartPose, Study};
 use crate::{Participant, StudyError};
-
-/// The simulated operator's parameters: the study file's `[simulation]` section. The same for
-/// every condition (never tuned per model).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct SimParams {
-    /// Which operator runs the attempts: `greedy` (one tick ahead; the default) or `expert`
-    /// (plans with the served map as its forward model).
-    pub operator: OperatorKind,
-    /// Candidate stick inputs drawn per tick (the greedy user's idea, with far fewer than its
-    /// 4096: a person weighs a handful of directions, not thousands). Default 64.
-    pub candidates: usize,
-    /// Reaction delay (s): the stick carries out what was chosen this long ago. Default 0.2 s,
-    /// the visuomotor delay of manual tracking.
-    pub reaction_delay_s: f64,
-    /// Standard deviation of the noise added to each stick axis (fraction of full
-    /// deflection). Default 0.05.
-    pub input_noise: f64,
-    /// Largest rate of change of the stick (full deflections per second). Default 5: rest to
-    /// full deflection in 0.2 s.
-    pub stick_rate_per_s: f64,
-    /// Press the mode button when another mode would reduce the error one tick ahead by this
-    /// fraction more than the current one (0.25: a quarter more). Default 0.25.
-    pub mode_switch_margin: f64,
-    /// The stick rests this long around a mode press (s): the thumb leaves the stick for the
-    /// button and the operator re-orients. Default 0.5 s.
-    pub mode_switch_s: f64,
-    /// How the operator weighs a tilt error against a position error (m per rad): 1 rad of
-    /// tilt counts as 10 cm. Default 0.1.
-    pub tilt_weight_m_per_rad: f64,
-    /// The expert operator's planner (`[simulation.expert]`).
-    pub expert: ExpertParams,
-    /// The practiced operator (`[simulation.practiced]`).
-    pub practiced: PracticedParams,
-}
-
-impl Default for SimParams {
-    fn default() -> Self {
-        Self {
-            candidates: 64,
-            reaction_delay_s: 0.2,
-            input_noise: 0.05,
-            stick_rate_per_s: 5.0,
-            mode_switch_margin: 0.25,
-            mode_switch_s: 0.5,
-            tilt_weight_m_per_rad: 0.1,
-            operator: OperatorKind::default(),
-            expert: ExpertParams::default(),
-            practiced: PracticedParams::default(),
-        }
-    }
-}
-
-impl SimParams {
-    /// Checks the values; the error names the key.
-    pub fn check(&self) -> Result<(), (String, String)> {
-        let bad = |k: &str, r: &str| Err((format!("simulation.{k}"), r.to_owned()));
-        if self.candidates == 0 || self.candidates > 100_000 {
-            return bad("candidates", "must be 1 to 100000");
-        }
-        for (k, v) in [
-            ("reaction_delay_s", self.reaction_delay_s),
-            ("input_noise", self.input_noise),
-            ("mode_switch_margin", self.mode_switch_margin),
-            ("mode_switch_s", self.mode_switch_s),
-            ("tilt_weight_m_per_rad", self.tilt_weight_m_per_rad),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(k, "must be 0 or more");
-            }
-        }
-        if !(self.stick_rate_per_s.is_finite() && self.stick_rate_per_s > 0.0) {
-            return bad("stick_rate_per_s", "must be positive");
-        }
-        self.expert
-            .check()
-            .map_err(|(k, r)| (format!("simulation.expert.{k}"), r))?;
-        self.practiced
-            .check()
-            .map_err(|(k, r)| (format!("simulation.practiced.{k}"), r))
-    }
-}
-
-/// Why a simulation could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum SimError {
-    /// A model did not load.
-    #[error("model `{spec}`: {source}")]
-    Model {
-        /// The spec.
-        spec: String,
-        /// Why.
-        source: ModelError,
-    },
-    /// The safety filter or the mock arm refused its configuration.
-    #[error("{0}")]
-    Setup(String),
-    /// The live graph of `--live` failed (it did not start, stopped or died).
-    #[error("the live graph: {0}")]
-    Live(String),
-    /// A task has no simulated goals.
-    #[error("{path}: `tasks[{index}].goals`: {reason}", path = path.display())]
-    Goals {
-        /// The study file.
-        path: PathBuf,
-        /// The task's index.
-        index: usize,
-        /// Why.
-        reason: String,
-    },
-}
 
 /// The closed loop a simulated attempt runs in.
 #[derive(Debug, Clone)]
@@ -176,9 +63,6 @@ pub struct AttemptResult {
     /// The attempt's recording, relative to the participant's directory (`--record`).
     pub recording: Option<String>,
 }
-
-/// Makes a fresh instance of the served model (the map served and the operator's copies).
-pub type ModelFactory<'a> = dyn Fn() -> Result<LoadedModel, SimError> + 'a;
 
 /// What one attempt needs.
 pub struct AttemptSetup<'a> {
@@ -227,9 +111,8 @@ pub struct AttemptDriver<'a> {
     dt: f64,
     ticks: u64,
     time_limit_s: f64,
-    model: &'a ModelFactory<'a>,
     aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
-    op: Box<dyn Operate>,
+    op: Box<dyn Operate + 'a>,
     run: GoalRun,
     rng: Rng,
     jac: Jacobian,
@@ -256,14 +139,13 @@ impl<'a> AttemptDriver<'a> {
     }
 
     /// Attempt `s` with the operator `op`.
-    fn with_operator(s: &AttemptSetup<'a>, op: Box<dyn Operate>) -> Self {
+    fn with_operator(s: &AttemptSetup<'a>, op: Box<dyn Operate + 'a>) -> Self {
         let dt = s.sim.period_s;
         Self {
             robot: s.sim.robot,
             dt,
             ticks: (s.time_limit_s / dt).ceil() as u64,
             time_limit_s: s.time_limit_s,
-            model: s.model,
             aim_out: s.aim_out.clone(),
             op,
             run: GoalRun::new(s.goals),
@@ -348,7 +230,7 @@ impl<'a> AttemptDriver<'a> {
             mode,
             t_ns,
         };
-        let joy = self.op.act(self.model, &seen, &mut self.rng);
+        let joy = self.op.act(&seen, &mut self.rng);
         tracing::trace!(
             tick = k,
             tool = ?tool.translation.vector.as_slice(),
@@ -424,11 +306,11 @@ pub fn run_attempt_followed(
 
 /// [`run_attempt`] with the operator of `driver`, each tick to `obs`; gives the operator back.
 /// The result carries its [`Diagnosis`] (the map's directions only for a failed attempt).
-fn run_driver(
+fn run_driver<'a>(
     s: &AttemptSetup<'_>,
-    mut driver: AttemptDriver<'_>,
+    mut driver: AttemptDriver<'a>,
     mut obs: Option<&mut dyn Observe>,
-) -> Result<(AttemptResult, Box<dyn Operate>), SimError> {
+) -> Result<(AttemptResult, Box<dyn Operate + 'a>), SimError> {
     let robot = s.sim.robot;
     let n = robot.n_joints();
     let dt = s.sim.period_s;
@@ -505,7 +387,7 @@ fn run_driver(
 /// on. Returns what it learned. `s.seed` seeds each part's own stream.
 pub fn practice(s: &AttemptSetup<'_>, practice_s: f64) -> Result<InternalModel, SimError> {
     let dt = s.sim.period_s;
-    let mut model = InternalModel::new(s.params.practiced.widths());
+    let mut model = InternalModel::new(Widths::of(&s.params.practiced));
     let mut used = 0.0;
     let mut round = 0u64;
     while used + dt < practice_s {

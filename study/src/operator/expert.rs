@@ -34,13 +34,12 @@ use mapper::LoadedModel;
 use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector3, Vector6};
 use safety::clearance::WholeArm;
-use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
 use super::internal::{InternalModel, ToolState, twist_between};
 use super::{Hand, ModeButton, Operate, Seen};
-use crate::simulate::{ModelFactory, SimError, SimParams};
+use crate::setup::{ExpertParams, ModelFactory, SimError, SimParams};
 
 /// What a subgoal done is worth, in metres of mean distance over the horizon: more than any
 /// distance in the workspace, so finishing a subgoal always beats staying near it.
@@ -51,107 +50,6 @@ const SWITCH_MIN_M: f64 = 0.001;
 
 /// Progress smaller than this (m) does not count against being stuck.
 const PROGRESS_M: f64 = 0.005;
-
-/// The expert operator's planner: `[simulation.expert]` of the study file. The same for
-/// every condition.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ExpertParams {
-    /// Stick sequences tried per plan (in each mode considered), besides the last plan and
-    /// rest. Default 16.
-    pub samples: usize,
-    /// How far ahead it plans (s). Default 1.5.
-    pub horizon_s: f64,
-    /// The plan's knots: the stick is held this long between them (s). Default 0.1.
-    pub step_s: f64,
-    /// Standard deviation of the sequences drawn around the last plan (fraction of full
-    /// deflection). Default 0.3.
-    pub spread: f64,
-    /// How sharply the plan follows the best sequences: the weights are
-    /// `exp(-(J - J_min) / (temperature (J_mean - J_min)))`. Default 0.02: close to
-    /// following the best sequence, which reached the goals sooner than 0.1 with mode
-    /// switching.
-    pub temperature: f64,
-    /// Maps with modes: how often the other modes are planned in too (s). Default 0.25.
-    pub mode_check_s: f64,
-    /// No progress (5 mm closer, or a subgoal done) for this long: back off (s). Default 3.
-    pub stuck_s: f64,
-    /// How long it backs off (s). Default 1.
-    pub back_off_s: f64,
-    /// How far it backs off (m). Default 0.08.
-    pub back_off_m: f64,
-    /// The route: what a predicted tool position further than [`ExpertParams::route_radius_m`]
-    /// from the task's demonstrated paths costs, per metre beyond (m per m; 0: the
-    /// straight line to the next subgoal only). Default 1: a person who practised the task
-    /// keeps to its route (in front of the cup, then in; lift, carry, lower), where the map
-    /// was taught to move.
-    pub route_weight: f64,
-    /// How far from the demonstrated paths the route costs nothing (m). Default 0.02.
-    pub route_radius_m: f64,
-    /// On the way to an object and at it, what a turn of the fingers away from facing it
-    /// costs (m per rad; [`learning::goals::Aim::facing_error`]). Default 0.1, as a tilt:
-    /// a bottle or cup is grasped from the side with the fingers level and facing it.
-    pub face_weight_m_per_rad: f64,
-}
-
-impl Default for ExpertParams {
-    fn default() -> Self {
-        Self {
-            samples: 16,
-            horizon_s: 1.5,
-            step_s: 0.1,
-            spread: 0.3,
-            temperature: 0.02,
-            mode_check_s: 0.25,
-            stuck_s: 3.0,
-            back_off_s: 1.0,
-            back_off_m: 0.08,
-            route_weight: 1.0,
-            route_radius_m: 0.02,
-            face_weight_m_per_rad: 0.1,
-        }
-    }
-}
-
-impl ExpertParams {
-    /// Checks the values; the error names the key (within `[simulation.expert]`).
-    pub fn check(&self) -> Result<(), (String, String)> {
-        let bad = |k: &str, r: &str| Err((k.to_owned(), r.to_owned()));
-        if self.samples == 0 || self.samples > 1000 {
-            return bad("samples", "must be 1 to 1000");
-        }
-        for (k, v) in [
-            ("step_s", self.step_s),
-            ("temperature", self.temperature),
-            ("mode_check_s", self.mode_check_s),
-            ("stuck_s", self.stuck_s),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return bad(k, "must be positive");
-            }
-        }
-        for (k, v) in [
-            ("spread", self.spread),
-            ("back_off_s", self.back_off_s),
-            ("back_off_m", self.back_off_m),
-            ("route_weight", self.route_weight),
-            ("route_radius_m", self.route_radius_m),
-            ("face_weight_m_per_rad", self.face_weight_m_per_rad),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(k, "must be 0 or more");
-            }
-        }
-        if !(self.horizon_s.is_finite() && self.horizon_s >= self.step_s && self.horizon_s <= 10.0)
-        {
-            return bad("horizon_s", "must be one step_s to 10 s");
-        }
-        if self.horizon_s / self.step_s > 200.0 {
-            return bad("horizon_s", "must be at most 200 steps of step_s");
-        }
-        Ok(())
-    }
-}
 
 /// The task's route as the expert knows it: the tool positions of the task's demonstrations,
 /// with the gripper open or closed there (every [`ROUTE_STRIDE`]th tick).
@@ -198,11 +96,16 @@ enum Target {
 }
 
 /// The forward model a planning operator predicts with.
-pub(crate) enum Forward {
+pub(crate) enum Forward<'a> {
     /// The served map (the expert operator). Its copies, one per mode, for a map without
     /// memory; empty for a map with memory (its twist ramps): each prediction then starts
-    /// from a fresh copy, at rest.
-    Map(Vec<LoadedModel>),
+    /// from a fresh copy, at rest, made by `make`.
+    Map {
+        /// The copies.
+        copies: Vec<LoadedModel>,
+        /// The served map's factory.
+        make: &'a ModelFactory<'a>,
+    },
     /// What practice taught (the practiced operator): never the map.
     Learned(Learner),
 }
@@ -282,7 +185,7 @@ impl Learner {
 
 /// The expert operator of one attempt, and the practiced one (the same planner with what
 /// practice taught as its forward model).
-pub(crate) struct Expert {
+pub(crate) struct Expert<'a> {
     params: SimParams,
     ex: ExpertParams,
     robot: &'static RobotProfile,
@@ -291,7 +194,7 @@ pub(crate) struct Expert {
     hand: Hand,
     /// What it predicts with: the served map (the expert) or what practice taught (the
     /// practiced operator).
-    forward: Forward,
+    forward: Forward<'a>,
     /// Press the mode button when another mode's plan gains this fraction more.
     switch_margin: f64,
     /// What a turn of the tool that the subgoal does not ask for costs (m per rad).
@@ -335,7 +238,7 @@ pub(crate) struct Expert {
     route: Option<Route>,
 }
 
-impl Expert {
+impl<'a> Expert<'a> {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         params: &SimParams,
@@ -343,7 +246,7 @@ impl Expert {
         safety: &safety::SafetyConfig,
         tol: Tolerances,
         dt: f64,
-        make: &ModelFactory<'_>,
+        make: &'a ModelFactory<'a>,
         aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
         route: Option<Route>,
     ) -> Result<Self, SimError> {
@@ -376,7 +279,7 @@ impl Expert {
             safety,
             tol,
             dt,
-            Forward::Map(copies),
+            Forward::Map { copies, make },
             modes,
             aim_out,
         );
@@ -429,7 +332,7 @@ impl Expert {
         safety: &safety::SafetyConfig,
         tol: Tolerances,
         dt: f64,
-        forward: Forward,
+        forward: Forward<'a>,
         modes: usize,
         aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
     ) -> Self {
@@ -527,7 +430,6 @@ impl Expert {
     #[allow(clippy::too_many_arguments)]
     fn rollout(
         &mut self,
-        make: &ModelFactory<'_>,
         m: usize,
         lead: &[[f64; 2]],
         plan: &[[f64; 2]],
@@ -537,7 +439,7 @@ impl Expert {
     ) -> f64 {
         // A map with memory: a fresh copy in mode m, at rest.
         let mut fresh = match &self.forward {
-            Forward::Map(copies) if copies.is_empty() => {
+            Forward::Map { copies, make } if copies.is_empty() => {
                 let Ok(mut copy) = make() else {
                     return f64::INFINITY;
                 };
@@ -607,7 +509,7 @@ impl Expert {
                     x = l.model.advance(&x, &v, step);
                     Isometry3::from_parts(x.p.into(), x.r)
                 }
-                (Forward::Map(copies), f) => {
+                (Forward::Map { copies, .. }, f) => {
                     let Some(model) = f.or_else(|| copies.get_mut(m)) else {
                         return f64::INFINITY;
                     };
@@ -658,7 +560,7 @@ impl Expert {
                     let before = run.subgoals_done();
                     run.update(&tool, c, step);
                     let wrist = match self.forward {
-                        Forward::Map(_) => q[n.saturating_sub(1)],
+                        Forward::Map { .. } => q[n.saturating_sub(1)],
                         Forward::Learned(_) => wrist,
                     };
                     aim = run.aim(&tool, wrist);
@@ -694,7 +596,6 @@ impl Expert {
     /// cost of rest.
     fn optimise(
         &mut self,
-        make: &ModelFactory<'_>,
         m: usize,
         cur: usize,
         seen: &Seen<'_>,
@@ -731,7 +632,7 @@ impl Expert {
         let seqs = std::mem::take(&mut self.seqs);
         self.costs.clear();
         for seq in &seqs {
-            let j = self.rollout(make, m, &lead, seq, stick, seen, target);
+            let j = self.rollout(m, &lead, seq, stick, seen, target);
             self.costs.push(j);
         }
         let rest = self.costs.get(1).copied().unwrap_or(f64::INFINITY);
@@ -863,8 +764,8 @@ fn disc(u: [f64; 2]) -> [f64; 2] {
     if n > 1.0 { [u[0] / n, u[1] / n] } else { u }
 }
 
-impl Operate for Expert {
-    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
+impl Operate for Expert<'_> {
+    fn act(&mut self, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
         let mut buttons_now = buttons::DEADMAN;
         let mut gripper = 0.0f32;
         let mut choice = [0.0; 2];
@@ -891,7 +792,7 @@ impl Operate for Expert {
             let p = seen.tool.translation.vector;
             let target = self.progress(seen, &aim, rng);
             let cur = seen.mode.unwrap_or(0).min(self.modes - 1);
-            let (best, rest) = self.optimise(make, cur, cur, seen, target, rng);
+            let (best, rest) = self.optimise(cur, cur, seen, target, rng);
             choice = self
                 .plans
                 .get(cur)
@@ -905,7 +806,7 @@ impl Operate for Expert {
                 let gain = rest - best;
                 let mut other: Option<(usize, f64)> = None;
                 for m in (0..self.modes).filter(|&m| m != cur) {
-                    let (bm, _) = self.optimise(make, m, cur, seen, target, rng);
+                    let (bm, _) = self.optimise(m, cur, seen, target, rng);
                     if other.is_none_or(|(_, g)| rest - bm > g) {
                         other = Some((m, rest - bm));
                     }
@@ -965,7 +866,7 @@ impl Operate for Expert {
     fn into_learned(self: Box<Self>) -> Option<InternalModel> {
         match self.forward {
             Forward::Learned(l) => Some(l.model),
-            Forward::Map(_) => None,
+            Forward::Map { .. } => None,
         }
     }
 }
@@ -1011,7 +912,7 @@ mod tests {
                 ex.joint_bounds = q0.iter().map(|q| (q - 1e-3, q + 1e-3)).collect();
             }
             let plan = vec![[1.0, 0.0]; ex.knots];
-            let j = ex.rollout(&make, 0, &[], &plan, [0.0; 2], &seen, ahead);
+            let j = ex.rollout(0, &[], &plan, [0.0; 2], &seen, ahead);
             assert!(j.is_finite());
             let d: f64 = ex.predicted_q[..n]
                 .iter()
@@ -1058,7 +959,7 @@ mod tests {
                 ex.whole_arm = None;
             }
             let plan = vec![[0.0, -1.0]; ex.knots];
-            let j = ex.rollout(&make, 1, &[], &plan, [0.0; 2], &seen, down);
+            let j = ex.rollout(1, &[], &plan, [0.0; 2], &seen, down);
             assert!(j.is_finite());
             let q = &ex.predicted_q[..n];
             let mut arm = WholeArm::new(robot, safety.scene.scene().unwrap()).unwrap();

@@ -30,7 +30,7 @@ use nalgebra::{Isometry3, Vector3, Vector6};
 
 use super::greedy::Probes;
 use super::{Hand, Operate, Seen};
-use crate::simulate::{ModelFactory, SimParams};
+use crate::setup::SimParams;
 
 /// How far ahead along the demonstration the follower aims (s): the motion it reproduces.
 pub const FOLLOW_AHEAD_S: f64 = 0.25;
@@ -202,11 +202,11 @@ pub struct Followed {
 }
 
 /// The follower of one attempt.
-pub(crate) struct Follower {
+pub(crate) struct Follower<'a> {
     params: SimParams,
     tol: Tolerances,
     dt: f64,
-    probes: Probes,
+    probes: Probes<'a>,
     hand: Hand,
     paths: Arc<Vec<DemoPath>>,
     /// Only this path (a demonstration's own start and scene); else the nearest.
@@ -225,13 +225,13 @@ pub(crate) struct Follower {
     let_go: u32,
 }
 
-impl Follower {
+impl<'a> Follower<'a> {
     /// A follower of the nearest of `paths` (of `only`, if given).
     pub(crate) fn new(
         params: &SimParams,
         tol: Tolerances,
         dt: f64,
-        probes: Probes,
+        probes: Probes<'a>,
         paths: Arc<Vec<DemoPath>>,
         only: Option<usize>,
     ) -> Self {
@@ -343,16 +343,9 @@ impl Follower {
     /// The tool twist of stick `a` in mode `mode` through the map at the state seen
     /// (`J(q) s map(q, c, a)`), its turning weighted by the operator's metres per radian;
     /// `None` if the map gave nothing.
-    fn twist(
-        &mut self,
-        make: &ModelFactory<'_>,
-        seen: &Seen<'_>,
-        mode: usize,
-        a: &[f64; 2],
-    ) -> Option<Vector6<f64>> {
+    fn twist(&mut self, seen: &Seen<'_>, mode: usize, a: &[f64; 2]) -> Option<Vector6<f64>> {
         let n = (seen.state.n_joints as usize).min(MAX_JOINTS);
         let scale = self.probes.eval(
-            make,
             mode,
             seen.state.q(),
             seen.state.gripper,
@@ -369,13 +362,7 @@ impl Follower {
 
     /// The stick whose tool twist through the map comes closest to `want` (turning weighted
     /// as in [`Self::twist`]).
-    fn choose(
-        &mut self,
-        make: &ModelFactory<'_>,
-        seen: &Seen<'_>,
-        want: &Vector6<f64>,
-        rng: &mut Rng,
-    ) -> [f64; 2] {
+    fn choose(&mut self, seen: &Seen<'_>, want: &Vector6<f64>, rng: &mut Rng) -> [f64; 2] {
         let mut want = *want;
         let w = self.params.tilt_weight_m_per_rad;
         for r in 3..6 {
@@ -383,13 +370,13 @@ impl Follower {
         }
         let mode = seen.mode.unwrap_or(0);
         super::draw_candidates(&mut self.cands, self.chosen, self.params.candidates, rng);
-        if let Some(a) = self.least_squares(make, seen, mode, &want) {
+        if let Some(a) = self.least_squares(seen, mode, &want) {
             self.cands.push(a);
         }
         let mut best = ([0.0; 2], f64::INFINITY);
         let cands = std::mem::take(&mut self.cands);
         for a in &cands {
-            let Some(v) = self.twist(make, seen, mode, a) else {
+            let Some(v) = self.twist(seen, mode, a) else {
                 continue;
             };
             let e = (v - want).norm_squared();
@@ -412,14 +399,13 @@ impl Follower {
     /// is brought into the stick's disc. The random candidates cover a map that is not.
     fn least_squares(
         &mut self,
-        make: &ModelFactory<'_>,
         seen: &Seen<'_>,
         mode: usize,
         want: &Vector6<f64>,
     ) -> Option<[f64; 2]> {
-        let v0 = self.twist(make, seen, mode, &[0.0, 0.0])?;
-        let a0 = self.twist(make, seen, mode, &[1.0, 0.0])? - v0;
-        let a1 = self.twist(make, seen, mode, &[0.0, 1.0])? - v0;
+        let v0 = self.twist(seen, mode, &[0.0, 0.0])?;
+        let a0 = self.twist(seen, mode, &[1.0, 0.0])? - v0;
+        let a1 = self.twist(seen, mode, &[0.0, 1.0])? - v0;
         let r = want - v0;
         let (g00, g01, g11) = (a0.dot(&a0), a0.dot(&a1), a1.dot(&a1));
         let (b0, b1) = (a0.dot(&r), a1.dot(&r));
@@ -437,8 +423,8 @@ impl Follower {
     }
 }
 
-impl Operate for Follower {
-    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
+impl Operate for Follower<'_> {
+    fn act(&mut self, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
         let p = seen.tool.translation.vector;
         let c = seen.state.gripper;
         let mut gripper = 0.0f32;
@@ -470,7 +456,7 @@ impl Operate for Follower {
                         .map(|x| x.tool),
                 ) {
                     let want = self.wanted(seen.tool, &here, &target);
-                    choice = self.choose(make, seen, &want, rng);
+                    choice = self.choose(seen, &want, rng);
                     tracing::trace!(
                         path = pi,
                         at = i,
@@ -513,15 +499,17 @@ impl Operate for Follower {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::SimError;
+    use crate::setup::SimError;
     use mapper::LoadedModel;
 
-    fn follower(paths: Vec<DemoPath>) -> Follower {
-        let robot = RobotProfile::default_robot();
-        let make = || {
-            LoadedModel::load_for("modeswitch", robot).map_err(|e| SimError::Setup(e.to_string()))
-        };
-        let probes = Probes::new(&make).expect("the map");
+    /// Mode switching on the default robot, as the served map.
+    fn modeswitch() -> Result<LoadedModel, SimError> {
+        LoadedModel::load_for("modeswitch", RobotProfile::default_robot())
+            .map_err(|e| SimError::Setup(e.to_string()))
+    }
+
+    fn follower(paths: Vec<DemoPath>) -> Follower<'static> {
+        let probes = Probes::new(&modeswitch).expect("the map");
         Follower::new(
             &SimParams::default(),
             Tolerances::default(),
@@ -595,16 +583,13 @@ mod tests {
         f.params.stick_rate_per_s = 1e-9;
         f.params.input_noise = 0.0;
         f.hand.stick = [0.5, 0.0];
-        let make = || {
-            LoadedModel::load_for("modeswitch", robot).map_err(|e| SimError::Setup(e.to_string()))
-        };
         let at = crate::operator::AtRest::new(robot, learning::tasks::Task::PickAndPlace, &[]);
         let seen = at.seen(None);
         let mut rng = Rng::new(1);
         let unanswered = (UNANSWERED_S / 0.025).round() as usize;
         let let_go = (LET_GO_S / 0.025).round() as usize;
         let axes: Vec<f32> = (0..unanswered + let_go + 1)
-            .map(|_| f.act(&make, &seen, &mut rng).axes[0])
+            .map(|_| f.act(&seen, &mut rng).axes[0])
             .collect();
         assert!(axes[..unanswered - 1].iter().all(|a| *a > 0.4), "{axes:?}");
         assert!(

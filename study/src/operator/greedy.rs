@@ -16,25 +16,29 @@ use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector3};
 
 use super::{Hand, ModeButton, Operate, Seen};
-use crate::simulate::{ModelFactory, SimError, SimParams};
+use crate::setup::{ModelFactory, SimError, SimParams};
 
 /// The operator's copies of the served map, one per mode, to try candidates on. A map with
 /// modes (mode switching) keeps state between ticks (its twist ramps under acceleration
 /// limits), so each candidate is tried on a fresh copy in that mode: what the input does
 /// from rest, which is what a person learns of it.
-pub struct Probes {
+pub struct Probes<'a> {
     maps: Vec<LoadedModel>,
     stateful: bool,
+    /// Fresh copies for a map with modes.
+    make: &'a ModelFactory<'a>,
 }
 
-impl Probes {
-    /// One copy of the served map per mode.
-    pub fn new(make: &ModelFactory<'_>) -> Result<Self, SimError> {
+impl<'a> Probes<'a> {
+    /// One copy of the served map per mode, made by `make` (which a map with modes keeps
+    /// using: a fresh copy per candidate).
+    pub fn new(make: &'a ModelFactory<'a>) -> Result<Self, SimError> {
         let first = make()?;
         if first.map.mode().is_none() {
             return Ok(Self {
                 maps: vec![first],
                 stateful: false,
+                make,
             });
         }
         let mut maps = vec![first];
@@ -51,13 +55,13 @@ impl Probes {
         Ok(Self {
             maps,
             stateful: true,
+            make,
         })
     }
 
     /// Mode `m`'s output for action `a` at `(q, c)` into `out`; the speed scale.
     pub(crate) fn eval(
         &mut self,
-        make: &ModelFactory<'_>,
         m: usize,
         q: &[f64],
         c: f64,
@@ -65,7 +69,7 @@ impl Probes {
         out: &mut [f64],
     ) -> Option<f64> {
         if self.stateful {
-            let mut copy = make().ok()?;
+            let mut copy = (self.make)().ok()?;
             for _ in 0..m {
                 copy.map.press(buttons::MODE);
             }
@@ -78,11 +82,11 @@ impl Probes {
 }
 
 /// The greedy operator of one attempt.
-pub(crate) struct Greedy {
+pub(crate) struct Greedy<'a> {
     params: SimParams,
     tol: Tolerances,
     dt: f64,
-    probes: Probes,
+    probes: Probes<'a>,
     hand: Hand,
     /// What the operator chose last.
     chosen: [f64; 2],
@@ -92,8 +96,8 @@ pub(crate) struct Greedy {
     out: [f64; MAX_JOINTS],
 }
 
-impl Greedy {
-    pub(crate) fn new(params: &SimParams, tol: Tolerances, dt: f64, probes: Probes) -> Self {
+impl<'a> Greedy<'a> {
+    pub(crate) fn new(params: &SimParams, tol: Tolerances, dt: f64, probes: Probes<'a>) -> Self {
         Self {
             params: params.clone(),
             tol,
@@ -118,7 +122,6 @@ impl Greedy {
     /// The best candidate in mode `m` and its error one tick ahead.
     fn best(
         &mut self,
-        make: &ModelFactory<'_>,
         m: usize,
         state: &RobotState,
         tool: &Isometry3<f64>,
@@ -131,9 +134,9 @@ impl Greedy {
         let t0 = tilt(&tool.rotation);
         let mut best = ([0.0; 2], f64::INFINITY);
         for a in &self.cands {
-            let Some(scale) =
-                self.probes
-                    .eval(make, m, state.q(), state.gripper, a, &mut self.out[..n])
+            let Some(scale) = self
+                .probes
+                .eval(m, state.q(), state.gripper, a, &mut self.out[..n])
             else {
                 continue;
             };
@@ -158,7 +161,6 @@ impl Greedy {
     #[allow(clippy::too_many_arguments)]
     fn answer(
         &mut self,
-        make: &ModelFactory<'_>,
         state: &RobotState,
         tool: &Isometry3<f64>,
         jac: &Jacobian,
@@ -177,7 +179,7 @@ impl Greedy {
             let now = self.error(&p, tilt(&tool.rotation), &aim);
             super::draw_candidates(&mut self.cands, self.chosen, self.params.candidates, rng);
             let cur = mode.unwrap_or(0);
-            let (a, e) = self.best(make, cur, state, tool, jac, &aim);
+            let (a, e) = self.best(cur, state, tool, jac, &aim);
             choice = a;
             let modes = self.probes.maps.len();
             // Within the tolerance of a position (a grip, the end of a reach) there is nothing
@@ -191,7 +193,7 @@ impl Greedy {
                 let gain = now - e;
                 let mut other: Option<(usize, f64)> = None;
                 for m in (0..modes).filter(|&m| m != cur) {
-                    let (_, em) = self.best(make, m, state, tool, jac, &aim);
+                    let (_, em) = self.best(m, state, tool, jac, &aim);
                     if other.is_none_or(|(_, g)| now - em > g) {
                         other = Some((m, now - em));
                     }
@@ -228,10 +230,10 @@ impl Greedy {
     }
 }
 
-impl Operate for Greedy {
-    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
+impl Operate for Greedy<'_> {
+    fn act(&mut self, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
         self.answer(
-            make, seen.state, seen.tool, seen.jac, seen.aim, seen.mode, seen.t_ns, rng,
+            seen.state, seen.tool, seen.jac, seen.aim, seen.mode, seen.t_ns, rng,
         )
     }
 

@@ -47,6 +47,17 @@ pub struct Widths {
     pub gripper: f64,
 }
 
+impl Widths {
+    /// The practiced operator's kernel widths (`[simulation.practiced]`; the gripper's 0.5).
+    pub fn of(p: &crate::setup::PracticedParams) -> Self {
+        Self {
+            position_m: p.position_width_m,
+            angle_rad: p.angle_width_rad,
+            gripper: 0.5,
+        }
+    }
+}
+
 /// A tool state as the model knows it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ToolState {

@@ -32,62 +32,9 @@ use kinematics::{Jacobian, RobotProfile};
 use learning::goals::{Aim, GoalRun, Tolerances};
 use mapper::rng::Rng;
 use nalgebra::{Isometry3, Vector6};
-use serde::{Deserialize, Serialize};
 
-use crate::simulate::{ModelFactory, SimError, SimParams};
-
-/// Which simulated operator runs the attempts (`[simulation] operator`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OperatorKind {
-    /// One tick ahead through the served map, the best of a few sampled inputs (the default,
-    /// the lower bound).
-    #[default]
-    Greedy,
-    /// Plans with the served map as its forward model (sampling-based model-predictive
-    /// control over stick sequences and mode presses): what the map allows at best.
-    Expert,
-    /// Learns the map in the study's practice time from what it sees, then plans with what
-    /// it learned: a person after practice.
-    Practiced,
-    /// Follows the nearest demonstration by the tool, reproducing its motion through the
-    /// served map: what the map allows along its demonstrations' route.
-    Follower,
-}
-
-impl OperatorKind {
-    /// Every kind, as the study file spells it.
-    pub const NAMES: [&'static str; 4] = ["greedy", "practiced", "expert", "follower"];
-
-    /// Its name in the study file.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Greedy => "greedy",
-            Self::Expert => "expert",
-            Self::Practiced => "practiced",
-            Self::Follower => "follower",
-        }
-    }
-
-    /// The kind the study file names `name`.
-    pub fn from_name(name: &str) -> Option<Self> {
-        [Self::Greedy, Self::Practiced, Self::Expert, Self::Follower]
-            .into_iter()
-            .find(|k| k.name() == name)
-    }
-}
-
-impl<'de> Deserialize<'de> for OperatorKind {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let name = String::deserialize(d)?;
-        Self::from_name(&name).ok_or_else(|| {
-            serde::de::Error::custom(format!(
-                "`simulation.operator`: no operator `{name}`; the operators: {}",
-                Self::NAMES.join(", ")
-            ))
-        })
-    }
-}
+pub use crate::setup::OperatorKind;
+use crate::setup::{ModelFactory, SimError, SimParams};
 
 /// What the operator sees at one tick: what the experimenter's screen and the scene show a
 /// person, never the map's internals.
@@ -155,10 +102,11 @@ impl AtRest {
 }
 
 /// A simulated operator: answers each robot state with a joystick sample.
-pub trait Operate: Send {
-    /// This tick's joystick sample. `make` gives fresh instances of the served model (the
-    /// operators that predict with it), `rng` is the attempt's random stream.
-    fn act(&mut self, make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput;
+pub trait Operate {
+    /// This tick's joystick sample; `rng` is the attempt's random stream. Only the operators
+    /// that evaluate the served map hold its factory (given to [`operator`]); the practiced
+    /// operator and the practice explorer are built without one, so they cannot.
+    fn act(&mut self, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput;
     /// Mode presses so far.
     fn presses(&self) -> u32;
     /// It has done what it set out to do before the time ran out (trying the stick in
@@ -193,17 +141,17 @@ pub struct Demos {
 /// there while it predicts (and puts back what it found). `learned`: what the practiced
 /// operator learned in practice (it is refused without).
 #[allow(clippy::too_many_arguments)]
-pub fn operator(
+pub fn operator<'a>(
     params: &SimParams,
     robot: &'static RobotProfile,
     safety: &safety::SafetyConfig,
     tol: Tolerances,
     dt: f64,
-    make: &ModelFactory<'_>,
+    make: &'a ModelFactory<'a>,
     aim_out: Option<Arc<Mutex<Vector6<f64>>>>,
     learned: Option<&internal::InternalModel>,
     demos: Option<&Demos>,
-) -> Result<Box<dyn Operate>, SimError> {
+) -> Result<Box<dyn Operate + 'a>, SimError> {
     Ok(match params.operator {
         OperatorKind::Greedy => Box::new(greedy::Greedy::new(
             params,

@@ -22,97 +22,11 @@
 
 use ipc_types::{JoystickInput, buttons};
 use mapper::rng::Rng;
-use serde::{Deserialize, Serialize};
 
-use super::expert::{ExpertParams, Learner};
-use super::internal::{InternalModel, Widths};
+use super::expert::Learner;
+use super::internal::InternalModel;
 use super::{Hand, ModeButton, Operate, Seen};
-use crate::simulate::{ModelFactory, SimParams};
-
-/// The practiced operator's parameters: `[simulation.practiced]` of the study file. Set once
-/// by the calibration on mode switching (`scripts/calibrate-practiced.sh`), the same for
-/// every condition and map.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PracticedParams {
-    /// How long it tries the stick in each mode at the start of practice (s). Default 10.
-    pub explore_s: f64,
-    /// How far apart two tool positions are for its model (m): the kernel's width. Default
-    /// 0.05.
-    pub position_width_m: f64,
-    /// How far apart two tool orientations are for its model (rad). Default 0.35 (20°).
-    pub angle_width_rad: f64,
-    /// Press the mode button when another mode's plan gains this fraction more than the
-    /// current one's (the calibrated key). Default 0.25.
-    pub mode_switch_margin: f64,
-    /// The chance that a mode switch it decides on ends one press too far (the thumb slips
-    /// or loses count); it then sees the mode it got and switches again if it must. The
-    /// calibrated key: set so that its presses on pouring with mode switching match the
-    /// paper's participants (17.55 per attempt). Default 0.8, the calibrated value
-    /// (`scripts/calibrate-practiced.sh`, 13 participants, 2026-11-27: 16.5 presses per
-    /// pouring attempt; docs/simulated-participants.md). It stands in for every reason people
-    /// press more than this planner does.
-    pub mode_slip: f64,
-    /// A turn of the tool the subgoal does not ask for costs this much in its plans (m per
-    /// rad): a person keeps the tool's orientation unless the task needs it turned, and so
-    /// does not wind the wrist into its joint limits. Default 0.05.
-    pub rotation_weight_m_per_rad: f64,
-    /// Its planner (`[simulation.practiced.planner]`: the keys of `[simulation.expert]`).
-    pub planner: ExpertParams,
-}
-
-impl Default for PracticedParams {
-    fn default() -> Self {
-        Self {
-            explore_s: 10.0,
-            position_width_m: 0.05,
-            angle_width_rad: 0.35,
-            mode_switch_margin: 0.25,
-            rotation_weight_m_per_rad: 0.05,
-            mode_slip: 0.8,
-            planner: ExpertParams::default(),
-        }
-    }
-}
-
-impl PracticedParams {
-    /// Checks the values; the error names the key (within `[simulation.practiced]`).
-    pub fn check(&self) -> Result<(), (String, String)> {
-        let bad = |k: &str, r: &str| Err((k.to_owned(), r.to_owned()));
-        for (k, v) in [
-            ("position_width_m", self.position_width_m),
-            ("angle_width_rad", self.angle_width_rad),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return bad(k, "must be positive");
-            }
-        }
-        if !(0.0..=1.0).contains(&self.mode_slip) {
-            return bad("mode_slip", "must be 0 to 1");
-        }
-        for (k, v) in [
-            ("explore_s", self.explore_s),
-            ("mode_switch_margin", self.mode_switch_margin),
-            ("rotation_weight_m_per_rad", self.rotation_weight_m_per_rad),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(k, "must be 0 or more");
-            }
-        }
-        self.planner
-            .check()
-            .map_err(|(k, r)| (format!("planner.{k}"), r))
-    }
-
-    /// The internal model's kernel widths.
-    pub fn widths(&self) -> Widths {
-        Widths {
-            position_m: self.position_width_m,
-            angle_rad: self.angle_width_rad,
-            gripper: 0.5,
-        }
-    }
-}
+use crate::setup::SimParams;
 
 /// The first part of practice: it tries the stick in random directions in each mode, learning
 /// what each does, and presses the mode button for the next mode until the modes come round.
@@ -154,7 +68,7 @@ impl Explorer {
 }
 
 impl Operate for Explorer {
-    fn act(&mut self, _make: &ModelFactory<'_>, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
+    fn act(&mut self, seen: &Seen<'_>, rng: &mut Rng) -> JoystickInput {
         self.learner.see(seen);
         let mut buttons_now = buttons::DEADMAN;
         let mut choice = [0.0; 2];
