@@ -1003,6 +1003,12 @@ fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
     if reply.encode_tcp(&mut bytes).is_err() {
         return Vec::new();
     }
+    with_fault(fault, bytes, now)
+}
+
+/// What goes out for a reply's `bytes` at `now`, as the injected `fault` (if any) has it:
+/// nothing, later, garbage first, corrupted, truncated, or the connection closed.
+fn with_fault(fault: Option<Fault>, mut bytes: Vec<u8>, now: Instant) -> Vec<Out> {
     match fault {
         Some(Fault::DropReply) => Vec::new(),
         Some(Fault::DelayReply(d)) => vec![Out::Bytes {
