@@ -740,6 +740,33 @@ impl GraphConfig {
         ipc_types::Prefix::new(&self.graph.prefix)
             .map_err(|e| err("graph.prefix", e.to_string()))?;
         let robot = self.profile()?;
+        self.validate_graph_timing()?;
+        let b = &self.bridge;
+        if b.robot != "mock" && b.robot != "kortex" {
+            return Err(err(
+                "bridge.robot",
+                format!("`{}` is not a robot; use `mock` or `kortex`", b.robot),
+            ));
+        }
+        self.validate_rate()?;
+        self.validate_bridge(robot)?;
+        self.safety
+            .validate_for_robot(robot)
+            .and_then(|()| self.safety.validate_ages(self.period_s()))
+            .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
+        if self.mapper.id == 0 {
+            return Err(err("mapper.id", "must be at least 1".into()));
+        }
+        self.validate_supervisor()?;
+        self.network.validate()
+    }
+
+    /// `[graph]`'s start timeout, real-time CPUs and priority.
+    fn validate_graph_timing(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
         let t = self.graph.start_timeout_s;
         if !(t.is_finite() && t > 0.0 && t <= MAX_WAIT_S) {
             return Err(err(
@@ -771,13 +798,15 @@ impl GraphConfig {
                 ),
             ));
         }
-        let b = &self.bridge;
-        if b.robot != "mock" && b.robot != "kortex" {
-            return Err(err(
-                "bridge.robot",
-                format!("`{}` is not a robot; use `mock` or `kortex`", b.robot),
-            ));
-        }
+        Ok(())
+    }
+
+    /// The rate, and the margins that must fit in half a period.
+    fn validate_rate(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
         let rate = self.graph.rate_hz;
         if !(rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ) {
             return Err(err(
@@ -804,6 +833,17 @@ impl GraphConfig {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// `[bridge]` (its robot checked before): no deprecated rate, the deadline, the stop
+    /// accelerations, the mock arm, the Kortex settings and the transport a real arm needs.
+    fn validate_bridge(&self, robot: &RobotProfile) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
+        let b = &self.bridge;
         if let Some(r) = b.rate_hz {
             // Only a configuration built in code gets here with the alias set.
             return Err(err(
@@ -845,13 +885,15 @@ impl GraphConfig {
                     .into(),
             ));
         }
-        self.safety
-            .validate_for_robot(robot)
-            .and_then(|()| self.safety.validate_ages(self.period_s()))
-            .map_err(|e| err(&format!("safety.{}", e.key), e.reason))?;
-        if self.mapper.id == 0 {
-            return Err(err("mapper.id", "must be at least 1".into()));
-        }
+        Ok(())
+    }
+
+    /// `[supervisor]`'s backoff, waits and swap ticks.
+    fn validate_supervisor(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: key.to_owned(),
+            reason,
+        };
         let sv = &self.supervisor;
         if sv.backoff_initial_ms == 0 || sv.backoff_max_ms < sv.backoff_initial_ms {
             return Err(err(
@@ -876,7 +918,7 @@ impl GraphConfig {
                 "must be at least 1".into(),
             ));
         }
-        self.network.validate()
+        Ok(())
     }
 
     /// The tick period (s).

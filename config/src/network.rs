@@ -176,6 +176,23 @@ impl NetworkConfig {
                 format!("{} is outside 100..=60000", self.lease_ms),
             ));
         }
+        self.validate_ros2()?;
+        if !(1..=65_536).contains(&self.outbound_queue) {
+            return Err(err(
+                "outbound_queue",
+                format!("{} is outside 1..=65536", self.outbound_queue),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The ROS 2 bridge's keys: the domain id, the node name and the `/joy` input's
+    /// settings.
+    fn validate_ros2(&self) -> Result<(), ConfigError> {
+        let err = |key: &str, reason: String| ConfigError::Value {
+            key: format!("network.{key}"),
+            reason,
+        };
         if self.ros2_domain_id > 232 {
             return Err(err(
                 "ros2_domain_id",
@@ -232,12 +249,6 @@ impl NetworkConfig {
             return Err(err(
                 "ros2_joy_timeout_ms",
                 format!("{} is outside 20..=1000", self.ros2_joy_timeout_ms),
-            ));
-        }
-        if !(1..=65_536).contains(&self.outbound_queue) {
-            return Err(err(
-                "outbound_queue",
-                format!("{} is outside 1..=65536", self.outbound_queue),
             ));
         }
         Ok(())

@@ -177,7 +177,42 @@ fn topic(s: &TopicSettings, message: &'static str) -> TopicLayout {
 /// The layout of every message and control type of this build, with the topics' settings,
 /// the constants and the bit names.
 pub fn describe() -> Layout {
-    let types = vec![
+    let mut types = message_types();
+    types.extend(control_types());
+    let topics = vec![
+        topic(&JOYSTICK, "JoystickInput"),
+        topic(&ROBOT_STATE, "RobotState"),
+        topic(&MAPPER_COMMAND, "MapperCommand"),
+        topic(&SAFE_COMMAND, "SafeCommand"),
+        topic(&STATUS, "NodeStatus"),
+        topic(&TICK_REPORT, "TickReport"),
+        topic(&SAFETY_CONTROL_TOPIC, "SafetyControl"),
+        topic(&ESTOP_TOPIC, "EstopCommand"),
+    ];
+    Layout {
+        version: env!("CARGO_PKG_VERSION"),
+        types,
+        topics,
+        constants: Constants {
+            max_joints: MAX_JOINTS,
+            action_dim: ACTION_DIM,
+            no_tick: NO_TICK,
+            text_cap: TEXT_CAP,
+            supervisor_service: SUPERVISOR,
+        },
+        bits: vec![
+            ("buttons", buttons::NAMES.to_vec()),
+            ("state_flags", state_flags::NAMES.to_vec()),
+            ("mapper_flags", mapper_flags::NAMES.to_vec()),
+            ("safe_flags", safe_flags::NAMES.to_vec()),
+            ("safety_state", safety_state::NAMES.to_vec()),
+        ],
+    }
+}
+
+/// The layouts of the messages on the topics, the joystick's to the nodes' status.
+fn message_types() -> Vec<TypeLayout> {
+    vec![
         layout!(JoystickInput {
             tick,
             t_ns,
@@ -272,6 +307,13 @@ pub fn describe() -> Layout {
             mode_switches,
             held_up
         }),
+    ]
+}
+
+/// The layouts of the control types: the safety control, the e-stop, the supervisor's
+/// requests and responses.
+fn control_types() -> Vec<TypeLayout> {
+    vec![
         layout!(SafetyControl {
             seq,
             t_ns,
@@ -302,36 +344,7 @@ pub fn describe() -> Layout {
             missed_during,
             message
         }),
-    ];
-    let topics = vec![
-        topic(&JOYSTICK, "JoystickInput"),
-        topic(&ROBOT_STATE, "RobotState"),
-        topic(&MAPPER_COMMAND, "MapperCommand"),
-        topic(&SAFE_COMMAND, "SafeCommand"),
-        topic(&STATUS, "NodeStatus"),
-        topic(&TICK_REPORT, "TickReport"),
-        topic(&SAFETY_CONTROL_TOPIC, "SafetyControl"),
-        topic(&ESTOP_TOPIC, "EstopCommand"),
-    ];
-    Layout {
-        version: env!("CARGO_PKG_VERSION"),
-        types,
-        topics,
-        constants: Constants {
-            max_joints: MAX_JOINTS,
-            action_dim: ACTION_DIM,
-            no_tick: NO_TICK,
-            text_cap: TEXT_CAP,
-            supervisor_service: SUPERVISOR,
-        },
-        bits: vec![
-            ("buttons", buttons::NAMES.to_vec()),
-            ("state_flags", state_flags::NAMES.to_vec()),
-            ("mapper_flags", mapper_flags::NAMES.to_vec()),
-            ("safe_flags", safe_flags::NAMES.to_vec()),
-            ("safety_state", safety_state::NAMES.to_vec()),
-        ],
-    }
+    ]
 }
 
 #[cfg(test)]

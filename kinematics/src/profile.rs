@@ -311,12 +311,54 @@ impl RobotProfile {
     /// joints named, every per-joint list has one entry per joint, the poses are within the
     /// position limits and `home` is one of them.
     pub fn new(spec: &ProfileSpec<'_>) -> Result<Self, ProfileError> {
+        let model = RobotModel::from_urdf_str(spec.urdf, spec.urdf_name)?;
+        let mut arm = model.chain(spec.base_link, spec.tcp_link)?;
+        let continuous = Self::unlimited_joints(spec, &mut arm)?;
+        let gripper = Self::gripper_of(spec, &model)?;
+        Self::check_spec(spec, &arm)?;
+        let limits = ArmLimits {
+            names: arm.joint_names().to_vec(),
+            lower_rad: arm.lower().to_vec(),
+            upper_rad: arm.upper().to_vec(),
+            max_velocity_rad_s: spec
+                .teleop_velocity_rad_s
+                .iter()
+                .zip(arm.velocity_limits())
+                .map(|(d, u)| d.min(*u))
+                .collect(),
+            max_acceleration_rad_s2: spec.teleop_acceleration_rad_s2.to_vec(),
+        };
+        Ok(Self {
+            name: spec.name.to_owned(),
+            description: spec.description.to_owned(),
+            urdf_name: spec.urdf_name.to_owned(),
+            model,
+            arm,
+            limits,
+            poses: spec
+                .poses
+                .iter()
+                .map(|(name, q)| ((*name).to_owned(), q.to_vec()))
+                .collect(),
+            control_rate_hz: spec.control_rate_hz,
+            gripper_time_constant_s: spec.gripper_time_constant_s,
+            collision: spec.collision,
+            continuous,
+            gripper,
+            bundled_model: spec.bundled_model,
+        })
+    }
+
+    /// The joints without position limits in the URDF (continuous joints), given
+    /// `continuous_limit_rad` (at least π) as their limits on `arm`.
+    fn unlimited_joints(
+        spec: &ProfileSpec<'_>,
+        arm: &mut Chain,
+    ) -> Result<Vec<bool>, ProfileError> {
         let bad = |reason: String| ProfileError::Spec {
             robot: spec.name.to_owned(),
             reason,
         };
-        let model = RobotModel::from_urdf_str(spec.urdf, spec.urdf_name)?;
-        let mut arm = model.chain(spec.base_link, spec.tcp_link)?;
         let unlimited: Vec<&String> = arm
             .joint_names()
             .iter()
@@ -339,7 +381,19 @@ impl RobotProfile {
             }
             (false, Some(w)) => arm.limit_unlimited(w)[..arm.n_joints()].to_vec(),
         };
-        let gripper = match &spec.gripper {
+        Ok(continuous)
+    }
+
+    /// The gripper: a joint of the URDF whose open and closed angles are within its range.
+    fn gripper_of(
+        spec: &ProfileSpec<'_>,
+        model: &RobotModel,
+    ) -> Result<Option<Gripper>, ProfileError> {
+        let bad = |reason: String| ProfileError::Spec {
+            robot: spec.name.to_owned(),
+            reason,
+        };
+        Ok(match &spec.gripper {
             None => None,
             Some(g) => {
                 let j = model.joint(g.joint).ok_or_else(|| {
@@ -362,6 +416,15 @@ impl RobotProfile {
                     closed_rad: g.closed_rad,
                 })
             }
+        })
+    }
+
+    /// The chain's joints are the profile's; the teleoperation limits, rates and poses fit
+    /// them; there is a `home` pose.
+    fn check_spec(spec: &ProfileSpec<'_>, arm: &Chain) -> Result<(), ProfileError> {
+        let bad = |reason: String| ProfileError::Spec {
+            robot: spec.name.to_owned(),
+            reason,
         };
         if arm.joint_names() != spec.joint_names {
             return Err(bad(format!(
@@ -405,37 +468,7 @@ impl RobotProfile {
         if !spec.poses.iter().any(|(name, _)| *name == "home") {
             return Err(bad("there is no `home` pose".into()));
         }
-        let limits = ArmLimits {
-            names: arm.joint_names().to_vec(),
-            lower_rad: arm.lower().to_vec(),
-            upper_rad: arm.upper().to_vec(),
-            max_velocity_rad_s: spec
-                .teleop_velocity_rad_s
-                .iter()
-                .zip(arm.velocity_limits())
-                .map(|(d, u)| d.min(*u))
-                .collect(),
-            max_acceleration_rad_s2: spec.teleop_acceleration_rad_s2.to_vec(),
-        };
-        Ok(Self {
-            name: spec.name.to_owned(),
-            description: spec.description.to_owned(),
-            urdf_name: spec.urdf_name.to_owned(),
-            model,
-            arm,
-            limits,
-            poses: spec
-                .poses
-                .iter()
-                .map(|(name, q)| ((*name).to_owned(), q.to_vec()))
-                .collect(),
-            control_rate_hz: spec.control_rate_hz,
-            gripper_time_constant_s: spec.gripper_time_constant_s,
-            collision: spec.collision,
-            continuous,
-            gripper,
-            bundled_model: spec.bundled_model,
-        })
+        Ok(())
     }
 
     /// The name the graph TOML uses.

@@ -381,11 +381,6 @@ fn check_joint(j: &urdf_rs::Joint, file: &str) -> Result<JointSpec, UrdfError> {
         joint: j.name.clone(),
         reason,
     };
-    let bad_limit = |reason: String| UrdfError::BadLimit {
-        file: file.to_owned(),
-        joint: j.name.clone(),
-        reason,
-    };
     let kind = match j.joint_type {
         urdf_rs::JointType::Fixed => JointType::Fixed,
         urdf_rs::JointType::Revolute => JointType::Revolute,
@@ -419,7 +414,58 @@ fn check_joint(j: &urdf_rs::Joint, file: &str) -> Result<JointSpec, UrdfError> {
         Vector3::z_axis()
     };
     let lim = &j.limit;
-    let (lower, upper, velocity) = match kind {
+    let (lower, upper, velocity) = joint_range(j, kind, file)?;
+    let mimic = match &j.mimic {
+        None => None,
+        Some(m) => {
+            let multiplier = m.multiplier.unwrap_or(1.0);
+            let offset = m.offset.unwrap_or(0.0);
+            if !(multiplier.is_finite() && offset.is_finite()) {
+                return Err(bad(format!(
+                    "<mimic joint=\"{}\" multiplier=\"{multiplier}\" offset=\"{offset}\">: both must be finite numbers",
+                    m.joint
+                )));
+            }
+            Some(Mimic {
+                joint: m.joint.clone(),
+                multiplier,
+                offset,
+            })
+        }
+    };
+    Ok(JointSpec {
+        name: j.name.clone(),
+        kind,
+        parent: j.parent.link.clone(),
+        child: j.child.link.clone(),
+        origin,
+        axis,
+        lower,
+        upper,
+        velocity,
+        effort: if lim.effort.is_finite() {
+            lim.effort
+        } else {
+            0.0
+        },
+        mimic,
+    })
+}
+
+/// A joint's (lower, upper, velocity) limits: required and checked for a revolute or
+/// prismatic joint, unbounded for the others (a continuous joint's velocity if given).
+fn joint_range(
+    j: &urdf_rs::Joint,
+    kind: JointType,
+    file: &str,
+) -> Result<(f64, f64, f64), UrdfError> {
+    let bad_limit = |reason: String| UrdfError::BadLimit {
+        file: file.to_owned(),
+        joint: j.name.clone(),
+        reason,
+    };
+    let lim = &j.limit;
+    Ok(match kind {
         JointType::Revolute | JointType::Prismatic => {
             // urdf-rs fills an absent <limit> with zeros (URDF 1.0) and absent attributes
             // with infinities (URDF 1.2); a real limit has lower < upper and velocity > 0.
@@ -459,41 +505,6 @@ fn check_joint(j: &urdf_rs::Joint, file: &str) -> Result<JointSpec, UrdfError> {
             (f64::NEG_INFINITY, f64::INFINITY, v)
         }
         JointType::Fixed | JointType::Other => (f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY),
-    };
-    let mimic = match &j.mimic {
-        None => None,
-        Some(m) => {
-            let multiplier = m.multiplier.unwrap_or(1.0);
-            let offset = m.offset.unwrap_or(0.0);
-            if !(multiplier.is_finite() && offset.is_finite()) {
-                return Err(bad(format!(
-                    "<mimic joint=\"{}\" multiplier=\"{multiplier}\" offset=\"{offset}\">: both must be finite numbers",
-                    m.joint
-                )));
-            }
-            Some(Mimic {
-                joint: m.joint.clone(),
-                multiplier,
-                offset,
-            })
-        }
-    };
-    Ok(JointSpec {
-        name: j.name.clone(),
-        kind,
-        parent: j.parent.link.clone(),
-        child: j.child.link.clone(),
-        origin,
-        axis,
-        lower,
-        upper,
-        velocity,
-        effort: if lim.effort.is_finite() {
-            lim.effort
-        } else {
-            0.0
-        },
-        mimic,
     })
 }
 

@@ -744,24 +744,61 @@ impl ModeSwitchMap {
         Some(())
     }
 
+    /// [`ActionMap::eval`]: the joint velocities for input `a` at `q`, in phases: the input's
+    /// twist, each joint's limits for it, the twist scaled to fit them, the blend with last
+    /// tick's twist, the midpoint correction and the acceleration clamp.
     fn eval_inner(&mut self, q: &[f64], a: &[f64], out: &mut [f64]) -> Option<()> {
         let n = self.chain.n_joints();
         let out = out.get_mut(..n)?;
         let q = q.get(..n)?;
         let (a0, a1) = (*a.first()?, *a.get(1)?);
         if a0 == 0.0 && a1 == 0.0 && self.twist == Vector6::zeros() {
-            self.qdot = [0.0; kinematics::MAX_DOF];
-            self.last = Diagnostics {
-                slowdown: 1.0,
-                ramp: 1.0,
-                joint_speed_fit: 1.0,
-                speed_cap: 1.0,
-                ..Diagnostics::default()
-            };
+            self.stay_at_rest();
             return Some(());
         }
         let condition = self.jacobian(q)?;
         let slowdown = self.params.slowdown(condition);
+        let mut target = self.input_twist(a0, a1, slowdown);
+        let (mut lim, mut step) = self.joint_limits(q, &target)?;
+        let lim = &mut lim[..n];
+        let (speed_fit, fit) = self.fit_to_limits(lim, &mut target);
+        let (twist, x, ramp, fallback) = self.blend_with_last_twist(lim, &target, out);
+        if self.params.lookahead_s > 0.0 {
+            step = self.midpoint_correction(q, &twist, out)?;
+        }
+        clamp_to_acceleration(lim, out);
+        self.twist = twist;
+        self.qdot[..n].copy_from_slice(out);
+        self.last = Diagnostics {
+            condition,
+            slowdown,
+            twist: twist.into(),
+            sigma_min: step.sigma_min,
+            ramp,
+            carry: x,
+            limited: fallback || (twist - target).norm() > 1e-9 * (1.0 + target.norm()),
+            fallback,
+            joint_speed_fit: speed_fit,
+            speed_cap: fit / speed_fit,
+        };
+        Some(())
+    }
+
+    /// No input and no twist to carry: the command is zero and so are the diagnostics.
+    fn stay_at_rest(&mut self) {
+        self.qdot = [0.0; kinematics::MAX_DOF];
+        self.last = Diagnostics {
+            slowdown: 1.0,
+            ramp: 1.0,
+            joint_speed_fit: 1.0,
+            speed_cap: 1.0,
+            ..Diagnostics::default()
+        };
+    }
+
+    /// The input's twist: the mode's two rows at their speed limits times the deflections,
+    /// slowed near singularities.
+    fn input_twist(&self, a0: f64, a1: f64, slowdown: f64) -> Vector6<f64> {
         let limit = |row: usize| {
             if row < 3 {
                 self.params.max_linear_m_s
@@ -773,19 +810,31 @@ impl ModeSwitchMap {
         let mut target = Vector6::zeros();
         target[r0] = a0 * limit(r0) * slowdown;
         target[r1] = a1 * limit(r1) * slowdown;
+        target
+    }
+
+    /// Each joint's [`Limit`] at `q` (the Jacobian already computed there): its velocity for
+    /// last tick's twist and for `target`, null-space task included, last tick's command and
+    /// its speed and acceleration limits; with the damped least-squares step of `target`.
+    fn joint_limits(
+        &self,
+        q: &[f64],
+        target: &Vector6<f64>,
+    ) -> Option<([Limit; kinematics::MAX_DOF], kinematics::DlsStep)> {
+        let n = self.chain.n_joints();
         // The joint velocities of last tick's twist and of the input's, at this pose (the
         // step is linear in the twist for a given Jacobian).
         let mut hold = [0.0; kinematics::MAX_DOF];
         let mut want = [0.0; kinematics::MAX_DOF];
         self.dls.step(&self.jac, &self.twist, &mut hold[..n]).ok()?;
-        let mut step = self.dls.step(&self.jac, &target, &mut want[..n]).ok()?;
+        let step = self.dls.step(&self.jac, target, &mut want[..n]).ok()?;
         // On a redundant arm each twist's joint velocity carries the null-space task in
         // proportion to its speed, so the limits below see the command as it will be.
         let mut null = [0.0; kinematics::MAX_DOF];
         self.null_motion(q, &mut null)?;
         let (s_hold, s_want) = (
             self.speed_fraction(&self.twist),
-            self.speed_fraction(&target),
+            self.speed_fraction(target),
         );
         for ((h, w), v) in hold.iter_mut().zip(want.iter_mut()).zip(null) {
             *h += s_hold * v;
@@ -801,7 +850,13 @@ impl ModeSwitchMap {
                 speed: self.params.max_joint_velocity_rad_s[j],
             };
         }
-        let lim = &mut lim[..n];
+        Some((lim, step))
+    }
+
+    /// Scales `target` (and each joint's `want`) down as a whole to the joint speed limits
+    /// and to the acceleration room holding last tick's twist leaves; returns the speed fit
+    /// and the whole factor applied.
+    fn fit_to_limits(&self, lim: &mut [Limit], target: &mut Vector6<f64>) -> (f64, f64) {
         // A twist the joints cannot follow is scaled down as a whole.
         let speed_fit = lim
             .iter()
@@ -824,15 +879,28 @@ impl ModeSwitchMap {
             .fold(0.0, f64::max);
         if geometric > HOLD_SHARE {
             let cap = self.dot(&self.twist, &self.twist).sqrt() * (HOLD_SHARE / geometric).sqrt();
-            let t = self.dot(&target, &target).sqrt();
+            let t = self.dot(target, target).sqrt();
             if t * fit > cap {
                 fit = cap / t;
             }
         }
         if fit < 1.0 {
-            target *= fit;
+            *target *= fit;
             lim.iter_mut().for_each(|l| l.want *= fit);
         }
+        (speed_fit, fit)
+    }
+
+    /// The command's twist and joint velocities (into `out`), blended from last tick's twist
+    /// and `target` within the limits; returns the twist, the weight of last tick's, the ramp
+    /// and whether no blend fitted (the joints then move towards the input's command).
+    fn blend_with_last_twist(
+        &self,
+        lim: &[Limit],
+        target: &Vector6<f64>,
+        out: &mut [f64],
+    ) -> (Vector6<f64>, f64, f64, bool) {
+        let n = lim.len();
         // The command's twist, W = x P + y T (P last tick's, T the input's): as close to T as
         // the joint speed limits and the joint acceleration limits (from last tick's command)
         // allow, with a margin for the midpoint correction below, which moves the result a
@@ -847,10 +915,10 @@ impl ModeSwitchMap {
         }
         let p = self.twist;
         let gram = [
-            [self.dot(&p, &p), self.dot(&p, &target)],
-            [self.dot(&p, &target), self.dot(&target, &target)],
+            [self.dot(&p, &p), self.dot(&p, target)],
+            [self.dot(&p, target), self.dot(target, target)],
         ];
-        let (twist, x, ramp, fallback) = match blend(&tight[..n], gram) {
+        match blend(&tight[..n], gram) {
             Some((x, y)) => {
                 for (o, l) in out.iter_mut().zip(lim.iter()) {
                     *o = x * l.hold + y * l.want;
@@ -870,46 +938,45 @@ impl ModeSwitchMap {
                 qd.as_mut_slice()[..n].copy_from_slice(out);
                 (self.jac.padded() * qd, 0.0, k, true)
             }
-        };
-        if self.params.lookahead_s > 0.0 {
-            // The midpoint rule: solve again with the Jacobian half a period ahead.
-            let mut mid = [0.0; kinematics::MAX_DOF];
-            for ((m, qi), v) in mid.iter_mut().zip(q).zip(out.iter()) {
-                *m = qi + v * self.params.lookahead_s;
-            }
-            self.jacobian(&mid[..n])?;
-            step = self.dls.step(&self.jac, &twist, out).ok()?;
-            self.null_motion(&mid[..n], &mut null)?;
-            let s = self.speed_fraction(&twist);
-            for (o, v) in out.iter_mut().zip(null) {
-                *o += s * v;
-            }
         }
-        // The acceleration limit holds exactly: a change still past it is scaled down whole.
-        for (l, o) in lim.iter_mut().zip(out.iter()) {
-            l.want = *o;
+    }
+
+    /// The midpoint rule: `out` solved again for `twist` with the Jacobian half a period
+    /// ahead (the lookahead), null-space task included; returns that step.
+    fn midpoint_correction(
+        &mut self,
+        q: &[f64],
+        twist: &Vector6<f64>,
+        out: &mut [f64],
+    ) -> Option<kinematics::DlsStep> {
+        let n = out.len();
+        let mut mid = [0.0; kinematics::MAX_DOF];
+        for ((m, qi), v) in mid.iter_mut().zip(q).zip(out.iter()) {
+            *m = qi + v * self.params.lookahead_s;
         }
-        let k = change_scale(lim, |l| l.want);
-        if k < 1.0 {
-            for (o, l) in out.iter_mut().zip(lim.iter()) {
-                *o = l.last + k * (l.want - l.last);
-            }
+        self.jacobian(&mid[..n])?;
+        let step = self.dls.step(&self.jac, twist, out).ok()?;
+        let mut null = [0.0; kinematics::MAX_DOF];
+        self.null_motion(&mid[..n], &mut null)?;
+        let s = self.speed_fraction(twist);
+        for (o, v) in out.iter_mut().zip(null) {
+            *o += s * v;
         }
-        self.twist = twist;
-        self.qdot[..n].copy_from_slice(out);
-        self.last = Diagnostics {
-            condition,
-            slowdown,
-            twist: twist.into(),
-            sigma_min: step.sigma_min,
-            ramp,
-            carry: x,
-            limited: fallback || (twist - target).norm() > 1e-9 * (1.0 + target.norm()),
-            fallback,
-            joint_speed_fit: speed_fit,
-            speed_cap: fit / speed_fit,
-        };
-        Some(())
+        Some(step)
+    }
+}
+
+/// The acceleration limit holds exactly: a change of `out` from each joint's last command
+/// still past it is scaled down whole.
+fn clamp_to_acceleration(lim: &mut [Limit], out: &mut [f64]) {
+    for (l, o) in lim.iter_mut().zip(out.iter()) {
+        l.want = *o;
+    }
+    let k = change_scale(lim, |l| l.want);
+    if k < 1.0 {
+        for (o, l) in out.iter_mut().zip(lim.iter()) {
+            *o = l.last + k * (l.want - l.last);
+        }
     }
 }
 

@@ -42,9 +42,18 @@ fn rule_line(bit: u32) -> &'static str {
 
 /// The explanation of one replayed tick, as text.
 pub fn render(t: &TickTrace) -> String {
-    use std::fmt::Write as _;
     let mut s = String::new();
     let n = t.state.n_joints as usize;
+    push_inputs(&mut s, t, n);
+    push_map(&mut s, t, n);
+    push_safety(&mut s, t, n);
+    push_command(&mut s, t, n);
+    s
+}
+
+/// The tick's inputs: the robot state, the joystick sample and the control bits.
+fn push_inputs(s: &mut String, t: &TickTrace, n: usize) {
+    use std::fmt::Write as _;
     let st = &t.state;
     let _ = writeln!(s, "tick {}", st.tick);
     let _ = writeln!(s, "inputs");
@@ -93,6 +102,11 @@ pub fn render(t: &TickTrace) -> String {
         t.now_ns.saturating_sub(t.safe_recorded.state_t_ns) as f64 / 1e6,
         t.now_ns.saturating_sub(t.safe_recorded.joystick_t_ns) as f64 / 1e6,
     );
+}
+
+/// The map's part: its action, the map at this state, its output and the replay's.
+fn push_map(s: &mut String, t: &TickTrace, n: usize) {
+    use std::fmt::Write as _;
     let m = &t.mapper_recorded;
     let _ = writeln!(
         s,
@@ -134,6 +148,11 @@ pub fn render(t: &TickTrace) -> String {
             let _ = writeln!(s, "  replayed      not re-executed");
         }
     }
+}
+
+/// The safety filter's part: what each rule did, the hard guarantees, the closest pair.
+fn push_safety(s: &mut String, t: &TickTrace, n: usize) {
+    use std::fmt::Write as _;
     let r = &t.safe_replayed;
     let c = &t.config;
     let _ = writeln!(
@@ -211,6 +230,12 @@ pub fn render(t: &TickTrace) -> String {
         "  closest pair  {pair}; tool speed {:.4} m/s",
         r.tcp_speed_m_s
     );
+}
+
+/// The final command, and how it differs from the recorded one.
+fn push_command(s: &mut String, t: &TickTrace, n: usize) {
+    use std::fmt::Write as _;
+    let r = &t.safe_replayed;
     let _ = writeln!(s, "command");
     let _ = writeln!(s, "  qdot (rad/s)  {}", joints(&r.qdot_rad_s, n));
     let _ = writeln!(s, "  gripper rate  {:+.4}", r.gripper_rate);
@@ -226,5 +251,4 @@ pub fn render(t: &TickTrace) -> String {
             );
         }
     }
-    s
 }

@@ -100,45 +100,32 @@ fn norm(v: &[f64]) -> f64 {
 pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, ReplayError> {
     let mut notes = Vec::new();
     let mut cfg = rec.graph_config(&mut notes)?;
-    let cerr = |what: String, reason: String| ReplayError::Config {
-        path: rec.path.clone(),
-        what,
-        reason,
-    };
     if let Some(f) = &what.safety {
         let other = scl_config::GraphConfig::load(Some(f))
-            .map_err(|e| cerr(format!("--safety {}", f.display()), e.to_string()))?;
+            .map_err(|e| config_error(rec, format!("--safety {}", f.display()), e))?;
         cfg.safety = other.safety;
     }
     let robot = cfg
         .profile()
-        .map_err(|e| cerr("the graph configuration".into(), e.to_string()))?;
-    let n = robot.n_joints();
-    let mut step = match &what.model {
-        Some(spec) => {
-            let model =
-                LoadedModel::load_for(spec, robot).map_err(|source| ReplayError::Model {
-                    path: rec.path.clone(),
-                    mapper_id: 0,
-                    pid: 0,
-                    source,
-                })?;
-            Some(
-                MapperStep::for_robot(0, model.at_period(cfg.period_s()), robot).map_err(
-                    |source| ReplayError::Model {
-                        path: rec.path.clone(),
-                        mapper_id: 0,
-                        pid: 0,
-                        source,
-                    },
-                )?,
-            )
-        }
+        .map_err(|e| config_error(rec, "the graph configuration".into(), e))?;
+    let step = match &what.model {
+        Some(spec) => Some(mapper_step(rec, spec, &cfg, robot)?),
         None => None,
     };
-    let mut filter = SafetyFilter::for_graph(cfg.safety.clone(), robot, cfg.period_s())
-        .map_err(|e| cerr("the safety filter".into(), e.to_string()))?;
-    let mut tcp = safety::ChainTcp::of(robot);
+    let filter = SafetyFilter::for_graph(cfg.safety.clone(), robot, cfg.period_s())
+        .map_err(|e| config_error(rec, "the safety filter".into(), e))?;
+    let mut replay = Counterfactual {
+        rec,
+        closed_loop: what.closed_loop,
+        robot,
+        n: robot.n_joints(),
+        period_s: cfg.period_s(),
+        step,
+        filter,
+        tcp: safety::ChainTcp::of(robot),
+        arm: None,
+        sim: None,
+    };
     let recorded_mapper: std::collections::HashMap<(u32, u64, u64), &MapperCommand> = rec
         .mapper
         .iter()
@@ -146,13 +133,7 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
         .collect();
 
     let mut whatif: Vec<(MapperCommand, SafeCommand, RobotState)> = Vec::new();
-    let mut arm: Option<hw_bridge::mock::MockArm> = None;
-    let mut sim: Option<RobotState> = None;
-    let (mut pos_max, mut pos_final) = (0.0f64, 0.0f64);
-    let mut diffs = Vec::new();
-    let mut rules: BTreeMap<String, [u64; 2]> = BTreeMap::new();
-    let mut first_difference = None;
-    let mut first_map_difference = None;
+    let mut tally = Tally::default();
     let mut last_tick = NO_TICK;
     for safe in &rec.safe {
         let key = (safe.mapper_id, safe.tick, safe.mapper_t_ns);
@@ -165,18 +146,135 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
             continue;
         }
         last_tick = safe.tick;
-        if what.closed_loop && arm.is_none() {
-            let mut a = hw_bridge::mock::MockArm::for_robot(
-                robot,
-                hw_bridge::mock::MockConfig::for_robot(robot),
-            )
-            .map_err(|e| cerr("the mock arm".into(), e.to_string()))?;
-            a.resume(recorded_state.q(), recorded_state.gripper);
-            arm = Some(a);
-            sim = Some(*recorded_state);
+        whatif.push(replay.tick(safe, rec_cmd, recorded_state, &mut tally)?);
+    }
+    if whatif.is_empty() {
+        return Err(ReplayError::Empty {
+            path: rec.path.clone(),
+            reason: "no tick has both its command and its robot state recorded".into(),
+        });
+    }
+    write(rec, what, out, &whatif)?;
+    Ok(tally.summary(what.closed_loop, out, notes))
+}
+
+/// A configuration error of the counterfactual (`what` did not load), naming the recording.
+fn config_error(rec: &Recording, what: String, reason: impl ToString) -> ReplayError {
+    ReplayError::Config {
+        path: rec.path.clone(),
+        what,
+        reason: reason.to_string(),
+    }
+}
+
+/// The mapper of `--model` (`spec`) on the recording's arm, at its control period.
+fn mapper_step(
+    rec: &Recording,
+    spec: &str,
+    cfg: &scl_config::GraphConfig,
+    robot: &'static kinematics::RobotProfile,
+) -> Result<MapperStep, ReplayError> {
+    let model = LoadedModel::load_for(spec, robot).map_err(|source| ReplayError::Model {
+        path: rec.path.clone(),
+        mapper_id: 0,
+        pid: 0,
+        source,
+    })?;
+    MapperStep::for_robot(0, model.at_period(cfg.period_s()), robot).map_err(|source| {
+        ReplayError::Model {
+            path: rec.path.clone(),
+            mapper_id: 0,
+            pid: 0,
+            source,
         }
-        // Closed loop: the simulated arm's state, stamped as the recorded one (tick, time).
-        let state_owned = match sim.as_mut() {
+    })
+}
+
+/// The counterfactual graph: the what-if mapper (if any), the safety filter, the tool model,
+/// and in closed loop the mock arm and its simulated state.
+struct Counterfactual<'a> {
+    rec: &'a Recording,
+    closed_loop: bool,
+    robot: &'static kinematics::RobotProfile,
+    n: usize,
+    period_s: f64,
+    step: Option<MapperStep>,
+    filter: SafetyFilter,
+    tcp: safety::ChainTcp,
+    arm: Option<hw_bridge::mock::MockArm>,
+    sim: Option<RobotState>,
+}
+
+/// What the ticks differ by, so far.
+#[derive(Default)]
+struct Tally {
+    diffs: Vec<TickDifference>,
+    /// Per rule: ticks it fired (recorded, what-if).
+    rules: BTreeMap<String, [u64; 2]>,
+    first_difference: Option<u64>,
+    first_map_difference: Option<u64>,
+    pos_max: f64,
+    pos_final: f64,
+}
+
+impl Counterfactual<'_> {
+    /// One recorded tick again: the state (simulated in closed loop), the what-if mapper's
+    /// command, the safety filter's; the differences go to `tally`.
+    fn tick(
+        &mut self,
+        safe: &SafeCommand,
+        rec_cmd: &MapperCommand,
+        recorded_state: &RobotState,
+        tally: &mut Tally,
+    ) -> Result<(MapperCommand, SafeCommand, RobotState), ReplayError> {
+        if self.closed_loop && self.arm.is_none() {
+            self.start_arm(recorded_state)?;
+        }
+        let state = &self.state_at(recorded_state);
+        let cmd = self.map(rec_cmd, state);
+        if tally.first_map_difference.is_none()
+            && commands_differ(&rec_cmd.qdot_rad_s, &cmd.qdot_rad_s)
+        {
+            tally.first_map_difference = Some(safe.tick);
+        }
+        let res = self.filter(safe, &cmd, state);
+        tally.count_rules(safe, &res);
+        let n = self.n;
+        let mut dq = [0.0; MAX_JOINTS];
+        for ((d, a), b) in dq.iter_mut().zip(&res.qdot_rad_s).zip(&safe.qdot_rad_s) {
+            *d = a - b;
+        }
+        let tool = self.tool_difference(safe, &res, state, recorded_state, &dq, tally);
+        let joint = norm(&dq[..n]);
+        if tally.first_difference.is_none() && commands_differ(&safe.qdot_rad_s, &res.qdot_rad_s) {
+            tally.first_difference = Some(safe.tick);
+        }
+        tally.diffs.push(TickDifference {
+            tick: safe.tick,
+            joint_rad_s: joint,
+            tool_m_s: if tool.is_finite() { tool } else { 0.0 },
+        });
+        self.advance_arm(&res, safe.tick);
+        Ok((cmd, res, *state))
+    }
+
+    /// Closed loop: the mock arm, started at the first recorded state.
+    fn start_arm(&mut self, recorded_state: &RobotState) -> Result<(), ReplayError> {
+        let mut a = hw_bridge::mock::MockArm::for_robot(
+            self.robot,
+            hw_bridge::mock::MockConfig::for_robot(self.robot),
+        )
+        .map_err(|e| config_error(self.rec, "the mock arm".into(), e))?;
+        a.resume(recorded_state.q(), recorded_state.gripper);
+        self.arm = Some(a);
+        self.sim = Some(*recorded_state);
+        Ok(())
+    }
+
+    /// The state the tick sees: closed loop, the simulated arm's, stamped as the recorded
+    /// one (tick, time); else the recorded one.
+    fn state_at(&mut self, recorded_state: &RobotState) -> RobotState {
+        match self.sim.as_mut() {
             Some(s) => {
                 s.tick = recorded_state.tick;
                 s.t_ns = recorded_state.t_ns;
@@ -185,24 +283,36 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
                 *s
             }
             None => *recorded_state,
-        };
-        let state = &state_owned;
-        let mut cmd = match step.as_mut() {
+        }
+    }
+
+    /// The what-if mapper's command at `state` (the recorded one without `--model`), with
+    /// the recorded command's stamps.
+    fn map(&mut self, rec_cmd: &MapperCommand, state: &RobotState) -> MapperCommand {
+        let mut cmd = match self.step.as_mut() {
             Some(s) => {
-                let joy = joystick_for(rec, rec_cmd);
+                let joy = joystick_for(self.rec, rec_cmd);
                 let mut c = s.step(state, joy.as_ref().map(|(j, _)| j));
                 c.mapper_id = rec_cmd.mapper_id;
                 c
             }
-            None => **rec_cmd,
+            None => *rec_cmd,
         };
         cmd.t_ns = rec_cmd.t_ns;
         cmd.state_rx_ns = rec_cmd.state_rx_ns;
         cmd.joystick_rx_ns = rec_cmd.joystick_rx_ns;
         cmd.compute_ns = rec_cmd.compute_ns;
-        if first_map_difference.is_none() && commands_differ(&rec_cmd.qdot_rad_s, &cmd.qdot_rad_s) {
-            first_map_difference = Some(safe.tick);
-        }
+        cmd
+    }
+
+    /// The safety filter's command for `cmd`, under the recorded control bits (or those its
+    /// flags imply in a recording without them), with the recorded command's stamps.
+    fn filter(
+        &mut self,
+        safe: &SafeCommand,
+        cmd: &MapperCommand,
+        state: &RobotState,
+    ) -> SafeCommand {
         let control = if safe.control & safe_control::RECORDED != 0 {
             safe.control
         } else {
@@ -216,93 +326,108 @@ pub fn run(rec: &Recording, what: &WhatIf, out: &Path) -> Result<Summary, Replay
                 0
             }
         };
-        filter.apply_control(control);
-        let mut res = filter.step(&cmd, state, safe.t_ns.saturating_sub(safe.compute_ns));
+        self.filter.apply_control(control);
+        let mut res = self
+            .filter
+            .step(cmd, state, safe.t_ns.saturating_sub(safe.compute_ns));
         res.t_ns = safe.t_ns;
         res.mapper_rx_ns = safe.mapper_rx_ns;
         res.compute_ns = safe.compute_ns;
-        for (bit, name) in safe_flags::NAMES.iter().enumerate() {
-            let e = rules.entry((*name).to_owned()).or_default();
-            e[0] += u64::from(safe.flags & (1 << bit) != 0);
-            e[1] += u64::from(res.flags & (1 << bit) != 0);
-        }
-        let mut dq = [0.0; MAX_JOINTS];
-        for ((d, a), b) in dq.iter_mut().zip(&res.qdot_rad_s).zip(&safe.qdot_rad_s) {
-            *d = a - b;
-        }
+        res
+    }
+
+    /// The tool's speed difference (m/s): closed loop, each command at its own state (the
+    /// position difference goes to `tally`); else the joint difference `dq` at `state`.
+    fn tool_difference(
+        &mut self,
+        safe: &SafeCommand,
+        res: &SafeCommand,
+        state: &RobotState,
+        recorded_state: &RobotState,
+        dq: &[f64; MAX_JOINTS],
+        tally: &mut Tally,
+    ) -> f64 {
+        let n = self.n;
         let mut p = [0.0; 3];
         let mut jv = [[0.0; MAX_JOINTS]; 3];
-        tcp.tcp(state.q(), &mut p, &mut jv);
-        let tool = if what.closed_loop {
+        self.tcp.tcp(state.q(), &mut p, &mut jv);
+        if self.closed_loop {
             // Each command at its own state: the tool's velocities and positions compared.
             let mut pr = [0.0; 3];
             let mut jr = [[0.0; MAX_JOINTS]; 3];
-            tcp.tcp(recorded_state.q(), &mut pr, &mut jr);
+            self.tcp.tcp(recorded_state.q(), &mut pr, &mut jr);
             let vw = safety::rules::tcp_velocity(&jv, &res.qdot_rad_s[..n]);
             let vr = safety::rules::tcp_velocity(&jr, &safe.qdot_rad_s[..n]);
             let d = norm(&[pr[0] - p[0], pr[1] - p[1], pr[2] - p[2]]);
             if d.is_finite() {
-                pos_max = pos_max.max(d);
-                pos_final = d;
+                tally.pos_max = tally.pos_max.max(d);
+                tally.pos_final = d;
             }
             norm(&[vw[0] - vr[0], vw[1] - vr[1], vw[2] - vr[2]])
         } else {
             norm(&safety::rules::tcp_velocity(&jv, &dq[..n]))
-        };
-        let joint = norm(&dq[..n]);
-        if first_difference.is_none() && commands_differ(&safe.qdot_rad_s, &res.qdot_rad_s) {
-            first_difference = Some(safe.tick);
         }
-        diffs.push(TickDifference {
-            tick: safe.tick,
-            joint_rad_s: joint,
-            tool_m_s: if tool.is_finite() { tool } else { 0.0 },
-        });
-        whatif.push((cmd, res, *state));
-        if let (Some(a), Some(s)) = (arm.as_mut(), sim.as_mut()) {
-            a.set_command(&res.qdot_rad_s[..n], res.gripper_rate);
-            let r = a.step(cfg.period_s());
+    }
+
+    /// Closed loop: the mock arm follows the what-if command for a period.
+    fn advance_arm(&mut self, res: &SafeCommand, tick: u64) {
+        if let (Some(a), Some(s)) = (self.arm.as_mut(), self.sim.as_mut()) {
+            a.set_command(&res.qdot_rad_s[..self.n], res.gripper_rate);
+            let r = a.step(self.period_s);
             s.q_rad = r.q_rad;
             s.qdot_rad_s = r.qdot_rad_s;
             s.gripper = r.gripper;
-            s.applied_tick = safe.tick;
+            s.applied_tick = tick;
         }
     }
-    if whatif.is_empty() {
-        return Err(ReplayError::Empty {
-            path: rec.path.clone(),
-            reason: "no tick has both its command and its robot state recorded".into(),
-        });
+}
+
+impl Tally {
+    /// Counts the ticks each rule fired in the recording and in the what-if.
+    fn count_rules(&mut self, safe: &SafeCommand, res: &SafeCommand) {
+        for (bit, name) in safe_flags::NAMES.iter().enumerate() {
+            let e = self.rules.entry((*name).to_owned()).or_default();
+            e[0] += u64::from(safe.flags & (1 << bit) != 0);
+            e[1] += u64::from(res.flags & (1 << bit) != 0);
+        }
     }
-    write(rec, what, out, &whatif)?;
-    let ticks = diffs.len() as u64;
-    let mean = |f: &dyn Fn(&TickDifference) -> f64| diffs.iter().map(f).sum::<f64>() / ticks as f64;
-    let summary = Summary {
-        ticks,
-        ticks_differing: diffs.iter().filter(|d| d.joint_rad_s > 0.0).count() as u64,
-        first_difference,
-        first_map_difference,
-        joint_rad_s_max: diffs.iter().map(|d| d.joint_rad_s).fold(0.0, f64::max),
-        joint_rad_s_mean: mean(&|d| d.joint_rad_s),
-        tool_m_s_max: diffs.iter().map(|d| d.tool_m_s).fold(0.0, f64::max),
-        tool_m_s_mean: mean(&|d| d.tool_m_s),
-        tool_position_m_max: what.closed_loop.then_some(pos_max),
-        tool_position_m_final: what.closed_loop.then_some(pos_final),
-        rules: rules.into_iter().filter(|(_, c)| c[0] + c[1] > 0).collect(),
-        largest: {
-            let mut v: Vec<TickDifference> = diffs
-                .iter()
-                .filter(|d| d.joint_rad_s > 0.0)
-                .cloned()
-                .collect();
-            v.sort_by(|a, b| b.joint_rad_s.total_cmp(&a.joint_rad_s));
-            v.truncate(10);
-            v
-        },
-        out: out.display().to_string(),
-        notes,
-    };
-    Ok(summary)
+
+    /// The summary of the differences, the largest ten ticks among them.
+    fn summary(self, closed_loop: bool, out: &Path, notes: Vec<String>) -> Summary {
+        let diffs = &self.diffs;
+        let ticks = diffs.len() as u64;
+        let mean =
+            |f: &dyn Fn(&TickDifference) -> f64| diffs.iter().map(f).sum::<f64>() / ticks as f64;
+        Summary {
+            ticks,
+            ticks_differing: diffs.iter().filter(|d| d.joint_rad_s > 0.0).count() as u64,
+            first_difference: self.first_difference,
+            first_map_difference: self.first_map_difference,
+            joint_rad_s_max: diffs.iter().map(|d| d.joint_rad_s).fold(0.0, f64::max),
+            joint_rad_s_mean: mean(&|d| d.joint_rad_s),
+            tool_m_s_max: diffs.iter().map(|d| d.tool_m_s).fold(0.0, f64::max),
+            tool_m_s_mean: mean(&|d| d.tool_m_s),
+            tool_position_m_max: closed_loop.then_some(self.pos_max),
+            tool_position_m_final: closed_loop.then_some(self.pos_final),
+            rules: self
+                .rules
+                .into_iter()
+                .filter(|(_, c)| c[0] + c[1] > 0)
+                .collect(),
+            largest: {
+                let mut v: Vec<TickDifference> = diffs
+                    .iter()
+                    .filter(|d| d.joint_rad_s > 0.0)
+                    .cloned()
+                    .collect();
+                v.sort_by(|a, b| b.joint_rad_s.total_cmp(&a.joint_rad_s));
+                v.truncate(10);
+                v
+            },
+            out: out.display().to_string(),
+            notes,
+        }
+    }
 }
 
 /// The recording copied to `out` with the what-if commands on their own channels.

@@ -174,6 +174,28 @@ impl SafetyConfig {
         limits: &ArmLimits,
         urdf_velocity_rad_s: &[f64],
     ) -> Result<(), ConfigError> {
+        self.validate_joint_limits(limits, urdf_velocity_rad_s)?;
+        if !(self.speed_override > 0.0 && self.speed_override <= 1.0) {
+            return Err(err(
+                "speed_override",
+                format!(
+                    "is {}; it must be a finite number in (0, 1]",
+                    self.speed_override
+                ),
+            ));
+        }
+        positive("max_gripper_rate", self.max_gripper_rate)?;
+        self.validate_workspace()?;
+        crate::scene::validate(self)
+    }
+
+    /// The joint speed and acceleration limits (one positive finite number per joint, the
+    /// speeds within the URDF's) and the joint margin (leaving each joint a range).
+    fn validate_joint_limits(
+        &self,
+        limits: &ArmLimits,
+        urdf_velocity_rad_s: &[f64],
+    ) -> Result<(), ConfigError> {
         let n_joints = limits.n_joints();
         for (key, values) in [
             ("max_velocity_rad_s", &self.max_velocity_rad_s),
@@ -241,16 +263,12 @@ impl SafetyConfig {
                 ));
             }
         }
-        if !(self.speed_override > 0.0 && self.speed_override <= 1.0) {
-            return Err(err(
-                "speed_override",
-                format!(
-                    "is {}; it must be a finite number in (0, 1]",
-                    self.speed_override
-                ),
-            ));
-        }
-        positive("max_gripper_rate", self.max_gripper_rate)?;
+        Ok(())
+    }
+
+    /// `[safety.workspace]`: a positive deceleration, a box with finite corners, min below
+    /// max, the table below its top.
+    fn validate_workspace(&self) -> Result<(), ConfigError> {
         let w = &self.workspace;
         positive("workspace.deceleration_m_s2", w.deceleration_m_s2)?;
         for (key, corner) in [
@@ -290,7 +308,7 @@ impl SafetyConfig {
                 ),
             ));
         }
-        crate::scene::validate(self)
+        Ok(())
     }
 
     /// The default `max_state_age_ms` at a tick period of `period_s`: 80 % of the period, so a

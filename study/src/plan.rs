@@ -262,88 +262,20 @@ impl Study {
         }
         let mut names = BTreeSet::new();
         for (i, t) in file.tasks.iter().enumerate() {
-            let key = |k: &str| format!("tasks[{i}].{k}");
-            if !is_file_name(&t.name) || !names.insert(t.name.clone()) {
-                return Err(bad(
-                    key("name"),
-                    format!(
-                        "`{}` must be unique and use only letters, digits, '-' and '_'",
-                        t.name
-                    ),
-                ));
-            }
-            if !(t.time_limit_s.is_finite() && t.time_limit_s > 0.0) {
-                return Err(bad(key("time_limit_s"), "must be positive".into()));
-            }
-            if !(t.practice_s.is_finite() && t.practice_s >= 0.0) {
-                return Err(bad(key("practice_s"), "must be 0 or more".into()));
-            }
-            if t.attempts == 0 {
-                return Err(bad(key("attempts"), "must be at least 1".into()));
-            }
-            for (k, v, hi) in [
-                ("tolerance_m", t.tolerance_m, 1.0),
-                ("pour_angle_deg", t.pour_angle_deg, 180.0),
-                ("hold_s", t.hold_s, 3600.0),
-                ("upright_deg", t.upright_deg, 180.0),
-            ] {
-                if let Some(v) = v
-                    && !(v.is_finite() && v > 0.0 && v <= hi)
-                {
-                    return Err(bad(key(k), format!("{v} is not in (0, {hi}]")));
-                }
-            }
-            mapper::goto::GotoMap::from_spec_for(robot, &t.goto_spec())
-                .map_err(|e| bad(key("start"), e.to_string()))?;
+            check_task(path, robot, i, t, &mut names)?;
         }
         let mut labels = BTreeSet::new();
         let mut models = Vec::new();
         let base = path.parent().unwrap_or(Path::new("."));
         for (i, c) in file.conditions.iter().enumerate() {
-            let key = |k: &str| format!("conditions[{i}].{k}");
-            if !is_file_name(&c.label) || !labels.insert(c.label.clone()) {
-                return Err(bad(
-                    key("label"),
-                    format!(
-                        "`{}` must be unique and use only letters, digits, '-' and '_'",
-                        c.label
-                    ),
-                ));
-            }
-            if let ModelRef::PerTask(m) = &c.model
-                && let Some(t) = m.keys().find(|t| !names.contains(*t))
-            {
-                return Err(bad(
-                    format!("{}.{t}", key("model")),
-                    "names no task of the study".into(),
-                ));
-            }
-            let mut per_task = Vec::new();
-            for t in &file.tasks {
-                let (model, k) = match &c.model {
-                    ModelRef::One(m) => (m, key("model")),
-                    ModelRef::PerTask(m) => {
-                        let k = format!("{}.{}", key("model"), t.name);
-                        (
-                            m.get(&t.name).ok_or_else(|| {
-                                bad(k.clone(), "missing: every task needs a model".into())
-                            })?,
-                            k,
-                        )
-                    }
-                };
-                let spec = if mapper::model::is_builtin(model) {
-                    model.clone()
-                } else {
-                    let p = base.join(model);
-                    let abs = std::fs::canonicalize(&p)
-                        .map_err(|e| bad(k.clone(), format!("`{}`: {e}", p.display())))?;
-                    abs.display().to_string()
-                };
-                mapper::LoadedModel::load_for(&spec, robot).map_err(|e| bad(k, e.to_string()))?;
-                per_task.push(spec);
-            }
-            models.push(per_task);
+            let ctx = ConditionCheck {
+                path,
+                robot,
+                base,
+                tasks: &file.tasks,
+                names: &names,
+            };
+            models.push(ctx.models(i, c, &mut labels)?);
         }
         file.simulation
             .check()
@@ -387,6 +319,129 @@ impl Study {
     /// The order in which `p` meets the conditions (indices into `file.conditions`).
     pub fn order(&self, p: Participant) -> Vec<usize> {
         latin_row(self.file.conditions.len(), p.0)
+    }
+}
+
+/// Checks task `i` of a study file (`path`): a unique file-safe name, a positive time
+/// limit and attempts, plausible tolerances, a start pose `robot` can go to.
+fn check_task(
+    path: &Path,
+    robot: &'static kinematics::RobotProfile,
+    i: usize,
+    t: &Task,
+    names: &mut BTreeSet<String>,
+) -> Result<(), StudyError> {
+    let bad = |key: String, reason: String| StudyError::Invalid {
+        path: path.to_owned(),
+        key,
+        reason,
+    };
+    let key = |k: &str| format!("tasks[{i}].{k}");
+    if !is_file_name(&t.name) || !names.insert(t.name.clone()) {
+        return Err(bad(
+            key("name"),
+            format!(
+                "`{}` must be unique and use only letters, digits, '-' and '_'",
+                t.name
+            ),
+        ));
+    }
+    if !(t.time_limit_s.is_finite() && t.time_limit_s > 0.0) {
+        return Err(bad(key("time_limit_s"), "must be positive".into()));
+    }
+    if !(t.practice_s.is_finite() && t.practice_s >= 0.0) {
+        return Err(bad(key("practice_s"), "must be 0 or more".into()));
+    }
+    if t.attempts == 0 {
+        return Err(bad(key("attempts"), "must be at least 1".into()));
+    }
+    for (k, v, hi) in [
+        ("tolerance_m", t.tolerance_m, 1.0),
+        ("pour_angle_deg", t.pour_angle_deg, 180.0),
+        ("hold_s", t.hold_s, 3600.0),
+        ("upright_deg", t.upright_deg, 180.0),
+    ] {
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0 && v <= hi)
+        {
+            return Err(bad(key(k), format!("{v} is not in (0, {hi}]")));
+        }
+    }
+    mapper::goto::GotoMap::from_spec_for(robot, &t.goto_spec())
+        .map_err(|e| bad(key("start"), e.to_string()))?;
+    Ok(())
+}
+
+/// What a condition of a study file is checked against: the file, the arm, the directory
+/// its model paths are relative to, and the tasks (with their names).
+struct ConditionCheck<'a> {
+    path: &'a Path,
+    robot: &'static kinematics::RobotProfile,
+    base: &'a Path,
+    tasks: &'a [Task],
+    names: &'a BTreeSet<String>,
+}
+
+impl ConditionCheck<'_> {
+    /// Checks condition `i` (a unique file-safe label; models naming only the study's
+    /// tasks, one for each, each loading for the arm); its model spec per task.
+    fn models(
+        &self,
+        i: usize,
+        c: &Condition,
+        labels: &mut BTreeSet<String>,
+    ) -> Result<Vec<String>, StudyError> {
+        let (path, robot, base, tasks, names) =
+            (self.path, self.robot, self.base, self.tasks, self.names);
+        let bad = |key: String, reason: String| StudyError::Invalid {
+            path: path.to_owned(),
+            key,
+            reason,
+        };
+        let key = |k: &str| format!("conditions[{i}].{k}");
+        if !is_file_name(&c.label) || !labels.insert(c.label.clone()) {
+            return Err(bad(
+                key("label"),
+                format!(
+                    "`{}` must be unique and use only letters, digits, '-' and '_'",
+                    c.label
+                ),
+            ));
+        }
+        if let ModelRef::PerTask(m) = &c.model
+            && let Some(t) = m.keys().find(|t| !names.contains(*t))
+        {
+            return Err(bad(
+                format!("{}.{t}", key("model")),
+                "names no task of the study".into(),
+            ));
+        }
+        let mut per_task = Vec::new();
+        for t in tasks {
+            let (model, k) = match &c.model {
+                ModelRef::One(m) => (m, key("model")),
+                ModelRef::PerTask(m) => {
+                    let k = format!("{}.{}", key("model"), t.name);
+                    (
+                        m.get(&t.name).ok_or_else(|| {
+                            bad(k.clone(), "missing: every task needs a model".into())
+                        })?,
+                        k,
+                    )
+                }
+            };
+            let spec = if mapper::model::is_builtin(model) {
+                model.clone()
+            } else {
+                let p = base.join(model);
+                let abs = std::fs::canonicalize(&p)
+                    .map_err(|e| bad(k.clone(), format!("`{}`: {e}", p.display())))?;
+                abs.display().to_string()
+            };
+            mapper::LoadedModel::load_for(&spec, robot).map_err(|e| bad(k, e.to_string()))?;
+            per_task.push(spec);
+        }
+        Ok(per_task)
     }
 }
 

@@ -240,16 +240,7 @@ fn failures(
 /// (default: the first by label).
 pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyError> {
     let finals: Vec<&TrialRow> = data.trials.iter().filter(|t| !t.repeated).collect();
-    let mut tasks: Vec<String> = Vec::new();
-    for t in finals
-        .iter()
-        .map(|t| &t.task)
-        .chain(data.answers.iter().map(|a| &a.task))
-    {
-        if !tasks.contains(t) {
-            tasks.push(t.clone());
-        }
-    }
+    let tasks = tasks_of(&finals, data);
     let by_label: BTreeMap<&str, &str> = finals
         .iter()
         .map(|t| (t.label.as_str(), t.condition.as_str()))
@@ -307,36 +298,7 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
         if completion.iter().any(|v| !v.is_empty()) {
             measures.push(tested(task, "completion %", "completion", completion));
         }
-        for kind in ["likert", "tlx"] {
-            let mut items: Vec<&str> = Vec::new();
-            for a in data
-                .answers
-                .iter()
-                .filter(|a| &a.task == task && a.kind == kind)
-            {
-                if !items.contains(&a.item.as_str()) {
-                    items.push(&a.item);
-                }
-            }
-            for item in items {
-                let values = conditions
-                    .iter()
-                    .map(|c| {
-                        data.answers
-                            .iter()
-                            .filter(|a| {
-                                &a.task == task
-                                    && a.kind == kind
-                                    && a.item == item
-                                    && &a.condition == c
-                            })
-                            .map(|a| f64::from(a.value))
-                            .collect()
-                    })
-                    .collect();
-                measures.push(tested(task, item, kind, values));
-            }
-        }
+        measures.extend(answer_measures(data, task, &conditions));
     }
     let failures = failures(&finals, &data.diagnoses, &tasks, &conditions);
     Ok(Report {
@@ -349,6 +311,55 @@ pub fn analyse(data: &Data, reference: Option<&str>) -> Result<Report, StudyErro
         reference,
         failures,
     })
+}
+
+/// The tasks of the final attempts and the answers, in order of first appearance.
+fn tasks_of(finals: &[&TrialRow], data: &Data) -> Vec<String> {
+    let mut tasks: Vec<String> = Vec::new();
+    for t in finals
+        .iter()
+        .map(|t| &t.task)
+        .chain(data.answers.iter().map(|a| &a.task))
+    {
+        if !tasks.contains(t) {
+            tasks.push(t.clone());
+        }
+    }
+    tasks
+}
+
+/// The questionnaire measures of `task`: each Likert item and TLX subscale, its answers per
+/// condition.
+fn answer_measures(data: &Data, task: &str, conditions: &[String]) -> Vec<Tested> {
+    let mut measures = Vec::new();
+    for kind in ["likert", "tlx"] {
+        let mut items: Vec<&str> = Vec::new();
+        for a in data
+            .answers
+            .iter()
+            .filter(|a| a.task == task && a.kind == kind)
+        {
+            if !items.contains(&a.item.as_str()) {
+                items.push(&a.item);
+            }
+        }
+        for item in items {
+            let values = conditions
+                .iter()
+                .map(|c| {
+                    data.answers
+                        .iter()
+                        .filter(|a| {
+                            a.task == task && a.kind == kind && a.item == item && &a.condition == c
+                        })
+                        .map(|a| f64::from(a.value))
+                        .collect()
+                })
+                .collect();
+            measures.push(tested(task, item, kind, values));
+        }
+    }
+    measures
 }
 
 fn tested(task: &str, measure: &str, kind: &str, values: Vec<Vec<f64>>) -> Tested {
@@ -383,46 +394,91 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
         path: out.to_owned(),
         source,
     })?;
-    let mut files = Vec::new();
-    let werr = |path: &Path| {
-        let path = path.to_owned();
-        move |e: csv::Error| StudyError::Data {
-            path: path.clone(),
-            reason: e.to_string(),
-        }
+    let mut files = vec![
+        write_table(
+            out.join("successes.csv"),
+            &["task", "condition", "successes", "attempts"],
+            success_rows(r),
+        )?,
+        write_table(
+            out.join("measures.csv"),
+            &[
+                "task",
+                "kind",
+                "measure",
+                "condition",
+                "n",
+                "median",
+                "mean",
+                "q1",
+                "q3",
+            ],
+            measure_rows(r),
+        )?,
+        write_table(
+            out.join("tests.csv"),
+            &[
+                "task",
+                "kind",
+                "measure",
+                "test",
+                "a",
+                "b",
+                "statistic",
+                "df",
+                "n",
+                "p",
+                "p_holm",
+            ],
+            test_rows(r),
+        )?,
+    ];
+    files.extend(crate::figures::write_all(r, out)?);
+    let p = out.join("summary.md");
+    std::fs::write(&p, summary(r)).map_err(|source| StudyError::Write {
+        path: p.clone(),
+        source,
+    })?;
+    files.push(p);
+    Ok(files)
+}
+
+/// Writes a CSV table at `p`: the header, then the rows; returns `p`.
+fn write_table(p: PathBuf, header: &[&str], rows: Vec<Vec<String>>) -> Result<PathBuf, StudyError> {
+    let werr = |e: csv::Error| StudyError::Data {
+        path: p.clone(),
+        reason: e.to_string(),
     };
-    let p = out.join("successes.csv");
-    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
-    w.write_record(["task", "condition", "successes", "attempts"])
-        .map_err(werr(&p))?;
-    for s in &r.successes {
-        w.write_record([
-            s.task.clone(),
-            s.condition.clone(),
-            s.successes.to_string(),
-            s.attempts.to_string(),
-        ])
-        .map_err(werr(&p))?;
+    let mut w = csv::Writer::from_path(&p).map_err(werr)?;
+    w.write_record(header).map_err(werr)?;
+    for row in rows {
+        w.write_record(row).map_err(werr)?;
     }
     w.flush().map_err(|source| StudyError::Write {
         path: p.clone(),
         source,
     })?;
-    files.push(p);
-    let p = out.join("measures.csv");
-    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
-    w.write_record([
-        "task",
-        "kind",
-        "measure",
-        "condition",
-        "n",
-        "median",
-        "mean",
-        "q1",
-        "q3",
-    ])
-    .map_err(werr(&p))?;
+    Ok(p)
+}
+
+/// `successes.csv`'s rows: the successes and attempts per task and condition.
+fn success_rows(r: &Report) -> Vec<Vec<String>> {
+    r.successes
+        .iter()
+        .map(|s| {
+            vec![
+                s.task.clone(),
+                s.condition.clone(),
+                s.successes.to_string(),
+                s.attempts.to_string(),
+            ]
+        })
+        .collect()
+}
+
+/// `measures.csv`'s rows: each measure's count, median, mean and quartiles per condition.
+fn measure_rows(r: &Report) -> Vec<Vec<String>> {
+    let mut rows = Vec::new();
     for m in &r.measures {
         for (c, v) in r.conditions.iter().zip(&m.values) {
             let q = |x: f64| {
@@ -432,7 +488,7 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
                     stats::quantile(v, x)
                 }
             };
-            w.write_record([
+            rows.push(vec![
                 m.task.clone(),
                 m.kind.clone(),
                 m.measure.clone(),
@@ -442,35 +498,20 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
                 fmt(mean(v)),
                 fmt(q(0.25)),
                 fmt(q(0.75)),
-            ])
-            .map_err(werr(&p))?;
+            ]);
         }
     }
-    w.flush().map_err(|source| StudyError::Write {
-        path: p.clone(),
-        source,
-    })?;
-    files.push(p);
-    let p = out.join("tests.csv");
-    let mut w = csv::Writer::from_path(&p).map_err(werr(&p))?;
-    w.write_record([
-        "task",
-        "kind",
-        "measure",
-        "test",
-        "a",
-        "b",
-        "statistic",
-        "df",
-        "n",
-        "p",
-        "p_holm",
-    ])
-    .map_err(werr(&p))?;
+    rows
+}
+
+/// `tests.csv`'s rows: each measure's Kruskal-Wallis test, then (if significant) Dunn's
+/// pairs.
+fn test_rows(r: &Report) -> Vec<Vec<String>> {
+    let mut rows = Vec::new();
     for m in &r.measures {
         let Some(t) = &m.tests else { continue };
         let k = &t.kruskal;
-        w.write_record([
+        rows.push(vec![
             m.task.clone(),
             m.kind.clone(),
             m.measure.clone(),
@@ -482,11 +523,10 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
             k.n.to_string(),
             fmt(k.p),
             String::new(),
-        ])
-        .map_err(werr(&p))?;
+        ]);
         if m.significant() {
             for d in &t.dunn {
-                w.write_record([
+                rows.push(vec![
                     m.task.clone(),
                     m.kind.clone(),
                     m.measure.clone(),
@@ -498,24 +538,11 @@ pub fn write(r: &Report, out: &Path) -> Result<Vec<PathBuf>, StudyError> {
                     (m.values[d.a].len() + m.values[d.b].len()).to_string(),
                     fmt(d.p),
                     fmt(d.p_holm),
-                ])
-                .map_err(werr(&p))?;
+                ]);
             }
         }
     }
-    w.flush().map_err(|source| StudyError::Write {
-        path: p.clone(),
-        source,
-    })?;
-    files.push(p);
-    files.extend(crate::figures::write_all(r, out)?);
-    let p = out.join("summary.md");
-    std::fs::write(&p, summary(r)).map_err(|source| StudyError::Write {
-        path: p.clone(),
-        source,
-    })?;
-    files.push(p);
-    Ok(files)
+    rows
 }
 
 fn fmt(x: f64) -> String {
@@ -552,91 +579,12 @@ pub fn summary(r: &Report) -> String {
         let _ = writeln!(s, "| {task} | {} |", cells.join(" | "));
     }
     if !r.failures.is_empty() {
-        let _ = writeln!(
-            s,
-            "\n## Why attempts failed\n\nThe failed final attempts' `{DIAGNOSIS}`: the subgoal \
-             they never did (how many stopped before it), the median of the closest the tool \
-             came to it, and the safety rules that acted most (ticks, summed).\n"
-        );
-        let _ = writeln!(
-            s,
-            "| task | condition | failed | never done | closest, median | safety acted |"
-        );
-        let _ = writeln!(s, "|---|---|---|---|---|---|");
-        for f in &r.failures {
-            let stuck: Vec<String> = f
-                .stuck_at
-                .iter()
-                .map(|(g, n)| format!("{g} ({n})"))
-                .collect();
-            let safety: Vec<String> = f
-                .safety
-                .iter()
-                .take(3)
-                .map(|(rule, n)| format!("{rule} {n}"))
-                .collect();
-            let closest = f
-                .median_closest_m
-                .map(|m| format!("{:.1} cm", m * 100.0))
-                .unwrap_or_else(|| "-".into());
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} | {} | {closest} | {} |",
-                f.task,
-                f.condition,
-                f.failed,
-                stuck.join(", "),
-                safety.join(", ")
-            );
-        }
+        push_failures(&mut s, r);
     }
     for task in &r.tasks {
         let _ = writeln!(s, "\n## {task}\n");
         for m in r.measures.iter().filter(|m| &m.task == task) {
-            let counts: Vec<String> = r
-                .conditions
-                .iter()
-                .zip(&m.values)
-                .map(|(c, v)| format!("{c} n={} median {}", v.len(), short(median(v))))
-                .collect();
-            let what = match m.kind.as_str() {
-                "likert" => format!("Likert \"{}\"", m.measure),
-                "tlx" => format!("NASA-TLX {}", m.measure),
-                _ => m.measure.clone(),
-            };
-            let _ = write!(s, "- **{what}** ({}): ", counts.join("; "));
-            match &m.tests {
-                None => {
-                    let _ = writeln!(s, "not tested (fewer than two groups, or no spread).");
-                }
-                Some(t) => {
-                    let k = &t.kruskal;
-                    let _ = write!(
-                        s,
-                        "Kruskal-Wallis H({}) = {:.3}, p = {:.4}, N = {}",
-                        k.df, k.h, k.p, k.n
-                    );
-                    if m.significant() {
-                        let pairs: Vec<String> = t
-                            .dunn
-                            .iter()
-                            .map(|d| {
-                                format!(
-                                    "{} vs {} z = {:.3}, p_holm = {:.4}{}",
-                                    r.conditions[d.a],
-                                    r.conditions[d.b],
-                                    d.z,
-                                    d.p_holm,
-                                    if d.p_holm < ALPHA { " *" } else { "" }
-                                )
-                            })
-                            .collect();
-                        let _ = writeln!(s, "; Dunn (Holm): {}.", pairs.join("; "));
-                    } else {
-                        let _ = writeln!(s, "; not significant, no pairwise test.");
-                    }
-                }
-            }
+            push_measure(&mut s, r, m);
         }
     }
     let checked: Vec<Claim> = claims(r)
@@ -655,6 +603,95 @@ pub fn summary(r: &Report) -> String {
         }
     }
     s
+}
+
+/// The summary's table of why the failed final attempts failed.
+fn push_failures(s: &mut String, r: &Report) {
+    let _ = writeln!(
+        s,
+        "\n## Why attempts failed\n\nThe failed final attempts' `{DIAGNOSIS}`: the subgoal \
+         they never did (how many stopped before it), the median of the closest the tool \
+         came to it, and the safety rules that acted most (ticks, summed).\n"
+    );
+    let _ = writeln!(
+        s,
+        "| task | condition | failed | never done | closest, median | safety acted |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    for f in &r.failures {
+        let stuck: Vec<String> = f
+            .stuck_at
+            .iter()
+            .map(|(g, n)| format!("{g} ({n})"))
+            .collect();
+        let safety: Vec<String> = f
+            .safety
+            .iter()
+            .take(3)
+            .map(|(rule, n)| format!("{rule} {n}"))
+            .collect();
+        let closest = f
+            .median_closest_m
+            .map(|m| format!("{:.1} cm", m * 100.0))
+            .unwrap_or_else(|| "-".into());
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {closest} | {} |",
+            f.task,
+            f.condition,
+            f.failed,
+            stuck.join(", "),
+            safety.join(", ")
+        );
+    }
+}
+
+/// The summary's line for measure `m`: its groups, then its tests.
+fn push_measure(s: &mut String, r: &Report, m: &Tested) {
+    let counts: Vec<String> = r
+        .conditions
+        .iter()
+        .zip(&m.values)
+        .map(|(c, v)| format!("{c} n={} median {}", v.len(), short(median(v))))
+        .collect();
+    let what = match m.kind.as_str() {
+        "likert" => format!("Likert \"{}\"", m.measure),
+        "tlx" => format!("NASA-TLX {}", m.measure),
+        _ => m.measure.clone(),
+    };
+    let _ = write!(s, "- **{what}** ({}): ", counts.join("; "));
+    match &m.tests {
+        None => {
+            let _ = writeln!(s, "not tested (fewer than two groups, or no spread).");
+        }
+        Some(t) => {
+            let k = &t.kruskal;
+            let _ = write!(
+                s,
+                "Kruskal-Wallis H({}) = {:.3}, p = {:.4}, N = {}",
+                k.df, k.h, k.p, k.n
+            );
+            if m.significant() {
+                let pairs: Vec<String> = t
+                    .dunn
+                    .iter()
+                    .map(|d| {
+                        format!(
+                            "{} vs {} z = {:.3}, p_holm = {:.4}{}",
+                            r.conditions[d.a],
+                            r.conditions[d.b],
+                            d.z,
+                            d.p_holm,
+                            if d.p_holm < ALPHA { " *" } else { "" }
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(s, "; Dunn (Holm): {}.", pairs.join("; "));
+            } else {
+                let _ = writeln!(s, "; not significant, no pairwise test.");
+            }
+        }
+    }
 }
 
 /// A claim of the paper checked on the data.
@@ -751,13 +788,29 @@ pub fn claims(r: &Report) -> Vec<Claim> {
     let pca = condition(r, &["PCA"]);
     let cae = condition(r, &["CAE"]);
     let modes = condition(r, &["mode switching", "modeswitch"]);
-    let sig_better = |m: &Tested, a: usize, b: usize| {
-        let (p, higher) = pair(m, a, b);
-        higher && p.is_some_and(|p| p < ALPHA)
-    };
-    let mut out = Vec::new();
+    vec![
+        claim_scl_pick_and_place(r, scl, pca, cae),
+        claim_pca_table_cleaning(r, pca),
+        claim_scl_pouring(r, scl, modes),
+        claim_cae_outside(r, scl, cae),
+    ]
+}
+
+/// Whether condition `a` is significantly above condition `b` on measure `m`.
+fn sig_better(m: &Tested, a: usize, b: usize) -> bool {
+    let (p, higher) = pair(m, a, b);
+    higher && p.is_some_and(|p| p < ALPHA)
+}
+
+/// The claim that SCL beats PCA and CAE on pick-and-place.
+fn claim_scl_pick_and_place(
+    r: &Report,
+    scl: Option<usize>,
+    pca: Option<usize>,
+    cae: Option<usize>,
+) -> Claim {
     let claim = "SCL beats PCA and CAE on pick-and-place";
-    out.push(match (completion(r, "pick-and-place"), scl, pca, cae) {
+    match (completion(r, "pick-and-place"), scl, pca, cae) {
         (Some(m), Some(s), Some(p), Some(c)) => Claim {
             claim,
             supported: Some(sig_better(m, s, p) && sig_better(m, s, c)),
@@ -775,9 +828,13 @@ pub fn claims(r: &Report) -> Vec<Claim> {
             supported: None,
             evidence: "the data lacks pick-and-place or one of SCL, PCA, CAE".into(),
         },
-    });
+    }
+}
+
+/// The claim that PCA does well on table cleaning.
+fn claim_pca_table_cleaning(r: &Report, pca: Option<usize>) -> Claim {
     let claim = "PCA does well on table cleaning";
-    out.push(match (completion(r, "table-cleaning"), pca) {
+    match (completion(r, "table-cleaning"), pca) {
         (Some(m), Some(p)) => {
             let beaten: Vec<&str> = (0..r.conditions.len())
                 .filter(|&o| o != p && sig_better(m, o, p))
@@ -809,9 +866,13 @@ pub fn claims(r: &Report) -> Vec<Claim> {
             supported: None,
             evidence: "the data lacks table-cleaning or PCA".into(),
         },
-    });
+    }
+}
+
+/// The claim that SCL is comparable to mode switching on pouring.
+fn claim_scl_pouring(r: &Report, scl: Option<usize>, modes: Option<usize>) -> Claim {
     let claim = "SCL is comparable to mode switching on pouring";
-    out.push(match (completion(r, "pouring"), scl, modes) {
+    match (completion(r, "pouring"), scl, modes) {
         (Some(m), Some(s), Some(o)) => Claim {
             claim,
             supported: Some(!sig_better(m, s, o) && !sig_better(m, o, s)),
@@ -828,9 +889,13 @@ pub fn claims(r: &Report) -> Vec<Claim> {
             supported: None,
             evidence: "the data lacks pouring or one of SCL, mode switching".into(),
         },
-    });
+    }
+}
+
+/// The claim that CAE fails when users leave the training distribution.
+fn claim_cae_outside(r: &Report, scl: Option<usize>, cae: Option<usize>) -> Claim {
     let claim = "CAE fails when users leave the training distribution";
-    out.push(match (scl, cae) {
+    match (scl, cae) {
         (Some(s), Some(c)) => {
             let tasks: Vec<(&String, &Tested)> = r
                 .tasks
@@ -864,8 +929,7 @@ pub fn claims(r: &Report) -> Vec<Claim> {
             supported: None,
             evidence: "the data lacks SCL or CAE".into(),
         },
-    });
-    out
+    }
 }
 
 fn short(x: f64) -> String {

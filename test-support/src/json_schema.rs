@@ -166,41 +166,59 @@ fn check(v: &Value, s: &Value, root: &Value, at: &str, errs: &mut Vec<String>) {
         }
     }
     if let Some(data) = v.as_object() {
-        let props = s["properties"].as_object();
-        let extra = s.get("additionalProperties");
-        for (k, x) in data {
-            let here = format!("{at}.{k}");
-            match (props.and_then(|p| p.get(k)), extra) {
-                (Some(ps), _) => check(x, ps, root, &here, errs),
-                (None, Some(ap)) if ap.is_object() => check(x, ap, root, &here, errs),
-                (None, _) => errs.push(format!("{at}: field `{k}` is not in the schema")),
-            }
-        }
-        for r in s["required"].as_array().into_iter().flatten() {
-            if let Some(r) = r.as_str()
-                && !data.contains_key(r)
-            {
-                errs.push(format!("{at}: required field `{r}` is missing"));
-            }
-        }
+        check_fields(data, s, root, at, errs);
     }
     if let Some(items) = v.as_array() {
-        if let Some(is) = s.get("items") {
-            for (i, x) in items.iter().enumerate() {
-                check(x, is, root, &format!("{at}[{i}]"), errs);
-            }
+        check_items(items, s, root, at, errs);
+    }
+}
+
+/// An object's fields against schema `s`: each by its property's schema (or
+/// `additionalProperties`), none unknown, every required one present.
+fn check_fields(
+    data: &serde_json::Map<String, Value>,
+    s: &Value,
+    root: &Value,
+    at: &str,
+    errs: &mut Vec<String>,
+) {
+    let props = s["properties"].as_object();
+    let extra = s.get("additionalProperties");
+    for (k, x) in data {
+        let here = format!("{at}.{k}");
+        match (props.and_then(|p| p.get(k)), extra) {
+            (Some(ps), _) => check(x, ps, root, &here, errs),
+            (None, Some(ap)) if ap.is_object() => check(x, ap, root, &here, errs),
+            (None, _) => errs.push(format!("{at}: field `{k}` is not in the schema")),
         }
-        let n = items.len() as u64;
-        if let Some(min) = s["minItems"].as_u64()
-            && n < min
+    }
+    for r in s["required"].as_array().into_iter().flatten() {
+        if let Some(r) = r.as_str()
+            && !data.contains_key(r)
         {
-            errs.push(format!("{at}: {n} items, fewer than {min}"));
+            errs.push(format!("{at}: required field `{r}` is missing"));
         }
-        if let Some(max) = s["maxItems"].as_u64()
-            && n > max
-        {
-            errs.push(format!("{at}: {n} items, more than {max}"));
+    }
+}
+
+/// An array's items against schema `s`: each by `items`, their count within
+/// `minItems` / `maxItems`.
+fn check_items(items: &[Value], s: &Value, root: &Value, at: &str, errs: &mut Vec<String>) {
+    if let Some(is) = s.get("items") {
+        for (i, x) in items.iter().enumerate() {
+            check(x, is, root, &format!("{at}[{i}]"), errs);
         }
+    }
+    let n = items.len() as u64;
+    if let Some(min) = s["minItems"].as_u64()
+        && n < min
+    {
+        errs.push(format!("{at}: {n} items, fewer than {min}"));
+    }
+    if let Some(max) = s["maxItems"].as_u64()
+        && n > max
+    {
+        errs.push(format!("{at}: {n} items, more than {max}"));
     }
 }
 

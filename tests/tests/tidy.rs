@@ -287,3 +287,31 @@ fn the_architecture_names_every_crate_and_the_ros2_bridge() {
         "ARCHITECTURE.md does not name the ROS 2 bridge (net/src/ros2.rs)"
     );
 }
+
+/// Issue 39: no non-test function over 150 lines, and at most 15 over 100, as
+/// `scripts/long-functions.py` counts them (from the `fn` line to the closing brace, test
+/// modules and `tests.rs` files left out). A longer function is split into named phases.
+#[test]
+fn functions_stay_short() {
+    let root = scl_tests::workspace::root();
+    let out = std::process::Command::new("python3")
+        .arg(root.join("scripts/long-functions.py"))
+        .arg("--root")
+        .arg(&root)
+        .args([
+            "--over",
+            "100",
+            "--max-over-100",
+            "15",
+            "--max-over-150",
+            "0",
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run python3 scripts/long-functions.py: {e}"));
+    assert!(
+        out.status.success(),
+        "functions too long (split them into named phases):\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -151,16 +151,7 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
 ) -> Result<(ConvertReport, W), VizError> {
     let mut w = LogWriter::new(sink, to, None)?;
     let mut viz = Viz::new(&GraphConfig::default())?;
-    let mut viz_ids: BTreeMap<VizTopic, u16> = BTreeMap::new();
-    for t in VizTopic::ALL {
-        let id = w.add_channel(
-            t.topic(),
-            Some(&t.schema()),
-            t.message_encoding(),
-            &BTreeMap::new(),
-        )?;
-        viz_ids.insert(t, id);
-    }
+    let viz_ids = add_viz_channels(&mut w)?;
     let mut seq: BTreeMap<VizTopic, u32> = BTreeMap::new();
     let mut attachments: HashMap<String, Vec<u8>> = HashMap::new();
     let mut report = ConvertReport {
@@ -248,4 +239,21 @@ pub fn convert_into<R: std::io::Read, W: std::io::Write>(
     entries.insert("added".to_owned(), report.added.to_string());
     let sink = w.finish(Some(recording::metadata(CONVERTED_METADATA, entries)))?;
     Ok((report, sink))
+}
+
+/// Adds the 3D view's channels to `w`; their ids by topic.
+fn add_viz_channels<W: std::io::Write>(
+    w: &mut LogWriter<W>,
+) -> Result<BTreeMap<VizTopic, u16>, VizError> {
+    let mut viz_ids: BTreeMap<VizTopic, u16> = BTreeMap::new();
+    for t in VizTopic::ALL {
+        let id = w.add_channel(
+            t.topic(),
+            Some(&t.schema()),
+            t.message_encoding(),
+            &BTreeMap::new(),
+        )?;
+        viz_ids.insert(t, id);
+    }
+    Ok(viz_ids)
 }

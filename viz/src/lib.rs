@@ -443,6 +443,8 @@ impl Viz {
             .then_some((cols, id, mode))
     }
 
+    /// A robot state's messages: the frames, the arm's capsules with their clearances, the
+    /// map's arrows, the world (now and then) and the tick's row.
     fn state(&mut self, s: &RobotState, out: &mut Vec<VizMessage>) -> Result<(), VizError> {
         let chain: &Chain = self.robot.arm();
         let n = chain.n_joints();
@@ -457,81 +459,10 @@ impl Viz {
                 what: "forward kinematics",
                 source,
             })?;
-        let mut clearance = None;
-        let mut arm = None;
-        if let Some(cm) = self.collision {
-            // The gripper joint from the state's gripper, as the safety filter takes it.
-            let (lo, hi) = cm.gripper_range();
-            // The arm's joints (six on a Gen3 lite, seven on a Gen3), then the gripper's.
-            let mut q = [0.0; MAX_ARM_JOINTS + 1];
-            let nq = n.min(MAX_ARM_JOINTS);
-            q[..nq].copy_from_slice(&s.q()[..nq]);
-            q[nq] = if s.gripper.is_finite() {
-                hi - s.gripper.clamp(0.0, 1.0) * (hi - lo)
-            } else {
-                cm.gripper_default_rad()
-            };
-            if n <= MAX_ARM_JOINTS
-                && cm
-                    .clearance(&q[..=nq], &self.scene, &mut self.clearance)
-                    .is_ok()
-            {
-                // The collision model's links the chain does not have (the gripper's), hung
-                // from the chain's tip link.
-                for &link in cm.links() {
-                    if chain.link_id(link.name()).is_none() {
-                        let rel = scene::from_tip(chain, s.q(), self.clearance.link_pose(link))
-                            .map_err(|source| VizError::Kinematics {
-                                what: "forward kinematics",
-                                source,
-                            })?;
-                        tf.transforms
-                            .push(scene::transform(t, chain.tip(), link.name(), &rel));
-                    }
-                }
-                let full = due(self.last_arm_ns, t);
-                let steps: Vec<u8> = self
-                    .refs
-                    .iter()
-                    .map(|r| scene::clearance_step(scene::capsule_clearance(&self.clearance, *r)))
-                    .collect();
-                let send: Vec<bool> = steps
-                    .iter()
-                    .zip(&self.steps)
-                    .map(|(now, last)| full || *last != Some(*now))
-                    .collect();
-                if send.iter().any(|b| *b) {
-                    arm = Some(scene::arm_entities(
-                        cm,
-                        &self.clearance,
-                        |i| send.get(i).copied().unwrap_or(false),
-                        t,
-                    ));
-                    self.steps = steps.into_iter().map(Some).collect();
-                }
-                if full {
-                    self.last_arm_ns = Some(t);
-                }
-                clearance = self.clearance.closest().map(|c| {
-                    let pair = match c.pair.b {
-                        kinematics::collision::Target::Capsule(b) => {
-                            format!("{}-{}", c.pair.a.link.short_name(), b.link.short_name())
-                        }
-                        kinematics::collision::Target::Table => {
-                            format!("{}-table", c.pair.a.link.short_name())
-                        }
-                        kinematics::collision::Target::Box(k) => format!(
-                            "{}-{}",
-                            c.pair.a.link.short_name(),
-                            self.boxes
-                                .get(usize::from(k))
-                                .map_or_else(|| format!("box{k}"), |b| b.0.clone())
-                        ),
-                    };
-                    (c.distance_m, pair)
-                });
-            }
-        }
+        let (clearance, arm) = match self.collision {
+            Some(cm) => self.collision_update(cm, chain, s, &mut tf)?,
+            None => (None, None),
+        };
         out.push(VizMessage {
             topic: VizTopic::Tf,
             t_ns: t,
@@ -580,12 +511,126 @@ impl Viz {
             t_ns: t,
             data: encode(VizTopic::Map, &scene::map_entities(&twists, &frame, t))?,
         });
+        self.push_world_if_due(&frame, t, out)?;
+        let row = self.tick_view(s, &twists, dirs, clearance);
+        out.push(VizMessage {
+            topic: VizTopic::Tick,
+            t_ns: t,
+            data: serde_json::to_vec(&row).map_err(|e| VizError::Encode {
+                topic: VizTopic::Tick.topic(),
+                reason: e.to_string(),
+            })?,
+        });
+        Ok(())
+    }
+
+    /// The collision model at `s`: the gripper's links hung from the chain's tip in `tf`,
+    /// the arm's capsules whose clearance step changed (all of them now and then), and the
+    /// closest pair; nothing if the clearances could not be computed.
+    fn collision_update(
+        &mut self,
+        cm: &'static CollisionModel,
+        chain: &Chain,
+        s: &RobotState,
+        tf: &mut foxglove::messages::FrameTransforms,
+    ) -> Result<CollisionView, VizError> {
+        let n = chain.n_joints();
+        let t = s.t_ns;
+        // The gripper joint from the state's gripper, as the safety filter takes it.
+        let (lo, hi) = cm.gripper_range();
+        // The arm's joints (six on a Gen3 lite, seven on a Gen3), then the gripper's.
+        let mut q = [0.0; MAX_ARM_JOINTS + 1];
+        let nq = n.min(MAX_ARM_JOINTS);
+        q[..nq].copy_from_slice(&s.q()[..nq]);
+        q[nq] = if s.gripper.is_finite() {
+            hi - s.gripper.clamp(0.0, 1.0) * (hi - lo)
+        } else {
+            cm.gripper_default_rad()
+        };
+        if n > MAX_ARM_JOINTS
+            || cm
+                .clearance(&q[..=nq], &self.scene, &mut self.clearance)
+                .is_err()
+        {
+            return Ok((None, None));
+        }
+        // The collision model's links the chain does not have (the gripper's), hung
+        // from the chain's tip link.
+        for &link in cm.links() {
+            if chain.link_id(link.name()).is_none() {
+                let rel = scene::from_tip(chain, s.q(), self.clearance.link_pose(link)).map_err(
+                    |source| VizError::Kinematics {
+                        what: "forward kinematics",
+                        source,
+                    },
+                )?;
+                tf.transforms
+                    .push(scene::transform(t, chain.tip(), link.name(), &rel));
+            }
+        }
+        let full = due(self.last_arm_ns, t);
+        let steps: Vec<u8> = self
+            .refs
+            .iter()
+            .map(|r| scene::clearance_step(scene::capsule_clearance(&self.clearance, *r)))
+            .collect();
+        let send: Vec<bool> = steps
+            .iter()
+            .zip(&self.steps)
+            .map(|(now, last)| full || *last != Some(*now))
+            .collect();
+        let mut arm = None;
+        if send.iter().any(|b| *b) {
+            arm = Some(scene::arm_entities(
+                cm,
+                &self.clearance,
+                |i| send.get(i).copied().unwrap_or(false),
+                t,
+            ));
+            self.steps = steps.into_iter().map(Some).collect();
+        }
+        if full {
+            self.last_arm_ns = Some(t);
+        }
+        let clearance = self
+            .clearance
+            .closest()
+            .map(|c| (c.distance_m, self.pair_name(&c.pair)));
+        Ok((clearance, arm))
+    }
+
+    /// A pair's short name: `link-link`, `link-table` or `link-<box name>`.
+    fn pair_name(&self, pair: &kinematics::collision::PairId) -> String {
+        match pair.b {
+            kinematics::collision::Target::Capsule(b) => {
+                format!("{}-{}", pair.a.link.short_name(), b.link.short_name())
+            }
+            kinematics::collision::Target::Table => {
+                format!("{}-table", pair.a.link.short_name())
+            }
+            kinematics::collision::Target::Box(k) => format!(
+                "{}-{}",
+                pair.a.link.short_name(),
+                self.boxes
+                    .get(usize::from(k))
+                    .map_or_else(|| format!("box{k}"), |b| b.0.clone())
+            ),
+        }
+    }
+
+    /// The world (table, boxes, workspace) when it is due.
+    fn push_world_if_due(
+        &mut self,
+        frame: &str,
+        t: u64,
+        out: &mut Vec<VizMessage>,
+    ) -> Result<(), VizError> {
         if due(self.last_world_ns, t) {
             let world = scene::world_entities(
                 self.scene.table_z_m(),
                 &self.boxes,
                 self.workspace,
-                &frame,
+                frame,
                 t,
             );
             out.push(VizMessage {
@@ -595,11 +640,25 @@ impl Viz {
             });
             self.last_world_ns = Some(t);
         }
+        Ok(())
+    }
+
+    /// The tick's row: the tool's motion, the map's axes, the clearance and the last safe
+    /// command's rules and latency.
+    fn tick_view(
+        &self,
+        s: &RobotState,
+        twists: &scene::ToolTwists,
+        dirs: Option<([[f64; MAX_JOINTS]; 2], u32, Option<String>)>,
+        clearance: Option<(f64, String)>,
+    ) -> TickView {
         let arr = |v: &Vector3<f64>| [v.x, v.y, v.z];
+        let (axes_linear, axes_angular) = (twists.axes_linear, twists.axes_angular);
+        let executed = twists.executed_linear;
         let safe = self.last_safe;
-        let row = TickView {
+        TickView {
             tick: s.tick,
-            tool_m: arr(&tool.translation.vector),
+            tool_m: arr(&twists.tool),
             tool_velocity_m_s: arr(&executed),
             tool_speed_m_s: executed.norm(),
             axis1_m_s: axes_linear.map(|a| arr(&a[0])),
@@ -614,18 +673,16 @@ impl Viz {
             latency_ms: safe.map(|c| c.t_ns.saturating_sub(c.state_t_ns) as f64 / 1e6),
             rule_bits: safe.map_or(0, |c| c.flags),
             rules: safe.map_or_else(Vec::new, |c| rule_names(c.flags)),
-        };
-        out.push(VizMessage {
-            topic: VizTopic::Tick,
-            t_ns: t,
-            data: serde_json::to_vec(&row).map_err(|e| VizError::Encode {
-                topic: VizTopic::Tick.topic(),
-                reason: e.to_string(),
-            })?,
-        });
-        Ok(())
+        }
     }
 }
+
+/// The collision model's part of a state's messages: the closest pair (distance, name) and
+/// the arm's capsules to send, if any.
+type CollisionView = (
+    Option<(f64, String)>,
+    Option<foxglove::messages::SceneUpdate>,
+);
 
 /// The names of the safety rules in `bits` ([`ipc_types::safe_flags::NAMES`]).
 pub fn rule_names(bits: u32) -> Vec<String> {

@@ -258,24 +258,7 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 return run_remote(&opts, &remote, json, out.as_deref());
             }
             let report = scl_bench::latency(&opts)?;
-            let text =
-                serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
-                    what: "report",
-                    source,
-                })?;
-            if let Some(dir) = &out {
-                let p = dir.join("report.json");
-                std::fs::write(&p, &text).map_err(|source| SclError::Write {
-                    path: p.clone(),
-                    source,
-                })?;
-            }
-            if json {
-                println!("{text}");
-            } else {
-                print!("{}", scl_bench::render(&report));
-            }
-            Ok(ExitCode::SUCCESS)
+            emit_report(&report, out.as_deref(), json, || scl_bench::render(&report))
         }
         BenchCmd::Headroom {
             secs,
@@ -295,12 +278,7 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                     "--secs {secs}: must be a positive number of seconds"
                 )));
             }
-            for r in &rates {
-                let mut c = cfg.clone();
-                c.set_rate_hz(*r);
-                c.validate()
-                    .map_err(|source| SclError::Rate { rate: *r, source })?;
-            }
+            check_rates(&cfg, &rates)?;
             let opts = scl_bench::headroom::HeadroomOptions {
                 rates,
                 duration: Duration::from_secs_f64(secs),
@@ -311,53 +289,82 @@ pub(crate) fn run(what: BenchCmd, mut cfg: GraphConfig) -> Result<ExitCode, SclE
                 out: out.clone(),
             };
             let report = scl_bench::headroom::headroom(&opts)?;
-            let text =
-                serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
-                    what: "report",
-                    source,
-                })?;
-            if let Some(dir) = &out {
-                let p = dir.join("report.json");
-                std::fs::write(&p, &text).map_err(|source| SclError::Write {
-                    path: p.clone(),
-                    source,
-                })?;
-            }
-            if json {
-                println!("{text}");
-            } else {
-                print!("{}", scl_bench::headroom::render(&report));
-            }
-            Ok(ExitCode::SUCCESS)
+            emit_report(&report, out.as_deref(), json, || {
+                scl_bench::headroom::render(&report)
+            })
         }
         BenchCmd::Hops {
             count,
             interval,
             transport,
             json,
-        } => {
-            if count == 0 || interval.is_zero() {
-                return Err(SclError::Other(
-                    "--count and --interval must be positive".into(),
-                ));
-            }
-            let opts = scl_bench::hops::HopsOptions {
-                count,
-                interval,
-                transports: parse_transports(&transport)?,
-            };
-            let report = scl_bench::hops::hops(&opts)?;
-            if json {
-                let text =
-                    serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
-                        what: "report",
-                        source,
-                    })?;
-                println!("{text}");
-            } else {
-                print!("{}", scl_bench::hops::render(&report));
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        } => hops(count, interval, &transport, json),
     }
+}
+
+/// `scl bench hops`: the per-hop latencies, as JSON or text.
+fn hops(
+    count: usize,
+    interval: Duration,
+    transport: &str,
+    json: bool,
+) -> Result<ExitCode, SclError> {
+    if count == 0 || interval.is_zero() {
+        return Err(SclError::Other(
+            "--count and --interval must be positive".into(),
+        ));
+    }
+    let opts = scl_bench::hops::HopsOptions {
+        count,
+        interval,
+        transports: parse_transports(transport)?,
+    };
+    let report = scl_bench::hops::hops(&opts)?;
+    if json {
+        let text = serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
+            what: "report",
+            source,
+        })?;
+        println!("{text}");
+    } else {
+        print!("{}", scl_bench::hops::render(&report));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Every rate of `rates` makes a valid configuration of `cfg`.
+fn check_rates(cfg: &GraphConfig, rates: &[f64]) -> Result<(), SclError> {
+    for r in rates {
+        let mut c = cfg.clone();
+        c.set_rate_hz(*r);
+        c.validate()
+            .map_err(|source| SclError::Rate { rate: *r, source })?;
+    }
+    Ok(())
+}
+
+/// A report as JSON, written to `out/report.json` if given, printed as JSON or as `text`.
+fn emit_report(
+    report: &impl serde::Serialize,
+    out: Option<&std::path::Path>,
+    json: bool,
+    text: impl FnOnce() -> String,
+) -> Result<ExitCode, SclError> {
+    let encoded = serde_json::to_string_pretty(report).map_err(|source| SclError::Encode {
+        what: "report",
+        source,
+    })?;
+    if let Some(dir) = out {
+        let p = dir.join("report.json");
+        std::fs::write(&p, &encoded).map_err(|source| SclError::Write {
+            path: p.clone(),
+            source,
+        })?;
+    }
+    if json {
+        println!("{encoded}");
+    } else {
+        print!("{}", text());
+    }
+    Ok(ExitCode::SUCCESS)
 }

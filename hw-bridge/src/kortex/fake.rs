@@ -1003,6 +1003,12 @@ fn on_frame(sh: &Shared, conn: u64, frame: &Frame) -> Vec<Out> {
     if reply.encode_tcp(&mut bytes).is_err() {
         return Vec::new();
     }
+    with_fault(fault, bytes, now)
+}
+
+/// What goes out for a reply's `bytes` at `now`, as the injected `fault` (if any) has it:
+/// nothing, later, garbage first, corrupted, truncated, or the connection closed.
+fn with_fault(fault: Option<Fault>, mut bytes: Vec<u8>, now: Instant) -> Vec<Out> {
     match fault {
         Some(Fault::DropReply) => Vec::new(),
         Some(Fault::DelayReply(d)) => vec![Out::Bytes {
@@ -1033,6 +1039,7 @@ fn decode_req<M: prost::Message + Default>(
     M::decode(frame.payload.as_slice()).map_err(|e| (2, 0, format!("cannot decode {what}: {e}")))
 }
 
+/// Serves one call on connection `conn`: a session first, then the function.
 fn execute(
     cfg: &FakeConfig,
     st: &mut State,
@@ -1049,53 +1056,7 @@ fn execute(
         ));
     };
     if function == Function::CreateSession {
-        let info: msg::CreateSessionInfo = decode_req(frame, "CreateSessionInfo")?;
-        if info.username != cfg.credentials.username()
-            || info.password != cfg.credentials.password()
-        {
-            return Err((1, 15, "wrong user name or password".into()));
-        }
-        // A second CreateSession on one connection replaces that connection's session.
-        st.sessions.retain(|s| s.conn != conn);
-        if st.sessions.len() >= MAX_SESSIONS {
-            // The table is full: the oldest session whose connection is gone makes room (its
-            // watchdog first, if it has not fired yet).
-            if let Some(i) = st.sessions.iter().position(|s| s.closed && s.timed_out) {
-                st.sessions.remove(i);
-            }
-        }
-        if st.sessions.len() >= MAX_SESSIONS {
-            return Err((
-                1,
-                0,
-                format!("this fake robot holds at most {MAX_SESSIONS} sessions at once"),
-            ));
-        }
-        let id = st.next_session_id;
-        st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
-        let ms = |v: u32| (v > 0).then(|| Duration::from_millis(u64::from(v)));
-        st.sessions.push(Session {
-            id,
-            conn,
-            connection_timeout: ms(info.connection_inactivity_timeout),
-            session_timeout: ms(info.session_inactivity_timeout),
-            last_frame: Instant::now(),
-            timed_out: false,
-            controls: false,
-            closed: false,
-        });
-        st.stats.sessions_opened += 1;
-        st.created_timeouts_ms = Some((
-            info.connection_inactivity_timeout,
-            info.session_inactivity_timeout,
-        ));
-        tracing::info!(
-            session = format_args!("{id:#06x}"),
-            connection_timeout_ms = info.connection_inactivity_timeout,
-            session_timeout_ms = info.session_inactivity_timeout,
-            "fake Kortex: session open"
-        );
-        return Ok(Vec::new());
+        return create_session(cfg, st, conn, frame);
     }
     let Some(si) = st.sessions.iter().position(|s| s.conn == conn) else {
         return Err((1, 12, "no session on this connection".into()));
@@ -1103,7 +1064,6 @@ fn execute(
     if !read_only(function) {
         st.sessions[si].controls = true;
     }
-    let n = st.n;
     match function {
         Function::CreateSession | Function::KeepAlive => Ok(Vec::new()),
         Function::ClearFaults => {
@@ -1125,82 +1085,14 @@ fn execute(
             st.stats.stops += 1;
             Ok(Vec::new())
         }
-        Function::SetServoingMode => {
-            let m: msg::ServoingModeInformation = decode_req(frame, "ServoingModeInformation")?;
-            match m.servoing_mode {
-                msg::servoing_mode::SINGLE_LEVEL => {
-                    st.single_level_servoing = true;
-                    st.low_level_servoing = false;
-                }
-                msg::servoing_mode::LOW_LEVEL => {
-                    if st.in_fault {
-                        return Err((3, 22, "the robot is in fault".into()));
-                    }
-                    // Speeds in force stop: from now on positions drive the arm.
-                    st.arm.halt();
-                    st.single_level_servoing = false;
-                    st.low_level_servoing = true;
-                    st.last_refresh = Instant::now();
-                    st.cyclic_qdot = [0.0; MAX_JOINTS];
-                    st.first_cmd = None;
-                    tracing::info!("fake Kortex: low-level servoing");
-                }
-                other => {
-                    return Err((
-                        3,
-                        0,
-                        format!("this fake robot does not serve servoing mode {other}"),
-                    ));
-                }
-            }
-            Ok(Vec::new())
-        }
-        Function::GetActuatorCount => Ok(msg::ActuatorInformation {
-            count: cfg.actuator_count,
-        }
-        .encode_to_vec()),
-        Function::GetFirmwareVersion => Ok(msg::FirmwareVersion {
-            firmware_version: cfg.firmware_version,
-        }
-        .encode_to_vec()),
-        Function::GetServoingMode => Ok(msg::ServoingModeInformation {
-            // Unspecified (0) until a session sets one, as the fake starts.
-            servoing_mode: if st.low_level_servoing {
-                msg::servoing_mode::LOW_LEVEL
-            } else if st.single_level_servoing {
-                msg::servoing_mode::SINGLE_LEVEL
-            } else {
-                0
-            },
-        }
-        .encode_to_vec()),
-        Function::GetProductConfiguration => Ok(msg::CompleteProductConfiguration {
-            kin: String::new(),
-            model: cfg.model,
-            degree_of_freedom: u32::try_from(n).unwrap_or(u32::MAX),
-        }
-        .encode_to_vec()),
-        Function::GetArmState => Ok(msg::ArmStateInformation {
-            active_state: msg::arm_state::SERVOING_READY,
-        }
-        .encode_to_vec()),
-        Function::GetKinematicHardLimits => Ok(msg::KinematicLimits {
-            control_mode: 0,
-            twist_linear: 0.3,
-            twist_angular: 0.85f32.to_degrees(),
-            joint_speed_limits: cfg.joint_speed_limits_deg_s.clone(),
-            joint_acceleration_limits: cfg.joint_acceleration_limits_deg_s2.clone(),
-        }
-        .encode_to_vec()),
-        Function::GetMeasuredJointAngles => Ok(msg::JointAngles {
-            joint_angles: (0..n)
-                .map(|j| msg::JointAngle {
-                    joint_identifier: j as u32,
-                    value: angle_rad_to_wire_deg(st.reading.q_rad[j]) as f32,
-                })
-                .collect(),
-        }
-        .encode_to_vec()),
+        Function::SetServoingMode => set_servoing_mode(st, frame),
+        Function::GetActuatorCount
+        | Function::GetFirmwareVersion
+        | Function::GetServoingMode
+        | Function::GetProductConfiguration
+        | Function::GetArmState
+        | Function::GetKinematicHardLimits
+        | Function::GetMeasuredJointAngles => Ok(query(cfg, st, function)),
         Function::RefreshFeedback => {
             st.stats.feedback_requests += 1;
             Ok(state_feedback(st).encode_to_vec())
@@ -1219,55 +1111,199 @@ fn execute(
                 ),
             ))
         }
-        Function::SendJointSpeedsCommand => {
-            let m: msg::JointSpeeds = decode_req(frame, "JointSpeeds")?;
-            let mut v = [0.0; MAX_JOINTS];
-            let mut seen = [false; MAX_JOINTS];
-            for s in &m.joint_speeds {
-                let j = s.joint_identifier as usize;
-                let value = f64::from(s.value);
-                if j >= n || seen[j] || !value.is_finite() {
-                    return Err((3, 0, format!("bad joint speed entry {s:?}")));
-                }
-                let limit = cfg.joint_speed_limits_deg_s.get(j).copied().unwrap_or(0.0);
-                if value.abs() > f64::from(limit) * 1.0001 {
-                    return Err((
-                        3,
-                        0,
-                        format!("joint {j}: {value} deg/s is above the limit {limit} deg/s"),
-                    ));
-                }
-                seen[j] = true;
-                v[j] = value.to_radians();
+        Function::SendJointSpeedsCommand => send_joint_speeds(cfg, st, si, frame),
+        Function::SendGripperCommand => send_gripper_command(st, frame),
+    }
+}
+
+/// `CreateSession`: checks the credentials and opens a session on `conn` (replacing its
+/// previous one; making room in a full table from a timed-out closed session).
+fn create_session(cfg: &FakeConfig, st: &mut State, conn: u64, frame: &Frame) -> CallResult {
+    let info: msg::CreateSessionInfo = decode_req(frame, "CreateSessionInfo")?;
+    if info.username != cfg.credentials.username() || info.password != cfg.credentials.password() {
+        return Err((1, 15, "wrong user name or password".into()));
+    }
+    // A second CreateSession on one connection replaces that connection's session.
+    st.sessions.retain(|s| s.conn != conn);
+    if st.sessions.len() >= MAX_SESSIONS {
+        // The table is full: the oldest session whose connection is gone makes room (its
+        // watchdog first, if it has not fired yet).
+        if let Some(i) = st.sessions.iter().position(|s| s.closed && s.timed_out) {
+            st.sessions.remove(i);
+        }
+    }
+    if st.sessions.len() >= MAX_SESSIONS {
+        return Err((
+            1,
+            0,
+            format!("this fake robot holds at most {MAX_SESSIONS} sessions at once"),
+        ));
+    }
+    let id = st.next_session_id;
+    st.next_session_id = st.next_session_id.wrapping_add(1).max(1);
+    let ms = |v: u32| (v > 0).then(|| Duration::from_millis(u64::from(v)));
+    st.sessions.push(Session {
+        id,
+        conn,
+        connection_timeout: ms(info.connection_inactivity_timeout),
+        session_timeout: ms(info.session_inactivity_timeout),
+        last_frame: Instant::now(),
+        timed_out: false,
+        controls: false,
+        closed: false,
+    });
+    st.stats.sessions_opened += 1;
+    st.created_timeouts_ms = Some((
+        info.connection_inactivity_timeout,
+        info.session_inactivity_timeout,
+    ));
+    tracing::info!(
+        session = format_args!("{id:#06x}"),
+        connection_timeout_ms = info.connection_inactivity_timeout,
+        session_timeout_ms = info.session_inactivity_timeout,
+        "fake Kortex: session open"
+    );
+    Ok(Vec::new())
+}
+
+/// `SetServoingMode`: single-level (speeds) or low-level (positions; not in fault).
+fn set_servoing_mode(st: &mut State, frame: &Frame) -> CallResult {
+    let m: msg::ServoingModeInformation = decode_req(frame, "ServoingModeInformation")?;
+    match m.servoing_mode {
+        msg::servoing_mode::SINGLE_LEVEL => {
+            st.single_level_servoing = true;
+            st.low_level_servoing = false;
+        }
+        msg::servoing_mode::LOW_LEVEL => {
+            if st.in_fault {
+                return Err((3, 22, "the robot is in fault".into()));
             }
-            if !seen[..n].iter().all(|s| *s) {
-                return Err((3, 0, "joint speed commands must name every joint".into()));
-            }
-            st.arm.set_command(&v[..n], 0.0);
-            st.command_from = Some(st.sessions[si].id);
-            st.stats.joint_speed_commands += 1;
-            if st.log.len() == LOG_CAPACITY {
-                st.log.pop_front();
-            }
-            st.log.push_back(v);
+            // Speeds in force stop: from now on positions drive the arm.
+            st.arm.halt();
+            st.single_level_servoing = false;
+            st.low_level_servoing = true;
+            st.last_refresh = Instant::now();
+            st.cyclic_qdot = [0.0; MAX_JOINTS];
+            st.first_cmd = None;
+            tracing::info!("fake Kortex: low-level servoing");
+        }
+        other => {
+            return Err((
+                3,
+                0,
+                format!("this fake robot does not serve servoing mode {other}"),
+            ));
+        }
+    }
+    Ok(Vec::new())
+}
+
+/// The reply of a query (`Get...`): the fake's configuration or the arm's state.
+fn query(cfg: &FakeConfig, st: &State, function: Function) -> Vec<u8> {
+    let n = st.n;
+    match function {
+        Function::GetActuatorCount => msg::ActuatorInformation {
+            count: cfg.actuator_count,
+        }
+        .encode_to_vec(),
+        Function::GetFirmwareVersion => msg::FirmwareVersion {
+            firmware_version: cfg.firmware_version,
+        }
+        .encode_to_vec(),
+        Function::GetServoingMode => msg::ServoingModeInformation {
+            // Unspecified (0) until a session sets one, as the fake starts.
+            servoing_mode: if st.low_level_servoing {
+                msg::servoing_mode::LOW_LEVEL
+            } else if st.single_level_servoing {
+                msg::servoing_mode::SINGLE_LEVEL
+            } else {
+                0
+            },
+        }
+        .encode_to_vec(),
+        Function::GetProductConfiguration => msg::CompleteProductConfiguration {
+            kin: String::new(),
+            model: cfg.model,
+            degree_of_freedom: u32::try_from(n).unwrap_or(u32::MAX),
+        }
+        .encode_to_vec(),
+        Function::GetArmState => msg::ArmStateInformation {
+            active_state: msg::arm_state::SERVOING_READY,
+        }
+        .encode_to_vec(),
+        Function::GetKinematicHardLimits => msg::KinematicLimits {
+            control_mode: 0,
+            twist_linear: 0.3,
+            twist_angular: 0.85f32.to_degrees(),
+            joint_speed_limits: cfg.joint_speed_limits_deg_s.clone(),
+            joint_acceleration_limits: cfg.joint_acceleration_limits_deg_s2.clone(),
+        }
+        .encode_to_vec(),
+        Function::GetMeasuredJointAngles => msg::JointAngles {
+            joint_angles: (0..n)
+                .map(|j| msg::JointAngle {
+                    joint_identifier: j as u32,
+                    value: angle_rad_to_wire_deg(st.reading.q_rad[j]) as f32,
+                })
+                .collect(),
+        }
+        .encode_to_vec(),
+        // Not a query: no payload (`execute` sends only queries here).
+        _ => Vec::new(),
+    }
+}
+
+/// `SendJointSpeedsCommand`: every joint's speed, within its limit, drives the arm.
+fn send_joint_speeds(cfg: &FakeConfig, st: &mut State, si: usize, frame: &Frame) -> CallResult {
+    let n = st.n;
+    let m: msg::JointSpeeds = decode_req(frame, "JointSpeeds")?;
+    let mut v = [0.0; MAX_JOINTS];
+    let mut seen = [false; MAX_JOINTS];
+    for s in &m.joint_speeds {
+        let j = s.joint_identifier as usize;
+        let value = f64::from(s.value);
+        if j >= n || seen[j] || !value.is_finite() {
+            return Err((3, 0, format!("bad joint speed entry {s:?}")));
+        }
+        let limit = cfg.joint_speed_limits_deg_s.get(j).copied().unwrap_or(0.0);
+        if value.abs() > f64::from(limit) * 1.0001 {
+            return Err((
+                3,
+                0,
+                format!("joint {j}: {value} deg/s is above the limit {limit} deg/s"),
+            ));
+        }
+        seen[j] = true;
+        v[j] = value.to_radians();
+    }
+    if !seen[..n].iter().all(|s| *s) {
+        return Err((3, 0, "joint speed commands must name every joint".into()));
+    }
+    st.arm.set_command(&v[..n], 0.0);
+    st.command_from = Some(st.sessions[si].id);
+    st.stats.joint_speed_commands += 1;
+    if st.log.len() == LOG_CAPACITY {
+        st.log.pop_front();
+    }
+    st.log.push_back(v);
+    Ok(Vec::new())
+}
+
+/// `SendGripperCommand`: a position target in [0, 1] for the gripper's finger.
+fn send_gripper_command(st: &mut State, frame: &Frame) -> CallResult {
+    let m: msg::GripperCommand = decode_req(frame, "GripperCommand")?;
+    let finger = m
+        .gripper
+        .as_ref()
+        .and_then(|g| g.finger.first())
+        .filter(|f| f.finger_identifier == msg::GRIPPER_FINGER_ID);
+    match (m.mode, finger) {
+        (msg::gripper_mode::POSITION, Some(f)) if (0.0..=1.0).contains(&f.value) => {
+            st.arm.set_gripper_target(f64::from(f.value));
+            st.stats.gripper_commands += 1;
             Ok(Vec::new())
         }
-        Function::SendGripperCommand => {
-            let m: msg::GripperCommand = decode_req(frame, "GripperCommand")?;
-            let finger = m
-                .gripper
-                .as_ref()
-                .and_then(|g| g.finger.first())
-                .filter(|f| f.finger_identifier == msg::GRIPPER_FINGER_ID);
-            match (m.mode, finger) {
-                (msg::gripper_mode::POSITION, Some(f)) if (0.0..=1.0).contains(&f.value) => {
-                    st.arm.set_gripper_target(f64::from(f.value));
-                    st.stats.gripper_commands += 1;
-                    Ok(Vec::new())
-                }
-                _ => Err((3, 0, format!("unsupported gripper command {m:?}"))),
-            }
-        }
+        _ => Err((3, 0, format!("unsupported gripper command {m:?}"))),
     }
 }
 

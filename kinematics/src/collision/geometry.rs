@@ -273,7 +273,28 @@ pub struct SegmentBox {
 /// point stationary): the gradient is `λ1 n1 + λ2 n2`.
 pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
     let d = q - p;
-    // Pieces: the parameters where the segment crosses a face plane, sorted.
+    let (cuts, n) = face_plane_cuts(p, &d, b);
+    let best_t = nearest_parameter_outside(p, &d, b, &cuts[..n]);
+    let c = p + d * best_t;
+    let clamped = c.sup(&b.min).inf(&b.max);
+    let gap = (c - clamped).norm();
+    if gap > TINY_M {
+        let normal = (c - clamped) / gap;
+        return SegmentBox {
+            t: best_t,
+            point_segment: c,
+            point_box: clamped,
+            distance_m: gap,
+            normal,
+            gradient: normal,
+        };
+    }
+    deepest_inside(p, &d, b)
+}
+
+/// The pieces of the segment `p + t d` (`t` in `[0, 1]`): 0, the parameters where it crosses
+/// a face plane of `b`, and 1, sorted; with how many there are.
+fn face_plane_cuts(p: &Point3<f64>, d: &Vector3<f64>, b: &Aabb) -> ([f64; 8], usize) {
     let mut cuts = [0.0f64; 8];
     let mut n = 1;
     for i in 0..3 {
@@ -297,9 +318,15 @@ pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
             j -= 1;
         }
     }
+    (cuts, n)
+}
+
+/// The parameter of the segment's point nearest to the box: the least of each piece's
+/// minimum of the squared distance (a quadratic on each piece between two `cuts`).
+fn nearest_parameter_outside(p: &Point3<f64>, d: &Vector3<f64>, b: &Aabb, cuts: &[f64]) -> f64 {
     let mut best_t = 0.0;
     let mut best_f = f64::INFINITY;
-    for w in cuts[..n].windows(2) {
+    for w in cuts.windows(2) {
         let (t0, t1) = (w[0], w[1]);
         let tm = 0.5 * (t0 + t1);
         // On this piece each axis is below, inside or above the box throughout.
@@ -329,23 +356,20 @@ pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
             best_t = t;
         }
     }
-    let at = |t: f64| p + d * t;
-    let c = at(best_t);
-    let clamped = c.sup(&b.min).inf(&b.max);
-    let gap = (c - clamped).norm();
-    if gap > TINY_M {
-        let normal = (c - clamped) / gap;
-        return SegmentBox {
-            t: best_t,
-            point_segment: c,
-            point_box: clamped,
-            distance_m: gap,
-            normal,
-            gradient: normal,
-        };
-    }
-    // The segment reaches the box: minimise the largest of the six face functions
-    // g_k(t) = slope_k t + value_k.
+    best_t
+}
+
+/// The outward normal of face `k` of a box (`2 i`: the low face of axis `i`, `2 i + 1` the
+/// high one).
+fn face_normal(k: usize) -> Vector3<f64> {
+    let mut n = Vector3::zeros();
+    n[k / 2] = if k.is_multiple_of(2) { -1.0 } else { 1.0 };
+    n
+}
+
+/// The segment reaches the box: the deepest point, minimising the largest of the six face
+/// functions `g_k(t) = slope_k t + value_k` over the ends and where two of them meet.
+fn deepest_inside(p: &Point3<f64>, d: &Vector3<f64>, b: &Aabb) -> SegmentBox {
     let mut slope = [0.0f64; 6];
     let mut value = [0.0f64; 6];
     for i in 0..3 {
@@ -384,12 +408,7 @@ pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
         }
     }
     let ((depth, face), t) = best;
-    let c = at(t);
-    let face_normal = |k: usize| {
-        let mut n = Vector3::zeros();
-        n[k / 2] = if k.is_multiple_of(2) { -1.0 } else { 1.0 };
-        n
-    };
+    let c = p + d * t;
     let axis = face / 2;
     let mut point_box = c;
     point_box[axis] = if face.is_multiple_of(2) {
@@ -398,25 +417,11 @@ pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
         b.max[axis]
     };
     let normal = face_normal(face);
-    // The faces as near as the chosen one: the most decreasing and most increasing of them.
-    let mut gradient = normal;
-    if t > 0.0 && t < 1.0 {
-        let (mut down, mut up) = (None::<usize>, None::<usize>);
-        for k in 0..6 {
-            if (slope[k] * t + value[k] - depth).abs() <= 1e-12 {
-                if slope[k] < 0.0 && down.is_none_or(|j| slope[k] < slope[j]) {
-                    down = Some(k);
-                }
-                if slope[k] > 0.0 && up.is_none_or(|j| slope[k] > slope[j]) {
-                    up = Some(k);
-                }
-            }
-        }
-        if let (Some(k1), Some(k2)) = (down, up) {
-            let (s1, s2) = (slope[k1], slope[k2]);
-            gradient = face_normal(k1) * (s2 / (s2 - s1)) - face_normal(k2) * (s1 / (s2 - s1));
-        }
-    }
+    let gradient = if t > 0.0 && t < 1.0 {
+        meeting_faces_gradient(&slope, &value, t, depth).unwrap_or(normal)
+    } else {
+        normal
+    };
     SegmentBox {
         t,
         point_segment: c,
@@ -425,6 +430,31 @@ pub fn segment_box(p: &Point3<f64>, q: &Point3<f64>, b: &Aabb) -> SegmentBox {
         normal,
         gradient,
     }
+}
+
+/// At a minimum inside the segment: the faces as near as the chosen one (at `depth`), the
+/// most decreasing and most increasing of them, and their normals weighted by the
+/// multipliers that keep the meeting point stationary; `None` without such a pair.
+fn meeting_faces_gradient(
+    slope: &[f64; 6],
+    value: &[f64; 6],
+    t: f64,
+    depth: f64,
+) -> Option<Vector3<f64>> {
+    let (mut down, mut up) = (None::<usize>, None::<usize>);
+    for k in 0..6 {
+        if (slope[k] * t + value[k] - depth).abs() <= 1e-12 {
+            if slope[k] < 0.0 && down.is_none_or(|j| slope[k] < slope[j]) {
+                down = Some(k);
+            }
+            if slope[k] > 0.0 && up.is_none_or(|j| slope[k] > slope[j]) {
+                up = Some(k);
+            }
+        }
+    }
+    let (k1, k2) = (down?, up?);
+    let (s1, s2) = (slope[k1], slope[k2]);
+    Some(face_normal(k1) * (s2 / (s2 - s1)) - face_normal(k2) * (s1 / (s2 - s1)))
 }
 
 #[cfg(test)]

@@ -245,158 +245,15 @@ impl CollisionModel {
         robot: &RobotModel,
         arm: &ModelArm<'_>,
     ) -> Result<Self, CollisionError> {
-        let parsed: FileToml = toml::from_str(text).map_err(|e| CollisionError::Parse {
-            file: file.to_owned(),
-            reason: e.to_string().trim_end().to_owned(),
-        })?;
-        if parsed.version != FILE_VERSION {
-            return Err(CollisionError::Version {
-                file: file.to_owned(),
-                found: parsed.version,
-            });
-        }
-        let value = |link: &str, field: &str, v: String, reason: &str| CollisionError::Value {
-            file: file.to_owned(),
-            link: link.to_owned(),
-            field: field.to_owned(),
-            value: v,
-            reason: reason.to_owned(),
-        };
-        if !(parsed.margin_m.is_finite() && (0.0..=0.1).contains(&parsed.margin_m)) {
-            return Err(value(
-                "(file)",
-                "margin_m",
-                parsed.margin_m.to_string(),
-                "the margin must be a finite number of metres in [0, 0.1]",
-            ));
-        }
-        if !parsed.gripper_default_rad.is_finite() {
-            return Err(value(
-                "(file)",
-                "gripper_default_rad",
-                parsed.gripper_default_rad.to_string(),
-                "must be a finite angle (rad)",
-            ));
-        }
-        // Kinematics: the arm chain to the tool link, the other links hung from it.
-        let chain = robot.chain(arm.base_link, arm.tool_link)?;
-        let robot_err = |reason: String| CollisionError::Robot {
-            file: robot.file().to_owned(),
-            reason,
-        };
+        let load = Loader { file, robot, arm };
+        let parsed = load.parse(text)?;
+        let chain = load.arm_chain()?;
+        let (file_links, own) = load.intern_links(&parsed)?;
+        let by_link = load.check_links(&parsed, &file_links)?;
+        load.check_bodies(&chain, &own, &by_link)?;
         let (base_name, tip_name) = (arm.base_link, arm.tool_link);
-        if chain.joint_names() != arm.joint_names {
-            return Err(robot_err(format!(
-                "the chain {base_name} -> {tip_name} has the joints {:?}; {} has {:?}",
-                chain.joint_names(),
-                arm.name,
-                arm.joint_names
-            )));
-        }
-        if chain.n_links() > MAX_CHAIN_LINKS {
-            return Err(robot_err(format!(
-                "the chain {base_name} -> {tip_name} has {} links; at most {MAX_CHAIN_LINKS} are supported",
-                chain.n_links()
-            )));
-        }
-
-        // The file's links: links of the robot description, by name.
-        let known = || robot.links().join(", ");
-        // Each `[[link]]`'s link, in file order; `own`: the model's links, in index order.
-        let mut file_links: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
-        let mut own: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
-        for (i, l) in parsed.link.iter().enumerate() {
-            if !robot.links().contains(&l.name) {
-                return Err(CollisionError::UnknownLink {
-                    arm: arm.name.into(),
-                    file: file.to_owned(),
-                    field: format!("link[{i}].name"),
-                    name: l.name.clone(),
-                    known: known(),
-                });
-            }
-            let link = CollisionLink::intern(&l.name).ok_or_else(|| CollisionError::Capacity {
-                file: file.to_owned(),
-                reason: format!(
-                    "link `{}`: the process knows {} link names already, the most it holds",
-                    l.name,
-                    CollisionLink::MAX
-                ),
-            })?;
-            file_links.push(link);
-            if !own.contains(&link) {
-                own.push(link);
-            }
-        }
-        own.sort();
-        let find = |name: &str| CollisionLink::from_name(name).filter(|l| own.contains(l));
-
-        // Links: each at most once, with at least one capsule.
-        let mut by_link = vec![None; CollisionLink::MAX];
-        for (i, (l, link)) in parsed.link.iter().zip(&file_links).enumerate() {
-            if by_link[link.index()].is_some() {
-                return Err(CollisionError::Link {
-                    file: file.to_owned(),
-                    link: l.name.clone(),
-                    reason: "listed twice; give all its capsules under one [[link]]".into(),
-                });
-            }
-            if l.capsule.is_empty() {
-                return Err(CollisionError::Link {
-                    file: file.to_owned(),
-                    link: l.name.clone(),
-                    reason: "has no [[link.capsule]]; every link needs at least one".into(),
-                });
-            }
-            for (k, c) in l.capsule.iter().enumerate() {
-                for (end, p) in [("a", c.a), ("b", c.b)] {
-                    if let Some(v) = p
-                        .iter()
-                        .find(|v| !(v.is_finite() && v.abs() <= MAX_COORDINATE_M))
-                    {
-                        return Err(value(
-                            &l.name,
-                            &format!("capsule[{k}].{end}"),
-                            format!("{p:?}"),
-                            &format!(
-                                "{v} is not a finite coordinate within {MAX_COORDINATE_M} m of the link frame (the unit is metres)"
-                            ),
-                        ));
-                    }
-                }
-                if !(c.radius_m.is_finite() && c.radius_m > 0.0 && c.radius_m <= MAX_COORDINATE_M) {
-                    return Err(value(
-                        &l.name,
-                        &format!("capsule[{k}].radius_m"),
-                        c.radius_m.to_string(),
-                        "a radius must be a positive finite number of metres",
-                    ));
-                }
-            }
-            by_link[link.index()] = Some(i);
-        }
-        // The bodies of the chain: the links that the same joints move are one body (a link
-        // and the frames fixed to it, such as an end-effector frame), and each body needs
-        // capsules on one of its links.
-        let moved = |n: &str| chain.link_id(n).map_or(0, |id| chain.joints_before(id));
-        let has = |n: &str| find(n).is_some_and(|l| by_link[l.index()].is_some());
-        for k in 0..=chain.n_joints() {
-            let body: Vec<&str> = chain.link_names().filter(|n| moved(n) == k).collect();
-            if !body.is_empty() && !body.iter().any(|n| has(n)) {
-                return Err(CollisionError::Link {
-                    file: file.to_owned(),
-                    link: body.join(" / "),
-                    reason: format!(
-                        "has no [[link]] entry; every body of {}'s chain {base_name} -> {tip_name} (the links the same joints move) needs capsules",
-                        arm.name
-                    ),
-                });
-            }
-        }
-        let (Some(base), Some(tool)) = (find(base_name), find(tip_name)) else {
-            return Err(robot_err(format!(
-                "{base_name} and {tip_name} need capsules"
-            )));
+        let (Some(base), Some(tool)) = (find(&own, base_name), find(&own, tip_name)) else {
+            return Err(load.robot_err(format!("{base_name} and {tip_name} need capsules")));
         };
         let n_capsules: usize = parsed.link.iter().map(|l| l.capsule.len()).sum();
         if n_capsules > MAX_CAPSULES {
@@ -405,128 +262,14 @@ impl CollisionModel {
                 reason: format!("{n_capsules} capsules; a model holds at most {MAX_CAPSULES}"),
             });
         }
-
-        // Exclusions.
-        let mut exclusions: Vec<Exclusion> = Vec::with_capacity(parsed.exclude.len());
-        for (index, e) in parsed.exclude.iter().enumerate() {
-            let bad = |reason: String| CollisionError::Exclusion {
-                file: file.to_owned(),
-                index,
-                reason,
-            };
-            let mut pair = [CollisionLink::Base; 2];
-            for (slot, name) in pair.iter_mut().zip(&e.links) {
-                *slot = find(name).ok_or_else(|| CollisionError::UnknownLink {
-                    arm: arm.name.into(),
-                    file: file.to_owned(),
-                    field: format!("exclude[{index}].links"),
-                    name: name.clone(),
-                    known: known(),
-                })?;
-            }
-            let [a, b] = pair;
-            if a == b {
-                return Err(bad(format!("`{a}` is paired with itself")));
-            }
-            if e.why.trim().is_empty() {
-                return Err(bad(format!(
-                    "{a} / {b}: `why` is empty; say why the pair cannot collide"
-                )));
-            }
-            if exclusions
-                .iter()
-                .any(|x| (x.a == a && x.b == b) || (x.a == b && x.b == a))
-            {
-                return Err(bad(format!("{a} / {b} is excluded twice")));
-            }
-            exclusions.push(Exclusion {
-                a,
-                b,
-                why: e.why.clone(),
-            });
-        }
-
-        let n_links = own.last().map_or(0, |l| l.index() + 1);
-        let mut links: Vec<LinkGeom> = Vec::with_capacity(n_links);
-        let mut capsules = Vec::with_capacity(n_capsules);
-        let mut refs = Vec::with_capacity(n_capsules);
-        for link in (0..n_links).filter_map(CollisionLink::from_index) {
-            let Some(entry) = by_link[link.index()].map(|i| &parsed.link[i]) else {
-                links.push(LinkGeom {
-                    source: Source::Absent,
-                    moved_by: 0,
-                    first: capsules.len(),
-                    end: capsules.len(),
-                    table: false,
-                });
-                continue;
-            };
-            let source = match chain.link_id(link.name()) {
-                Some(id) => Source::Chain(chain.link_index(id)),
-                None => hang(robot, &chain, link, arm.gripper_joint, &robot_err)?,
-            };
-            let moved_by = match &source {
-                Source::Chain(i) => chain_moved_by(&chain, *i),
-                Source::Joint { parent, .. } => match parent {
-                    Parent::Chain(i) => chain_moved_by(&chain, *i),
-                    Parent::Link(k) => links[*k].moved_by,
-                },
-                Source::Absent => 0,
-            };
-            let first = capsules.len();
-            for (k, c) in entry.capsule.iter().enumerate() {
-                capsules.push(Capsule::new(
-                    Point3::from(c.a),
-                    Point3::from(c.b),
-                    c.radius_m + parsed.margin_m,
-                ));
-                refs.push(CapsuleRef {
-                    link,
-                    index: u8::try_from(k).unwrap_or(u8::MAX),
-                });
-            }
-            links.push(LinkGeom {
-                source,
-                moved_by,
-                first,
-                end: capsules.len(),
-                table: entry.table,
-            });
-        }
-
-        // Pairs.
-        let excluded = |a: CollisionLink, b: CollisionLink| {
-            exclusions
-                .iter()
-                .any(|x| (x.a == a && x.b == b) || (x.a == b && x.b == a))
-        };
-        let mut self_pairs = Vec::new();
-        let mut self_ids = Vec::new();
-        for (i, la) in own.iter().copied().enumerate() {
-            for lb in own.iter().copied().skip(i + 1) {
-                if excluded(la, lb) {
-                    continue;
-                }
-                for ca in links[la.index()].first..links[la.index()].end {
-                    for cb in links[lb.index()].first..links[lb.index()].end {
-                        self_pairs.push((ca as u16, cb as u16));
-                        self_ids.push(PairId {
-                            a: refs[ca],
-                            b: Target::Capsule(refs[cb]),
-                        });
-                    }
-                }
-            }
-        }
-        if self_pairs.len() > MAX_SELF_PAIRS {
-            return Err(CollisionError::Capacity {
-                file: file.to_owned(),
-                reason: format!(
-                    "{} capsule pairs to check; at most {MAX_SELF_PAIRS} are supported (exclude more link pairs or use fewer capsules)",
-                    self_pairs.len()
-                ),
-            });
-        }
+        let exclusions = load.exclusions(&parsed, &own)?;
+        let geometry = load.geometry(&parsed, &chain, &own, &by_link, n_capsules)?;
+        let (self_pairs, self_ids) = load.self_pairs(&own, &geometry, &exclusions)?;
+        let Geometry {
+            links,
+            capsules,
+            refs,
+        } = geometry;
         let table_capsules = links
             .iter()
             .filter(|l| l.table)
@@ -553,6 +296,392 @@ impl CollisionModel {
             table_capsules,
             exclusions,
         })
+    }
+}
+
+/// The model's link `name`, if the file gives it capsules (`own`: the model's links).
+fn find(own: &[CollisionLink], name: &str) -> Option<CollisionLink> {
+    CollisionLink::from_name(name).filter(|l| own.contains(l))
+}
+
+/// Whether the pair `a` / `b` (either way round) is excluded.
+fn is_excluded(exclusions: &[Exclusion], a: CollisionLink, b: CollisionLink) -> bool {
+    exclusions
+        .iter()
+        .any(|x| (x.a == a && x.b == b) || (x.a == b && x.b == a))
+}
+
+/// The capsule pairs of the arm to check (indices into the capsules) and their names.
+type SelfPairs = (Vec<(u16, u16)>, Vec<PairId>);
+
+/// The links, capsules (margin included) and capsule names of a model, in link index order.
+struct Geometry {
+    links: Vec<LinkGeom>,
+    capsules: Vec<Capsule>,
+    refs: Vec<CapsuleRef>,
+}
+
+/// What [`CollisionModel::for_arm`] reads a file against, and names in its errors: the
+/// file, the robot description and the arm.
+struct Loader<'a> {
+    file: &'a str,
+    robot: &'a RobotModel,
+    arm: &'a ModelArm<'a>,
+}
+
+impl Loader<'_> {
+    /// A field of the file (of `link`, or `(file)`) with a bad value.
+    fn value(&self, link: &str, field: &str, v: String, reason: &str) -> CollisionError {
+        CollisionError::Value {
+            file: self.file.to_owned(),
+            link: link.to_owned(),
+            field: field.to_owned(),
+            value: v,
+            reason: reason.to_owned(),
+        }
+    }
+
+    /// The robot description does not fit the arm.
+    fn robot_err(&self, reason: String) -> CollisionError {
+        CollisionError::Robot {
+            file: self.robot.file().to_owned(),
+            reason,
+        }
+    }
+
+    /// The robot description's links, for an unknown-link error.
+    fn known(&self) -> String {
+        self.robot.links().join(", ")
+    }
+
+    /// Parses the file and checks its version, margin and default gripper angle.
+    fn parse(&self, text: &str) -> Result<FileToml, CollisionError> {
+        let file = self.file;
+        let parsed: FileToml = toml::from_str(text).map_err(|e| CollisionError::Parse {
+            file: file.to_owned(),
+            reason: e.to_string().trim_end().to_owned(),
+        })?;
+        if parsed.version != FILE_VERSION {
+            return Err(CollisionError::Version {
+                file: file.to_owned(),
+                found: parsed.version,
+            });
+        }
+        if !(parsed.margin_m.is_finite() && (0.0..=0.1).contains(&parsed.margin_m)) {
+            return Err(self.value(
+                "(file)",
+                "margin_m",
+                parsed.margin_m.to_string(),
+                "the margin must be a finite number of metres in [0, 0.1]",
+            ));
+        }
+        if !parsed.gripper_default_rad.is_finite() {
+            return Err(self.value(
+                "(file)",
+                "gripper_default_rad",
+                parsed.gripper_default_rad.to_string(),
+                "must be a finite angle (rad)",
+            ));
+        }
+        Ok(parsed)
+    }
+
+    /// Kinematics: the arm chain to the tool link (the other links hang from it), checked
+    /// against the arm's joints and the supported length.
+    fn arm_chain(&self) -> Result<Chain, CollisionError> {
+        let (robot, arm) = (self.robot, self.arm);
+        let chain = robot.chain(arm.base_link, arm.tool_link)?;
+        let (base_name, tip_name) = (arm.base_link, arm.tool_link);
+        if chain.joint_names() != arm.joint_names {
+            return Err(self.robot_err(format!(
+                "the chain {base_name} -> {tip_name} has the joints {:?}; {} has {:?}",
+                chain.joint_names(),
+                arm.name,
+                arm.joint_names
+            )));
+        }
+        if chain.n_links() > MAX_CHAIN_LINKS {
+            return Err(self.robot_err(format!(
+                "the chain {base_name} -> {tip_name} has {} links; at most {MAX_CHAIN_LINKS} are supported",
+                chain.n_links()
+            )));
+        }
+        Ok(chain)
+    }
+
+    /// The file's links: links of the robot description, by name. Returns each `[[link]]`'s
+    /// link, in file order, and the model's links, in index order.
+    fn intern_links(
+        &self,
+        parsed: &FileToml,
+    ) -> Result<(Vec<CollisionLink>, Vec<CollisionLink>), CollisionError> {
+        let file = self.file;
+        let mut file_links: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
+        let mut own: Vec<CollisionLink> = Vec::with_capacity(parsed.link.len());
+        for (i, l) in parsed.link.iter().enumerate() {
+            if !self.robot.links().contains(&l.name) {
+                return Err(CollisionError::UnknownLink {
+                    arm: self.arm.name.into(),
+                    file: file.to_owned(),
+                    field: format!("link[{i}].name"),
+                    name: l.name.clone(),
+                    known: self.known(),
+                });
+            }
+            let link = CollisionLink::intern(&l.name).ok_or_else(|| CollisionError::Capacity {
+                file: file.to_owned(),
+                reason: format!(
+                    "link `{}`: the process knows {} link names already, the most it holds",
+                    l.name,
+                    CollisionLink::MAX
+                ),
+            })?;
+            file_links.push(link);
+            if !own.contains(&link) {
+                own.push(link);
+            }
+        }
+        own.sort();
+        Ok((file_links, own))
+    }
+
+    /// Links: each at most once, with at least one capsule, every capsule finite and within
+    /// reach. Returns the `[[link]]` index of each link (by link index).
+    fn check_links(
+        &self,
+        parsed: &FileToml,
+        file_links: &[CollisionLink],
+    ) -> Result<Vec<Option<usize>>, CollisionError> {
+        let file = self.file;
+        let mut by_link = vec![None; CollisionLink::MAX];
+        for (i, (l, link)) in parsed.link.iter().zip(file_links).enumerate() {
+            if by_link[link.index()].is_some() {
+                return Err(CollisionError::Link {
+                    file: file.to_owned(),
+                    link: l.name.clone(),
+                    reason: "listed twice; give all its capsules under one [[link]]".into(),
+                });
+            }
+            if l.capsule.is_empty() {
+                return Err(CollisionError::Link {
+                    file: file.to_owned(),
+                    link: l.name.clone(),
+                    reason: "has no [[link.capsule]]; every link needs at least one".into(),
+                });
+            }
+            for (k, c) in l.capsule.iter().enumerate() {
+                self.check_capsule(&l.name, k, c)?;
+            }
+            by_link[link.index()] = Some(i);
+        }
+        Ok(by_link)
+    }
+
+    /// Capsule `k` of `link`: finite end points within reach of the link frame, a positive
+    /// finite radius.
+    fn check_capsule(&self, link: &str, k: usize, c: &CapsuleToml) -> Result<(), CollisionError> {
+        for (end, p) in [("a", c.a), ("b", c.b)] {
+            if let Some(v) = p
+                .iter()
+                .find(|v| !(v.is_finite() && v.abs() <= MAX_COORDINATE_M))
+            {
+                return Err(self.value(
+                    link,
+                    &format!("capsule[{k}].{end}"),
+                    format!("{p:?}"),
+                    &format!(
+                        "{v} is not a finite coordinate within {MAX_COORDINATE_M} m of the link frame (the unit is metres)"
+                    ),
+                ));
+            }
+        }
+        if !(c.radius_m.is_finite() && c.radius_m > 0.0 && c.radius_m <= MAX_COORDINATE_M) {
+            return Err(self.value(
+                link,
+                &format!("capsule[{k}].radius_m"),
+                c.radius_m.to_string(),
+                "a radius must be a positive finite number of metres",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The bodies of the chain: the links that the same joints move are one body (a link
+    /// and the frames fixed to it, such as an end-effector frame), and each body needs
+    /// capsules on one of its links.
+    fn check_bodies(
+        &self,
+        chain: &Chain,
+        own: &[CollisionLink],
+        by_link: &[Option<usize>],
+    ) -> Result<(), CollisionError> {
+        let (base_name, tip_name) = (self.arm.base_link, self.arm.tool_link);
+        let moved = |n: &str| chain.link_id(n).map_or(0, |id| chain.joints_before(id));
+        let has = |n: &str| find(own, n).is_some_and(|l| by_link[l.index()].is_some());
+        for k in 0..=chain.n_joints() {
+            let body: Vec<&str> = chain.link_names().filter(|n| moved(n) == k).collect();
+            if !body.is_empty() && !body.iter().any(|n| has(n)) {
+                return Err(CollisionError::Link {
+                    file: self.file.to_owned(),
+                    link: body.join(" / "),
+                    reason: format!(
+                        "has no [[link]] entry; every body of {}'s chain {base_name} -> {tip_name} (the links the same joints move) needs capsules",
+                        self.arm.name
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The excluded pairs: links of the model, each pair once, never a link with itself,
+    /// each with a reason.
+    fn exclusions(
+        &self,
+        parsed: &FileToml,
+        own: &[CollisionLink],
+    ) -> Result<Vec<Exclusion>, CollisionError> {
+        let file = self.file;
+        let mut exclusions: Vec<Exclusion> = Vec::with_capacity(parsed.exclude.len());
+        for (index, e) in parsed.exclude.iter().enumerate() {
+            let bad = |reason: String| CollisionError::Exclusion {
+                file: file.to_owned(),
+                index,
+                reason,
+            };
+            let mut pair = [CollisionLink::Base; 2];
+            for (slot, name) in pair.iter_mut().zip(&e.links) {
+                *slot = find(own, name).ok_or_else(|| CollisionError::UnknownLink {
+                    arm: self.arm.name.into(),
+                    file: file.to_owned(),
+                    field: format!("exclude[{index}].links"),
+                    name: name.clone(),
+                    known: self.known(),
+                })?;
+            }
+            let [a, b] = pair;
+            if a == b {
+                return Err(bad(format!("`{a}` is paired with itself")));
+            }
+            if e.why.trim().is_empty() {
+                return Err(bad(format!(
+                    "{a} / {b}: `why` is empty; say why the pair cannot collide"
+                )));
+            }
+            if is_excluded(&exclusions, a, b) {
+                return Err(bad(format!("{a} / {b} is excluded twice")));
+            }
+            exclusions.push(Exclusion {
+                a,
+                b,
+                why: e.why.clone(),
+            });
+        }
+        Ok(exclusions)
+    }
+
+    /// Each link's frame (on the chain or hung from it), the joints that move it and its
+    /// capsules, with the margin added to their radii.
+    fn geometry(
+        &self,
+        parsed: &FileToml,
+        chain: &Chain,
+        own: &[CollisionLink],
+        by_link: &[Option<usize>],
+        n_capsules: usize,
+    ) -> Result<Geometry, CollisionError> {
+        let robot_err = |reason: String| self.robot_err(reason);
+        let n_links = own.last().map_or(0, |l| l.index() + 1);
+        let mut links: Vec<LinkGeom> = Vec::with_capacity(n_links);
+        let mut capsules = Vec::with_capacity(n_capsules);
+        let mut refs = Vec::with_capacity(n_capsules);
+        for link in (0..n_links).filter_map(CollisionLink::from_index) {
+            let Some(entry) = by_link[link.index()].map(|i| &parsed.link[i]) else {
+                links.push(LinkGeom {
+                    source: Source::Absent,
+                    moved_by: 0,
+                    first: capsules.len(),
+                    end: capsules.len(),
+                    table: false,
+                });
+                continue;
+            };
+            let source = match chain.link_id(link.name()) {
+                Some(id) => Source::Chain(chain.link_index(id)),
+                None => hang(self.robot, chain, link, self.arm.gripper_joint, &robot_err)?,
+            };
+            let moved_by = match &source {
+                Source::Chain(i) => chain_moved_by(chain, *i),
+                Source::Joint { parent, .. } => match parent {
+                    Parent::Chain(i) => chain_moved_by(chain, *i),
+                    Parent::Link(k) => links[*k].moved_by,
+                },
+                Source::Absent => 0,
+            };
+            let first = capsules.len();
+            for (k, c) in entry.capsule.iter().enumerate() {
+                capsules.push(Capsule::new(
+                    Point3::from(c.a),
+                    Point3::from(c.b),
+                    c.radius_m + parsed.margin_m,
+                ));
+                refs.push(CapsuleRef {
+                    link,
+                    index: u8::try_from(k).unwrap_or(u8::MAX),
+                });
+            }
+            links.push(LinkGeom {
+                source,
+                moved_by,
+                first,
+                end: capsules.len(),
+                table: entry.table,
+            });
+        }
+        Ok(Geometry {
+            links,
+            capsules,
+            refs,
+        })
+    }
+
+    /// The capsule pairs to check against each other: every capsule of each link pair that
+    /// is not excluded, with their names; at most [`MAX_SELF_PAIRS`].
+    fn self_pairs(
+        &self,
+        own: &[CollisionLink],
+        geometry: &Geometry,
+        exclusions: &[Exclusion],
+    ) -> Result<SelfPairs, CollisionError> {
+        let (links, refs) = (&geometry.links, &geometry.refs);
+        let mut self_pairs = Vec::new();
+        let mut self_ids = Vec::new();
+        for (i, la) in own.iter().copied().enumerate() {
+            for lb in own.iter().copied().skip(i + 1) {
+                if is_excluded(exclusions, la, lb) {
+                    continue;
+                }
+                for ca in links[la.index()].first..links[la.index()].end {
+                    for cb in links[lb.index()].first..links[lb.index()].end {
+                        self_pairs.push((ca as u16, cb as u16));
+                        self_ids.push(PairId {
+                            a: refs[ca],
+                            b: Target::Capsule(refs[cb]),
+                        });
+                    }
+                }
+            }
+        }
+        if self_pairs.len() > MAX_SELF_PAIRS {
+            return Err(CollisionError::Capacity {
+                file: self.file.to_owned(),
+                reason: format!(
+                    "{} capsule pairs to check; at most {MAX_SELF_PAIRS} are supported (exclude more link pairs or use fewer capsules)",
+                    self_pairs.len()
+                ),
+            });
+        }
+        Ok((self_pairs, self_ids))
     }
 }
 

@@ -302,90 +302,16 @@ struct Entry {
 pub fn run(args: &GreedyUserArgs, command: &str) -> Result<Outcome, ToolError> {
     let run = Run::new("greedy-user", &args.common, DEFAULT_EPOCHS, command)?;
     let task = Task::PlanarReach;
-    if args.test_trajectories == 0 {
-        return Err(ExperimentError::Option {
-            option: "--test-trajectories",
-            reason: "must be at least 1".into(),
-        }
-        .into());
-    }
-    if args.candidates == 0 {
-        return Err(ExperimentError::Option {
-            option: "--candidates",
-            reason: "must be at least 1".into(),
-        }
-        .into());
-    }
-    if !(args.horizon.is_finite() && args.horizon > 0.0) {
-        return Err(ExperimentError::Option {
-            option: "--horizon",
-            reason: format!("{}: expected a positive number", args.horizon),
-        }
-        .into());
-    }
+    check_options(args)?;
     let chain = kinematics::planar5::get();
     let m = chain.n_joints();
     let (data_dir, ds) = run.data(task, true)?;
     let ds = Arc::new(ds);
-    let mut groups: Vec<Group> = Vec::new();
-    let mut entries: Vec<Entry> = Vec::new();
-    if args.common.models.is_empty() {
-        let variants = parse_variants(&args.variants)?;
-        let jobs = super::seed_jobs(&run, task, &variants, &data_dir, &ds);
-        let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
-        run.ensure_models(&plain)?;
-        for v in &variants {
-            groups.push(Group {
-                name: v.name().to_owned(),
-                label: label(*v).to_owned(),
-                kind: v.kind(),
-                gram_schmidt: *v == Variant::Scl,
-                models: Vec::new(),
-            });
-        }
-        for (v, k, job) in jobs {
-            let group = variants.iter().position(|x| *x == v).unwrap_or_default();
-            entries.push(Entry {
-                group,
-                index: k,
-                model: super::load_model(&job.path)?,
-                cache: Some(
-                    run.out
-                        .join("greedy")
-                        .join(v.name())
-                        .join(format!("seed-{k}.csv")),
-                ),
-                path: job.path,
-            });
-        }
+    let (mut groups, entries) = if args.common.models.is_empty() {
+        trained_models(&run, args, &data_dir, &ds)?
     } else {
-        for (path, model) in super::given_models(&args.common.models)? {
-            let h = model.header();
-            let settings = super::describe_header(h);
-            let group = match groups.iter().position(|g| g.name == settings) {
-                Some(g) => g,
-                None => {
-                    groups.push(Group {
-                        name: settings.clone(),
-                        label: settings.split(", ").take(3).collect::<Vec<_>>().join(" "),
-                        kind: h.kind,
-                        gram_schmidt: h.kind == ModelKind::Scl
-                            && h.network.as_ref().is_some_and(|n| n.gram_schmidt),
-                        models: Vec::new(),
-                    });
-                    groups.len() - 1
-                }
-            };
-            let index = entries.iter().filter(|e| e.group == group).count();
-            entries.push(Entry {
-                group,
-                index,
-                path,
-                model,
-                cache: None,
-            });
-        }
-    }
+        given_models(args)?
+    };
     for e in &entries {
         let h = e.model.header();
         if h.n_joints != m || h.latent_dim != 2 {
@@ -428,6 +354,110 @@ pub fn run(args: &GreedyUserArgs, command: &str) -> Result<Outcome, ToolError> {
     let outcome = analyse(groups, run.out.clone());
     write_outputs(&run, args, &data_dir, &ds, &cfg, &legs, &outcome)?;
     Ok(outcome)
+}
+
+/// The options' checks: test trajectories and candidates at least 1, a positive horizon.
+fn check_options(args: &GreedyUserArgs) -> Result<(), ToolError> {
+    if args.test_trajectories == 0 {
+        return Err(ExperimentError::Option {
+            option: "--test-trajectories",
+            reason: "must be at least 1".into(),
+        }
+        .into());
+    }
+    if args.candidates == 0 {
+        return Err(ExperimentError::Option {
+            option: "--candidates",
+            reason: "must be at least 1".into(),
+        }
+        .into());
+    }
+    if !(args.horizon.is_finite() && args.horizon > 0.0) {
+        return Err(ExperimentError::Option {
+            option: "--horizon",
+            reason: format!("{}: expected a positive number", args.horizon),
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// The groups of models and the models to evaluate.
+type Models = (Vec<Group>, Vec<Entry>);
+
+/// Without `--models`: the variants of `--variants` per seed, trained (or reused) on the
+/// planar reach's data, one group per variant, their evaluations cached.
+fn trained_models(
+    run: &Run,
+    args: &GreedyUserArgs,
+    data_dir: &Path,
+    ds: &Arc<crate::dataset::Dataset>,
+) -> Result<Models, ToolError> {
+    let task = Task::PlanarReach;
+    let mut groups: Vec<Group> = Vec::new();
+    let mut entries: Vec<Entry> = Vec::new();
+    let variants = parse_variants(&args.variants)?;
+    let jobs = super::seed_jobs(run, task, &variants, data_dir, ds);
+    let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
+    run.ensure_models(&plain)?;
+    for v in &variants {
+        groups.push(Group {
+            name: v.name().to_owned(),
+            label: label(*v).to_owned(),
+            kind: v.kind(),
+            gram_schmidt: *v == Variant::Scl,
+            models: Vec::new(),
+        });
+    }
+    for (v, k, job) in jobs {
+        let group = variants.iter().position(|x| *x == v).unwrap_or_default();
+        entries.push(Entry {
+            group,
+            index: k,
+            model: super::load_model(&job.path)?,
+            cache: Some(
+                run.out
+                    .join("greedy")
+                    .join(v.name())
+                    .join(format!("seed-{k}.csv")),
+            ),
+            path: job.path,
+        });
+    }
+    Ok((groups, entries))
+}
+
+/// With `--models`: the given files, grouped by their settings.
+fn given_models(args: &GreedyUserArgs) -> Result<Models, ToolError> {
+    let mut groups: Vec<Group> = Vec::new();
+    let mut entries: Vec<Entry> = Vec::new();
+    for (path, model) in super::given_models(&args.common.models)? {
+        let h = model.header();
+        let settings = super::describe_header(h);
+        let group = match groups.iter().position(|g| g.name == settings) {
+            Some(g) => g,
+            None => {
+                groups.push(Group {
+                    name: settings.clone(),
+                    label: settings.split(", ").take(3).collect::<Vec<_>>().join(" "),
+                    kind: h.kind,
+                    gram_schmidt: h.kind == ModelKind::Scl
+                        && h.network.as_ref().is_some_and(|n| n.gram_schmidt),
+                    models: Vec::new(),
+                });
+                groups.len() - 1
+            }
+        };
+        let index = entries.iter().filter(|e| e.group == group).count();
+        entries.push(Entry {
+            group,
+            index,
+            path,
+            model,
+            cache: None,
+        });
+    }
+    Ok((groups, entries))
 }
 
 /// The variants named in `--variants`.
@@ -717,48 +747,7 @@ fn checks(o: &Outcome, scl: Option<usize>, no_gs: Option<usize>) -> Vec<Check> {
         });
     }
     for unit in [Unit::Model, Unit::Trajectory] {
-        let Some(f) = o.family("paper", Metric::Return, unit) else {
-            continue;
-        };
-        let Some(t) = &f.tests else {
-            continue;
-        };
-        let pos = |g: usize| f.groups.iter().position(|x| *x == g);
-        let pairs: Vec<&stats::DunnPair> = t
-            .dunn
-            .iter()
-            .filter(|d| {
-                let (a, b) = (f.groups[d.a], f.groups[d.b]);
-                (a == cae && scls.contains(&b)) || (b == cae && scls.contains(&a))
-            })
-            .collect();
-        let holds = t.kruskal.p < 0.05
-            && pairs.len() == scls.len()
-            && pairs.iter().all(|d| d.p_holm < 0.05)
-            && pos(cae).is_some();
-        out.push(Check {
-            statement: format!(
-                "significant difference between CAE and both SCL versions in the back-to-start error (Kruskal-Wallis p < 0.05, then Dunn, Holm-adjusted p < 0.05; one observation per {})",
-                if unit == Unit::Model { "model: its mean over the test trajectories" } else { "trajectory and model" }
-            ),
-            holds,
-            detail: format!(
-                "H = {:.3}, p = {:.3e}; {}",
-                t.kruskal.h,
-                t.kruskal.p,
-                pairs
-                    .iter()
-                    .map(|d| format!(
-                        "{} vs {}: z = {:.2}, p_holm = {:.3e}",
-                        o.groups[f.groups[d.a]].name,
-                        o.groups[f.groups[d.b]].name,
-                        d.z,
-                        d.p_holm
-                    ))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            ),
-        });
+        out.extend(significance_check(o, cae, &scls, unit));
     }
     let best_fwd = caes
         .iter()
@@ -779,6 +768,51 @@ fn checks(o: &Outcome, scl: Option<usize>, no_gs: Option<usize>) -> Vec<Check> {
         });
     }
     out
+}
+
+/// The check of a significant difference between the best CAE configuration (`cae`) and
+/// the SCL versions (`scls`) in the back-to-start error, one observation per `unit`; `None`
+/// without those tests.
+fn significance_check(o: &Outcome, cae: usize, scls: &[usize], unit: Unit) -> Option<Check> {
+    let f = o.family("paper", Metric::Return, unit)?;
+    let t = f.tests.as_ref()?;
+    let pos = |g: usize| f.groups.iter().position(|x| *x == g);
+    let pairs: Vec<&stats::DunnPair> = t
+        .dunn
+        .iter()
+        .filter(|d| {
+            let (a, b) = (f.groups[d.a], f.groups[d.b]);
+            (a == cae && scls.contains(&b)) || (b == cae && scls.contains(&a))
+        })
+        .collect();
+    let holds = t.kruskal.p < 0.05
+        && pairs.len() == scls.len()
+        && pairs.iter().all(|d| d.p_holm < 0.05)
+        && pos(cae).is_some();
+    Some(Check {
+        statement: format!(
+            "significant difference between CAE and both SCL versions in the back-to-start error (Kruskal-Wallis p < 0.05, then Dunn, Holm-adjusted p < 0.05; one observation per {})",
+            if unit == Unit::Model {
+                "model: its mean over the test trajectories"
+            } else {
+                "trajectory and model"
+            }
+        ),
+        holds,
+        detail: format!(
+            "H = {:.3}, p = {:.3e}; {}",
+            t.kruskal.h,
+            t.kruskal.p,
+            pairs
+                .iter()
+                .map(|d| format!(
+                    "{} vs {}: z = {:.2}, p_holm = {:.3e}",
+                    o.groups[f.groups[d.a]].name, o.groups[f.groups[d.b]].name, d.z, d.p_holm
+                ))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+    })
 }
 
 /// A row of `errors.csv`: one test trajectory of one model.
@@ -936,6 +970,26 @@ fn write_outputs(
         }
     });
     csv("groups.csv", crate::table::to_csv(groups))?;
+    let tests = stats_rows(o);
+    csv(
+        "stats.csv",
+        crate::table::to_csv_or_header(STATS_HEADER, &tests),
+    )?;
+    figure::write(
+        &Violins {
+            groups: &o.groups,
+            best_cae: o.best_cae,
+        },
+        &run.path("greedy-user"),
+        (1400, 960),
+    )?;
+    let summary = summary(run, args, data_dir, ds, cfg, legs, o);
+    run.write("summary.md", &summary)?;
+    Ok(())
+}
+
+/// `stats.csv`'s rows: per family of tests, Kruskal-Wallis, then Dunn's pairs.
+fn stats_rows(o: &Outcome) -> Vec<StatsRow<'_>> {
     let mut tests = Vec::new();
     for f in &o.families {
         let Some(t) = &f.tests else { continue };
@@ -968,21 +1022,7 @@ fn write_outputs(
             });
         }
     }
-    csv(
-        "stats.csv",
-        crate::table::to_csv_or_header(STATS_HEADER, &tests),
-    )?;
-    figure::write(
-        &Violins {
-            groups: &o.groups,
-            best_cae: o.best_cae,
-        },
-        &run.path("greedy-user"),
-        (1400, 960),
-    )?;
-    let summary = summary(run, args, data_dir, ds, cfg, legs, o);
-    run.write("summary.md", &summary)?;
-    Ok(())
+    tests
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1054,6 +1094,15 @@ fn summary(
             ),
         ],
     );
+    push_checks(&mut s, o);
+    push_errors(&mut s, o);
+    push_rank_tests(&mut s, o);
+    s.push_str("\nz > 0: the first group ranks higher (larger errors). Files: `errors.csv` (every trajectory of every model), `models.csv` (per model, with its validation loss), `groups.csv`, `stats.csv` (Kruskal-Wallis and Dunn's pairs with Holm and Bonferroni adjustments, for the paper's three groups and for the whole grid, per model mean and per trajectory), `greedy-user.png` / `.svg` (violins of log10 error over every trajectory, Gaussian kernel density; black bar: median; dots: the models' means; the best CAE configuration by validation loss is marked *).\n");
+    s
+}
+
+/// The summary's table of the paper's statements: each, whether it holds, the numbers.
+fn push_checks(s: &mut String, o: &Outcome) {
     s.push_str("## The paper's statements\n\n| statement | holds | numbers |\n|---|---|---|\n");
     for c in &o.checks {
         let _ = writeln!(
@@ -1064,6 +1113,10 @@ fn summary(
             c.detail.replace('|', "\\|")
         );
     }
+}
+
+/// The summary's error table: each group's median and quartiles, to the end and back.
+fn push_errors(s: &mut String, o: &Outcome) {
     s.push_str("\n## Errors (rad; median [25 %, 75 %] over every test trajectory of every model)\n\n| group | models | mean val. MSE (rad/s)² | to the end state | back to the start |\n|---|---|---|---|---|\n");
     for (i, g) in o.groups.iter().enumerate() {
         let f = g.errors(Metric::Forward);
@@ -1087,6 +1140,11 @@ fn summary(
             stats::quantile(&b, 0.75),
         );
     }
+}
+
+/// The summary's rank tests: Kruskal-Wallis and Dunn's pairs for the paper's three groups,
+/// then Kruskal-Wallis across the whole grid.
+fn push_rank_tests(s: &mut String, o: &Outcome) {
     s.push_str("\n## Rank tests: SCL, SCL without Gram-Schmidt, the best CAE configuration\n\n");
     for f in o.families.iter().filter(|f| f.name == "paper") {
         let _ = write!(
@@ -1136,8 +1194,6 @@ fn summary(
             );
         }
     }
-    s.push_str("\nz > 0: the first group ranks higher (larger errors). Files: `errors.csv` (every trajectory of every model), `models.csv` (per model, with its validation loss), `groups.csv`, `stats.csv` (Kruskal-Wallis and Dunn's pairs with Holm and Bonferroni adjustments, for the paper's three groups and for the whole grid, per model mean and per trajectory), `greedy-user.png` / `.svg` (violins of log10 error over every trajectory, Gaussian kernel density; black bar: median; dots: the models' means; the best CAE configuration by validation loss is marked *).\n");
-    s
 }
 
 /// Violin outlines: `(log10 error, half width in [0, 1])` from a Gaussian kernel density of

@@ -64,112 +64,11 @@ pub struct Outcome {
 /// `reconstruction.png` / `.svg` and `summary.md`.
 pub fn run(args: &ReconstructionArgs, command: &str) -> Result<Outcome, ToolError> {
     let run = Run::new("reconstruction", &args.common, DEFAULT_EPOCHS, command)?;
-    let mut entries = Vec::new();
-    let mut data_lines = Vec::new();
-    if args.common.models.is_empty() {
-        let tasks: Vec<Task> = args
-            .tasks
-            .split(',')
-            .map(str::trim)
-            .filter(|t| !t.is_empty())
-            .map(Task::from_name)
-            .collect::<Result<_, _>>()?;
-        if tasks.is_empty() {
-            return Err(ExperimentError::Option {
-                option: "--tasks",
-                reason: "no task given".into(),
-            }
-            .into());
-        }
-        let mut jobs = Vec::new();
-        let mut sets = Vec::new();
-        for &task in &tasks {
-            let (dir, ds) = run.data(task, tasks.len() == 1)?;
-            let ds = Arc::new(ds);
-            data_lines.push(format!(
-                "{}: {} ({} train / {} val tuples, hash {})",
-                task.name(),
-                dir.display(),
-                ds.n_train(),
-                ds.n_val(),
-                ds.hash
-            ));
-            for v in Variant::ALL {
-                jobs.push(Job {
-                    path: run
-                        .out
-                        .join("models")
-                        .join(task.name())
-                        .join(format!("{}.safetensors", v.name())),
-                    variant: v,
-                    config: run.config(v).map(|c| TrainConfig {
-                        seeds: run.seeds,
-                        base_seed: 0,
-                        ..c
-                    }),
-                    data_dir: dir.clone(),
-                    data: ds.clone(),
-                    loss_plot: true,
-                });
-            }
-            sets.push((task, ds));
-        }
-        run.ensure_models(&jobs)?;
-        for job in &jobs {
-            let m = super::load_model(&job.path)?;
-            let mse = eval::reconstruction_mse(&m, &job.path, &job.data.val)?;
-            let task = sets
-                .iter()
-                .find(|(_, d)| Arc::ptr_eq(d, &job.data))
-                .map_or("?", |(t, _)| t.name());
-            entries.push(Entry {
-                task: task.to_owned(),
-                variant: job.variant.name().to_owned(),
-                settings: super::describe_header(m.header()),
-                val_mse: mse,
-                path: job.path.clone(),
-            });
-        }
+    let (entries, data_lines) = if args.common.models.is_empty() {
+        trained_entries(args, &run)?
     } else {
-        let Some(dir) = &args.common.data else {
-            return Err(ExperimentError::Option {
-                option: "--models",
-                reason: "needs --data DIR, the data set to evaluate them on".into(),
-            }
-            .into());
-        };
-        let ds = dataset::load_dir(dir)?;
-        if ds.val.is_empty() {
-            return Err(ExperimentError::Data {
-                path: dir.clone(),
-                reason: "has no validation split (val/*.csv)".into(),
-            }
-            .into());
-        }
-        let name = dir.file_name().map_or_else(
-            || dir.display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        );
-        data_lines.push(format!(
-            "{name}: {} ({} train / {} val tuples, hash {})",
-            dir.display(),
-            ds.n_train(),
-            ds.n_val(),
-            ds.hash
-        ));
-        for (path, m) in super::given_models(&args.common.models)? {
-            let mse = eval::reconstruction_mse(&m, &path, &ds.val)?;
-            entries.push(Entry {
-                task: name.clone(),
-                variant: path
-                    .file_stem()
-                    .map_or_else(String::new, |s| s.to_string_lossy().into_owned()),
-                settings: super::describe_header(m.header()),
-                val_mse: mse,
-                path,
-            });
-        }
-    }
+        given_entries(args)?
+    };
     run.finish();
     #[derive(serde::Serialize)]
     struct CsvRow<'a> {
@@ -221,6 +120,125 @@ pub fn run(args: &ReconstructionArgs, command: &str) -> Result<Outcome, ToolErro
         entries,
         out: run.out.clone(),
     })
+}
+
+/// The entries (one per model) and the data sets' descriptions.
+type Entries = (Vec<Entry>, Vec<String>);
+
+/// Without `--models`: every variant trained (or reused) on each task of `--tasks`, the best
+/// of the seeds, evaluated on the task's validation split.
+fn trained_entries(args: &ReconstructionArgs, run: &Run) -> Result<Entries, ToolError> {
+    let mut entries = Vec::new();
+    let mut data_lines = Vec::new();
+    let tasks: Vec<Task> = args
+        .tasks
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(Task::from_name)
+        .collect::<Result<_, _>>()?;
+    if tasks.is_empty() {
+        return Err(ExperimentError::Option {
+            option: "--tasks",
+            reason: "no task given".into(),
+        }
+        .into());
+    }
+    let mut jobs = Vec::new();
+    let mut sets = Vec::new();
+    for &task in &tasks {
+        let (dir, ds) = run.data(task, tasks.len() == 1)?;
+        let ds = Arc::new(ds);
+        data_lines.push(format!(
+            "{}: {} ({} train / {} val tuples, hash {})",
+            task.name(),
+            dir.display(),
+            ds.n_train(),
+            ds.n_val(),
+            ds.hash
+        ));
+        for v in Variant::ALL {
+            jobs.push(Job {
+                path: run
+                    .out
+                    .join("models")
+                    .join(task.name())
+                    .join(format!("{}.safetensors", v.name())),
+                variant: v,
+                config: run.config(v).map(|c| TrainConfig {
+                    seeds: run.seeds,
+                    base_seed: 0,
+                    ..c
+                }),
+                data_dir: dir.clone(),
+                data: ds.clone(),
+                loss_plot: true,
+            });
+        }
+        sets.push((task, ds));
+    }
+    run.ensure_models(&jobs)?;
+    for job in &jobs {
+        let m = super::load_model(&job.path)?;
+        let mse = eval::reconstruction_mse(&m, &job.path, &job.data.val)?;
+        let task = sets
+            .iter()
+            .find(|(_, d)| Arc::ptr_eq(d, &job.data))
+            .map_or("?", |(t, _)| t.name());
+        entries.push(Entry {
+            task: task.to_owned(),
+            variant: job.variant.name().to_owned(),
+            settings: super::describe_header(m.header()),
+            val_mse: mse,
+            path: job.path.clone(),
+        });
+    }
+    Ok((entries, data_lines))
+}
+
+/// With `--models`: the given files, evaluated on the validation split of `--data`.
+fn given_entries(args: &ReconstructionArgs) -> Result<Entries, ToolError> {
+    let mut entries = Vec::new();
+    let mut data_lines = Vec::new();
+    let Some(dir) = &args.common.data else {
+        return Err(ExperimentError::Option {
+            option: "--models",
+            reason: "needs --data DIR, the data set to evaluate them on".into(),
+        }
+        .into());
+    };
+    let ds = dataset::load_dir(dir)?;
+    if ds.val.is_empty() {
+        return Err(ExperimentError::Data {
+            path: dir.clone(),
+            reason: "has no validation split (val/*.csv)".into(),
+        }
+        .into());
+    }
+    let name = dir.file_name().map_or_else(
+        || dir.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    data_lines.push(format!(
+        "{name}: {} ({} train / {} val tuples, hash {})",
+        dir.display(),
+        ds.n_train(),
+        ds.n_val(),
+        ds.hash
+    ));
+    for (path, m) in super::given_models(&args.common.models)? {
+        let mse = eval::reconstruction_mse(&m, &path, &ds.val)?;
+        entries.push(Entry {
+            task: name.clone(),
+            variant: path
+                .file_stem()
+                .map_or_else(String::new, |s| s.to_string_lossy().into_owned()),
+            settings: super::describe_header(m.header()),
+            val_mse: mse,
+            path,
+        });
+    }
+    Ok((entries, data_lines))
 }
 
 fn columns(entries: &[Entry]) -> (Vec<String>, Vec<String>) {

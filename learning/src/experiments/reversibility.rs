@@ -216,6 +216,58 @@ const KINDS: [(ModelKind, Variant); 3] = [
 pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Outcome, ToolError> {
     let run = Run::new("reversibility", &args.common, DEFAULT_EPOCHS, command)?;
     let task = Task::from_name(&args.task)?;
+    check_options(args, task)?;
+    let robot = run.robot;
+    let (data_dir, ds) = run.data(task, true)?;
+    let ds = Arc::new(ds);
+    let models = if args.common.models.is_empty() {
+        trained_models(&run, task, &data_dir, &ds)?
+    } else {
+        given_models(args)?
+    };
+    check_models(robot, &models)?;
+    let mut rng = Rng::new(args.seed);
+    let states = eval::states_from_data(&ds.val, args.states, &mut rng);
+    let alphas = rollout::alpha_grid(args.alphas);
+    let max_index = models.iter().map(|m| m.index + 1).max().unwrap_or(0);
+    // One direction per (model index, state, alpha), the same for every kind.
+    let thetas: Vec<f64> = (0..max_index * states.len() * alphas.len())
+        .map(|_| rng.uniform() * std::f64::consts::TAU)
+        .collect();
+    let ticks = (1.0 / period_s).round().max(1.0) as usize;
+    run.add_work((models.len() * states.len()) as u64);
+    run.message("rollouts on the mock arm");
+    let grid = Grid {
+        states: &states,
+        alphas: &alphas,
+        thetas: &thetas,
+        ticks,
+        period_s,
+    };
+    let (csv_rows, samples) = rollouts(&run, &models, &grid)?;
+    let curves = curves(&alphas, &samples);
+    run.finish();
+    let mut outcome = Outcome {
+        curves,
+        checks: Vec::new(),
+        out: run.out.clone(),
+    };
+    outcome.checks = checks(&outcome);
+    write_tables(&run, &csv_rows, &outcome)?;
+    figure::write(
+        &CurvesFigure {
+            curves: &outcome.curves,
+        },
+        &run.path("reversibility"),
+        (1200, 520),
+    )?;
+    let summary = summary(&run, args, &data_dir, &models, ticks, period_s, &outcome);
+    run.write("summary.md", &summary)?;
+    Ok(outcome)
+}
+
+/// The rollouts need the mock arm (not the planar task), a state and two alpha values.
+fn check_options(args: &ReversibilityArgs, task: Task) -> Result<(), ToolError> {
     if task == Task::PlanarReach {
         return Err(ExperimentError::Option {
             option: "--task",
@@ -226,7 +278,6 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
         }
         .into());
     }
-    let robot = run.robot;
     if args.states == 0 || args.alphas < 2 {
         return Err(ExperimentError::Option {
             option: "--states / --alphas",
@@ -234,46 +285,60 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
         }
         .into());
     }
-    let (data_dir, ds) = run.data(task, true)?;
-    let ds = Arc::new(ds);
-    let models = if args.common.models.is_empty() {
-        let variants: Vec<Variant> = KINDS.iter().map(|(_, v)| *v).collect();
-        let jobs = super::seed_jobs(&run, task, &variants, &data_dir, &ds);
-        let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
-        run.ensure_models(&plain)?;
-        let mut models = Vec::new();
-        for (v, k, job) in jobs {
-            models.push(ModelRef {
-                kind: v.kind(),
-                index: k,
-                model: super::load_model(&job.path)?,
-                path: job.path,
-            });
-        }
-        models
-    } else {
-        let mut count = [0usize; 3];
-        let mut models = Vec::new();
-        for (path, model) in super::given_models(&args.common.models)? {
-            let kind = model.header().kind;
-            let Some(g) = KINDS.iter().position(|(k, _)| *k == kind) else {
-                return Err(ExperimentError::Model {
-                    path,
-                    reason: format!("a {kind} model; this experiment compares scl, cae and pca"),
-                }
-                .into());
-            };
-            models.push(ModelRef {
-                kind,
-                index: count[g],
+    Ok(())
+}
+
+/// Without `--models`: the SCL, CAE and PCA models per seed, trained (or reused) on the data.
+fn trained_models(
+    run: &Run,
+    task: Task,
+    data_dir: &std::path::Path,
+    ds: &Arc<crate::dataset::Dataset>,
+) -> Result<Vec<ModelRef>, ToolError> {
+    let variants: Vec<Variant> = KINDS.iter().map(|(_, v)| *v).collect();
+    let jobs = super::seed_jobs(run, task, &variants, data_dir, ds);
+    let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
+    run.ensure_models(&plain)?;
+    let mut models = Vec::new();
+    for (v, k, job) in jobs {
+        models.push(ModelRef {
+            kind: v.kind(),
+            index: k,
+            model: super::load_model(&job.path)?,
+            path: job.path,
+        });
+    }
+    Ok(models)
+}
+
+/// With `--models`: the given files, numbered per kind; a kind other than SCL, CAE or PCA
+/// is an error.
+fn given_models(args: &ReversibilityArgs) -> Result<Vec<ModelRef>, ToolError> {
+    let mut count = [0usize; 3];
+    let mut models = Vec::new();
+    for (path, model) in super::given_models(&args.common.models)? {
+        let kind = model.header().kind;
+        let Some(g) = KINDS.iter().position(|(k, _)| *k == kind) else {
+            return Err(ExperimentError::Model {
                 path,
-                model,
-            });
-            count[g] += 1;
-        }
-        models
-    };
-    for m in &models {
+                reason: format!("a {kind} model; this experiment compares scl, cae and pca"),
+            }
+            .into());
+        };
+        models.push(ModelRef {
+            kind,
+            index: count[g],
+            path,
+            model,
+        });
+        count[g] += 1;
+    }
+    Ok(models)
+}
+
+/// Every model drives the mock arm's joints from a 2-D action.
+fn check_models(robot: &kinematics::RobotProfile, models: &[ModelRef]) -> Result<(), ToolError> {
+    for m in models {
         let h = m.model.header();
         if h.n_joints != robot.n_joints() || h.latent_dim != 2 {
             return Err(ExperimentError::Model {
@@ -289,23 +354,34 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
             .into());
         }
     }
-    let mut rng = Rng::new(args.seed);
-    let states = eval::states_from_data(&ds.val, args.states, &mut rng);
-    let alphas = rollout::alpha_grid(args.alphas);
-    let max_index = models.iter().map(|m| m.index + 1).max().unwrap_or(0);
-    // One direction per (model index, state, alpha), the same for every kind.
-    let thetas: Vec<f64> = (0..max_index * states.len() * alphas.len())
-        .map(|_| rng.uniform() * std::f64::consts::TAU)
-        .collect();
-    let ticks = (1.0 / period_s).round().max(1.0) as usize;
-    run.add_work((models.len() * states.len()) as u64);
-    run.message("rollouts on the mock arm");
+    Ok(())
+}
+
+/// What every model is rolled out on: the start states, the alphas, one direction per
+/// (model index, state, alpha), the ticks of a leg and the control period.
+struct Grid<'a> {
+    states: &'a eval::States,
+    alphas: &'a [f64],
+    thetas: &'a [f64],
+    ticks: usize,
+    period_s: f64,
+}
+
+/// (forward, reverse, at limit) samples of one kind at one alpha.
+type Samples = (Vec<f64>, Vec<f64>, Vec<bool>);
+
+/// Rolls every model out forward and back from every state at every alpha on the mock arm;
+/// returns one row per rollout and the samples by (kind, alpha index).
+fn rollouts(
+    run: &Run,
+    models: &[ModelRef],
+    grid: &Grid<'_>,
+) -> Result<(Vec<RunRow>, Vec<Vec<Samples>>), ToolError> {
+    let (states, alphas) = (grid.states, grid.alphas);
     let mut csv_rows = Vec::new();
-    // (kind, alpha index) -> (forward, reverse, at limit) samples.
-    type Samples = (Vec<f64>, Vec<f64>, Vec<bool>);
     let mut samples: Vec<Vec<Samples>> =
         vec![vec![(Vec::new(), Vec::new(), Vec::new()); alphas.len()]; KINDS.len()];
-    for m in &models {
+    for m in models {
         let g = KINDS
             .iter()
             .position(|(k, _)| *k == m.kind)
@@ -315,15 +391,15 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
         let file = super::display_rel(&m.path, &run.out);
         for (i, (q0, c0)) in states.iter().enumerate() {
             for (j, &alpha) in alphas.iter().enumerate() {
-                let theta = thetas[(m.index * states.len() + i) * alphas.len() + j];
-                let mut plant = MockPlant::at(robot, q0, *c0)?;
+                let theta = grid.thetas[(m.index * states.len() + i) * alphas.len() + j];
+                let mut plant = MockPlant::at(run.robot, q0, *c0)?;
                 let r = rollout::forward_reverse(
                     map.as_mut(),
                     s,
                     &mut plant,
                     &rollout::action(alpha, theta),
-                    ticks,
-                    period_s,
+                    grid.ticks,
+                    grid.period_s,
                 );
                 samples[g][j].0.push(r.forward);
                 samples[g][j].1.push(r.reverse);
@@ -343,6 +419,11 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
             run.done(1);
         }
     }
+    Ok((csv_rows, samples))
+}
+
+/// One curve per kind with samples: the forward and reverse statistics at each alpha.
+fn curves(alphas: &[f64], samples: &[Vec<Samples>]) -> Vec<(ModelKind, Vec<Point>)> {
     let mut curves = Vec::new();
     for (g, (kind, _)) in KINDS.iter().enumerate() {
         if samples[g][0].0.is_empty() {
@@ -374,15 +455,13 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
             .collect();
         curves.push((*kind, pts));
     }
-    run.finish();
-    let mut outcome = Outcome {
-        curves,
-        checks: Vec::new(),
-        out: run.out.clone(),
-    };
-    outcome.checks = checks(&outcome);
-    let runs_csv = crate::table::to_csv(&csv_rows)
-        .map_err(|e| super::write_error(&run.path("runs.csv"), e))?;
+    curves
+}
+
+/// Writes `runs.csv` (one row per rollout) and `curves.csv` (one per kind and alpha).
+fn write_tables(run: &Run, csv_rows: &[RunRow], outcome: &Outcome) -> Result<(), ToolError> {
+    let runs_csv =
+        crate::table::to_csv(csv_rows).map_err(|e| super::write_error(&run.path("runs.csv"), e))?;
     run.write("runs.csv", &runs_csv)?;
     let curves_csv = crate::table::to_csv(outcome.curves.iter().flat_map(|(kind, pts)| {
         pts.iter().map(|p| CurveRow {
@@ -400,16 +479,7 @@ pub fn run(args: &ReversibilityArgs, period_s: f64, command: &str) -> Result<Out
     }))
     .map_err(|e| super::write_error(&run.path("curves.csv"), e))?;
     run.write("curves.csv", &curves_csv)?;
-    figure::write(
-        &CurvesFigure {
-            curves: &outcome.curves,
-        },
-        &run.path("reversibility"),
-        (1200, 520),
-    )?;
-    let summary = summary(&run, args, &data_dir, &models, ticks, period_s, &outcome);
-    run.write("summary.md", &summary)?;
-    Ok(outcome)
+    Ok(())
 }
 
 fn checks(o: &Outcome) -> Vec<Check> {

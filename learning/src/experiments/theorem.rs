@@ -141,49 +141,98 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
         }
         .into());
     }
-    let mut data_note = String::new();
-    let (members, trajs) = if args.common.models.is_empty() {
-        let task = Task::from_name(&args.task)?;
-        let (data_dir, ds) = run.data(task, true)?;
-        data_note = data_dir.display().to_string();
-        let ds = Arc::new(ds);
-        let variants = [Variant::SclNoGs, Variant::Scl, Variant::Cae];
-        let jobs = super::seed_jobs(&run, task, &variants, &data_dir, &ds);
-        let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
-        run.ensure_models(&plain)?;
-        let mut members = Vec::new();
-        for (v, _, job) in jobs {
-            members.push(Member {
-                group: v.name().to_owned(),
-                model: super::load_model(&job.path)?,
-                path: job.path,
-            });
-        }
-        let trajs: Vec<_> = ds.train.iter().chain(&ds.val).cloned().collect();
-        (members, trajs)
+    let (members, trajs, data_note) = if args.common.models.is_empty() {
+        trained_members(args, &run)?
     } else {
-        let mut members = Vec::new();
-        for (path, model) in super::given_models(&args.common.models)? {
-            members.push(Member {
-                group: path.file_name().map_or_else(
-                    || path.display().to_string(),
-                    |f| f.to_string_lossy().into_owned(),
-                ),
-                path,
-                model,
-            });
-        }
-        // Data states only when --data names a data set.
-        let trajs = match &args.common.data {
-            Some(d) => {
-                data_note = d.display().to_string();
-                let ds = dataset::load_dir(d)?;
-                ds.train.iter().chain(&ds.val).cloned().collect()
-            }
-            None => Vec::new(),
-        };
-        (members, trajs)
+        given_members(args)?
     };
+    let n_joints = common_joint_count(&members)?;
+    let sets = state_sets(args, &trajs, n_joints);
+    run.add_work((members.len() * sets.len() * 2) as u64);
+    run.message("checking the inequality");
+    let (model_rows, groups) = measure(args, period_s, &run, &members, &sets);
+    run.finish();
+    let rows = group_rows(groups);
+    let theorem_holds = rows
+        .iter()
+        .filter(|r| r.theorem_applies)
+        .all(|r| r.fraction.held == r.fraction.total);
+    if !theorem_holds {
+        tracing::error!(
+            "the soft-reversibility inequality failed where the theorem applies: this is a bug"
+        );
+    }
+    let table = write_tables(&run, &model_rows, &rows)?;
+    let mut s = summary_head(args, period_s, &run, members.len(), &data_note, n_joints);
+    push_verdict(&mut s, &rows, theorem_holds);
+    s.push_str("## Fractions\n\n");
+    s.push_str(&table);
+    s.push_str("\nFiles: `theorem.csv` / `theorem.md` (per group), `models.csv` (per model).\n");
+    run.write("summary.md", &s)?;
+    Ok(Outcome {
+        rows,
+        theorem_holds,
+        out: run.out.clone(),
+    })
+}
+
+/// The models to check, the trajectories whose states they see and the data's name (empty
+/// without data).
+type Members = (Vec<Member>, Vec<dataset::Trajectory>, String);
+
+/// Without `--models`: trains (or reuses) the variants on `--task`'s data per seed, whose
+/// train and val trajectories give the data states.
+fn trained_members(args: &TheoremArgs, run: &Run) -> Result<Members, ToolError> {
+    let task = Task::from_name(&args.task)?;
+    let (data_dir, ds) = run.data(task, true)?;
+    let data_note = data_dir.display().to_string();
+    let ds = Arc::new(ds);
+    let variants = [Variant::SclNoGs, Variant::Scl, Variant::Cae];
+    let jobs = super::seed_jobs(run, task, &variants, &data_dir, &ds);
+    let plain: Vec<_> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
+    run.ensure_models(&plain)?;
+    let mut members = Vec::new();
+    for (v, _, job) in jobs {
+        members.push(Member {
+            group: v.name().to_owned(),
+            model: super::load_model(&job.path)?,
+            path: job.path,
+        });
+    }
+    let trajs: Vec<_> = ds.train.iter().chain(&ds.val).cloned().collect();
+    Ok((members, trajs, data_note))
+}
+
+/// With `--models`: the given files, each its own group; data states only when `--data`
+/// names a data set.
+fn given_members(args: &TheoremArgs) -> Result<Members, ToolError> {
+    let mut data_note = String::new();
+    let mut members = Vec::new();
+    for (path, model) in super::given_models(&args.common.models)? {
+        members.push(Member {
+            group: path.file_name().map_or_else(
+                || path.display().to_string(),
+                |f| f.to_string_lossy().into_owned(),
+            ),
+            path,
+            model,
+        });
+    }
+    // Data states only when --data names a data set.
+    let trajs = match &args.common.data {
+        Some(d) => {
+            data_note = d.display().to_string();
+            let ds = dataset::load_dir(d)?;
+            ds.train.iter().chain(&ds.val).cloned().collect()
+        }
+        None => Vec::new(),
+    };
+    Ok((members, trajs, data_note))
+}
+
+/// The joint count every model drives (that of the first); an error names a model that
+/// drives another.
+fn common_joint_count(members: &[Member]) -> Result<usize, ToolError> {
     let n_joints = members.first().map_or(0, |m| m.model.header().n_joints);
     if let Some(m) = members
         .iter()
@@ -198,12 +247,21 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
         }
         .into());
     }
+    Ok(n_joints)
+}
+
+/// The state sets: drawn from the data (if any), and uniform within the joint limits.
+fn state_sets(
+    args: &TheoremArgs,
+    trajs: &[dataset::Trajectory],
+    n_joints: usize,
+) -> Vec<(&'static str, eval::States)> {
     let mut rng = Rng::new(args.seed);
     let mut sets: Vec<(&'static str, eval::States)> = Vec::new();
     if !trajs.is_empty() {
         sets.push((
             "data",
-            eval::states_from_data(&trajs, args.samples, &mut rng),
+            eval::states_from_data(trajs, args.samples, &mut rng),
         ));
     }
     // The arm's own limits (`--robot`; its continuous joints as its profile bounds them for
@@ -223,13 +281,27 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
         "uniform",
         eval::states_uniform(&lo, &hi, args.samples, &mut rng),
     ));
-    run.add_work((members.len() * sets.len() * 2) as u64);
-    run.message("checking the inequality");
+    sets
+}
+
+/// The models' kind, whether the theorem applies to every one, and their fractions.
+type Acc = (ModelKind, bool, Vec<Fraction>);
+
+/// The per-group accumulators, by (group, state set, transition), in first-seen order.
+type Groups = Vec<(String, &'static str, &'static str, Acc)>;
+
+/// Checks the inequality for every model on every state set and both transitions; returns
+/// one row per model, set and transition, and the groups' accumulators.
+fn measure(
+    args: &TheoremArgs,
+    period_s: f64,
+    run: &Run,
+    members: &[Member],
+    sets: &[(&'static str, eval::States)],
+) -> (Vec<ModelRow>, Groups) {
     let mut model_rows = Vec::new();
-    // (group, set, transition) -> (kind, applies, per-model fractions)
-    type Acc = (ModelKind, bool, Vec<Fraction>);
-    let mut groups: Vec<(String, &'static str, &'static str, Acc)> = Vec::new();
-    for m in &members {
+    let mut groups: Groups = Vec::new();
+    for m in members {
         let h = m.model.header();
         let gs = h.network.as_ref().is_some_and(|n| n.gram_schmidt);
         let s = h.speed_scale_rad_s;
@@ -284,8 +356,12 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
             }
         }
     }
-    run.finish();
-    let rows: Vec<Row> = groups
+    (model_rows, groups)
+}
+
+/// One [`Row`] per group: its models' trials summed.
+fn group_rows(groups: Groups) -> Vec<Row> {
+    groups
         .into_iter()
         .map(|(group, states, transition, (kind, applies, fs))| {
             let mut total = Fraction::default();
@@ -307,17 +383,12 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
                 fraction: total,
             }
         })
-        .collect();
-    let theorem_holds = rows
-        .iter()
-        .filter(|r| r.theorem_applies)
-        .all(|r| r.fraction.held == r.fraction.total);
-    if !theorem_holds {
-        tracing::error!(
-            "the soft-reversibility inequality failed where the theorem applies: this is a bug"
-        );
-    }
-    let models_csv = crate::table::to_csv(&model_rows)
+        .collect()
+}
+
+/// Writes `models.csv`, `theorem.csv` and `theorem.md`; returns the markdown table.
+fn write_tables(run: &Run, model_rows: &[ModelRow], rows: &[Row]) -> Result<String, ToolError> {
+    let models_csv = crate::table::to_csv(model_rows)
         .map_err(|e| super::write_error(&run.path("models.csv"), e))?;
     let csv = crate::table::to_csv(rows.iter().map(|r| GroupRow {
         group: &r.group,
@@ -335,11 +406,24 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
         worst_ratio: r.fraction.worst_ratio,
     }))
     .map_err(|e| super::write_error(&run.path("theorem.csv"), e))?;
-    let table = markdown(&rows);
+    let table = markdown(rows);
     run.write("models.csv", &models_csv)?;
     run.write("theorem.csv", &csv)?;
     run.write("theorem.md", &table)?;
-    let mut s = run.summary_head(
+    Ok(table)
+}
+
+/// The summary's title and settings: the models, the states, the actions, the transitions.
+fn summary_head(
+    args: &TheoremArgs,
+    period_s: f64,
+    run: &Run,
+    n_members: usize,
+    data_note: &str,
+    n_joints: usize,
+) -> String {
+    let robot = args.common.robot;
+    run.summary_head(
         "The soft-reversibility inequality, sampled",
         &[
             (
@@ -350,7 +434,7 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
                         args.task
                     )
                 } else {
-                    format!("{} given files", members.len())
+                    format!("{n_members} given files")
                 },
             ),
             (
@@ -391,7 +475,11 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
             ),
             ("seed", args.seed.to_string()),
         ],
-    );
+    )
+}
+
+/// The summary's verdict: whether the inequality held wherever the theorem applies.
+fn push_verdict(s: &mut String, rows: &[Row], theorem_holds: bool) {
     s.push_str("## Verdict\n\n");
     if rows.iter().any(|r| r.theorem_applies) {
         let n: usize = rows
@@ -413,15 +501,6 @@ pub fn run(args: &TheoremArgs, period_s: f64, command: &str) -> Result<Outcome, 
     } else {
         s.push_str("No model satisfies the theorem's hypotheses; only measured fractions.\n\n");
     }
-    s.push_str("## Fractions\n\n");
-    s.push_str(&table);
-    s.push_str("\nFiles: `theorem.csv` / `theorem.md` (per group), `models.csv` (per model).\n");
-    run.write("summary.md", &s)?;
-    Ok(Outcome {
-        rows,
-        theorem_holds,
-        out: run.out.clone(),
-    })
 }
 
 fn markdown(rows: &[Row]) -> String {

@@ -297,24 +297,9 @@ pub fn render_plot(r: &HeadroomReport, text: bool) -> Result<Vec<u8>, learning::
             }),
             ("missed ticks", "ticks", |row| row.missed as f64),
         ];
-        let (lo, hi) = r
-            .rows
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(lo, hi), row| {
-                (lo.min(row.rate_hz), hi.max(row.rate_hz))
-            });
-        let (lo, hi) = if lo.is_finite() && hi > lo {
-            (lo * 0.8, hi * 1.25)
-        } else {
-            (10.0, 2000.0)
-        };
+        let (lo, hi) = rate_axis(r);
         let colours = [RGBColor(31, 119, 180), RGBColor(255, 127, 14)];
-        let mut transports: Vec<Transport> = Vec::new();
-        for row in &r.rows {
-            if !transports.contains(&row.transport) {
-                transports.push(row.transport);
-            }
-        }
+        let transports = transports_of(r);
         for (panel, (name, unit, pick)) in panels.iter().zip(figures) {
             let top = r.rows.iter().map(pick).fold(0.0, f64::max).max(1.0) * 1.15;
             let mut chart = ChartBuilder::on(panel);
@@ -371,6 +356,33 @@ pub fn render_plot(r: &HeadroomReport, text: bool) -> Result<Vec<u8>, learning::
         root.present().map_err(|e| draw(&e))?;
     }
     Ok(buf)
+}
+
+/// The plot's rate axis: the rates run, with a margin either side (10 to 2000 Hz without
+/// rows).
+fn rate_axis(r: &HeadroomReport) -> (f64, f64) {
+    let (lo, hi) = r
+        .rows
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), row| {
+            (lo.min(row.rate_hz), hi.max(row.rate_hz))
+        });
+    if lo.is_finite() && hi > lo {
+        (lo * 0.8, hi * 1.25)
+    } else {
+        (10.0, 2000.0)
+    }
+}
+
+/// The transports of the rows, in order of first appearance.
+fn transports_of(r: &HeadroomReport) -> Vec<Transport> {
+    let mut transports: Vec<Transport> = Vec::new();
+    for row in &r.rows {
+        if !transports.contains(&row.transport) {
+            transports.push(row.transport);
+        }
+    }
+    transports
 }
 
 #[cfg(test)]

@@ -754,30 +754,11 @@ pub(crate) fn run_with(
 ) -> Result<(RunReport, Samples), BenchError> {
     let prefix = Prefix::new(&format!("bench{}{}{tag}", std::process::id(), transport))
         .map_err(|e| BenchError::Graph(e.to_string()))?;
-    let mut cfg = opts.config.clone();
-    cfg.graph.transport = transport;
-    cfg.graph.wait = wait;
-    opts.rt.apply(&mut cfg.graph, Machine::detect().cores);
-    cfg.graph.prefix = prefix.to_string();
-    // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
-    // configuration says: it must never drive a real arm, nor wait for a person's input.
-    cfg.bridge.robot = "mock".to_owned();
-    cfg.joystick.source = "script".to_owned();
+    let cfg = run_config(opts, transport, wait, &prefix);
     let cfg_path = dir.join(format!("graph-{transport}{tag}.toml"));
-    let text = toml::to_string(&cfg)
-        .map_err(|e| BenchError::Graph(format!("cannot write the run's config: {e}")))?;
-    std::fs::write(&cfg_path, text)
-        .map_err(|e| BenchError::Graph(format!("{}: {e}", cfg_path.display())))?;
+    write_config(&cfg, &cfg_path)?;
 
-    let mut burners = Burners(Vec::new());
-    for _ in 0..opts.load {
-        let c = spawn_scl(&["bench".into(), "burn".into()])?
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .map_err(|e| BenchError::Graph(format!("cannot start a load process: {e}")))?;
-        burners.0.push(c);
-    }
+    let burners = start_load(opts.load)?;
     let graph = Graph::join_with(&prefix, &format!("bench-{}", std::process::id()), transport)?;
     let reports = graph.tick_report_subscriber()?;
     let heartbeats = graph.status_subscriber()?;
@@ -787,9 +768,140 @@ pub(crate) fn run_with(
         Some(_) => Some(graph.joystick_subscriber(false)?),
         None => None,
     };
-    let mut from_operator = OperatorSamples::default();
     let log_path = dir.join(format!("scl-up-{transport}{tag}.log"));
-    let log = std::fs::File::create(&log_path)
+    let secs = opts.duration.as_secs_f64();
+    let (mut up, live) = start_graph(opts, extra, &prefix, &cfg_path, &log_path)?;
+
+    eprintln!(
+        "bench: {transport}, wait {wait}, {} Hz, {secs:.0} s, load {}, rt {}",
+        cfg.graph.rate_hz,
+        opts.load,
+        opts.rt.label()
+    );
+    let mut obs = Observer {
+        reports,
+        heartbeats,
+        joysticks,
+        t: RunTally {
+            samples: Samples::default(),
+            from_operator: OperatorSamples::default(),
+            cpu: proc_cpu::CpuWatch::new(up.id()),
+            held_up: 0,
+            late_missed: 0,
+        },
+    };
+    let op_log = dir.join(format!("operator-{transport}{tag}.log"));
+    let mut operator = OperatorChild {
+        child: None,
+        stopped: false,
+        same_clock: None,
+    };
+    obs.watch(&mut up, extra, &mut operator, &op_log, secs)?;
+    obs.drain_inputs()?;
+    drop(obs.joysticks.take());
+    if extra.operator.is_some() {
+        // Only the commands an operator's sample drove: not the stand-ins before it joined.
+        let (mapper, executed) = obs.t.from_operator.hops();
+        obs.t.samples.joystick_mapper = mapper;
+        obs.t.samples.joystick_executed = executed;
+    }
+    let operator_pid = operator.child.as_ref().map(Child::id);
+    let operator_exit = operator.finish();
+    let live_messages = live.map(LiveClient::finish);
+    let (held_up, late_missed) = (&mut obs.t.held_up, &mut obs.t.late_missed);
+    obs.heartbeats.drain(|s| counts(s, held_up, late_missed))?;
+    let Observer {
+        reports,
+        heartbeats,
+        t,
+        ..
+    } = obs;
+    drop(burners);
+    drop(heartbeats);
+    drop(reports);
+    drop(graph);
+    release_graph(&prefix);
+    let log_text = std::fs::read_to_string(&log_path).unwrap_or_default();
+    if t.samples.ticks == 0 {
+        return Err(BenchError::NoTicks {
+            transport,
+            prefix: prefix.to_string(),
+            log: log_path.display().to_string(),
+        });
+    }
+    let mut report = t.report(transport, wait, cfg.graph.rate_hz, &log_text);
+    report.live_client_messages = live_messages;
+    if extra.operator.is_some() {
+        let op_text = std::fs::read_to_string(&op_log).unwrap_or_default();
+        report.operator = Some(OperatorRun {
+            round_trip_us: round_trip_from_log(&op_text),
+            forwarded: t.from_operator.stamps.len() as u64,
+            stand_ins: t.from_operator.stand_ins,
+            same_clock: operator.same_clock,
+            pid: operator_pid,
+            exit: operator_exit.map(|s| s.to_string()),
+        });
+    }
+    Ok((report, t.samples))
+}
+
+/// Writes the run's configuration to `path`.
+fn write_config(cfg: &GraphConfig, path: &Path) -> Result<(), BenchError> {
+    let text = toml::to_string(cfg)
+        .map_err(|e| BenchError::Graph(format!("cannot write the run's config: {e}")))?;
+    std::fs::write(path, text).map_err(|e| BenchError::Graph(format!("{}: {e}", path.display())))
+}
+
+/// Releases the run's graph: its shared memory domain and its sockets.
+fn release_graph(prefix: &Prefix) {
+    let _ = transport::graph::release_domain(prefix);
+    transport::uds::remove_graph(prefix.as_str());
+}
+
+/// The run's graph configuration: the base one on `transport` with `wait`, the real-time
+/// settings and `prefix`, always the scripted joystick on the mock arm.
+fn run_config(
+    opts: &LatencyOptions,
+    transport: Transport,
+    wait: WaitStrategy,
+    prefix: &Prefix,
+) -> GraphConfig {
+    let mut cfg = opts.config.clone();
+    cfg.graph.transport = transport;
+    cfg.graph.wait = wait;
+    opts.rt.apply(&mut cfg.graph, Machine::detect().cores);
+    cfg.graph.prefix = prefix.to_string();
+    // The benchmark's graph is always the scripted joystick on the mock arm, whatever the base
+    // configuration says: it must never drive a real arm, nor wait for a person's input.
+    cfg.bridge.robot = "mock".to_owned();
+    cfg.joystick.source = "script".to_owned();
+    cfg
+}
+
+/// `load` processes burning a core each (`scl bench burn`), killed when dropped.
+fn start_load(load: usize) -> Result<Burners, BenchError> {
+    let mut burners = Burners(Vec::new());
+    for _ in 0..load {
+        let c = spawn_scl(&["bench".into(), "burn".into()])?
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .map_err(|e| BenchError::Graph(format!("cannot start a load process: {e}")))?;
+        burners.0.push(c);
+    }
+    Ok(burners)
+}
+
+/// Starts `scl up` on `cfg_path` for the run's duration (under `extra`'s wrapper, its log
+/// to a new file at `log_path`), with a live client if `--live`.
+fn start_graph(
+    opts: &LatencyOptions,
+    extra: &Extra,
+    prefix: &Prefix,
+    cfg_path: &Path,
+    log_path: &Path,
+) -> Result<(Child, Option<LiveClient>), BenchError> {
+    let log = std::fs::File::create(log_path)
         .map_err(|e| BenchError::Graph(format!("{}: {e}", log_path.display())))?;
     let secs = opts.duration.as_secs_f64();
     // The prefix on the command line too: an `SCL_PREFIX` in the environment would otherwise
@@ -812,153 +924,157 @@ pub(crate) fn run_with(
     } else {
         None
     };
-    let mut up = spawn_wrapped(&extra.up_wrap, &up_args)?
+    let up = spawn_wrapped(&extra.up_wrap, &up_args)?
         .env("SCL_LOG", "info")
         .stdout(Stdio::null())
         .stderr(log)
         .spawn()
         .map_err(|e| BenchError::Graph(format!("cannot start the graph: {e}")))?;
+    Ok((up, live))
+}
 
-    eprintln!(
-        "bench: {transport}, wait {wait}, {} Hz, {secs:.0} s, load {}, rt {}",
-        cfg.graph.rate_hz,
-        opts.load,
-        opts.rt.label()
-    );
-    let mut samples = Samples::default();
-    let mut cpu = proc_cpu::CpuWatch::new(up.id());
-    let mut held_up = 0u64;
-    let mut late_missed = 0u64;
-    let t0 = Instant::now();
-    let mut next = 10.0;
-    let mut next_cpu = 0.0;
-    let op_log = dir.join(format!("operator-{transport}{tag}.log"));
-    let mut operator = OperatorChild {
-        child: None,
-        stopped: false,
-        same_clock: None,
-    };
-    // The operator stops a second before the graph (a shorter run: at 80 % of it).
-    let operator_stop = if secs > 5.0 { secs - 1.0 } else { secs * 0.8 };
-    while up
-        .try_wait()
-        .map_err(|e| BenchError::Graph(e.to_string()))?
-        .is_none()
-    {
-        if let Some(j) = &joysticks {
+/// What the benchmark reads from the graph while it runs: the tick reports, the heartbeats,
+/// the forwarded joystick samples (with a remote operator), and what they add up to.
+struct Observer {
+    reports: transport::TopicSubscriber<TickReport>,
+    heartbeats: transport::TopicSubscriber<ipc_types::NodeStatus>,
+    joysticks: Option<transport::TopicSubscriber<ipc_types::JoystickInput>>,
+    t: RunTally,
+}
+
+/// What a run's messages add up to: the samples, the operator's, the CPU and memory per
+/// process, the bridge's misses held up by the machine, the joystick's late samples.
+struct RunTally {
+    samples: Samples,
+    from_operator: OperatorSamples,
+    cpu: proc_cpu::CpuWatch,
+    held_up: u64,
+    late_missed: u64,
+}
+
+impl Observer {
+    /// Reads the graph every 5 ms until `scl up` ends (after `secs`, or when asked to stop):
+    /// starts the operator at the first tick and stops it a second before the graph, reads
+    /// the CPU every 0.25 s and prints progress every 10 s.
+    fn watch(
+        &mut self,
+        up: &mut Child,
+        extra: &Extra,
+        operator: &mut OperatorChild,
+        op_log: &Path,
+        secs: f64,
+    ) -> Result<(), BenchError> {
+        let t0 = Instant::now();
+        let mut next = 10.0;
+        let mut next_cpu = 0.0;
+        // The operator stops a second before the graph (a shorter run: at 80 % of it).
+        let operator_stop = if secs > 5.0 { secs - 1.0 } else { secs * 0.8 };
+        while up
+            .try_wait()
+            .map_err(|e| BenchError::Graph(e.to_string()))?
+            .is_none()
+        {
+            self.drain_inputs()?;
+            let (cpu, held_up, late_missed) = (
+                &mut self.t.cpu,
+                &mut self.t.held_up,
+                &mut self.t.late_missed,
+            );
+            self.heartbeats.drain(|s| {
+                cpu.heartbeat(s);
+                counts(s, held_up, late_missed);
+            })?;
+            if signals::stop_requested() {
+                // Our own child; an error means it has exited, which try_wait sees next.
+                let _ = nix::sys::signal::kill(
+                    nix::unistd::Pid::from_raw(up.id() as i32),
+                    nix::sys::signal::Signal::SIGTERM,
+                );
+            }
+            let el = t0.elapsed().as_secs_f64();
+            if let Some((wrap, args)) = &extra.operator {
+                if operator.child.is_none() && !operator.stopped && self.t.samples.ticks > 0 {
+                    operator.child = Some(start_operator(wrap, args, op_log)?);
+                }
+                if el >= operator_stop {
+                    operator.interrupt();
+                }
+            }
+            if el >= next_cpu {
+                // Read often enough that the last reading is close to the graph's end.
+                next_cpu = el + 0.25;
+                self.t.cpu.read(self.t.samples.ticks);
+            }
+            if el >= next {
+                next += 10.0;
+                let e = Dist::of(&self.t.samples.e2e);
+                eprintln!(
+                    "bench: {el:>5.0} s  ticks {}  missed {}  e2e p50 {:.1} µs  p99 {:.1} µs",
+                    self.t.samples.ticks, self.t.samples.missed, e.p50, e.p99
+                );
+            }
+            // The tick reports' buffer holds 256: a quarter of a second at 1 kHz.
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        Ok(())
+    }
+
+    /// Takes the forwarded joystick samples (if watched) and the tick reports waiting.
+    fn drain_inputs(&mut self) -> Result<(), BenchError> {
+        let (samples, from_operator) = (&mut self.t.samples, &mut self.t.from_operator);
+        if let Some(j) = &self.joysticks {
             j.drain(|s| from_operator.sample(s))?;
         }
-        reports.drain(|r| {
+        self.reports.drain(|r| {
             samples.take(r);
             from_operator.report(r);
         })?;
-        heartbeats.drain(|s| {
-            cpu.heartbeat(s);
-            counts(s, &mut held_up, &mut late_missed);
-        })?;
-        if signals::stop_requested() {
-            // Our own child; an error means it has exited, which try_wait sees next.
-            let _ = nix::sys::signal::kill(
-                nix::unistd::Pid::from_raw(up.id() as i32),
-                nix::sys::signal::Signal::SIGTERM,
-            );
-        }
-        let el = t0.elapsed().as_secs_f64();
-        if let Some((wrap, args)) = &extra.operator {
-            if operator.child.is_none() && !operator.stopped && samples.ticks > 0 {
-                let f = std::fs::File::create(&op_log)
-                    .map_err(|e| BenchError::Graph(format!("{}: {e}", op_log.display())))?;
-                let c = spawn_wrapped(wrap, args)?
-                    .env("SCL_LOG", "info")
-                    .stdin(Stdio::null())
-                    .stdout(Stdio::null())
-                    .stderr(f)
-                    .spawn()
-                    .map_err(|e| BenchError::Graph(format!("cannot start the operator: {e}")))?;
-                operator.child = Some(c);
-            }
-            if el >= operator_stop {
-                operator.interrupt();
-            }
-        }
-        if el >= next_cpu {
-            // Read often enough that the last reading is close to the graph's end.
-            next_cpu = el + 0.25;
-            cpu.read(samples.ticks);
-        }
-        if el >= next {
-            next += 10.0;
-            let e = Dist::of(&samples.e2e);
-            eprintln!(
-                "bench: {el:>5.0} s  ticks {}  missed {}  e2e p50 {:.1} µs  p99 {:.1} µs",
-                samples.ticks, samples.missed, e.p50, e.p99
-            );
-        }
-        // The tick reports' buffer holds 256: a quarter of a second at 1 kHz.
-        std::thread::sleep(Duration::from_millis(5));
+        Ok(())
     }
-    if let Some(j) = &joysticks {
-        j.drain(|s| from_operator.sample(s))?;
+}
+
+impl RunTally {
+    /// The run's report: its samples, the counts from the heartbeats, the CPU and memory
+    /// per process, and what `scl up`'s log (`log_text`) says of real time and polling.
+    fn report(
+        &self,
+        transport: Transport,
+        wait: WaitStrategy,
+        rate_hz: f64,
+        log_text: &str,
+    ) -> RunReport {
+        let realtime = log_text
+            .lines()
+            .filter(|l| l.contains("real-time"))
+            .map(|l| l.trim().to_owned())
+            .collect();
+        let mut report = RunReport::new(transport, &self.samples, realtime, rate_hz);
+        report.held_up = self.held_up;
+        report.joystick_late_missed = self.late_missed;
+        report.wait = wait;
+        report.spin_us_per_tick = spin_from_log(log_text);
+        report.cpu_per_tick_us = self.cpu.per_tick_us();
+        report.memory = self.cpu.memory();
+        report.cpu_share = report
+            .cpu_per_tick_us
+            .iter()
+            .map(|(n, us)| (n.clone(), us * 1e-6 * rate_hz))
+            .collect();
+        report
     }
-    reports.drain(|r| {
-        samples.take(r);
-        from_operator.report(r);
-    })?;
-    drop(joysticks);
-    if extra.operator.is_some() {
-        // Only the commands an operator's sample drove: not the stand-ins before it joined.
-        let (mapper, executed) = from_operator.hops();
-        samples.joystick_mapper = mapper;
-        samples.joystick_executed = executed;
-    }
-    let operator_pid = operator.child.as_ref().map(Child::id);
-    let operator_exit = operator.finish();
-    let live_messages = live.map(LiveClient::finish);
-    heartbeats.drain(|s| counts(s, &mut held_up, &mut late_missed))?;
-    drop(burners);
-    drop(heartbeats);
-    drop(reports);
-    drop(graph);
-    let _ = transport::graph::release_domain(&prefix);
-    transport::uds::remove_graph(prefix.as_str());
-    let log_text = std::fs::read_to_string(&log_path).unwrap_or_default();
-    let realtime = log_text
-        .lines()
-        .filter(|l| l.contains("real-time"))
-        .map(|l| l.trim().to_owned())
-        .collect();
-    if samples.ticks == 0 {
-        return Err(BenchError::NoTicks {
-            transport,
-            prefix: prefix.to_string(),
-            log: log_path.display().to_string(),
-        });
-    }
-    let mut report = RunReport::new(transport, &samples, realtime, cfg.graph.rate_hz);
-    report.held_up = held_up;
-    report.joystick_late_missed = late_missed;
-    report.wait = wait;
-    report.spin_us_per_tick = spin_from_log(&log_text);
-    report.cpu_per_tick_us = cpu.per_tick_us();
-    report.memory = cpu.memory();
-    report.cpu_share = report
-        .cpu_per_tick_us
-        .iter()
-        .map(|(n, us)| (n.clone(), us * 1e-6 * cfg.graph.rate_hz))
-        .collect();
-    report.live_client_messages = live_messages;
-    if extra.operator.is_some() {
-        let op_text = std::fs::read_to_string(&op_log).unwrap_or_default();
-        report.operator = Some(OperatorRun {
-            round_trip_us: round_trip_from_log(&op_text),
-            forwarded: from_operator.stamps.len() as u64,
-            stand_ins: from_operator.stand_ins,
-            same_clock: operator.same_clock,
-            pid: operator_pid,
-            exit: operator_exit.map(|s| s.to_string()),
-        });
-    }
-    Ok((report, samples))
+}
+
+/// Starts the remote operator (`scl ARGS` under `wrap`), its log to `op_log`.
+fn start_operator(wrap: &[String], args: &[String], op_log: &Path) -> Result<Child, BenchError> {
+    let f = std::fs::File::create(op_log)
+        .map_err(|e| BenchError::Graph(format!("{}: {e}", op_log.display())))?;
+    spawn_wrapped(wrap, args)?
+        .env("SCL_LOG", "info")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(f)
+        .spawn()
+        .map_err(|e| BenchError::Graph(format!("cannot start the operator: {e}")))
 }
 
 /// The counts a heartbeat carries: the bridge's misses held up by the machine, the
@@ -1160,61 +1276,10 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
         }
     }
     if opts.out.is_some() {
-        let font = learning::plot::load_font(None).map_err(|e| BenchError::Graph(e.to_string()))?;
-        let refs: Vec<(Transport, &Samples)> = all_samples.iter().map(|(t, s)| (*t, s)).collect();
-        let title = format!(
-            "scl bench latency: {} Hz, {:.0} s per transport, load {}, rt {}",
-            opts.config.graph.rate_hz,
-            opts.duration.as_secs_f64(),
-            opts.load,
-            opts.rt.label()
-        );
-        let rgb = render_histograms(&refs, &title, font.is_some())
-            .map_err(|e| BenchError::Graph(e.to_string()))?;
-        let png = dir.join("latency.png");
-        learning::plot::write_png(&png, &rgb, true)
-            .map_err(|e| BenchError::Graph(e.to_string()))?;
-        eprintln!("bench: histograms in {}", png.display());
+        write_histograms(opts, &dir, &all_samples)?;
     }
-    let r = |x: f64, y: f64| if y > 0.0 { x / y } else { f64::NAN };
-    let mut ratios = Vec::new();
-    let first_wait = opts.waits.first().copied().unwrap_or_default();
-    let find =
-        |t: Transport, w: WaitStrategy| runs.iter().find(|x| x.transport == t && x.wait == w);
-    if let (Some(i), Some(u)) = (
-        find(Transport::Iceoryx2, first_wait),
-        find(Transport::Uds, first_wait),
-    ) {
-        for ((name, a), (_, b)) in i.figures().into_iter().zip(u.figures()) {
-            ratios.push((
-                name.to_owned(),
-                r(a.p50, b.p50),
-                r(a.p99, b.p99),
-                r(a.max, b.max),
-            ));
-        }
-    }
-    let mut wait_ratios = Vec::new();
-    for t in &opts.transports {
-        let Some(ev) = find(*t, WaitStrategy::Event) else {
-            continue;
-        };
-        for w in opts.waits.iter().filter(|w| w.polls()) {
-            let Some(run) = find(*t, *w) else {
-                continue;
-            };
-            for ((name, a), (_, b)) in run.figures().into_iter().zip(ev.figures()) {
-                wait_ratios.push((
-                    *t,
-                    *w,
-                    name.to_owned(),
-                    r(a.p50, b.p50),
-                    r(a.p99, b.p99),
-                    r(a.max, b.max),
-                ));
-            }
-        }
-    }
+    let ratios = transport_ratios(opts, &runs);
+    let wait_ratios = wait_ratios(opts, &runs);
     if opts.out.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -1247,6 +1312,90 @@ pub fn latency(opts: &LatencyOptions) -> Result<LatencyReport, BenchError> {
     })
 }
 
+/// Writes `latency.png` into `dir`: the histograms of every transport's samples.
+fn write_histograms(
+    opts: &LatencyOptions,
+    dir: &Path,
+    all_samples: &[(Transport, Samples)],
+) -> Result<(), BenchError> {
+    let font = learning::plot::load_font(None).map_err(|e| BenchError::Graph(e.to_string()))?;
+    let refs: Vec<(Transport, &Samples)> = all_samples.iter().map(|(t, s)| (*t, s)).collect();
+    let title = format!(
+        "scl bench latency: {} Hz, {:.0} s per transport, load {}, rt {}",
+        opts.config.graph.rate_hz,
+        opts.duration.as_secs_f64(),
+        opts.load,
+        opts.rt.label()
+    );
+    let rgb = render_histograms(&refs, &title, font.is_some())
+        .map_err(|e| BenchError::Graph(e.to_string()))?;
+    let png = dir.join("latency.png");
+    learning::plot::write_png(&png, &rgb, true).map_err(|e| BenchError::Graph(e.to_string()))?;
+    eprintln!("bench: histograms in {}", png.display());
+    Ok(())
+}
+
+/// The ratio `x / y` (NaN when `y` is not positive).
+fn ratio(x: f64, y: f64) -> f64 {
+    if y > 0.0 { x / y } else { f64::NAN }
+}
+
+/// The run on transport `t` with wait strategy `w`, if it ran.
+fn find_run(runs: &[RunReport], t: Transport, w: WaitStrategy) -> Option<&RunReport> {
+    runs.iter().find(|x| x.transport == t && x.wait == w)
+}
+
+/// [`LatencyReport::ratios`] of `runs`.
+fn transport_ratios(opts: &LatencyOptions, runs: &[RunReport]) -> Vec<(String, f64, f64, f64)> {
+    let r = ratio;
+    let mut ratios = Vec::new();
+    let first_wait = opts.waits.first().copied().unwrap_or_default();
+    if let (Some(i), Some(u)) = (
+        find_run(runs, Transport::Iceoryx2, first_wait),
+        find_run(runs, Transport::Uds, first_wait),
+    ) {
+        for ((name, a), (_, b)) in i.figures().into_iter().zip(u.figures()) {
+            ratios.push((
+                name.to_owned(),
+                r(a.p50, b.p50),
+                r(a.p99, b.p99),
+                r(a.max, b.max),
+            ));
+        }
+    }
+    ratios
+}
+
+/// [`LatencyReport::wait_ratios`] of `runs`.
+fn wait_ratios(
+    opts: &LatencyOptions,
+    runs: &[RunReport],
+) -> Vec<(Transport, WaitStrategy, String, f64, f64, f64)> {
+    let r = ratio;
+    let mut wait_ratios = Vec::new();
+    for t in &opts.transports {
+        let Some(ev) = find_run(runs, *t, WaitStrategy::Event) else {
+            continue;
+        };
+        for w in opts.waits.iter().filter(|w| w.polls()) {
+            let Some(run) = find_run(runs, *t, *w) else {
+                continue;
+            };
+            for ((name, a), (_, b)) in run.figures().into_iter().zip(ev.figures()) {
+                wait_ratios.push((
+                    *t,
+                    *w,
+                    name.to_owned(),
+                    r(a.p50, b.p50),
+                    r(a.p99, b.p99),
+                    r(a.max, b.max),
+                ));
+            }
+        }
+    }
+    wait_ratios
+}
+
 /// The report as a table.
 pub fn render(r: &LatencyReport) -> String {
     use std::fmt::Write as _;
@@ -1265,98 +1414,7 @@ pub fn render(r: &LatencyReport) -> String {
         r.settings.model, r.settings.script, r.settings.robot, r.settings.rate_hz
     );
     for run in &r.runs {
-        let _ = writeln!(
-            s,
-            "\n{}, wait {}: {} ticks, {} missed ({} held up by the machine)",
-            run.transport, run.wait, run.ticks, run.missed, run.held_up
-        );
-        if run.wait.polls() {
-            let _ = writeln!(
-                s,
-                "  the joystick sampled late, a margin before each tick: {} missed it",
-                run.joystick_late_missed
-            );
-        }
-        if let Some(n) = run.live_client_messages {
-            let _ = writeln!(
-                s,
-                "  with scl up --live and a Foxglove client: {n} messages received"
-            );
-        }
-        let _ = writeln!(
-            s,
-            "  {:<20} {:>9} {:>9} {:>9} {:>9} {:>9}   (µs)",
-            "", "p50", "p90", "p99", "p99.9", "max"
-        );
-        for (name, d) in run.figures() {
-            let _ = writeln!(
-                s,
-                "  {name:<20} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
-                d.p50, d.p90, d.p99, d.p999, d.max
-            );
-        }
-        if !run.cpu_per_tick_us.is_empty() {
-            let cpu: Vec<String> = run
-                .cpu_per_tick_us
-                .iter()
-                .map(|(n, us)| format!("{n} {us:.1}"))
-                .collect();
-            let _ = writeln!(s, "  CPU per tick (µs): {}", cpu.join(", "));
-            let share: Vec<String> = run
-                .cpu_share
-                .iter()
-                .map(|(n, f)| format!("{n} {:.2}", f * 100.0))
-                .collect();
-            let _ = writeln!(s, "  CPU share (% of one CPU): {}", share.join(", "));
-        }
-        if !run.memory.is_empty() {
-            let mem: Vec<String> = run
-                .memory
-                .iter()
-                .map(|(n, m)| {
-                    format!(
-                        "{n} {:.1}/{:.1}/{:.1}",
-                        m.rss_kib as f64 / 1024.0,
-                        m.peak_rss_kib as f64 / 1024.0,
-                        m.locked_kib as f64 / 1024.0
-                    )
-                })
-                .collect();
-            let _ = writeln!(
-                s,
-                "  memory, resident/peak/locked (MiB): {}",
-                mem.join(", ")
-            );
-            let faults: Vec<String> = run
-                .memory
-                .iter()
-                .map(|(n, m)| format!("{n} {}/{}", m.minor_faults, m.major_faults))
-                .collect();
-            let _ = writeln!(
-                s,
-                "  page faults in the run, minor/major: {}",
-                faults.join(", ")
-            );
-        }
-        if run.wait.polls() {
-            let spin: Vec<String> = run
-                .spin_us_per_tick
-                .iter()
-                .map(|(n, us)| format!("{n} {us:.2}"))
-                .collect();
-            let _ = writeln!(
-                s,
-                "  polling per tick (µs): {}",
-                if spin.is_empty() {
-                    "none reported".to_owned()
-                } else {
-                    spin.join(", ")
-                }
-            );
-        }
-        for line in &run.realtime {
-            let _ = writeln!(s, "  {line}");
-        }
+        push_run(&mut s, run);
     }
     let mut last = None;
     for (t, w, name, a, b, c) in &r.wait_ratios {
@@ -1375,6 +1433,110 @@ pub fn render(r: &LatencyReport) -> String {
         }
     }
     s
+}
+
+/// One run's part of the latency report: its ticks, the latency figures, the resources it
+/// used, the polling and the real-time settings.
+fn push_run(s: &mut String, run: &RunReport) {
+    use std::fmt::Write as _;
+    let _ = writeln!(
+        s,
+        "\n{}, wait {}: {} ticks, {} missed ({} held up by the machine)",
+        run.transport, run.wait, run.ticks, run.missed, run.held_up
+    );
+    if run.wait.polls() {
+        let _ = writeln!(
+            s,
+            "  the joystick sampled late, a margin before each tick: {} missed it",
+            run.joystick_late_missed
+        );
+    }
+    if let Some(n) = run.live_client_messages {
+        let _ = writeln!(
+            s,
+            "  with scl up --live and a Foxglove client: {n} messages received"
+        );
+    }
+    let _ = writeln!(
+        s,
+        "  {:<20} {:>9} {:>9} {:>9} {:>9} {:>9}   (µs)",
+        "", "p50", "p90", "p99", "p99.9", "max"
+    );
+    for (name, d) in run.figures() {
+        let _ = writeln!(
+            s,
+            "  {name:<20} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+            d.p50, d.p90, d.p99, d.p999, d.max
+        );
+    }
+    push_resources(s, run);
+    if run.wait.polls() {
+        let spin: Vec<String> = run
+            .spin_us_per_tick
+            .iter()
+            .map(|(n, us)| format!("{n} {us:.2}"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "  polling per tick (µs): {}",
+            if spin.is_empty() {
+                "none reported".to_owned()
+            } else {
+                spin.join(", ")
+            }
+        );
+    }
+    for line in &run.realtime {
+        let _ = writeln!(s, "  {line}");
+    }
+}
+
+/// One run's CPU time per tick and share, memory and page faults per process.
+fn push_resources(s: &mut String, run: &RunReport) {
+    use std::fmt::Write as _;
+    if !run.cpu_per_tick_us.is_empty() {
+        let cpu: Vec<String> = run
+            .cpu_per_tick_us
+            .iter()
+            .map(|(n, us)| format!("{n} {us:.1}"))
+            .collect();
+        let _ = writeln!(s, "  CPU per tick (µs): {}", cpu.join(", "));
+        let share: Vec<String> = run
+            .cpu_share
+            .iter()
+            .map(|(n, f)| format!("{n} {:.2}", f * 100.0))
+            .collect();
+        let _ = writeln!(s, "  CPU share (% of one CPU): {}", share.join(", "));
+    }
+    if !run.memory.is_empty() {
+        let mem: Vec<String> = run
+            .memory
+            .iter()
+            .map(|(n, m)| {
+                format!(
+                    "{n} {:.1}/{:.1}/{:.1}",
+                    m.rss_kib as f64 / 1024.0,
+                    m.peak_rss_kib as f64 / 1024.0,
+                    m.locked_kib as f64 / 1024.0
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "  memory, resident/peak/locked (MiB): {}",
+            mem.join(", ")
+        );
+        let faults: Vec<String> = run
+            .memory
+            .iter()
+            .map(|(n, m)| format!("{n} {}/{}", m.minor_faults, m.major_faults))
+            .collect();
+        let _ = writeln!(
+            s,
+            "  page faults in the run, minor/major: {}",
+            faults.join(", ")
+        );
+    }
 }
 
 #[cfg(test)]

@@ -300,6 +300,24 @@ impl Model {
         self.alive_pids = Some(pids);
     }
 
+    /// The bridge's recent latency and lateness percentiles and its recent misses, into `v`.
+    fn bridge_figures(&self, v: &mut View) {
+        let lat: Vec<u64> = self.bridge.iter().map(|b| b.1).filter(|l| *l > 0).collect();
+        if !lat.is_empty() {
+            v.latency_us = Some(percentiles_us(&lat));
+        }
+        let late: Vec<u64> = self.bridge.iter().map(|b| b.2).collect();
+        v.lateness_p99_us = Some(percentiles_us(&late).p99);
+        if let (Some(first), Some(last)) = (self.bridge.front(), self.bridge.back()) {
+            // A restarted bridge counts from zero: only a same-process difference counts.
+            v.missed_recent = if first.4 == last.4 {
+                last.3.saturating_sub(first.3)
+            } else {
+                last.3
+            };
+        }
+    }
+
     /// The view at monotonic time `now`.
     pub fn view(&self, now: u64) -> View {
         let mut v = View {
@@ -351,20 +369,7 @@ impl Model {
             });
         }
         if !self.bridge.is_empty() {
-            let lat: Vec<u64> = self.bridge.iter().map(|b| b.1).filter(|l| *l > 0).collect();
-            if !lat.is_empty() {
-                v.latency_us = Some(percentiles_us(&lat));
-            }
-            let late: Vec<u64> = self.bridge.iter().map(|b| b.2).collect();
-            v.lateness_p99_us = Some(percentiles_us(&late).p99);
-            if let (Some(first), Some(last)) = (self.bridge.front(), self.bridge.back()) {
-                // A restarted bridge counts from zero: only a same-process difference counts.
-                v.missed_recent = if first.4 == last.4 {
-                    last.3.saturating_sub(first.3)
-                } else {
-                    last.3
-                };
-            }
+            self.bridge_figures(&mut v);
         }
         if let Some(s) = &self.state {
             v.tick = Some(s.tick);

@@ -196,38 +196,8 @@ pub fn measure(rec: &Recorded, fault_ns: u64, promise: &Promise) -> Option<Figur
             promised = allowed;
         }
     }
-    let mut peak = 0.0f64;
-    let mut sped_up = false;
-    for (i, s) in states.iter().enumerate().take(end + 1).skip(at) {
-        peak = peak.max(max_speed(s));
-        if i <= start {
-            continue;
-        }
-        for (j, v) in vs.iter().enumerate() {
-            let a = promise
-                .decel_rad_s2
-                .get(j)
-                .copied()
-                .unwrap_or(f64::INFINITY);
-            if s.qdot_rad_s[j].abs() > v + a * promise.period_s + 1e-9 {
-                sped_up = true;
-            }
-        }
-    }
-    let resumed = match resume {
-        None => "none",
-        Some(m) => {
-            let seen = rec
-                .joystick
-                .iter()
-                .any(|j| j.tick >= fault.tick && j.tick <= m.tick && neutral(j));
-            if seen {
-                "after-neutral"
-            } else {
-                "before-neutral"
-            }
-        }
-    };
+    let (peak, sped_up) = peak_and_speed_up(&states, (at, start, end), &vs, promise);
+    let resumed = how_resumed(rec, fault, resume);
     let stop_commands = rec
         .commands
         .iter()
@@ -249,6 +219,56 @@ pub fn measure(rec: &Recorded, fault_ns: u64, promise: &Promise) -> Option<Figur
         missed,
         held_up,
     })
+}
+
+/// Over the states from the fault (index `at`) to the end of the stop (`end`): the peak
+/// joint speed, and whether a joint sped up, after the stop's start (`start`), past what its
+/// deceleration allows from `vs` (the speeds at the stop's start) in a period.
+fn peak_and_speed_up(
+    states: &[&RobotState],
+    (at, start, end): (usize, usize, usize),
+    vs: &[f64],
+    promise: &Promise,
+) -> (f64, bool) {
+    let mut peak = 0.0f64;
+    let mut sped_up = false;
+    for (i, s) in states.iter().enumerate().take(end + 1).skip(at) {
+        peak = peak.max(max_speed(s));
+        if i <= start {
+            continue;
+        }
+        for (j, v) in vs.iter().enumerate() {
+            let a = promise
+                .decel_rad_s2
+                .get(j)
+                .copied()
+                .unwrap_or(f64::INFINITY);
+            if s.qdot_rad_s[j].abs() > v + a * promise.period_s + 1e-9 {
+                sped_up = true;
+            }
+        }
+    }
+    (peak, sped_up)
+}
+
+/// How motion resumed after the stop (`resume`: the first moving command): `none`, or
+/// `after-neutral` / `before-neutral` as the joystick passed through neutral since the
+/// fault or not.
+fn how_resumed(rec: &Recorded, fault: &RobotState, resume: Option<&SafeCommand>) -> &'static str {
+    match resume {
+        None => "none",
+        Some(m) => {
+            let seen = rec
+                .joystick
+                .iter()
+                .any(|j| j.tick >= fault.tick && j.tick <= m.tick && neutral(j));
+            if seen {
+                "after-neutral"
+            } else {
+                "before-neutral"
+            }
+        }
+    }
 }
 
 /// Why a run broke its promise (empty: it kept it).

@@ -505,143 +505,36 @@ fn run_once(
     let end_tick = fault_tick + (AFTER_S / period_s).round() as u64;
     let cfg = drill_config(base, fault, fault_tick);
     let promise = promise_of(&cfg, fault)?;
-    let io = |path: &Path| {
-        let path = path.to_owned();
-        move |source| DrillError::Io { path, source }
-    };
-    let cfg_path = dir.join(format!("{tag}.toml"));
-    let rec_path = dir.join(format!("{tag}.mcap"));
-    let log_path = dir.join(format!("{tag}.log"));
-    for p in [&cfg_path, &rec_path, &log_path] {
-        if p.exists() {
-            return Err(DrillError::Exists(p.clone()));
-        }
-    }
-    std::fs::write(&cfg_path, toml::to_string(&cfg)?).map_err(io(&cfg_path))?;
-    if fault == Fault::SwapBad {
-        let bad = dir.join("not-a-model.safetensors");
-        std::fs::write(&bad, b"not a model").map_err(io(&bad))?;
-    }
-    let log = std::fs::File::create(&log_path).map_err(io(&log_path))?;
-    let exe = std::env::current_exe().map_err(io(Path::new("scl")))?;
-    let mut watch = Watch::join(prefix, &cfg)?;
-    let mut up = Command::new(exe)
-        .args([
-            "up",
-            "--json",
-            "--for",
-            "120s",
-            "--prefix",
-            prefix.as_str(),
-            "--config",
-        ])
-        .arg(&cfg_path)
-        .arg("--record")
-        .arg(&rec_path)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .map_err(io(Path::new("scl up")))?;
-    let graph_err = |what: String| DrillError::Graph {
-        fault: fault.name(),
-        what,
-        log: log_path.clone(),
-    };
+    let (files, log) = RunFiles::create(fault, &cfg, dir, tag)?;
+    let exe = std::env::current_exe().map_err(io_error(Path::new("scl")))?;
+    let watch = Watch::join(prefix, &cfg)?;
+    let up = files.start_graph(exe, log, prefix)?;
     let mut plan = schedule(fault, fault_tick, period_s, &cfg, dir);
     plan.reverse();
-    let mut fault_ns = None;
-    let mut stalled: Option<u32> = None;
-    let mut estop_window = (0, u64::MAX);
-    let mut last_progress = Instant::now();
-    let mut last_tick = None;
-    let mut supervisor_gone = false;
-    let result = loop {
-        watch.poll()?;
-        if watch.tick != last_tick {
-            last_tick = watch.tick;
-            last_progress = Instant::now();
-        }
-        if let Ok(Some(status)) = up.try_wait() {
-            if supervisor_gone || watch.tick.is_some_and(|t| t >= end_tick) {
-                break Ok(status);
-            }
-            break Err(graph_err(format!("scl up ended early ({status})")));
-        }
-        if last_progress.elapsed() > Duration::from_secs(30) {
-            break Err(graph_err("no tick for 30 s".into()));
-        }
-        let tick = watch.tick.unwrap_or(0);
-        if watch.tick.is_some() && fault_ns.is_none() && tick >= fault_tick && plan.is_empty() {
-            // A fault set by tick in the configuration: measured from that tick's state.
-            fault_ns = Some(0);
-        }
-        if let Some((at, _)) = plan.last()
-            && watch.tick.is_some()
-            && tick >= *at
-        {
-            let Some((_, action)) = plan.pop() else {
-                continue;
-            };
-            let now = now_ns();
-            if fault_ns.is_none() {
-                fault_ns = Some(now);
-            }
-            match action {
-                Action::Signal(role, sig) => {
-                    let Some(pid) = watch.pid_of(role) else {
-                        break Err(graph_err(format!("no {} process to signal", role.name())));
-                    };
-                    if sig == Signal::SIGSTOP {
-                        stalled = Some(pid);
-                    }
-                    signal(pid, sig);
-                }
-                Action::ResumeStalled => {
-                    if let Some(pid) = stalled.take() {
-                        signal(pid, Signal::SIGCONT);
-                    }
-                }
-                Action::KillSupervisor => {
-                    supervisor_gone = true;
-                    let _ = up.kill();
-                }
-                Action::Estop(action) => {
-                    if action == estop_action::ESTOP {
-                        estop_window.0 = now;
-                    } else {
-                        estop_window.1 = now;
-                    }
-                    graph_client::control::estop(
-                        prefix,
-                        cfg.graph.transport,
-                        action,
-                        Duration::from_secs(2),
-                    )
-                    .map_err(|e| graph_err(format!("e-stop: {e}")))?;
-                }
-                Action::Swap { model, loads } => {
-                    let r = graph_client::control::swap(prefix, &model, Duration::from_secs(20));
-                    let ok = matches!(&r, Ok(resp) if resp.ok != 0);
-                    if ok != loads {
-                        break Err(graph_err(format!(
-                            "the swap to {model} {}: {r:?}",
-                            if loads { "was refused" } else { "was accepted" }
-                        )));
-                    }
-                }
-            }
-            continue;
-        }
-        if plan.is_empty() && !supervisor_gone && tick >= end_tick {
-            signal(up.id(), Signal::SIGINT);
-            supervisor_gone = true;
-        }
-        std::thread::sleep(Duration::from_millis(2));
+    let mut drive = Drive {
+        fault,
+        prefix,
+        cfg: &cfg,
+        log_path: &files.log,
+        up,
+        watch,
+        plan,
+        fault_ns: None,
+        stalled: None,
+        estop_window: (0, u64::MAX),
+        supervisor_gone: false,
     };
-    if let Some(pid) = stalled {
+    let result = drive.run(fault_tick, end_tick)?;
+    if let Some(pid) = drive.stalled {
         signal(pid, Signal::SIGCONT);
     }
+    let Drive {
+        mut up,
+        watch,
+        fault_ns,
+        estop_window,
+        ..
+    } = drive;
     let status = match result {
         Ok(s) => Some(s),
         Err(e) => {
@@ -653,27 +546,10 @@ fn run_once(
             return Err(e);
         }
     };
-    if fault == Fault::KillSupervisor {
-        // Its children got SIGTERM and stop by themselves; give them time to.
-        let t0 = Instant::now();
-        while t0.elapsed() < Duration::from_secs(10) {
-            watch.poll()?;
-            let alive = watch.graph.alive_nodes();
-            if alive.iter().all(|(name, _)| name == "drill") {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-    drop(watch);
-    if fault == Fault::KillSupervisor {
-        // The supervisor's own node, as `scl up` removes a dead one's at its next start.
-        let _ = transport::graph::cleanup_dead_nodes(prefix);
-    }
-    let _ = transport::graph::release_domain(prefix);
+    leave_graph(fault, watch, prefix)?;
     let left = leftovers(prefix).len();
     tracing::debug!(?status, "scl up ended");
-    let rec = read_recording(&rec_path)?;
+    let rec = read_recording(&files.rec)?;
     let fault_ns = match fault_ns {
         // The e-stop from the moment it was sent (the drill joins the graph to send it).
         _ if fault == Fault::Estop => rec.estop_sent(estop_action::ESTOP).unwrap_or(u64::MAX),
@@ -703,17 +579,7 @@ fn run_once(
     };
     if let Some((a, d)) = estop_answers {
         let deadline_ms = cfg.bridge.command_deadline * period_s * 1e3;
-        if a < d {
-            broken.push(format!(
-                "safety answered {a} of {d} ticks with the e-stop latched and no mapper"
-            ));
-        }
-        if estop_answer_max_ms.is_some_and(|ms| ms > deadline_ms) {
-            broken.push(format!(
-                "safety's own e-stop answer came {:.1} ms after the state, after the bridge's {deadline_ms:.1} ms deadline",
-                estop_answer_max_ms.unwrap_or_default()
-            ));
-        }
+        broken.extend(estop_broken(a, d, estop_answer_max_ms, deadline_ms));
     }
     Ok(RunResult {
         figures,
@@ -722,6 +588,256 @@ fn run_once(
         leftovers: left,
         broken,
     })
+}
+
+/// The promises the e-stop without a mapper broke: safety answered `a` of `d` ticks itself,
+/// its latest answer `max_ms` after the state, against the bridge's deadline.
+fn estop_broken(a: u64, d: u64, max_ms: Option<f64>, deadline_ms: f64) -> Vec<String> {
+    let mut broken = Vec::new();
+    if a < d {
+        broken.push(format!(
+            "safety answered {a} of {d} ticks with the e-stop latched and no mapper"
+        ));
+    }
+    if max_ms.is_some_and(|ms| ms > deadline_ms) {
+        broken.push(format!(
+            "safety's own e-stop answer came {:.1} ms after the state, after the bridge's {deadline_ms:.1} ms deadline",
+            max_ms.unwrap_or_default()
+        ));
+    }
+    broken
+}
+
+/// The files of one run: the configuration, the recording and `scl up`'s log.
+struct RunFiles {
+    cfg: PathBuf,
+    rec: PathBuf,
+    log: PathBuf,
+}
+
+impl RunFiles {
+    /// Names the run's files in `dir` by `tag` (none may exist), writes the configuration
+    /// (and, for the bad swap, the file that is not a model) and creates the log.
+    fn create(
+        fault: Fault,
+        cfg: &GraphConfig,
+        dir: &Path,
+        tag: &str,
+    ) -> Result<(Self, std::fs::File), DrillError> {
+        let files = Self {
+            cfg: dir.join(format!("{tag}.toml")),
+            rec: dir.join(format!("{tag}.mcap")),
+            log: dir.join(format!("{tag}.log")),
+        };
+        for p in [&files.cfg, &files.rec, &files.log] {
+            if p.exists() {
+                return Err(DrillError::Exists(p.clone()));
+            }
+        }
+        std::fs::write(&files.cfg, toml::to_string(cfg)?).map_err(io_error(&files.cfg))?;
+        if fault == Fault::SwapBad {
+            let bad = dir.join("not-a-model.safetensors");
+            std::fs::write(&bad, b"not a model").map_err(io_error(&bad))?;
+        }
+        let log = std::fs::File::create(&files.log).map_err(io_error(&files.log))?;
+        Ok((files, log))
+    }
+
+    /// Starts `scl up` (`exe`) on the configuration, recording, its stderr to `log`.
+    fn start_graph(
+        &self,
+        exe: PathBuf,
+        log: std::fs::File,
+        prefix: &Prefix,
+    ) -> Result<Child, DrillError> {
+        Command::new(exe)
+            .args([
+                "up",
+                "--json",
+                "--for",
+                "120s",
+                "--prefix",
+                prefix.as_str(),
+                "--config",
+            ])
+            .arg(&self.cfg)
+            .arg("--record")
+            .arg(&self.rec)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .map_err(io_error(Path::new("scl up")))
+    }
+}
+
+/// An I/O error on `path`.
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> DrillError {
+    let path = path.to_owned();
+    move |source| DrillError::Io { path, source }
+}
+
+/// After `scl up` ended: the drill leaves the graph (after a killed supervisor, once its
+/// children have stopped) and releases the domain.
+fn leave_graph(fault: Fault, mut watch: Watch, prefix: &Prefix) -> Result<(), DrillError> {
+    if fault == Fault::KillSupervisor {
+        // Its children got SIGTERM and stop by themselves; give them time to.
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(10) {
+            watch.poll()?;
+            let alive = watch.graph.alive_nodes();
+            if alive.iter().all(|(name, _)| name == "drill") {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    drop(watch);
+    if fault == Fault::KillSupervisor {
+        // The supervisor's own node, as `scl up` removes a dead one's at its next start.
+        let _ = transport::graph::cleanup_dead_nodes(prefix);
+    }
+    let _ = transport::graph::release_domain(prefix);
+    Ok(())
+}
+
+/// How a run ended: `scl up`'s exit status, or an error after which the graph is stopped.
+type Ended = Result<std::process::ExitStatus, DrillError>;
+
+/// One run's graph while the drill drives it: `scl up`, the drill's view of the graph, the
+/// fault plan (last step first) and what its steps leave to undo or measure.
+struct Drive<'a> {
+    fault: Fault,
+    prefix: &'a Prefix,
+    cfg: &'a GraphConfig,
+    log_path: &'a Path,
+    up: Child,
+    watch: Watch,
+    plan: Vec<(u64, Action)>,
+    /// When the fault began (0: at its tick, set in the configuration).
+    fault_ns: Option<u64>,
+    /// The process stopped with SIGSTOP, to resume.
+    stalled: Option<u32>,
+    /// When the e-stop was sent and reset.
+    estop_window: (u64, u64),
+    supervisor_gone: bool,
+}
+
+impl Drive<'_> {
+    /// The graph failed the drill (`scl up`'s log says more).
+    fn graph_err(&self, what: String) -> DrillError {
+        DrillError::Graph {
+            fault: self.fault.name(),
+            what,
+            log: self.log_path.to_owned(),
+        }
+    }
+
+    /// Polls the graph every 2 ms, applying the plan's steps at their ticks and stopping
+    /// `scl up` at `end_tick`, until it ends. An error outside ends the drill at once; one
+    /// inside ends the run, and the caller stops the graph.
+    fn run(&mut self, fault_tick: u64, end_tick: u64) -> Result<Ended, DrillError> {
+        let mut last_progress = Instant::now();
+        let mut last_tick = None;
+        loop {
+            self.watch.poll()?;
+            if self.watch.tick != last_tick {
+                last_tick = self.watch.tick;
+                last_progress = Instant::now();
+            }
+            if let Ok(Some(status)) = self.up.try_wait() {
+                if self.supervisor_gone || self.watch.tick.is_some_and(|t| t >= end_tick) {
+                    return Ok(Ok(status));
+                }
+                return Ok(Err(self.graph_err(format!("scl up ended early ({status})"))));
+            }
+            if last_progress.elapsed() > Duration::from_secs(30) {
+                return Ok(Err(self.graph_err("no tick for 30 s".into())));
+            }
+            let tick = self.watch.tick.unwrap_or(0);
+            if self.watch.tick.is_some()
+                && self.fault_ns.is_none()
+                && tick >= fault_tick
+                && self.plan.is_empty()
+            {
+                // A fault set by tick in the configuration: measured from that tick's state.
+                self.fault_ns = Some(0);
+            }
+            if let Some((at, _)) = self.plan.last()
+                && self.watch.tick.is_some()
+                && tick >= *at
+            {
+                let Some((_, action)) = self.plan.pop() else {
+                    continue;
+                };
+                let now = now_ns();
+                if self.fault_ns.is_none() {
+                    self.fault_ns = Some(now);
+                }
+                if let Err(e) = self.act(action, now)? {
+                    return Ok(Err(e));
+                }
+                continue;
+            }
+            if self.plan.is_empty() && !self.supervisor_gone && tick >= end_tick {
+                signal(self.up.id(), Signal::SIGINT);
+                self.supervisor_gone = true;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// Applies one step of the plan at `now`. An error outside ends the drill at once; one
+    /// inside ends the run.
+    fn act(&mut self, action: Action, now: u64) -> Result<Result<(), DrillError>, DrillError> {
+        match action {
+            Action::Signal(role, sig) => {
+                let Some(pid) = self.watch.pid_of(role) else {
+                    return Ok(Err(
+                        self.graph_err(format!("no {} process to signal", role.name()))
+                    ));
+                };
+                if sig == Signal::SIGSTOP {
+                    self.stalled = Some(pid);
+                }
+                signal(pid, sig);
+            }
+            Action::ResumeStalled => {
+                if let Some(pid) = self.stalled.take() {
+                    signal(pid, Signal::SIGCONT);
+                }
+            }
+            Action::KillSupervisor => {
+                self.supervisor_gone = true;
+                let _ = self.up.kill();
+            }
+            Action::Estop(action) => {
+                if action == estop_action::ESTOP {
+                    self.estop_window.0 = now;
+                } else {
+                    self.estop_window.1 = now;
+                }
+                graph_client::control::estop(
+                    self.prefix,
+                    self.cfg.graph.transport,
+                    action,
+                    Duration::from_secs(2),
+                )
+                .map_err(|e| self.graph_err(format!("e-stop: {e}")))?;
+            }
+            Action::Swap { model, loads } => {
+                let r = graph_client::control::swap(self.prefix, &model, Duration::from_secs(20));
+                let ok = matches!(&r, Ok(resp) if resp.ok != 0);
+                if ok != loads {
+                    return Ok(Err(self.graph_err(format!(
+                        "the swap to {model} {}: {r:?}",
+                        if loads { "was refused" } else { "was accepted" }
+                    ))));
+                }
+            }
+        }
+        Ok(Ok(()))
+    }
 }
 
 /// Asks the person at the terminal to confirm a drill that moves a real arm (or
@@ -873,25 +989,7 @@ pub fn render(r: &DrillReport) -> String {
             .try_fold(0u64, |m, t| t.map(|t| m.max(t)));
         let rest = max_of(figs.iter().map(|f| f.rest_ms));
         if !row.promise.stops {
-            let stops: u64 = figs.iter().map(|f| f.stop_commands).max().unwrap_or(0);
-            out.push_str(&format!(
-                "{:<16} {:>10} {:>8} {:>21} {:>20} {:<14} {:>7} ({:>3})    {:>4}  {}\n",
-                row.fault,
-                "-",
-                "-",
-                format!("{stops} stop commands"),
-                "-",
-                "-",
-                figs.iter().map(|f| f.missed).max().unwrap_or(0),
-                figs.iter().map(|f| f.held_up).max().unwrap_or(0),
-                row.runs.iter().map(|x| x.leftovers).max().unwrap_or(0),
-                row.result
-            ));
-            for (i, run) in row.runs.iter().enumerate() {
-                for why in &run.broken {
-                    out.push_str(&format!("  run {}: {why}\n", i + 1));
-                }
-            }
+            out.push_str(&render_non_stopping(row, &figs));
             continue;
         }
         let worst = figs.iter().max_by(|a, b| {
@@ -949,6 +1047,32 @@ pub fn render(r: &DrillReport) -> String {
     } else {
         "FAIL: a drill broke its promise (see above)\n"
     });
+    out
+}
+
+/// A drill's line (and its runs' broken promises) when its fault need not stop the arm:
+/// the stop commands sent instead of the stop figures.
+fn render_non_stopping(row: &Row, figs: &[&Figures]) -> String {
+    let mut out = String::new();
+    let stops: u64 = figs.iter().map(|f| f.stop_commands).max().unwrap_or(0);
+    out.push_str(&format!(
+        "{:<16} {:>10} {:>8} {:>21} {:>20} {:<14} {:>7} ({:>3})    {:>4}  {}\n",
+        row.fault,
+        "-",
+        "-",
+        format!("{stops} stop commands"),
+        "-",
+        "-",
+        figs.iter().map(|f| f.missed).max().unwrap_or(0),
+        figs.iter().map(|f| f.held_up).max().unwrap_or(0),
+        row.runs.iter().map(|x| x.leftovers).max().unwrap_or(0),
+        row.result
+    ));
+    for (i, run) in row.runs.iter().enumerate() {
+        for why in &run.broken {
+            out.push_str(&format!("  run {}: {why}\n", i + 1));
+        }
+    }
     out
 }
 

@@ -115,6 +115,19 @@ struct JoyOperator {
 }
 
 impl JoyOperator {
+    /// The ROS 2 joy operator as `net` configures it, nothing heard yet.
+    fn new(net: &scl_config::NetworkConfig) -> Self {
+        Self {
+            map: scl_net::ros2::JoyMapping::from_config(net),
+            timeout: Duration::from_millis(net.ros2_joy_timeout_ms),
+            publishers: 0,
+            generation: 0,
+            last: None,
+            estop_held: false,
+            seq: 0,
+        }
+    }
+
     /// The session name the link knows the current `/joy` publishers by.
     fn session(&self) -> String {
         format!("ros2-joy-{}", self.generation)
@@ -172,26 +185,7 @@ impl Network {
         let session = session::open(&spec)?;
         let mut subscribers = Vec::new();
         if net.accept_joystick {
-            let (tx, k) = (inbound.clone(), keys.clone());
-            subscribers.push(ports::subscribe::<JoystickInput, _>(
-                &session,
-                keys.joystick_all(),
-                move |key, s| {
-                    if let Some(zid) = k.session_of(key) {
-                        tx.send(Inbound::Sample(zid.to_owned(), s));
-                    }
-                },
-            )?);
-            let (tx, k) = (inbound.clone(), keys.clone());
-            subscribers.push(ports::watch_liveliness(
-                &session,
-                keys.operator_all(),
-                move |key, alive| {
-                    if let Some(zid) = k.session_of(key) {
-                        tx.send(Inbound::Token(zid.to_owned(), alive));
-                    }
-                },
-            )?);
+            subscribers.extend(operator_subscribers(&session, keys, inbound)?);
         }
         if net.inbound() {
             let tx = inbound.clone();
@@ -203,46 +197,9 @@ impl Network {
         }
         let mut tokens = Vec::new();
         if net.ros2_joy {
-            use scl_net::ros2::{EntityKind, JOY, Ros2Node};
-            use scl_net::zenoh::Wait as _;
-            let node = Ros2Node {
-                domain: net.ros2_domain_id,
-                zid: session::session_id(&session),
-                name: net.ros2_node.clone(),
-            };
-            let key = node.topic_key(JOY_TOPIC, JOY);
-            let tx = inbound.clone();
-            subscribers.push(
-                session
-                    .declare_subscriber(key.clone())
-                    .callback(move |s| {
-                        let bytes = s.payload().to_bytes();
-                        let joy = scl_net::ros2::decode_joy(&bytes).map_err(|e| e.to_string());
-                        tx.send(Inbound::Joy(joy));
-                    })
-                    .wait()
-                    .map_err(|source| scl_net::SessionError::Declare {
-                        what: "ROS 2 subscription",
-                        key,
-                        source,
-                    })?,
-            );
-            let tx = inbound.clone();
-            subscribers.push(ports::watch_liveliness(
-                &session,
-                format!(
-                    "@ros2_lv/{}/*/*/*/MP/*/*/*/{}/{}/{}/*",
-                    net.ros2_domain_id,
-                    scl_net::ros2::mangle(JOY_TOPIC),
-                    JOY.name,
-                    JOY.hash
-                ),
-                move |_, alive| tx.send(Inbound::JoyPublisher(alive)),
-            )?);
-            tokens.push(ports::token(
-                &session,
-                node.entity_token(3, EntityKind::Subscription, JOY_TOPIC, JOY),
-            )?);
+            let (subscriber, watch, token) = ros2_joy(&session, net, inbound)?;
+            subscribers.extend([subscriber, watch]);
+            tokens.push(token);
         }
         let queryables = vec![captures.serve(&session, keys)?, {
             let key = keys.clock();
@@ -274,6 +231,84 @@ impl Network {
             thread: Some(thread),
         })
     }
+}
+
+/// The subscribers an operator's joystick needs: its samples (by session) and its
+/// liveliness token.
+fn operator_subscribers(
+    session: &scl_net::zenoh::Session,
+    keys: &Keys,
+    inbound: &InboundTx,
+) -> Result<[scl_net::zenoh::pubsub::Subscriber<()>; 2], GatewayError> {
+    let (tx, k) = (inbound.clone(), keys.clone());
+    let samples =
+        ports::subscribe::<JoystickInput, _>(session, keys.joystick_all(), move |key, s| {
+            if let Some(zid) = k.session_of(key) {
+                tx.send(Inbound::Sample(zid.to_owned(), s));
+            }
+        })?;
+    let (tx, k) = (inbound.clone(), keys.clone());
+    let tokens = ports::watch_liveliness(session, keys.operator_all(), move |key, alive| {
+        if let Some(zid) = k.session_of(key) {
+            tx.send(Inbound::Token(zid.to_owned(), alive));
+        }
+    })?;
+    Ok([samples, tokens])
+}
+
+/// The ROS 2 joy input's subscription, its watch on the publishers and its token.
+type Ros2Joy = (
+    scl_net::zenoh::pubsub::Subscriber<()>,
+    scl_net::zenoh::pubsub::Subscriber<()>,
+    scl_net::zenoh::liveliness::LivelinessToken,
+);
+
+/// The ROS 2 `sensor_msgs/Joy` input: the subscription to the joy topic, the watch on its
+/// publishers' liveliness, and this node's subscription token (so ROS 2 tools see it).
+fn ros2_joy(
+    session: &scl_net::zenoh::Session,
+    net: &scl_config::NetworkConfig,
+    inbound: &InboundTx,
+) -> Result<Ros2Joy, GatewayError> {
+    use scl_net::ros2::{EntityKind, JOY, Ros2Node};
+    use scl_net::zenoh::Wait as _;
+    let node = Ros2Node {
+        domain: net.ros2_domain_id,
+        zid: session::session_id(session),
+        name: net.ros2_node.clone(),
+    };
+    let key = node.topic_key(JOY_TOPIC, JOY);
+    let tx = inbound.clone();
+    let subscriber = session
+        .declare_subscriber(key.clone())
+        .callback(move |s| {
+            let bytes = s.payload().to_bytes();
+            let joy = scl_net::ros2::decode_joy(&bytes).map_err(|e| e.to_string());
+            tx.send(Inbound::Joy(joy));
+        })
+        .wait()
+        .map_err(|source| scl_net::SessionError::Declare {
+            what: "ROS 2 subscription",
+            key,
+            source,
+        })?;
+    let tx = inbound.clone();
+    let watch = ports::watch_liveliness(
+        session,
+        format!(
+            "@ros2_lv/{}/*/*/*/MP/*/*/*/{}/{}/{}/*",
+            net.ros2_domain_id,
+            scl_net::ros2::mangle(JOY_TOPIC),
+            JOY.name,
+            JOY.hash
+        ),
+        move |_, alive| tx.send(Inbound::JoyPublisher(alive)),
+    )?;
+    let token = ports::token(
+        session,
+        node.entity_token(3, EntityKind::Subscription, JOY_TOPIC, JOY),
+    )?;
+    Ok((subscriber, watch, token))
 }
 
 impl Drop for Network {
@@ -925,15 +960,7 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         st: NodeStatus::new(NodeRole::Gateway, phase::READY, now_ns()),
         outbound_dropped: 0,
         inbound_dropped,
-        joy: net_cfg.ros2_joy.then(|| JoyOperator {
-            map: scl_net::ros2::JoyMapping::from_config(net_cfg),
-            timeout: Duration::from_millis(net_cfg.ros2_joy_timeout_ms),
-            publishers: 0,
-            generation: 0,
-            last: None,
-            estop_held: false,
-            seq: 0,
-        }),
+        joy: net_cfg.ros2_joy.then(|| JoyOperator::new(net_cfg)),
     };
     heartbeat.send(gw.st)?;
     gw.st.phase = phase::RUNNING;
@@ -976,17 +1003,22 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     let _ = heartbeat.send(gw.st);
     drop(net);
     drop(captures);
+    log_cpu_time(gw.st.handled);
+    Ok(())
+}
+
+/// Logs the process's CPU time over the `ticks` it handled.
+fn log_cpu_time(ticks: u64) {
     if let Some(cpu) = process_cpu_s()
-        && gw.st.handled > 0
+        && ticks > 0
     {
         tracing::info!(
-            ticks = gw.st.handled,
+            ticks,
             cpu_s = format!("{cpu:.2}"),
-            per_tick_us = format!("{:.0}", cpu * 1e6 / gw.st.handled as f64),
+            per_tick_us = format!("{:.0}", cpu * 1e6 / ticks as f64),
             "gateway CPU time (every thread, Zenoh's included)"
         );
     }
-    Ok(())
 }
 
 /// The stamp a forwarded sample carries: the arrival time `now`, or with `keep` (the operator

@@ -733,16 +733,7 @@ fn drive(
         }
         let now = Instant::now();
         let mut input = source.input(now, tick, gripper);
-        let nan_from = faults.joystick_nan_at_tick;
-        if nan_from != 0
-            && tick != NO_TICK
-            && (nan_from..nan_from + scl_config::NAN_INPUT_TICKS).contains(&tick)
-        {
-            if new_state.is_some() {
-                tracing::warn!(tick, "fault injection: the joystick sends NaN axes");
-            }
-            input.axes = [f32::NAN, f32::NAN];
-        }
+        inject_nan_axes(faults, tick, new_state.is_some(), &mut input);
         let silent = faults.joystick_silent_after_ticks;
         if silent == 0 || st.handled < silent {
             out.send_estop(ep, &input)?;
@@ -770,13 +761,38 @@ fn drive(
     screen.finish();
     ep.finish();
     if let Some(r) = out.recorder.take() {
-        let file = cfg.record_input.clone();
-        let rows = r.finish(t0.elapsed().as_secs_f64())?;
-        tracing::info!(rows, file, "input recorded");
+        finish_recording(r, cfg, t0)?;
     }
     st.phase = phase::STOPPING;
     st.t_ns = now_ns();
     ep.send_status(st)?;
+    Ok(())
+}
+
+/// Fault injection: from `joystick_nan_at_tick`, for a few ticks, the axes are NaN (said
+/// once per new state).
+fn inject_nan_axes(faults: &FaultConfig, tick: u64, new_state: bool, input: &mut Input) {
+    let nan_from = faults.joystick_nan_at_tick;
+    if nan_from != 0
+        && tick != NO_TICK
+        && (nan_from..nan_from + scl_config::NAN_INPUT_TICKS).contains(&tick)
+    {
+        if new_state {
+            tracing::warn!(tick, "fault injection: the joystick sends NaN axes");
+        }
+        input.axes = [f32::NAN, f32::NAN];
+    }
+}
+
+/// Ends the input recording (`[joystick] record_input`) started at `t0`.
+fn finish_recording(
+    r: replay::InputRecorder,
+    cfg: &JoystickConfig,
+    t0: Instant,
+) -> Result<(), JoystickError> {
+    let file = cfg.record_input.clone();
+    let rows = r.finish(t0.elapsed().as_secs_f64())?;
+    tracing::info!(rows, file, "input recorded");
     Ok(())
 }
 

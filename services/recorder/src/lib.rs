@@ -547,134 +547,190 @@ struct SideChannels {
 }
 
 fn write_loop<W: Write>(
-    mut w: LogWriter<W>,
-    mut view: Option<View>,
+    w: LogWriter<W>,
+    view: Option<View>,
     rx: Receiver<Payload>,
     side: &SideChannels,
     tally: &Tally,
     topics: &[Topic],
     flush_every: Duration,
 ) -> WriterOutcome {
-    // Messages in the open chunk: written once the chunk reaches the sink.
-    let mut pending = [0u64; Topic::COUNT];
-    // Messages of the 3D channels in the open chunk.
-    let mut pending_view = 0u64;
-    let mut pending_bytes = 0usize;
-    let mut error: Option<String> = None;
-    let mut last_flush = Instant::now();
-    let fail = |error: &mut Option<String>, pending: &mut [u64; Topic::COUNT], e: RecordError| {
-        if error.is_none() {
-            tracing::error!(
-                "{e}; the recording ends at its last complete chunk, later messages are dropped"
-            );
-            *error = Some(e.to_string());
-        }
-        for (i, n) in pending.iter_mut().enumerate() {
-            tally.write_dropped[i].fetch_add(*n, Ordering::SeqCst);
-            *n = 0;
-        }
+    let mut out = ChunkWriter {
+        w,
+        view,
+        tally,
+        pending: [0u64; Topic::COUNT],
+        pending_view: 0,
+        pending_bytes: 0,
+        error: None,
+        last_flush: Instant::now(),
     };
     loop {
-        let wait = flush_every.saturating_sub(last_flush.elapsed());
+        let wait = flush_every.saturating_sub(out.last_flush.elapsed());
         match rx.recv_timeout(wait) {
-            Ok(p) => {
-                let i = p.topic().index();
-                if error.is_some() {
-                    tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
-                } else {
-                    let written = w.write(&p).and_then(|n| match view.as_mut() {
-                        Some(v) => v.write(&mut w, &p).map(|(k, m)| (k, n + m)),
-                        None => Ok((0, n)),
-                    });
-                    match written {
-                        Ok((k, n)) => {
-                            pending[i] += 1;
-                            pending_view += k;
-                            pending_bytes += n;
-                            tally.json_bytes.fetch_add(n as u64, Ordering::SeqCst);
-                        }
-                        Err(e) => {
-                            tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
-                            fail(&mut error, &mut pending, e);
-                        }
-                    }
-                }
-            }
+            Ok(p) => out.write(&p),
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => break,
         }
+        out.take_processes_and_metadata(side);
+        out.take_logs(side);
+        out.flush_if_due(flush_every);
+    }
+    // What was handed over while stopping.
+    out.take_processes_and_metadata(side);
+    out.finish(topics)
+}
+
+/// A write error: logged once (the first is kept in `error`); the open chunk's messages
+/// (`pending`) are counted dropped.
+fn chunk_failed(
+    error: &mut Option<String>,
+    pending: &mut [u64; Topic::COUNT],
+    tally: &Tally,
+    e: RecordError,
+) {
+    if error.is_none() {
+        tracing::error!(
+            "{e}; the recording ends at its last complete chunk, later messages are dropped"
+        );
+        *error = Some(e.to_string());
+    }
+    for (i, n) in pending.iter_mut().enumerate() {
+        tally.write_dropped[i].fetch_add(*n, Ordering::SeqCst);
+        *n = 0;
+    }
+}
+
+/// The recording's writer with what its open chunk holds: messages (per topic) and 3D
+/// messages counted once the chunk reaches the sink, and the first write error, after
+/// which everything is dropped (and counted so).
+struct ChunkWriter<'a, W: Write> {
+    w: LogWriter<W>,
+    view: Option<View>,
+    tally: &'a Tally,
+    /// Messages in the open chunk: written once the chunk reaches the sink.
+    pending: [u64; Topic::COUNT],
+    /// Messages of the 3D channels in the open chunk.
+    pending_view: u64,
+    pending_bytes: usize,
+    error: Option<String>,
+    last_flush: Instant,
+}
+
+impl<W: Write> ChunkWriter<'_, W> {
+    /// A write error: logged once; the open chunk's messages are counted dropped.
+    fn fail(&mut self, e: RecordError) {
+        chunk_failed(&mut self.error, &mut self.pending, self.tally, e);
+    }
+
+    /// Writes a message (and its 3D view), or counts it dropped after an error.
+    fn write(&mut self, p: &Payload) {
+        let i = p.topic().index();
+        if self.error.is_some() {
+            self.tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
+            return;
+        }
+        let w = &mut self.w;
+        let written = w.write(p).and_then(|n| match self.view.as_mut() {
+            Some(v) => v.write(w, p).map(|(k, m)| (k, n + m)),
+            None => Ok((0, n)),
+        });
+        match written {
+            Ok((k, n)) => {
+                self.pending[i] += 1;
+                self.pending_view += k;
+                self.pending_bytes += n;
+                self.tally.json_bytes.fetch_add(n as u64, Ordering::SeqCst);
+            }
+            Err(e) => {
+                self.tally.write_dropped[i].fetch_add(1, Ordering::SeqCst);
+                self.fail(e);
+            }
+        }
+    }
+
+    /// Writes the processes and the metadata handed over on the side channels.
+    fn take_processes_and_metadata(&mut self, side: &SideChannels) {
         while let Ok(p) = side.procs.try_recv() {
-            if error.is_none()
-                && let Err(e) = write_process(&mut w, view.as_mut(), &p)
+            if self.error.is_none()
+                && let Err(e) = write_process(&mut self.w, self.view.as_mut(), &p)
             {
-                fail(&mut error, &mut pending, e);
+                self.fail(e);
             }
         }
         while let Ok(m) = side.metas.try_recv() {
-            if error.is_none()
-                && let Err(e) = w.write_metadata(&m)
+            if self.error.is_none()
+                && let Err(e) = self.w.write_metadata(&m)
             {
-                fail(&mut error, &mut pending, e);
+                self.fail(e);
             }
         }
+    }
+
+    /// Writes the log lines handed over to the 3D view (if any).
+    fn take_logs(&mut self, side: &SideChannels) {
         while let Ok(r) = side.logs.try_recv() {
-            if error.is_none()
-                && let Some(v) = view.as_mut()
+            if self.error.is_none()
+                && let Some(v) = self.view.as_mut()
             {
-                match v.write_log(&mut w, &r) {
+                match v.write_log(&mut self.w, &r) {
                     Ok((k, n)) => {
-                        pending_view += k;
-                        pending_bytes += n;
+                        self.pending_view += k;
+                        self.pending_bytes += n;
                     }
-                    Err(e) => fail(&mut error, &mut pending, e),
+                    Err(e) => self.fail(e),
                 }
             }
         }
-        if error.is_none() && (last_flush.elapsed() >= flush_every || pending_bytes >= FLUSH_BYTES)
+    }
+
+    /// Ends the open chunk when `flush_every` has passed or it holds enough bytes; its
+    /// messages count as written.
+    fn flush_if_due(&mut self, flush_every: Duration) {
+        if self.error.is_none()
+            && (self.last_flush.elapsed() >= flush_every || self.pending_bytes >= FLUSH_BYTES)
         {
-            match w.flush() {
+            match self.w.flush() {
                 Ok(()) => {
-                    for (i, n) in pending.iter_mut().enumerate() {
-                        tally.written[i].fetch_add(*n, Ordering::SeqCst);
+                    for (i, n) in self.pending.iter_mut().enumerate() {
+                        self.tally.written[i].fetch_add(*n, Ordering::SeqCst);
                         *n = 0;
                     }
-                    tally.view_written.fetch_add(pending_view, Ordering::SeqCst);
+                    self.tally
+                        .view_written
+                        .fetch_add(self.pending_view, Ordering::SeqCst);
                 }
-                Err(e) => fail(&mut error, &mut pending, e),
+                Err(e) => self.fail(e),
             }
-            pending_view = 0;
-            pending_bytes = 0;
-            last_flush = Instant::now();
+            self.pending_view = 0;
+            self.pending_bytes = 0;
+            self.last_flush = Instant::now();
         }
     }
-    // What was handed over while stopping.
-    while let Ok(p) = side.procs.try_recv() {
-        if error.is_none()
-            && let Err(e) = write_process(&mut w, view.as_mut(), &p)
-        {
-            fail(&mut error, &mut pending, e);
-        }
-    }
-    while let Ok(m) = side.metas.try_recv() {
-        if error.is_none()
-            && let Err(e) = w.write_metadata(&m)
-        {
-            fail(&mut error, &mut pending, e);
-        }
-    }
-    if error.is_none() {
-        let end = tally.end_metadata(topics, &pending, pending_view);
-        match w.finish(Some(recording::metadata(recording::END_METADATA, end))) {
-            Ok(_) => {
-                for (i, n) in pending.iter_mut().enumerate() {
-                    tally.written[i].fetch_add(*n, Ordering::SeqCst);
+
+    /// Ends the recording with the end metadata (unless a write failed); the outcome.
+    fn finish(mut self, topics: &[Topic]) -> WriterOutcome {
+        if self.error.is_none() {
+            let end = self
+                .tally
+                .end_metadata(topics, &self.pending, self.pending_view);
+            match self
+                .w
+                .finish(Some(recording::metadata(recording::END_METADATA, end)))
+            {
+                Ok(_) => {
+                    for (i, n) in self.pending.iter_mut().enumerate() {
+                        self.tally.written[i].fetch_add(*n, Ordering::SeqCst);
+                    }
+                    self.tally
+                        .view_written
+                        .fetch_add(self.pending_view, Ordering::SeqCst);
                 }
-                tally.view_written.fetch_add(pending_view, Ordering::SeqCst);
+                Err(e) => chunk_failed(&mut self.error, &mut self.pending, self.tally, e),
             }
-            Err(e) => fail(&mut error, &mut pending, e),
         }
+        WriterOutcome { error: self.error }
     }
-    WriterOutcome { error }
 }
 
 /// Writes what process item `p` says into `w` and tells the 3D view.

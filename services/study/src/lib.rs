@@ -315,24 +315,7 @@ pub fn run(
         path: recordings.clone(),
         source,
     })?;
-    // The study file this participant runs under, kept beside the data; a changed file is
-    // refused (the plan and the data would no longer agree).
-    let copy = dir.join(data::STUDY_COPY);
-    match std::fs::read_to_string(&copy) {
-        Ok(old) if old != study.text => {
-            return Err(StudyRunError::Graph(format!(
-                "{} changed since {pid} started (their copy: {}); finish them with the \
-                 copy, or give the new study a new directory",
-                opts.study.display(),
-                copy.display()
-            )));
-        }
-        Ok(_) => {}
-        Err(_) => std::fs::write(&copy, &study.text).map_err(|source| StudyRunError::Io {
-            path: copy.clone(),
-            source,
-        })?,
-    }
+    keep_study_copy(&study, &opts.study, dir, &pid)?;
     let mut progress = Progress::load(dir, &pid)?;
     let (keys, acks) = input(opts.keys.as_deref())?;
     let mut screen = Screen {
@@ -389,22 +372,8 @@ pub fn run(
                     return Ok(RunEnd::Aborted);
                 }
             }
-            for attempt in 1..=task.attempts {
-                if progress.attempt_done(&task.name, &cond.label, attempt) {
-                    continue;
-                }
-                loop {
-                    let row = match p.attempt(ti, ci, pos as u32 + 1, attempt)? {
-                        Flow::Go(row) => row,
-                        Flow::Abort => return Ok(RunEnd::Aborted),
-                    };
-                    trials.push(&row)?;
-                    let repeated = row.repeated;
-                    progress.trials.push(row);
-                    if !repeated {
-                        break;
-                    }
-                }
+            if let Flow::Abort = p.attempts(ti, ci, pos as u32 + 1, &mut progress, &mut trials)? {
+                return Ok(RunEnd::Aborted);
             }
             if !progress.answered(&task.name, &cond.label) {
                 let qs = study.file.questionnaire.questions();
@@ -426,6 +395,28 @@ pub fn run(
         dir.join(data::TRIALS).display()
     )]);
     Ok(RunEnd::Finished)
+}
+
+/// The study file this participant runs under, kept beside the data (`dir`); a changed file
+/// is refused (the plan and the data would no longer agree).
+fn keep_study_copy(study: &Study, file: &Path, dir: &Path, pid: &str) -> Result<(), StudyRunError> {
+    let copy = dir.join(data::STUDY_COPY);
+    match std::fs::read_to_string(&copy) {
+        Ok(old) if old != study.text => {
+            return Err(StudyRunError::Graph(format!(
+                "{} changed since {pid} started (their copy: {}); finish them with the \
+                 copy, or give the new study a new directory",
+                file.display(),
+                copy.display()
+            )));
+        }
+        Ok(_) => {}
+        Err(_) => std::fs::write(&copy, &study.text).map_err(|source| StudyRunError::Io {
+            path: copy.clone(),
+            source,
+        })?,
+    }
+    Ok(())
 }
 
 struct Protocol<'a> {
@@ -608,6 +599,38 @@ impl Protocol<'_> {
         Ok(Flow::Go(()))
     }
 
+    /// The attempts of task `ti` under condition `ci` (at `position` in the order) not done
+    /// yet, each run again while the experimenter repeats it; each row kept.
+    fn attempts(
+        &mut self,
+        ti: usize,
+        ci: usize,
+        position: u32,
+        progress: &mut Progress,
+        trials: &mut Appender,
+    ) -> Result<Flow<()>, StudyRunError> {
+        let task = &self.study.file.tasks[ti];
+        let cond = &self.study.file.conditions[ci];
+        for attempt in 1..=task.attempts {
+            if progress.attempt_done(&task.name, &cond.label, attempt) {
+                continue;
+            }
+            loop {
+                let row = match self.attempt(ti, ci, position, attempt)? {
+                    Flow::Go(row) => row,
+                    Flow::Abort => return Ok(Flow::Abort),
+                };
+                trials.push(&row)?;
+                let repeated = row.repeated;
+                progress.trials.push(row);
+                if !repeated {
+                    break;
+                }
+            }
+        }
+        Ok(Flow::Go(()))
+    }
+
     /// One attempt, from the start pose to the kept-or-repeated decision; its row.
     fn attempt(
         &mut self,
@@ -632,128 +655,24 @@ impl Protocol<'_> {
         )? {
             return Ok(Flow::Abort);
         }
-        let stem = format!(
-            "{}-{}-{}-{attempt}",
-            self.participant, task.name, cond.label
-        );
-        let mcap = data::fresh_name(self.recordings, &stem, "mcap");
-        let outcome_file = mcap.with_extension("outcome.json");
-        let meta = [
-            ("study", study.file.name.clone()),
-            ("participant", self.participant.to_string()),
-            ("task", task.name.clone()),
-            (
-                "goals",
-                task.goals.clone().unwrap_or_else(|| task.name.clone()),
-            ),
-            ("label", cond.label.clone()),
-            ("condition", cond.name.clone()),
-            ("model", study.models[ci][ti].clone()),
-            ("position", position.to_string()),
-            ("attempt", attempt.to_string()),
-        ];
-        let mut rec = Recording::start(&self.live.prefix, &mcap, &outcome_file, &meta)?;
-        let t_wait = Instant::now();
-        while !self.live.recorders.contains(&rec.pid()) {
-            self.live.poll()?;
-            if let Some(status) = rec.exited() {
-                return Err(StudyRunError::Graph(format!(
-                    "the recorder for {} exited ({status}); see {}",
-                    mcap.display(),
-                    rec.log.display()
-                )));
-            }
-            if t_wait.elapsed() > Duration::from_secs(10) {
-                return Err(StudyRunError::Graph(format!(
-                    "the recorder for {} did not start in 10 s; see {}",
-                    mcap.display(),
-                    rec.log.display()
-                )));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        let (mut rec, mcap) = self.start_recording(ti, ci, position, attempt)?;
         let started_unix_s = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0.0, |d| d.as_secs_f64());
         let switches0 = self.live.mode_switches();
         let estops0 = self.live.estops_seen;
-        self.screen.show(&[format!(
-            "{} attempt {attempt}: running. `s` success, `f` failure, `p` pause, `a` abort",
-            cond.label
-        )]);
-        let mut active = Duration::ZERO;
-        let mut since = Some(Instant::now());
-        let limit = Duration::from_secs_f64(task.time_limit_s);
-        let outcome = loop {
-            let now = active + since.map_or(Duration::ZERO, |s| s.elapsed());
-            if now >= limit {
-                break Outcome::Timeout;
-            }
-            self.screen.tick(&format!(
-                "{} attempt {attempt}: {:6.1} s of {:.0} s{}",
-                cond.label,
-                now.as_secs_f64(),
-                task.time_limit_s,
-                if since.is_none() {
-                    "  PAUSED (`p` resumes)"
-                } else {
-                    ""
-                }
-            ));
-            match self.peek()? {
-                Some(Key::Success) => {
-                    self.take();
-                    break Outcome::Success;
-                }
-                Some(Key::Failure) => {
-                    self.take();
-                    break Outcome::Failure;
-                }
-                Some(Key::Pause) => {
-                    self.take();
-                    match since.take() {
-                        Some(s) => active += s.elapsed(),
-                        None => since = Some(Instant::now()),
-                    }
-                }
-                Some(Key::Abort) => {
-                    rec.stop(None)?;
-                    self.screen.show(&[format!(
-                        "aborted during {} attempt {attempt}: its recording {} is kept; the \
-                         attempt is run again on resume",
-                        cond.label,
-                        mcap.display()
-                    )]);
-                    return Ok(Flow::Abort);
-                }
-                _ => {}
-            }
+        let Flow::Go((outcome, duration)) =
+            self.run_clock(task, &cond.label, attempt, &mut rec, &mcap)?
+        else {
+            return Ok(Flow::Abort);
         };
-        let duration = active + since.map_or(Duration::ZERO, |s| s.elapsed());
         // Milliseconds are all a stopwatch of the protocol's keys can claim.
         let duration_s = (duration.as_secs_f64().min(task.time_limit_s) * 1e3).round() / 1e3;
-        let completion = if outcome == Outcome::Success {
-            100
-        } else {
-            match self.ask_number(
-                &format!(
-                    "{} ({}): completion in % (0-100)?",
-                    outcome.name(),
-                    cond.label
-                ),
-                |n| {
-                    if n <= 100 {
-                        Ok(())
-                    } else {
-                        Err(format!("{n} is not a percentage"))
-                    }
-                },
-            )? {
-                Flow::Go(n) => n,
-                Flow::Abort => {
-                    rec.stop(None)?;
-                    return Ok(Flow::Abort);
-                }
+        let completion = match self.ask_completion(outcome, &cond.label)? {
+            Flow::Go(n) => n,
+            Flow::Abort => {
+                rec.stop(None)?;
+                return Ok(Flow::Abort);
             }
         };
         let repeated = match self.ask(
@@ -795,6 +714,150 @@ impl Protocol<'_> {
         };
         rec.stop(Some(&row))?;
         Ok(Flow::Go(row))
+    }
+
+    /// Starts the attempt's recorder (its metadata: the study, the participant, the task,
+    /// the condition, the model and the attempt) and waits up to 10 s for it to join.
+    fn start_recording(
+        &mut self,
+        ti: usize,
+        ci: usize,
+        position: u32,
+        attempt: u32,
+    ) -> Result<(Recording, PathBuf), StudyRunError> {
+        let study = self.study;
+        let task = &study.file.tasks[ti];
+        let cond = &study.file.conditions[ci];
+        let stem = format!(
+            "{}-{}-{}-{attempt}",
+            self.participant, task.name, cond.label
+        );
+        let mcap = data::fresh_name(self.recordings, &stem, "mcap");
+        let outcome_file = mcap.with_extension("outcome.json");
+        let meta = [
+            ("study", study.file.name.clone()),
+            ("participant", self.participant.to_string()),
+            ("task", task.name.clone()),
+            (
+                "goals",
+                task.goals.clone().unwrap_or_else(|| task.name.clone()),
+            ),
+            ("label", cond.label.clone()),
+            ("condition", cond.name.clone()),
+            ("model", study.models[ci][ti].clone()),
+            ("position", position.to_string()),
+            ("attempt", attempt.to_string()),
+        ];
+        let mut rec = Recording::start(&self.live.prefix, &mcap, &outcome_file, &meta)?;
+        let t_wait = Instant::now();
+        while !self.live.recorders.contains(&rec.pid()) {
+            self.live.poll()?;
+            if let Some(status) = rec.exited() {
+                return Err(StudyRunError::Graph(format!(
+                    "the recorder for {} exited ({status}); see {}",
+                    mcap.display(),
+                    rec.log.display()
+                )));
+            }
+            if t_wait.elapsed() > Duration::from_secs(10) {
+                return Err(StudyRunError::Graph(format!(
+                    "the recorder for {} did not start in 10 s; see {}",
+                    mcap.display(),
+                    rec.log.display()
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        Ok((rec, mcap))
+    }
+
+    /// The attempt's clock, with pauses, until the success or failure key or the time
+    /// limit: its outcome and active time. An abort stops the recording (kept).
+    fn run_clock(
+        &mut self,
+        task: &study::plan::Task,
+        label: &str,
+        attempt: u32,
+        rec: &mut Recording,
+        mcap: &Path,
+    ) -> Result<Flow<(Outcome, Duration)>, StudyRunError> {
+        self.screen.show(&[format!(
+            "{} attempt {attempt}: running. `s` success, `f` failure, `p` pause, `a` abort",
+            label
+        )]);
+        let mut active = Duration::ZERO;
+        let mut since = Some(Instant::now());
+        let limit = Duration::from_secs_f64(task.time_limit_s);
+        let outcome = loop {
+            let now = active + since.map_or(Duration::ZERO, |s| s.elapsed());
+            if now >= limit {
+                break Outcome::Timeout;
+            }
+            self.screen.tick(&format!(
+                "{} attempt {attempt}: {:6.1} s of {:.0} s{}",
+                label,
+                now.as_secs_f64(),
+                task.time_limit_s,
+                if since.is_none() {
+                    "  PAUSED (`p` resumes)"
+                } else {
+                    ""
+                }
+            ));
+            match self.peek()? {
+                Some(Key::Success) => {
+                    self.take();
+                    break Outcome::Success;
+                }
+                Some(Key::Failure) => {
+                    self.take();
+                    break Outcome::Failure;
+                }
+                Some(Key::Pause) => {
+                    self.take();
+                    match since.take() {
+                        Some(s) => active += s.elapsed(),
+                        None => since = Some(Instant::now()),
+                    }
+                }
+                Some(Key::Abort) => {
+                    rec.stop(None)?;
+                    self.screen.show(&[format!(
+                        "aborted during {} attempt {attempt}: its recording {} is kept; the \
+                         attempt is run again on resume",
+                        label,
+                        mcap.display()
+                    )]);
+                    return Ok(Flow::Abort);
+                }
+                _ => {}
+            }
+        };
+        Ok(Flow::Go((
+            outcome,
+            active + since.map_or(Duration::ZERO, |s| s.elapsed()),
+        )))
+    }
+
+    /// The completion in % of an attempt: 100 for a success, else asked.
+    fn ask_completion(
+        &mut self,
+        outcome: Outcome,
+        label: &str,
+    ) -> Result<Flow<u32>, StudyRunError> {
+        if outcome == Outcome::Success {
+            return Ok(Flow::Go(100));
+        }
+        self.ask_number(
+            &format!("{} ({label}): completion in % (0-100)?", outcome.name()),
+            |n| {
+                if n <= 100 {
+                    Ok(())
+                } else {
+                    Err(format!("{n} is not a percentage"))
+                }
+            },
+        )
     }
 
     fn questionnaire(

@@ -125,7 +125,6 @@ impl LiveSim {
         s: &AttemptSetup<'_>,
         info: &AttemptInfo<'_>,
     ) -> Result<AttemptResult, SimError> {
-        let live = |m: String| SimError::Live(m);
         let mut driver = AttemptDriver::new(s)?;
         let cfg = self.config(s, info.spec);
         let cfg_path = self.dir.join(format!("{}.toml", info.name));
@@ -136,18 +135,7 @@ impl LiveSim {
             .map_err(|e| live(format!("{}: {e}", cfg_path.display())))?;
         let log = std::fs::File::create(&log_path)
             .map_err(|e| live(format!("{}: {e}", log_path.display())))?;
-        let graph = Graph::join(&self.prefix, &format!("simlive-{}", std::process::id()))
-            .map_err(|e| live(e.to_string()))?;
-        let states = graph
-            .robot_state_subscriber(true)
-            .map_err(|e| live(e.to_string()))?;
-        let status = graph.status_subscriber().map_err(|e| live(e.to_string()))?;
-        let commands = graph
-            .mapper_command_subscriber(false)
-            .map_err(|e| live(e.to_string()))?;
-        let joystick = graph
-            .joystick_publisher()
-            .map_err(|e| live(e.to_string()))?;
+        let io = LiveIo::join(&self.prefix)?;
         // The prefix on the command line: it overrides an SCL_PREFIX this process inherited.
         let child = Command::new(&self.exe)
             .args(["up", "--prefix", self.prefix.as_str(), "--config"])
@@ -163,121 +151,17 @@ impl LiveSim {
             log: log_path.clone(),
         };
         let start_limit = Duration::from_secs_f64(cfg.graph.start_timeout_s + 10.0);
-        let t0 = Instant::now();
-        // (tick, mode + 1) of the mapper's newest heartbeats.
-        let mut modes: VecDeque<(u64, u32)> = VecDeque::new();
-        let mut seen = 0u32;
-        let mut counts = LiveCounts {
-            attempt: info.name.clone(),
-            outcome: Outcome::Timeout,
-            duration_s: 0.0,
-            completion_pct: 0.0,
-            answered: 0,
-            unanswered: 0,
-            late_samples: 0,
-            early_samples: 0,
-            missed: 0,
-            held_up: 0,
-        };
-        // The bridge's (missed, held up) counts now and when the attempt started.
-        let mut bridge = (0u64, 0u64);
-        let mut bridge_at_start = None;
-        let mut pipeline = Pipeline::default();
+        let mut run = LiveRun::new(info.name.clone());
         // Every way out of the loop comes back here, so the graph is always stopped and its
         // shared memory released.
-        let mut run = || -> Result<AttemptResult, SimError> {
-            loop {
-                if signals::stop_requested() {
-                    return Err(live("stopped (Ctrl-C)".into()));
-                }
-                if let Some(e) = up.exited() {
-                    return Err(live(e));
-                }
-                states
-                    .wait(Duration::from_millis(100))
-                    .map_err(|e| live(e.to_string()))?;
-                status
-                    .drain(|h| match NodeRole::from_u32(h.role) {
-                        Some(NodeRole::Mapper) => {
-                            modes.push_back((h.tick, h.mode));
-                            if modes.len() > 16 {
-                                modes.pop_front();
-                            }
-                        }
-                        Some(NodeRole::Bridge) if h.phase == ipc_types::phase::RUNNING => {
-                            bridge = (h.faults, u64::from(h.held_up));
-                        }
-                        _ => {}
-                    })
-                    .map_err(|e| live(e.to_string()))?;
-                commands
-                    .drain(|c| pipeline.take(c, &mut counts))
-                    .map_err(|e| live(e.to_string()))?;
-                let mut newest = None;
-                let n = states
-                    .drain(|st| newest = Some(*st))
-                    .map_err(|e| live(e.to_string()))?;
-                let Some(state) = newest else {
-                    if seen == 0 && t0.elapsed() > start_limit {
-                        return Err(live(format!(
-                            "no robot state in {:.0} s; see {}",
-                            start_limit.as_secs_f64(),
-                            log_path.display()
-                        )));
-                    }
-                    continue;
-                };
-                // The screen's mode: the mapper's heartbeat of an earlier tick.
-                let Some(&(_, mode)) = modes.iter().rev().find(|(t, _)| *t < state.tick) else {
-                    continue;
-                };
-                seen += 1;
-                if seen <= WARM_UP_STATES {
-                    continue;
-                }
-                if pipeline.first_tick.is_some() {
-                    counts.unanswered += n.saturating_sub(1) as u64;
-                }
-                pipeline.first_tick.get_or_insert(state.tick);
-                bridge_at_start.get_or_insert(bridge);
-                match driver.on_state(&state, mode.checked_sub(1).map(|m| m as usize), now_ns())? {
-                    Answer::Done(r) => return Ok(r),
-                    Answer::Sample(j) => {
-                        // As in the in-process loop, the answer is for the next tick: wait
-                        // (at most 10 ms) until the mapper has mapped this one, so it cannot
-                        // take the answer early.
-                        let until = Instant::now() + MAPPER_WAIT;
-                        while pipeline.mapped.is_none_or(|t| t < state.tick)
-                            && Instant::now() < until
-                        {
-                            std::thread::sleep(Duration::from_micros(100));
-                            commands
-                                .drain(|c| pipeline.take(c, &mut counts))
-                                .map_err(|e| live(e.to_string()))?;
-                        }
-                        joystick.send(j).map_err(|e| live(e.to_string()))?;
-                        counts.answered += 1;
-                        pipeline.sent.push_back((state.tick, j.seq));
-                        if pipeline.sent.len() > 16 {
-                            pipeline.sent.pop_front();
-                        }
-                    }
-                }
-            }
-        };
-        let result = run();
+        let result = run.drive(&io, &mut up, &mut driver, start_limit);
         let stopped = up.stop();
-        drop((states, status, commands, joystick, graph));
+        drop(io);
         let _ = transport::graph::release_domain(&self.prefix);
         transport::uds::remove_graph(self.prefix.as_str());
         let r = result?;
         stopped?;
-        let (b0, b1) = bridge_at_start.unwrap_or_default();
-        counts.missed = bridge.0.saturating_sub(b0);
-        counts.held_up = bridge.1.saturating_sub(b1);
-        counts.outcome = r.outcome;
-        counts.duration_s = r.duration_s;
-        counts.completion_pct = r.completion_pct;
+        let counts = run.finish(&r);
         tracing::info!(
             attempt = %info.name,
             outcome = counts.outcome.name(),
@@ -315,6 +199,206 @@ impl LiveSim {
 
 /// The longest the operator waits for the mapper to map a state before answering it.
 const MAPPER_WAIT: Duration = Duration::from_millis(10);
+
+/// A live-graph error with its message.
+fn live(m: String) -> SimError {
+    SimError::Live(m)
+}
+
+/// The simulated operator's ends of an attempt's graph: the robot states, the heartbeats and
+/// the mapper's commands in, the joystick samples out (dropped in this order, the graph last).
+struct LiveIo {
+    states: transport::TopicSubscriber<ipc_types::RobotState>,
+    status: transport::TopicSubscriber<ipc_types::NodeStatus>,
+    commands: transport::TopicSubscriber<ipc_types::MapperCommand>,
+    joystick: transport::TopicPublisher<ipc_types::JoystickInput>,
+    /// The simulated operator's node, held while the topics are open.
+    _graph: Graph,
+}
+
+impl LiveIo {
+    /// Joins the graph under `prefix` and opens the topics.
+    fn join(prefix: &Prefix) -> Result<Self, SimError> {
+        let graph = Graph::join(prefix, &format!("simlive-{}", std::process::id()))
+            .map_err(|e| live(e.to_string()))?;
+        let states = graph
+            .robot_state_subscriber(true)
+            .map_err(|e| live(e.to_string()))?;
+        let status = graph.status_subscriber().map_err(|e| live(e.to_string()))?;
+        let commands = graph
+            .mapper_command_subscriber(false)
+            .map_err(|e| live(e.to_string()))?;
+        let joystick = graph
+            .joystick_publisher()
+            .map_err(|e| live(e.to_string()))?;
+        Ok(Self {
+            states,
+            status,
+            commands,
+            joystick,
+            _graph: graph,
+        })
+    }
+}
+
+/// One live attempt as it goes: the mapper's recent modes, the states seen, the counts,
+/// the bridge's counts and the pipeline.
+struct LiveRun {
+    /// (tick, mode + 1) of the mapper's newest heartbeats.
+    modes: VecDeque<(u64, u32)>,
+    seen: u32,
+    counts: LiveCounts,
+    /// The bridge's (missed, held up) counts now and when the attempt started.
+    bridge: (u64, u64),
+    bridge_at_start: Option<(u64, u64)>,
+    pipeline: Pipeline,
+}
+
+impl LiveRun {
+    /// A run of attempt `name`, nothing seen yet.
+    fn new(name: String) -> Self {
+        Self {
+            modes: VecDeque::new(),
+            seen: 0,
+            counts: LiveCounts {
+                attempt: name,
+                outcome: Outcome::Timeout,
+                duration_s: 0.0,
+                completion_pct: 0.0,
+                answered: 0,
+                unanswered: 0,
+                late_samples: 0,
+                early_samples: 0,
+                missed: 0,
+                held_up: 0,
+            },
+            bridge: (0, 0),
+            bridge_at_start: None,
+            pipeline: Pipeline::default(),
+        }
+    }
+
+    /// Answers each new robot state (after the warm-up) with the driver's sample until the
+    /// attempt is done, `scl up` ends, a stop is asked for, or no state comes in time.
+    fn drive(
+        &mut self,
+        io: &LiveIo,
+        up: &mut Up,
+        driver: &mut AttemptDriver<'_>,
+        start_limit: Duration,
+    ) -> Result<AttemptResult, SimError> {
+        let t0 = Instant::now();
+        loop {
+            if signals::stop_requested() {
+                return Err(live("stopped (Ctrl-C)".into()));
+            }
+            if let Some(e) = up.exited() {
+                return Err(live(e));
+            }
+            io.states
+                .wait(Duration::from_millis(100))
+                .map_err(|e| live(e.to_string()))?;
+            self.read_heartbeats(io)?;
+            self.read_commands(io)?;
+            let mut newest = None;
+            let n = io
+                .states
+                .drain(|st| newest = Some(*st))
+                .map_err(|e| live(e.to_string()))?;
+            let Some(state) = newest else {
+                if self.seen == 0 && t0.elapsed() > start_limit {
+                    return Err(live(format!(
+                        "no robot state in {:.0} s; see {}",
+                        start_limit.as_secs_f64(),
+                        up.log.display()
+                    )));
+                }
+                continue;
+            };
+            // The screen's mode: the mapper's heartbeat of an earlier tick.
+            let Some(&(_, mode)) = self.modes.iter().rev().find(|(t, _)| *t < state.tick) else {
+                continue;
+            };
+            self.seen += 1;
+            if self.seen <= WARM_UP_STATES {
+                continue;
+            }
+            if self.pipeline.first_tick.is_some() {
+                self.counts.unanswered += n.saturating_sub(1) as u64;
+            }
+            self.pipeline.first_tick.get_or_insert(state.tick);
+            self.bridge_at_start.get_or_insert(self.bridge);
+            match driver.on_state(&state, mode.checked_sub(1).map(|m| m as usize), now_ns())? {
+                Answer::Done(r) => return Ok(r),
+                Answer::Sample(j) => self.answer(io, state.tick, j)?,
+            }
+        }
+    }
+
+    /// The heartbeats: the mapper's mode by tick, the running bridge's counts.
+    fn read_heartbeats(&mut self, io: &LiveIo) -> Result<(), SimError> {
+        let (modes, bridge) = (&mut self.modes, &mut self.bridge);
+        io.status
+            .drain(|h| match NodeRole::from_u32(h.role) {
+                Some(NodeRole::Mapper) => {
+                    modes.push_back((h.tick, h.mode));
+                    if modes.len() > 16 {
+                        modes.pop_front();
+                    }
+                }
+                Some(NodeRole::Bridge) if h.phase == ipc_types::phase::RUNNING => {
+                    *bridge = (h.faults, u64::from(h.held_up));
+                }
+                _ => {}
+            })
+            .map_err(|e| live(e.to_string()))?;
+        Ok(())
+    }
+
+    /// The mapper's commands: which sample each mapped.
+    fn read_commands(&mut self, io: &LiveIo) -> Result<(), SimError> {
+        let (pipeline, counts) = (&mut self.pipeline, &mut self.counts);
+        io.commands
+            .drain(|c| pipeline.take(c, counts))
+            .map_err(|e| live(e.to_string()))?;
+        Ok(())
+    }
+
+    /// Sends the answer `j` to the state of `tick`. As in the in-process loop, the answer is
+    /// for the next tick: it waits (at most 10 ms) until the mapper has mapped this one, so
+    /// it cannot take the answer early.
+    fn answer(
+        &mut self,
+        io: &LiveIo,
+        tick: u64,
+        j: ipc_types::JoystickInput,
+    ) -> Result<(), SimError> {
+        let until = Instant::now() + MAPPER_WAIT;
+        while self.pipeline.mapped.is_none_or(|t| t < tick) && Instant::now() < until {
+            std::thread::sleep(Duration::from_micros(100));
+            self.read_commands(io)?;
+        }
+        io.joystick.send(j).map_err(|e| live(e.to_string()))?;
+        self.counts.answered += 1;
+        self.pipeline.sent.push_back((tick, j.seq));
+        if self.pipeline.sent.len() > 16 {
+            self.pipeline.sent.pop_front();
+        }
+        Ok(())
+    }
+
+    /// The attempt's counts, with the bridge's misses and hold-ups since it started and the
+    /// result's outcome, duration and completion.
+    fn finish(mut self, r: &AttemptResult) -> LiveCounts {
+        let (b0, b1) = self.bridge_at_start.unwrap_or_default();
+        self.counts.missed = self.bridge.0.saturating_sub(b0);
+        self.counts.held_up = self.bridge.1.saturating_sub(b1);
+        self.counts.outcome = r.outcome;
+        self.counts.duration_s = r.duration_s;
+        self.counts.completion_pct = r.completion_pct;
+        self.counts
+    }
+}
 
 /// What the operator knows of the graph's pipeline: which sample each mapper command mapped.
 #[derive(Default)]
