@@ -12,7 +12,7 @@
 //! the map allows at best). All act through the same hand: a reaction delay, a bounded rate
 //! of change of the stick, Gaussian input noise, time to press the mode button.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use ipc_types::{JoystickInput, MapperCommand, RobotState, SafeCommand, state_flags};
@@ -671,6 +671,35 @@ pub fn simulate_participant(
     )
 }
 
+/// A simulated participant's files in `dir` (made if missing): the study file's copy, and
+/// the trials and diagnosis files opened for appending, neither of which may exist yet
+/// (simulated data is never written over). Gives the trials file's path and both appenders.
+fn open_participant_files(
+    study: &Study,
+    dir: &Path,
+) -> Result<(PathBuf, Appender, Appender), StudyError> {
+    let trials = dir.join(TRIALS);
+    let diagnosis = dir.join(crate::diagnose::DIAGNOSIS);
+    for path in [&trials, &diagnosis] {
+        if path.exists() {
+            return Err(StudyError::Data {
+                path: path.clone(),
+                reason: "exists: simulated data is never written over; choose another --out".into(),
+            });
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(|source| StudyError::Write {
+        path: dir.to_owned(),
+        source,
+    })?;
+    let copy = dir.join(STUDY_COPY);
+    std::fs::write(&copy, &study.text)
+        .map_err(|source| StudyError::Write { path: copy, source })?;
+    let out = Appender::open(&trials)?;
+    let diag_out = Appender::open(&diagnosis)?;
+    Ok((trials, out, diag_out))
+}
+
 /// [`simulate_participant`] with each attempt run by `runner`.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate_participant_with(
@@ -687,29 +716,7 @@ pub fn simulate_participant_with(
     only.check(study)?;
     let goals = study_goals(study, sim.robot)?;
     let params = study.file.simulation.clone();
-    let trials = dir.join(TRIALS);
-    if trials.exists() {
-        return Err(StudyError::Data {
-            path: trials,
-            reason: "exists: simulated data is never written over; choose another --out".into(),
-        });
-    }
-    std::fs::create_dir_all(dir).map_err(|source| StudyError::Write {
-        path: dir.to_owned(),
-        source,
-    })?;
-    let copy = dir.join(STUDY_COPY);
-    std::fs::write(&copy, &study.text)
-        .map_err(|source| StudyError::Write { path: copy, source })?;
-    let diagnosis = dir.join(crate::diagnose::DIAGNOSIS);
-    if diagnosis.exists() {
-        return Err(StudyError::Data {
-            path: diagnosis,
-            reason: "exists: simulated data is never written over; choose another --out".into(),
-        });
-    }
-    let mut out = Appender::open(&trials)?;
-    let mut diag_out = Appender::open(&diagnosis)?;
+    let (trials, mut out, mut diag_out) = open_participant_files(study, dir)?;
     let mut rows = Vec::new();
     let mut clock = 0.0;
     for (ti, task) in study.file.tasks.iter().enumerate() {
