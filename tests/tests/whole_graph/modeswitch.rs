@@ -166,6 +166,7 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
     }
     assert_eq!(runs.len(), HOLDS.len(), "holds seen: {runs:?}");
     let mut failures = Vec::new();
+    let mut disturbed = Vec::new();
     for (i, h) in HOLDS.iter().enumerate() {
         // The ticks the hold's input answered; the motion runs from the state before the
         // first to the state before the next hold (or the last state), which includes the stop.
@@ -228,7 +229,18 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
         // deflection for 1 s); less where the joint speed limits cap the twist, more or less as
         // the joint acceleration limits ramp it up and bring it to a stop.
         let nominal = if h.row < 3 { 0.15 } else { 0.425 };
-        if !(along > 0.4 * nominal && along < 1.5 * nominal) {
+        // A tick the bridge missed (a loaded machine) stops the arm, and safety then waits
+        // for neutral input: the rest of that hold does not move it, as promised. Such a hold
+        // is checked for direction and leakage only, and at most two of the five may be.
+        let missed = states
+            .iter()
+            .any(|s| s.tick >= first && s.tick < next && s.flags & state_flags::MISSED != 0);
+        let cut_short = missed && rules.contains_key("stop");
+        if cut_short {
+            disturbed.push(what.clone());
+        }
+        let shortest = if cut_short { -0.02 } else { 0.4 } * nominal;
+        if !(along > shortest && along < 1.5 * nominal) {
             failures.push(what.clone());
         }
         // ... and hardly along the other five: under 1 mm and 3 mrad (measured: 0.07 mm and
@@ -238,6 +250,10 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+    assert!(
+        disturbed.len() <= 2,
+        "more than two holds cut short by missed ticks: {disturbed:#?}"
+    );
     drop(rec);
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(
