@@ -57,6 +57,12 @@ pub struct DatasetArgs {
     /// sets `robot_type` and fps).
     #[arg(long, value_name = "PROFILE", default_value_t = kinematics::RobotProfile::default_name().to_owned())]
     pub robot: String,
+    /// What an episode of `--format lerobot` is for a recording: `recording` (one per
+    /// recording, every tick a frame, nothing left out) or `trajectory` (one per trajectory
+    /// as the CSV format cuts them with `--rest-s` and `--max-length-s`, the rests left
+    /// out). A demonstration set's trajectories are episodes either way.
+    #[arg(long, default_value = "recording", value_parser = ["recording", "trajectory"])]
+    pub episodes: String,
 }
 
 /// How recordings are cut into trajectories.
@@ -259,6 +265,26 @@ pub fn trajectories(states: &[RobotState], stem: &str, o: &Options) -> (Vec<Traj
 
 /// Cuts runs of consecutive tuples into trajectories as [`trajectories`] does.
 pub(crate) fn cut(runs: Vec<Vec<Tuple>>, stem: &str, o: &Options) -> (Vec<Trajectory>, LeftOut) {
+    let (parts, left) = cut_with_starts(runs, stem, o);
+    (parts.into_iter().map(|p| p.trajectory).collect(), left)
+}
+
+/// A trajectory [`cut`] made, with where it starts in its recording.
+pub(crate) struct Part {
+    /// The trajectory (its times from its first tuple).
+    pub(crate) trajectory: Trajectory,
+    /// Its first tuple's tick.
+    pub(crate) first_tick: u64,
+    /// Its first tuple's time stamp (ns).
+    pub(crate) t0_ns: u64,
+}
+
+/// [`cut`], each trajectory with its first tick and time stamp.
+pub(crate) fn cut_with_starts(
+    runs: Vec<Vec<Tuple>>,
+    stem: &str,
+    o: &Options,
+) -> (Vec<Part>, LeftOut) {
     let mut left = LeftOut::default();
     let mut out = Vec::new();
     for run in runs {
@@ -268,7 +294,7 @@ pub(crate) fn cut(runs: Vec<Vec<Tuple>>, stem: &str, o: &Options) -> (Vec<Trajec
                     left.fragments += part.len();
                     continue;
                 }
-                let t0 = part[0].t_ns;
+                let (t0, first_tick) = (part[0].t_ns, part[0].tick);
                 let mut traj = Trajectory {
                     name: format!("{stem}-{:03}-tick{}.csv", out.len(), part[0].tick),
                     ..Trajectory::default()
@@ -280,7 +306,11 @@ pub(crate) fn cut(runs: Vec<Vec<Tuple>>, stem: &str, o: &Options) -> (Vec<Trajec
                     traj.qdot.push(t.qd);
                     traj.cdot.push(t.cd);
                 }
-                out.push(traj);
+                out.push(Part {
+                    trajectory: traj,
+                    first_tick,
+                    t0_ns: t0,
+                });
             }
         }
     }
@@ -453,6 +483,29 @@ pub fn export_lerobot(
     robot: &str,
     task: Option<&str>,
 ) -> Result<crate::lerobot::export::ExportReport, ToolError> {
+    export_lerobot_with(from, out, robot, task, Episodes::Recording)
+}
+
+/// What an episode of `scl dataset --format lerobot` is for a recording (`--episodes`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Episodes {
+    /// One per recording, every recorded tick a frame, nothing left out (the default).
+    Recording,
+    /// One per trajectory as the CSV format cuts the recording ([`trajectories`] with these
+    /// options: runs of demonstration tuples cut at rests and into pieces of at most the
+    /// longest length), each frame a demonstration tuple; the rests and single-tuple
+    /// fragments are left out, as there.
+    Trajectory(Options),
+}
+
+/// [`export_lerobot`] with recordings cut into `episodes`.
+pub fn export_lerobot_with(
+    from: &[PathBuf],
+    out: &Path,
+    robot: &str,
+    task: Option<&str>,
+    episodes: Episodes,
+) -> Result<crate::lerobot::export::ExportReport, ToolError> {
     use crate::lerobot::export::{Motion, Source};
     let profile = kinematics::RobotProfile::by_name(robot)
         .map_err(|e| ToolError::Graph(format!("--robot: {e}")))?;
@@ -474,13 +527,40 @@ pub fn export_lerobot(
                     .unwrap_or_else(|| DEFAULT_TASK.to_owned()),
             },
         };
-        sources.push(Source {
-            model: r.side.served_model(&path.display().to_string()),
-            name: r.stem,
-            task,
-            motion: Motion::States(r.states),
-            operator,
-        });
+        let model = r.side.served_model(&path.display().to_string());
+        match episodes {
+            Episodes::Recording => sources.push(Source {
+                model,
+                name: r.stem,
+                task,
+                motion: Motion::States(r.states),
+                operator,
+            }),
+            Episodes::Trajectory(o) => {
+                o.validate()?;
+                let flags: std::collections::BTreeMap<u64, u32> =
+                    r.states.iter().map(|s| (s.tick, s.flags)).collect();
+                let (parts, _) = cut_with_starts(runs(&r.states), &r.stem, &o);
+                for p in parts {
+                    let ticks = p.first_tick..p.first_tick + p.trajectory.len() as u64;
+                    sources.push(Source {
+                        model: model.clone(),
+                        name: p.trajectory.name.trim_end_matches(".csv").to_owned(),
+                        task: task.clone(),
+                        operator: ticks
+                            .clone()
+                            .filter_map(|k| operator.get(&k).map(|o| (k, *o)))
+                            .collect(),
+                        motion: Motion::Tuples {
+                            flags: ticks.map(|k| flags.get(&k).copied().unwrap_or(0)).collect(),
+                            trajectory: p.trajectory,
+                            first_tick: p.first_tick,
+                            t0_ns: p.t0_ns,
+                        },
+                    });
+                }
+            }
+        }
     }
     Ok(crate::lerobot::export::write(out, profile, fps, &sources)?)
 }
@@ -525,7 +605,12 @@ fn demonstration_sources(
             out.push(Source {
                 name,
                 task: task.clone(),
-                motion: Motion::Tuples(t),
+                motion: Motion::Tuples {
+                    trajectory: t,
+                    first_tick: 0,
+                    t0_ns: 0,
+                    flags: Vec::new(),
+                },
                 operator: std::collections::BTreeMap::new(),
                 model: crate::lerobot::run::ServedModel::default(),
             });
@@ -537,7 +622,21 @@ fn demonstration_sources(
 /// `scl dataset`.
 pub fn cli(args: &DatasetArgs) -> Result<std::process::ExitCode, ToolError> {
     if args.format == "lerobot" {
-        let r = export_lerobot(&args.from, &args.out, &args.robot, args.task.as_deref())?;
+        let episodes = match args.episodes.as_str() {
+            "trajectory" => Episodes::Trajectory(Options {
+                val_fraction: Options::DEFAULT.val_fraction,
+                rest_s: args.rest_s,
+                max_length_s: args.max_length_s,
+            }),
+            _ => Episodes::Recording,
+        };
+        let r = export_lerobot_with(
+            &args.from,
+            &args.out,
+            &args.robot,
+            args.task.as_deref(),
+            episodes,
+        )?;
         eprintln!(
             "wrote a LeRobot v3.0 dataset of {} episodes, {} frames ({} flagged as no demonstration: missed, stopped, gaps, episode ends) to {}",
             r.episodes,

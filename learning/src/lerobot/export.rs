@@ -43,9 +43,19 @@ pub enum Motion {
     /// Recorded robot states, any order (sorted by tick, one per tick, when written): one
     /// frame per state, the action the velocity the next state reports.
     States(Vec<RobotState>),
-    /// Demonstration tuples (`scl demos`): one frame per tuple, each a demonstration, its
-    /// tick its index.
-    Tuples(Trajectory),
+    /// Demonstration tuples (a trajectory of `scl demos`, or of a recording cut as `scl
+    /// dataset` cuts them): one frame per tuple, each a demonstration, tuple `k` at tick
+    /// `first_tick + k` and time `t0_ns` plus its time in the trajectory.
+    Tuples {
+        /// The tuples.
+        trajectory: Trajectory,
+        /// The first tuple's tick (0 for generated demonstrations).
+        first_tick: u64,
+        /// The first tuple's time stamp (ns; 0 for generated demonstrations).
+        t0_ns: u64,
+        /// Each tuple's state flags (a recording's; empty: 0 for every tuple).
+        flags: Vec<u32>,
+    },
 }
 
 /// One frame's values.
@@ -67,20 +77,26 @@ fn frames(s: &Source, n: usize) -> Vec<Frame> {
     let operator = |tick: u64| s.operator.get(&tick).copied().unwrap_or(OperatorTick::FILL);
     match &s.motion {
         Motion::States(states) => state_frames(states, n, operator),
-        Motion::Tuples(t) => (0..t.len())
+        Motion::Tuples {
+            trajectory: t,
+            first_tick,
+            t0_ns,
+            flags,
+        } => (0..t.len())
             .map(|k| {
+                let tick = first_tick + k as u64;
                 let mut state = t.q[k].clone();
                 state.push(t.c[k]);
                 let mut action = t.qdot[k].clone();
                 action.push(t.cdot[k]);
                 Frame {
-                    tick: k as u64,
-                    t_ns: (t.t[k] * 1e9).round() as u64,
-                    flags: 0,
+                    tick,
+                    t_ns: t0_ns + (t.t[k] * 1e9).round() as u64,
+                    flags: flags.get(k).copied().unwrap_or(0),
                     state,
                     action,
                     demonstration: true,
-                    operator: operator(k as u64),
+                    operator: operator(tick),
                 }
             })
             .collect(),
@@ -157,7 +173,7 @@ pub fn write(
                 .iter()
                 .find(|st| st.q().len() != n)
                 .map(|st| (format!("tick {}", st.tick), st.q().len())),
-            Motion::Tuples(t) => {
+            Motion::Tuples { trajectory: t, .. } => {
                 t.q.iter()
                     .enumerate()
                     .find(|(_, q)| q.len() != n)

@@ -617,3 +617,68 @@ fn scl_demos_output_exports_one_episode_per_trajectory_of_its_task() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_recording_cut_into_trajectories_is_an_episode_per_trajectory_of_scl_dataset() {
+    let dir = tmp("trajectories");
+    let rec = recording(&dir, "a.mcap", 0.0);
+    let (states, _) = to_dataset::robot_states(&rec).unwrap();
+    let (trajs, _) = to_dataset::trajectories(&states, "a", &Options::DEFAULT);
+    assert!(trajs.len() >= 3, "{}", trajs.len());
+    let lr = dir.join("lerobot");
+    let r = to_dataset::export_lerobot_with(
+        std::slice::from_ref(&rec),
+        &lr,
+        "gen3_lite",
+        Some("wave"),
+        to_dataset::Episodes::Trajectory(Options::DEFAULT),
+    )
+    .unwrap();
+    assert_eq!(r.episodes, trajs.len());
+    assert_eq!(r.frames, trajs.iter().map(|t| t.len()).sum::<usize>());
+    assert_eq!(r.flagged, 0, "every frame is a demonstration tuple");
+    let b = &read_parquet(&lr.join(super::DATA_PATH))[0];
+    let ticks = int_column(b, super::column::TICK);
+    let t_ns = int_column(b, super::column::T_NS);
+    let state = b
+        .column_by_name(super::column::STATE)
+        .unwrap()
+        .as_any()
+        .downcast_ref::<arrow_array::FixedSizeListArray>()
+        .unwrap()
+        .values()
+        .as_any()
+        .downcast_ref::<arrow_array::Float64Array>()
+        .unwrap()
+        .values()
+        .to_vec();
+    // Frame by frame the CSV trajectories' tuples, at the recording's own ticks and times.
+    let by_tick: BTreeMap<u64, &RobotState> = states.iter().map(|s| (s.tick, s)).collect();
+    let mut f = 0;
+    for t in &trajs {
+        let first: u64 = t
+            .name
+            .rsplit("tick")
+            .next()
+            .unwrap()
+            .trim_end_matches(".csv")
+            .parse()
+            .unwrap();
+        for k in 0..t.len() {
+            let tick = first + k as u64;
+            assert_eq!(ticks[f], tick as i64, "{} tuple {k}", t.name);
+            assert_eq!(t_ns[f], by_tick[&tick].t_ns as i64, "{} tuple {k}", t.name);
+            let mut s = t.q[k].clone();
+            s.push(t.c[k]);
+            assert_eq!(state[f * 7..f * 7 + 7], s[..], "{} tuple {k}", t.name);
+            f += 1;
+        }
+    }
+    let ep = &read_parquet(&lr.join(super::EPISODES_PATH))[0];
+    let names: Vec<String> = trajs
+        .iter()
+        .map(|t| t.name.trim_end_matches(".csv").to_owned())
+        .collect();
+    assert_eq!(string_column(ep, super::column::SOURCE), names);
+    let _ = std::fs::remove_dir_all(&dir);
+}
