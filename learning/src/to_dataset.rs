@@ -507,6 +507,9 @@ pub fn export_lerobot_with(
     episodes: Episodes,
 ) -> Result<crate::lerobot::export::ExportReport, ToolError> {
     use crate::lerobot::export::{Motion, Source};
+    if let Episodes::Trajectory(o) = &episodes {
+        o.validate()?;
+    }
     let profile = kinematics::RobotProfile::by_name(robot)
         .map_err(|e| ToolError::Graph(format!("--robot: {e}")))?;
     let fps = profile.control_rate_hz().round() as u32;
@@ -537,7 +540,6 @@ pub fn export_lerobot_with(
                 operator,
             }),
             Episodes::Trajectory(o) => {
-                o.validate()?;
                 let flags: std::collections::BTreeMap<u64, u32> =
                     r.states.iter().map(|s| (s.tick, s.flags)).collect();
                 let (parts, _) = cut_with_starts(runs(&r.states), &r.stem, &o);

@@ -291,6 +291,22 @@ fn string_column(b: &arrow_array::RecordBatch, name: &str) -> Vec<String> {
         .collect()
 }
 
+/// A list column of float64 (`observation.state`, `action`, `scl.stick`), its frames' values
+/// one after the other.
+fn list_column(b: &arrow_array::RecordBatch, name: &str) -> Vec<f64> {
+    b.column_by_name(name)
+        .unwrap()
+        .as_any()
+        .downcast_ref::<arrow_array::FixedSizeListArray>()
+        .unwrap()
+        .values()
+        .as_any()
+        .downcast_ref::<arrow_array::Float64Array>()
+        .unwrap()
+        .values()
+        .to_vec()
+}
+
 fn stick_column(b: &arrow_array::RecordBatch) -> Vec<[f64; 2]> {
     let l = b
         .column_by_name(super::column::STICK)
@@ -299,12 +315,10 @@ fn stick_column(b: &arrow_array::RecordBatch) -> Vec<[f64; 2]> {
         .downcast_ref::<arrow_array::FixedSizeListArray>()
         .unwrap();
     assert_eq!(l.value_length(), 2);
-    let v = l
-        .values()
-        .as_any()
-        .downcast_ref::<arrow_array::Float64Array>()
-        .unwrap();
-    v.values().chunks_exact(2).map(|c| [c[0], c[1]]).collect()
+    list_column(b, super::column::STICK)
+        .chunks_exact(2)
+        .map(|c| [c[0], c[1]])
+        .collect()
 }
 
 fn json(path: &Path) -> serde_json::Value {
@@ -534,30 +548,8 @@ fn scl_demos_output_exports_one_episode_per_trajectory_of_its_task() {
     assert_eq!(r.frames, n);
     assert_eq!(r.flagged, 0, "every tuple is a demonstration");
     let b = &read_parquet(&lr.join(super::DATA_PATH))[0];
-    let state = b
-        .column_by_name(super::column::STATE)
-        .unwrap()
-        .as_any()
-        .downcast_ref::<arrow_array::FixedSizeListArray>()
-        .unwrap()
-        .values()
-        .as_any()
-        .downcast_ref::<arrow_array::Float64Array>()
-        .unwrap()
-        .values()
-        .to_vec();
-    let action = b
-        .column_by_name(super::column::ACTION)
-        .unwrap()
-        .as_any()
-        .downcast_ref::<arrow_array::FixedSizeListArray>()
-        .unwrap()
-        .values()
-        .as_any()
-        .downcast_ref::<arrow_array::Float64Array>()
-        .unwrap()
-        .values()
-        .to_vec();
+    let state = list_column(b, super::column::STATE);
+    let action = list_column(b, super::column::ACTION);
     // The values as the CSV files hold them.
     let on_disk = crate::dataset::load_dir(&demos).unwrap();
     let t0 = &on_disk.train[0];
@@ -640,18 +632,7 @@ fn a_recording_cut_into_trajectories_is_an_episode_per_trajectory_of_scl_dataset
     let b = &read_parquet(&lr.join(super::DATA_PATH))[0];
     let ticks = int_column(b, super::column::TICK);
     let t_ns = int_column(b, super::column::T_NS);
-    let state = b
-        .column_by_name(super::column::STATE)
-        .unwrap()
-        .as_any()
-        .downcast_ref::<arrow_array::FixedSizeListArray>()
-        .unwrap()
-        .values()
-        .as_any()
-        .downcast_ref::<arrow_array::Float64Array>()
-        .unwrap()
-        .values()
-        .to_vec();
+    let state = list_column(b, super::column::STATE);
     // Frame by frame the CSV trajectories' tuples, at the recording's own ticks and times.
     let by_tick: BTreeMap<u64, &RobotState> = states.iter().map(|s| (s.tick, s)).collect();
     let mut f = 0;
