@@ -524,7 +524,9 @@ fn run_once(
         estop_window: (0, u64::MAX),
         supervisor_gone: false,
     };
-    let result = drive.run(fault_tick, end_tick)?;
+    // An error from watching the graph or sending the e-stop ends the drill, one of the graph
+    // ends the run; either way the `scl up` child is stopped and the domain released first.
+    let result = drive.run(fault_tick, end_tick).and_then(|r| r);
     if let Some(pid) = drive.stalled {
         signal(pid, Signal::SIGCONT);
     }
@@ -734,8 +736,9 @@ impl Drive<'_> {
     }
 
     /// Polls the graph every 2 ms, applying the plan's steps at their ticks and stopping
-    /// `scl up` at `end_tick`, until it ends. An error outside ends the drill at once; one
-    /// inside ends the run, and the caller stops the graph.
+    /// `scl up` at `end_tick`, until it ends. An error outside (watching the graph, sending the
+    /// e-stop) ends the drill; one inside ends the run. The caller stops the graph after
+    /// either.
     fn run(&mut self, fault_tick: u64, end_tick: u64) -> Result<Ended, DrillError> {
         let mut last_progress = Instant::now();
         let mut last_tick = None;
