@@ -878,8 +878,10 @@ impl SafetyFilter {
                 self.dt,
                 true,
             );
-            // Else the exact distances at the next tick's pose (scales `v` itself).
-            if !t.scale(Scaling::HardClearance, v, k) && arm.verify(v, stop, self.dt) < 1.0 {
+            // Then the exact distances at the next tick's pose (scales `v` itself): the
+            // first-order rule sees each pair's nearest feature only.
+            t.scale(Scaling::HardClearance, v, k);
+            if arm.verify(v, stop, self.dt) < 1.0 {
                 t.mark(Scaling::HardClearance, 1.0);
             }
         }

@@ -519,11 +519,10 @@ fn any_pose() -> impl Strategy<Value = [f64; 6]> {
         .prop_map(move |u| std::array::from_fn(|j| r[j].0 + u[j] * (r[j].1 - r[j].0)))
 }
 
-/// How much closer a pair already below the stop distance may come in one tick while the
-/// command does not bring it closer to first order (`d_dot >= 0`): the second-order rest of
-/// the points' curved paths over one tick, at most `|v| |omega| dt² / 2`, 0.2 mm at the
-/// speed caps; 0.5 mm allowed.
-const BELOW_STOP_TOLERANCE_M: f64 = 0.0005;
+/// How much closer a pair already below the stop distance may come in one tick: what the
+/// filter's exact check of the next pose allows ([`clearance::BELOW_STOP_SLACK_M`]); the
+/// loop integrates the output as that check does, so only round-off is added.
+const BELOW_STOP_TOLERANCE_M: f64 = clearance::BELOW_STOP_SLACK_M + 1e-9;
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(96))]

@@ -15,7 +15,7 @@ use kinematics::RobotProfile;
 use kinematics::collision::{Clearance, CollisionLink, PairId, Scene, Target};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
-use safety::{SafetyConfig, SafetyFilter};
+use safety::{SafetyConfig, SafetyFilter, clearance};
 
 mod common;
 use common::{NOW, moving_state as state};
@@ -173,9 +173,10 @@ fn fastest_capsule_end(robot: &RobotProfile, q: &[f64], v: &[f64]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// How much closer a pair already below the stop distance may come in one tick while the
-/// command does not bring it closer to first order (as in `clearance.rs`): 0.5 mm.
-const BELOW_STOP_TOLERANCE_M: f64 = 0.0005;
+/// How much closer a pair already below the stop distance may come in one tick: what the
+/// filter's exact check of the next pose allows ([`clearance::BELOW_STOP_SLACK_M`]); the
+/// loop integrates the output as that check does, so only round-off is added.
+const BELOW_STOP_TOLERANCE_M: f64 = clearance::BELOW_STOP_SLACK_M + 1e-9;
 
 /// The whole-arm guarantees in closed loop, for `robot` with its collision model.
 fn whole_arm_holds(robot: &'static RobotProfile) {
