@@ -9,18 +9,22 @@ use iceoryx2_bb_derive_macros::ZeroCopySend;
 use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
+use crate::fields::message;
+
 /// Capacity of the text fields of control messages (bytes).
 pub const TEXT_CAP: usize = 512;
 
-/// A short UTF-8 text in a fixed array.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("scl::Text")]
-#[repr(C)]
-pub struct Text {
-    /// Used bytes.
-    pub len: u32,
-    /// The bytes.
-    pub bytes: [u8; TEXT_CAP],
+message! {
+    /// A short UTF-8 text in a fixed array.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+    #[type_name("scl::Text")]
+    #[repr(C)]
+    pub struct Text {
+        /// Used bytes.
+        pub len: u32,
+        /// The bytes.
+        pub bytes: [u8; TEXT_CAP],
+    }
 }
 
 impl Text {
@@ -45,33 +49,35 @@ impl Text {
     }
 }
 
-/// Tells safety which mapper's commands reach the arm, from which tick on, and whether to
-/// hold the arm (stop it until released) because a process of the input side is down. The
-/// topic keeps the newest message as history, so a restarted safety learns both.
-#[cfg_attr(
-    feature = "json",
-    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
-)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scl::SafetyControl")]
-#[repr(C)]
-#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
-pub struct SafetyControl {
-    /// Counter of the publishing supervisor.
-    pub seq: u64,
-    /// When it was published (monotonic ns).
-    pub t_ns: u64,
-    /// The first tick whose command comes from `active_mapper`.
-    pub from_tick: u64,
-    /// The mapper id to forward.
-    pub active_mapper: u32,
-    /// 1: hold the arm (controlled stop) until a message with 0 arrives.
-    pub hold: u32,
-    /// Counter of e-stop changes relayed by the supervisor; safety applies `estop` only when
-    /// it changes (so a swap message never releases an e-stop latched by a joystick button).
-    pub estop_seq: u32,
-    /// With a new `estop_seq`: 1 latch the e-stop, 0 release it.
-    pub estop: u32,
+message! {
+    /// Tells safety which mapper's commands reach the arm, from which tick on, and whether to
+    /// hold the arm (stop it until released) because a process of the input side is down. The
+    /// topic keeps the newest message as history, so a restarted safety learns both.
+    #[cfg_attr(
+        feature = "json",
+        derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+    )]
+    #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+    #[type_name("scl::SafetyControl")]
+    #[repr(C)]
+    #[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
+    pub struct SafetyControl {
+        /// Counter of the publishing supervisor.
+        pub seq: u64,
+        /// When it was published (monotonic ns).
+        pub t_ns: u64,
+        /// The first tick whose command comes from `active_mapper`.
+        pub from_tick: u64,
+        /// The mapper id to forward.
+        pub active_mapper: u32,
+        /// 1: hold the arm (controlled stop) until a message with 0 arrives.
+        pub hold: u32,
+        /// Counter of e-stop changes relayed by the supervisor; safety applies `estop` only when
+        /// it changes (so a swap message never releases an e-stop latched by a joystick button).
+        pub estop_seq: u32,
+        /// With a new `estop_seq`: 1 latch the e-stop, 0 release it.
+        pub estop: u32,
+    }
 }
 
 /// What an [`EstopCommand`] does.
@@ -91,24 +97,26 @@ pub mod estop_action {
     }
 }
 
-/// `scl estop` / `scl reset`: latches or releases safety's e-stop. The supervisor relays the
-/// state into [`SafetyControl`], so a restarted safety comes up still latched.
-#[cfg_attr(
-    feature = "json",
-    derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
-)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scl::EstopCommand")]
-#[repr(C)]
-#[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
-pub struct EstopCommand {
-    /// When it was sent (monotonic ns).
-    pub t_ns: u64,
-    /// [`estop_action`] value.
-    #[cfg_attr(feature = "json", schemars(extend("x-value-names" = estop_action::names())))]
-    pub action: u32,
-    /// Process id of the sender.
-    pub source_pid: u32,
+message! {
+    /// `scl estop` / `scl reset`: latches or releases safety's e-stop. The supervisor relays the
+    /// state into [`SafetyControl`], so a restarted safety comes up still latched.
+    #[cfg_attr(
+        feature = "json",
+        derive(serde::Serialize, serde::Deserialize, schemars::JsonSchema)
+    )]
+    #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+    #[type_name("scl::EstopCommand")]
+    #[repr(C)]
+    #[derive(IntoBytes, FromBytes, Immutable, KnownLayout)]
+    pub struct EstopCommand {
+        /// When it was sent (monotonic ns).
+        pub t_ns: u64,
+        /// [`estop_action`] value.
+        #[cfg_attr(feature = "json", schemars(extend("x-value-names" = estop_action::names())))]
+        pub action: u32,
+        /// Process id of the sender.
+        pub source_pid: u32,
+    }
 }
 
 /// Topic name of [`EstopCommand`].
@@ -129,43 +137,47 @@ pub mod request_kind {
     pub const SWAP: u32 = 1;
 }
 
-/// A request to the supervisor of a running graph.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scl::ControlRequest")]
-#[repr(C)]
-pub struct ControlRequest {
-    /// [`request_kind`] value.
-    pub kind: u32,
-    /// Padding, always 0.
-    pub reserved: u32,
-    /// The model file (absolute path) for a swap.
-    pub path: Text,
+message! {
+    /// A request to the supervisor of a running graph.
+    #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+    #[type_name("scl::ControlRequest")]
+    #[repr(C)]
+    pub struct ControlRequest {
+        /// [`request_kind`] value.
+        pub kind: u32,
+        /// Padding, always 0.
+        pub reserved: u32,
+        /// The model file (absolute path) for a swap.
+        pub path: Text,
+    }
 }
 
-/// The supervisor's answer.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scl::ControlResponse")]
-#[repr(C)]
-pub struct ControlResponse {
-    /// 1 if done, 0 if refused.
-    pub ok: u32,
-    /// The new active mapper id (swap).
-    pub new_mapper: u32,
-    /// The mapper it replaced (swap).
-    pub old_mapper: u32,
-    /// How many of `missed_during` the machine took (swap): periods the bridge was not run
-    /// through and commands that came late although the mapper's and safety's work fitted
-    /// the deadline (`NodeStatus::held_up`, as `scl up --json` reports `held_up`). The
-    /// graph's own misses are `missed_during - held_up_during`.
-    pub held_up_during: u32,
-    /// The first tick executed from the new mapper (swap).
-    pub switch_tick: u64,
-    /// From the request's arrival to the switch-over (ns).
-    pub elapsed_ns: u64,
-    /// Ticks the bridge missed between the request and the switch-over.
-    pub missed_during: u64,
-    /// Why it was refused, or a summary.
-    pub message: Text,
+message! {
+    /// The supervisor's answer.
+    #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+    #[type_name("scl::ControlResponse")]
+    #[repr(C)]
+    pub struct ControlResponse {
+        /// 1 if done, 0 if refused.
+        pub ok: u32,
+        /// The new active mapper id (swap).
+        pub new_mapper: u32,
+        /// The mapper it replaced (swap).
+        pub old_mapper: u32,
+        /// How many of `missed_during` the machine took (swap): periods the bridge was not run
+        /// through and commands that came late although the mapper's and safety's work fitted
+        /// the deadline (`NodeStatus::held_up`, as `scl up --json` reports `held_up`). The
+        /// graph's own misses are `missed_during - held_up_during`.
+        pub held_up_during: u32,
+        /// The first tick executed from the new mapper (swap).
+        pub switch_tick: u64,
+        /// From the request's arrival to the switch-over (ns).
+        pub elapsed_ns: u64,
+        /// Ticks the bridge missed between the request and the switch-over.
+        pub missed_during: u64,
+        /// Why it was refused, or a summary.
+        pub message: Text,
+    }
 }
 
 impl ControlResponse {

@@ -7,12 +7,16 @@
 //! `ctypes.Structure` classes against it, so a Rust message changed without the Python side
 //! fails CI.
 //!
-//! Nothing here is written by hand twice: each field's offset is `offset_of!`, its size and
-//! type name come from the field's own Rust type ([`FieldType`]), and the macro that lists a
-//! struct's fields also destructures the struct without `..`, so a field added to or removed
-//! from a message without updating its list here does not compile.
+//! Nothing here is written by hand twice: each type's layout is [`Fields::layout`], which
+//! the type's one declaration (`crate::fields`) derives from its field list: each field's
+//! offset is `offset_of!`, its size and type name come from the field's own Rust type
+//! ([`FieldType`]), so a field added to or removed from a message is described with no edit
+//! here.
 
 use serde::Serialize;
+
+pub use crate::fields::FieldType;
+use crate::fields::Fields;
 
 use crate::control::{
     ControlRequest, ControlResponse, ESTOP_TOPIC, EstopCommand, SAFETY_CONTROL_TOPIC, SUPERVISOR,
@@ -25,36 +29,6 @@ use crate::msg::{
 use crate::topics::{
     JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
 };
-
-/// The type of a message field as bindings spell it: `u64`, `f32`, `[f64; 8]`, or the name
-/// of a nested struct (`Text`).
-pub trait FieldType {
-    /// The type's name.
-    fn describe() -> String;
-}
-
-macro_rules! primitive {
-    ($($t:ty),*) => {$(
-        impl FieldType for $t {
-            fn describe() -> String {
-                stringify!($t).to_owned()
-            }
-        }
-    )*};
-}
-primitive!(u8, u16, u32, u64, i32, i64, f32, f64);
-
-impl<T: FieldType, const N: usize> FieldType for [T; N] {
-    fn describe() -> String {
-        format!("[{}; {N}]", T::describe())
-    }
-}
-
-impl FieldType for Text {
-    fn describe() -> String {
-        "Text".to_owned()
-    }
-}
 
 /// One field of a message.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -135,34 +109,6 @@ pub struct Layout {
     pub bits: Vec<(&'static str, Vec<&'static str>)>,
 }
 
-fn field<S, T: FieldType>(name: &'static str, offset: usize, _get: fn(&S) -> &T) -> FieldLayout {
-    FieldLayout {
-        name,
-        offset,
-        size: size_of::<T>(),
-        ty: T::describe(),
-    }
-}
-
-/// The layout of struct `$t`, whose fields are listed in declaration order. The list is
-/// checked by the compiler: a destructuring pattern without `..` names every field.
-macro_rules! layout {
-    ($t:ident { $($f:ident),* $(,)? }) => {{
-        #[allow(dead_code)]
-        fn every_field_is_listed(v: &$t) {
-            let $t { $($f: _),* } = v;
-        }
-        TypeLayout {
-            name: stringify!($t),
-            // SAFETY: `type_name` only returns the string given to the derive.
-            type_name: unsafe { <$t as iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend>::type_name() },
-            size: size_of::<$t>(),
-            align: align_of::<$t>(),
-            fields: vec![$(field(stringify!($f), core::mem::offset_of!($t, $f), |v: &$t| &v.$f)),*],
-        }
-    }};
-}
-
 fn topic(s: &TopicSettings, message: &'static str) -> TopicLayout {
     TopicLayout {
         name: s.name,
@@ -213,100 +159,12 @@ pub fn describe() -> Layout {
 /// The layouts of the messages on the topics, the joystick's to the nodes' status.
 fn message_types() -> Vec<TypeLayout> {
     vec![
-        layout!(JoystickInput {
-            tick,
-            t_ns,
-            seq,
-            axes,
-            gripper,
-            buttons
-        }),
-        layout!(RobotState {
-            tick,
-            t_ns,
-            applied_tick,
-            missed,
-            n_joints,
-            flags,
-            q_rad,
-            qdot_rad_s,
-            gripper
-        }),
-        layout!(MapperCommand {
-            tick,
-            t_ns,
-            state_t_ns,
-            state_rx_ns,
-            joystick_t_ns,
-            joystick_rx_ns,
-            joystick_seq,
-            compute_ns,
-            mapper_id,
-            n_joints,
-            flags,
-            buttons,
-            action,
-            qdot_rad_s,
-            gripper_rate
-        }),
-        layout!(SafeCommand {
-            tick,
-            t_ns,
-            state_t_ns,
-            state_rx_ns,
-            joystick_t_ns,
-            joystick_rx_ns,
-            mapper_t_ns,
-            mapper_rx_ns,
-            mapper_compute_ns,
-            compute_ns,
-            mapper_id,
-            n_joints,
-            flags,
-            control,
-            qdot_rad_s,
-            gripper_rate,
-            clearance_m,
-            tcp_speed_m_s,
-            closest_pair,
-            reserved_tail
-        }),
-        layout!(TickReport {
-            tick,
-            ideal_ns,
-            lateness_ns,
-            state_t_ns,
-            state_rx_ns,
-            joystick_t_ns,
-            joystick_rx_ns,
-            mapper_t_ns,
-            mapper_rx_ns,
-            safe_t_ns,
-            safe_rx_ns,
-            mapper_compute_ns,
-            safety_compute_ns,
-            missed,
-            executed,
-            reserved
-        }),
-        layout!(NodeStatus {
-            t_ns,
-            tick,
-            handled,
-            faults,
-            latency_ns,
-            lateness_ns,
-            joint_travel_rad,
-            pid,
-            role,
-            phase,
-            mapper_id,
-            safety_state,
-            rule_counts,
-            mode,
-            mode_switches,
-            held_up
-        }),
+        JoystickInput::layout(),
+        RobotState::layout(),
+        MapperCommand::layout(),
+        SafeCommand::layout(),
+        TickReport::layout(),
+        NodeStatus::layout(),
     ]
 }
 
@@ -314,36 +172,11 @@ fn message_types() -> Vec<TypeLayout> {
 /// requests and responses.
 fn control_types() -> Vec<TypeLayout> {
     vec![
-        layout!(SafetyControl {
-            seq,
-            t_ns,
-            from_tick,
-            active_mapper,
-            hold,
-            estop_seq,
-            estop
-        }),
-        layout!(EstopCommand {
-            t_ns,
-            action,
-            source_pid
-        }),
-        layout!(Text { len, bytes }),
-        layout!(ControlRequest {
-            kind,
-            reserved,
-            path
-        }),
-        layout!(ControlResponse {
-            ok,
-            new_mapper,
-            old_mapper,
-            held_up_during,
-            switch_tick,
-            elapsed_ns,
-            missed_during,
-            message
-        }),
+        SafetyControl::layout(),
+        EstopCommand::layout(),
+        Text::layout(),
+        ControlRequest::layout(),
+        ControlResponse::layout(),
     ]
 }
 

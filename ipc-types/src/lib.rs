@@ -12,12 +12,16 @@
 //! * [`time`]: the monotonic clock every process stamps its messages with.
 //! * `json` (feature `json`): the messages' JSON form and JSON schema, derived from the types
 //!   (serde, schemars); the recording crate enables it.
+//! * [`fields`]: each message's fields by name and value, from one declaration per message
+//!   (the struct, its layout, the fields `scl replay` does not compare), and the bit sets'
+//!   names from one declaration per bit.
 //! * [`layout`]: the messages' memory layout as data (size, alignment, every field's offset
 //!   and type, iceoryx2 type names, topic settings), for bindings in other languages.
 //! * [`stats`]: the one quantile definition (latency percentiles, experiment quartiles).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
+pub mod fields;
 #[cfg(feature = "json")]
 pub mod json;
 pub mod layout;

@@ -34,6 +34,7 @@ pub mod whatif;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
+use ipc_types::fields::{Fields, Value};
 use ipc_types::{
     JoystickInput, MapperCommand, NO_TICK, NodeRole, NodeStatus, RobotState, SafeCommand,
     mapper_flags, safe_control, safe_flags,
@@ -487,6 +488,48 @@ pub fn bit_names(bits: u32, names: &[&str]) -> Vec<String> {
         .collect()
 }
 
+/// The fields of two messages that differ, bit for bit, but the message's
+/// [`Fields::NOT_REPLAYED`] and those `skip` names. Floats compare by their bits (an `f32` is
+/// shown as its bits, an `f64` as its value), arrays of floats element by element
+/// (`qdot_rad_s[3]`), every other field as a whole (`closest_pair`).
+fn fields_diff<T: Fields>(rec: &T, rep: &T, skip: impl Fn(&str) -> bool) -> Vec<FieldDiff> {
+    let mut d = Vec::new();
+    for ((name, a), (_, b)) in rec.fields().into_iter().zip(rep.fields()) {
+        if T::NOT_REPLAYED.contains(&name) || skip(name) {
+            continue;
+        }
+        value_diff(&mut d, name, a, b);
+    }
+    d
+}
+
+/// Adds field `name` to `out` if its values `a` and `b` (of one field of one type) differ.
+fn value_diff(out: &mut Vec<FieldDiff>, name: &str, a: Value<'_>, b: Value<'_>) {
+    match (a, b) {
+        (Value::F64(a), Value::F64(b)) => f64_diff(out, name, a, b),
+        (Value::F32(a), Value::F32(b)) => int_diff(out, name, a.to_bits(), b.to_bits()),
+        (Value::F64s(a), Value::F64s(b)) => {
+            for (i, (a, b)) in a.iter().zip(b).enumerate() {
+                f64_diff(out, &format!("{name}[{i}]"), *a, *b);
+            }
+        }
+        (Value::F32s(a), Value::F32s(b)) => {
+            for (i, (a, b)) in a.iter().zip(b).enumerate() {
+                int_diff(out, &format!("{name}[{i}]"), a.to_bits(), b.to_bits());
+            }
+        }
+        (a, b) => {
+            if a != b {
+                out.push(FieldDiff {
+                    field: name.to_owned(),
+                    recorded: a.to_string(),
+                    replayed: b.to_string(),
+                });
+            }
+        }
+    }
+}
+
 fn f64_diff(out: &mut Vec<FieldDiff>, field: &str, a: f64, b: f64) {
     if a.to_bits() != b.to_bits() {
         out.push(FieldDiff {
@@ -507,79 +550,19 @@ fn int_diff<T: PartialEq + std::fmt::Debug>(out: &mut Vec<FieldDiff>, field: &st
     }
 }
 
-/// The fields of two mapper commands that differ, bit for bit (the process's own time stamps
-/// `t_ns`, `state_rx_ns`, `joystick_rx_ns` and `compute_ns` are not the step's).
+/// The fields of two mapper commands that differ, bit for bit: every field but
+/// [`MapperCommand`]'s [`Fields::NOT_REPLAYED`] (the mapper's own stamps).
 pub fn mapper_diff(rec: &MapperCommand, rep: &MapperCommand) -> Vec<FieldDiff> {
-    let mut d = Vec::new();
-    int_diff(&mut d, "tick", rec.tick, rep.tick);
-    int_diff(&mut d, "state_t_ns", rec.state_t_ns, rep.state_t_ns);
-    int_diff(
-        &mut d,
-        "joystick_t_ns",
-        rec.joystick_t_ns,
-        rep.joystick_t_ns,
-    );
-    int_diff(&mut d, "joystick_seq", rec.joystick_seq, rep.joystick_seq);
-    int_diff(&mut d, "mapper_id", rec.mapper_id, rep.mapper_id);
-    int_diff(&mut d, "n_joints", rec.n_joints, rep.n_joints);
-    int_diff(&mut d, "flags", rec.flags, rep.flags);
-    int_diff(&mut d, "buttons", rec.buttons, rep.buttons);
-    for i in 0..rec.action.len() {
-        int_diff(
-            &mut d,
-            &format!("action[{i}]"),
-            rec.action[i].to_bits(),
-            rep.action[i].to_bits(),
-        );
-    }
-    for i in 0..rec.qdot_rad_s.len() {
-        f64_diff(
-            &mut d,
-            &format!("qdot_rad_s[{i}]"),
-            rec.qdot_rad_s[i],
-            rep.qdot_rad_s[i],
-        );
-    }
-    f64_diff(&mut d, "gripper_rate", rec.gripper_rate, rep.gripper_rate);
-    d
+    fields_diff(rec, rep, |_| false)
 }
 
-/// The fields of two safety commands that differ, bit for bit (the process's own time stamps
-/// `t_ns`, `mapper_rx_ns` and `compute_ns` are not the filter's).
+/// The fields of two safety commands that differ, bit for bit: every field but
+/// [`SafeCommand`]'s [`Fields::NOT_REPLAYED`] (the processes' own stamps, padding), and
+/// `control` only where the recording has it ([`safe_control::RECORDED`]; before, the replay
+/// rebuilds it from the flags).
 pub fn safe_diff(rec: &SafeCommand, rep: &SafeCommand) -> Vec<FieldDiff> {
-    let mut d = Vec::new();
-    int_diff(&mut d, "tick", rec.tick, rep.tick);
-    int_diff(&mut d, "state_t_ns", rec.state_t_ns, rep.state_t_ns);
-    int_diff(
-        &mut d,
-        "joystick_t_ns",
-        rec.joystick_t_ns,
-        rep.joystick_t_ns,
-    );
-    int_diff(&mut d, "mapper_id", rec.mapper_id, rep.mapper_id);
-    int_diff(&mut d, "n_joints", rec.n_joints, rep.n_joints);
-    int_diff(&mut d, "flags", rec.flags, rep.flags);
-    if rec.control & safe_control::RECORDED != 0 {
-        int_diff(&mut d, "control", rec.control, rep.control);
-    }
-    for i in 0..rec.qdot_rad_s.len() {
-        f64_diff(
-            &mut d,
-            &format!("qdot_rad_s[{i}]"),
-            rec.qdot_rad_s[i],
-            rep.qdot_rad_s[i],
-        );
-    }
-    f64_diff(&mut d, "gripper_rate", rec.gripper_rate, rep.gripper_rate);
-    f64_diff(&mut d, "clearance_m", rec.clearance_m, rep.clearance_m);
-    f64_diff(
-        &mut d,
-        "tcp_speed_m_s",
-        rec.tcp_speed_m_s,
-        rep.tcp_speed_m_s,
-    );
-    int_diff(&mut d, "closest_pair", rec.closest_pair, rep.closest_pair);
-    d
+    let control_recorded = rec.control & safe_control::RECORDED != 0;
+    fields_diff(rec, rep, |name| name == "control" && !control_recorded)
 }
 
 /// The joystick sample behind a recorded mapper command: the recorded sample it names, or

@@ -439,3 +439,122 @@ fn a_corrupt_chunk_in_the_middle_fails_the_replay_unless_partial() {
         r.notes
     );
 }
+
+/// The field names a diff of two messages that differ in every byte must report: every
+/// field but those not replayed, arrays of floats element by element.
+fn every_field_but_not_replayed<T: Fields>(skip: &[&str]) -> Vec<String> {
+    let mut out = Vec::new();
+    for f in T::layout().fields {
+        if T::NOT_REPLAYED.contains(&f.name) || skip.contains(&f.name) {
+            continue;
+        }
+        match f.ty.strip_prefix("[f").and_then(|t| t.split_once("; ")) {
+            Some((_, n)) => {
+                let n: usize = n.trim_end_matches(']').parse().unwrap();
+                out.extend((0..n).map(|i| format!("{}[{i}]", f.name)));
+            }
+            None => out.push(f.name.to_owned()),
+        }
+    }
+    out
+}
+
+fn names(d: &[FieldDiff]) -> Vec<String> {
+    d.iter().map(|f| f.field.clone()).collect()
+}
+
+#[test]
+fn every_field_is_compared_unless_declared_not_replayed() {
+    use zerocopy::{FromZeros, IntoBytes};
+    // Two commands that differ in every byte, every float bit pattern, every array element.
+    let mut rec = MapperCommand::new_zeroed();
+    let mut rep = MapperCommand::new_zeroed();
+    rec.as_mut_bytes().fill(0xAA);
+    rep.as_mut_bytes().fill(0x55);
+    assert_eq!(
+        names(&mapper_diff(&rec, &rep)),
+        every_field_but_not_replayed::<MapperCommand>(&[])
+    );
+    assert!(mapper_diff(&rec, &rec).is_empty());
+
+    let mut rec = SafeCommand::zeroed();
+    let mut rep = SafeCommand::zeroed();
+    rec.as_mut_bytes().fill(0xAA);
+    rep.as_mut_bytes().fill(0x55);
+    assert_ne!(rec.control & safe_control::RECORDED, 0);
+    assert_eq!(
+        names(&safe_diff(&rec, &rep)),
+        every_field_but_not_replayed::<SafeCommand>(&[])
+    );
+    // `control` is compared only where the recording has it.
+    rec.control &= !safe_control::RECORDED;
+    assert_eq!(
+        names(&safe_diff(&rec, &rep)),
+        every_field_but_not_replayed::<SafeCommand>(&["control"])
+    );
+    assert!(safe_diff(&rec, &rec).is_empty());
+    // What is not compared: the processes' own stamps and padding.
+    assert_eq!(
+        SafeCommand::NOT_REPLAYED,
+        [
+            "t_ns",
+            "state_rx_ns",
+            "joystick_rx_ns",
+            "mapper_t_ns",
+            "mapper_rx_ns",
+            "mapper_compute_ns",
+            "compute_ns",
+            "reserved_tail"
+        ]
+    );
+}
+
+#[test]
+fn a_diff_names_each_field_and_shows_both_values() {
+    use zerocopy::FromZeros;
+    let rec = MapperCommand {
+        flags: 3,
+        action: [1.0, 0.0],
+        t_ns: 1,
+        ..MapperCommand::new_zeroed()
+    };
+    let mut rep = MapperCommand {
+        flags: 1,
+        action: [0.5, 0.0],
+        t_ns: 2,
+        ..rec
+    };
+    rep.qdot_rad_s[3] = 0.25;
+    let d = |field: &str, recorded: &str, replayed: &str| FieldDiff {
+        field: field.to_owned(),
+        recorded: recorded.to_owned(),
+        replayed: replayed.to_owned(),
+    };
+    assert_eq!(
+        mapper_diff(&rec, &rep),
+        [
+            d("flags", "3", "1"),
+            d("action[0]", "1065353216", "1056964608"),
+            d("qdot_rad_s[3]", "0.0", "0.25"),
+        ]
+    );
+    let rec = SafeCommand {
+        closest_pair: [1, 2],
+        clearance_m: f64::INFINITY,
+        control: 5,
+        ..SafeCommand::zeroed()
+    };
+    let rep = SafeCommand {
+        closest_pair: [1, 3],
+        clearance_m: 0.5,
+        control: 4,
+        ..rec
+    };
+    assert_eq!(
+        safe_diff(&rec, &rep),
+        [
+            d("clearance_m", "inf", "0.5"),
+            d("closest_pair", "[1, 2]", "[1, 3]"),
+        ]
+    );
+}
