@@ -70,6 +70,19 @@ impl StatusSink for &TopicPublisher<NodeStatus> {
     }
 }
 
+/// Heartbeats for a node that has a status topic (`Some`), or none for one that has not (a
+/// remote operator's joystick: the gateway is its node in the graph).
+impl<S: StatusSink> StatusSink for Option<S> {
+    type Error = S::Error;
+
+    fn send_status(&mut self, st: NodeStatus) -> Result<(), Self::Error> {
+        match self {
+            Some(s) => s.send_status(st),
+            None => Ok(()),
+        }
+    }
+}
+
 impl<S: StatusSink + ?Sized> StatusSink for &mut S {
     type Error = S::Error;
 
