@@ -268,6 +268,34 @@ fn there_is_one_poller_type() {
     assert_eq!(found, ["node-rt/src/poller.rs"], "Poller types: {found:?}");
 }
 
+/// One node contract: a graph process says `READY` and `STOPPING` on the status topic through
+/// `node_rt::node::Heartbeat`, which stamps and sends them; no service's own code writes
+/// those phases.
+#[test]
+fn nodes_say_ready_and_stopping_through_the_node_contract() {
+    let root = scl_tests::workspace::root();
+    let mut found = Vec::new();
+    for p in scl_tests::workspace::packages(&[]) {
+        if !p.dir.starts_with("services") {
+            continue;
+        }
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
+            let text = std::fs::read_to_string(&f).unwrap_or_default();
+            let writes = text.lines().any(|l| {
+                (l.contains("phase = phase::") || l.contains("NodeStatus::new("))
+                    && (l.contains("phase::READY") || l.contains("phase::STOPPING"))
+            });
+            if writes {
+                found.push(f.strip_prefix(&root).unwrap_or(&f).display().to_string());
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "services writing READY / STOPPING themselves: {found:?}"
+    );
+}
+
 /// ARCHITECTURE.md names every crate of the workspace (in backquotes) and the ROS 2 bridge.
 #[test]
 fn the_architecture_names_every_crate_and_the_ros2_bridge() {

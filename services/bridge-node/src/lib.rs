@@ -74,9 +74,8 @@ use hw_bridge::kortex::{Credentials, KortexArm, KortexConfig};
 use hw_bridge::mock::MockArm;
 use hw_bridge::tick::{BridgeCore, GateChange, MissReason, Outcome};
 use hw_bridge::{Robot, RobotError};
-use ipc_types::{
-    NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, TickReport, phase, time::now_ns,
-};
+use ipc_types::{NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, TickReport, time::now_ns};
+use node_rt::node::Heartbeat;
 use transport::Graph;
 
 use scl_config::{BridgeConfig, FaultConfig, GraphSection, RtRole};
@@ -429,11 +428,10 @@ struct Ticker<'a, R: Robot> {
     wait_ns: u64,
     states: transport::TopicPublisher<RobotState>,
     commands: transport::TopicSubscriber<SafeCommand>,
-    status: transport::TopicPublisher<NodeStatus>,
     reports: transport::TopicPublisher<TickReport>,
     core: BridgeCore<R>,
-    /// The heartbeat.
-    st: NodeStatus,
+    /// The heartbeat on the status topic.
+    heartbeat: Heartbeat<transport::TopicPublisher<NodeStatus>>,
     late: late::LateCommands,
     /// Until the first tick has begun (a restarted bridge counts its downtime then).
     first_tick: bool,
@@ -460,19 +458,16 @@ impl<'a, R: Robot> Ticker<'a, R> {
                 "resuming the graph's tick count from a stop"
             );
         }
-        let mut st = NodeStatus::new(NodeRole::Bridge, phase::READY, now_ns());
-        status.send(st)?;
-        st.phase = phase::RUNNING;
+        let heartbeat = Heartbeat::ready(status, NodeRole::Bridge, |_| {})?;
         tracing::info!(rate_hz = 1e9 / period_ns as f64, robot = %cfg.robot, "ticking");
         Ok(Self {
             ctx,
             wait_ns,
             states,
             commands,
-            status,
             reports,
             core,
-            st,
+            heartbeat,
             late: late::LateCommands::default(),
             first_tick: true,
             poller: node_rt::poller::Poller::new(ctx.wait, period_ns).polling_every_tick(),
@@ -515,9 +510,10 @@ impl<'a, R: Robot> Ticker<'a, R> {
     /// has stopped them.
     fn publish_state(&self, state: RobotState) -> Result<(), BridgeNodeError> {
         let stop_after = self.ctx.faults.bridge_states_stop_after_ticks;
-        if stop_after == 0 || self.st.handled < stop_after {
+        let handled = self.heartbeat.status().handled;
+        if stop_after == 0 || handled < stop_after {
             self.states.send(state)?;
-        } else if self.st.handled == stop_after {
+        } else if handled == stop_after {
             tracing::warn!(tick = state.tick, "fault injection: robot states stop");
         }
         Ok(())
@@ -590,7 +586,8 @@ impl<'a, R: Robot> Ticker<'a, R> {
                 late_ms,
                 "missed tick: the bridge was held up past a command deadline"
             );
-            self.st.held_up = self.st.held_up.saturating_add(lost as u32);
+            let st = self.heartbeat.status_mut();
+            st.held_up = st.held_up.saturating_add(lost as u32);
         }
         self.take_verdicts(verdicts);
     }
@@ -600,7 +597,8 @@ impl<'a, R: Robot> Ticker<'a, R> {
         for v in verdicts {
             say_late(&v);
             if v.held_up() {
-                self.st.held_up = self.st.held_up.saturating_add(1);
+                let st = self.heartbeat.status_mut();
+                st.held_up = st.held_up.saturating_add(1);
             }
         }
     }
@@ -648,7 +646,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
         woke: &Woke,
         reply: &Reply,
     ) -> Result<(), BridgeNodeError> {
-        let st = &mut self.st;
+        let st = self.heartbeat.status_mut();
         st.latency_ns = latency_ns;
         st.t_ns = now_ns();
         st.tick = state.tick;
@@ -657,7 +655,7 @@ impl<'a, R: Robot> Ticker<'a, R> {
         st.lateness_ns = woke.lateness_ns;
         st.joint_travel_rad = self.core.joint_travel_rad();
         st.mapper_id = reply.found.map_or(0, |c| c.mapper_id);
-        self.status.send(*st)?;
+        self.heartbeat.beat()?;
         Ok(())
     }
 
@@ -725,11 +723,8 @@ impl<'a, R: Robot> Ticker<'a, R> {
         }
         self.states.send(last)?;
         self.settle_late()?;
-        let st = &mut self.st;
-        st.phase = phase::STOPPING;
-        st.t_ns = now_ns();
-        st.latency_ns = 0;
-        self.status.send(*st)?;
+        self.heartbeat.status_mut().latency_ns = 0;
+        let st = self.heartbeat.stop()?;
         let link = self.core.robot().link_stats();
         tracing::info!(
             ticks = st.handled,

@@ -32,8 +32,9 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
 use ipc_types::{
     JoystickInput, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand,
-    TickReport, gateway_counts, phase, time::now_ns,
+    TickReport, gateway_counts, time::now_ns,
 };
+use node_rt::node::Heartbeat;
 use scl_config::GraphConfig;
 use scl_net::link::{Refusal, Stop};
 use scl_net::ports::{self, Out, Urgency};
@@ -534,7 +535,8 @@ struct Gateway<'a> {
     joystick: Option<transport::TopicPublisher<JoystickInput>>,
     estop: Option<transport::control::EstopPublisher>,
     seq: u64,
-    st: NodeStatus,
+    /// The heartbeat: the link's counts and refusals.
+    hb: Heartbeat<&'a transport::TopicPublisher<NodeStatus>>,
     outbound_dropped: u64,
     inbound_dropped: Arc<AtomicU64>,
     joy: Option<JoyOperator>,
@@ -542,7 +544,7 @@ struct Gateway<'a> {
 
 impl Gateway<'_> {
     fn count(&mut self, index: usize) {
-        let c = &mut self.st.rule_counts[index];
+        let c = &mut self.hb.status_mut().rule_counts[index];
         *c = c.saturating_add(1);
     }
 
@@ -568,7 +570,7 @@ impl Gateway<'_> {
                 }
             }
             Inbound::Sample(zid, Err(e)) => {
-                self.st.faults += 1;
+                self.hb.status_mut().faults += 1;
                 tracing::warn!(operator = %zid, "operator sample refused: {e}");
             }
             Inbound::Sample(zid, Ok(s)) => {
@@ -577,7 +579,7 @@ impl Gateway<'_> {
             Inbound::Estop(c) => self.estop_request(c)?,
             Inbound::JoyPublisher(alive) => self.joy_publisher(alive)?,
             Inbound::Joy(Err(e)) => {
-                self.st.faults += 1;
+                self.hb.status_mut().faults += 1;
                 tracing::warn!("/joy message refused: {e}");
             }
             Inbound::Joy(Ok(joy)) => self.joy(&joy, net)?,
@@ -619,13 +621,13 @@ impl Gateway<'_> {
         let (axes, bits) = match j.map.apply(joy) {
             Ok(m) => m,
             Err(e) => {
-                self.st.faults += 1;
+                self.hb.status_mut().faults += 1;
                 tracing::warn!("/joy message refused: {e}");
                 return Ok(());
             }
         };
         let sample = JoystickInput {
-            tick: self.st.tick,
+            tick: self.hb.status().tick,
             t_ns: 0,
             seq: j.seq,
             axes,
@@ -663,7 +665,7 @@ impl Gateway<'_> {
                 Ok(true)
             }
             Err(r) => {
-                self.st.faults += 1;
+                self.hb.status_mut().faults += 1;
                 self.refused(zid, r);
                 Ok(false)
             }
@@ -672,7 +674,7 @@ impl Gateway<'_> {
 
     fn refused(&self, zid: &str, r: Refusal) {
         // Refusals come at the sample rate: log the first of each kind in a run of them.
-        let n = self.st.faults;
+        let n = self.hb.status().faults;
         if n.is_power_of_two() {
             tracing::warn!(operator = %zid, refused = n, "operator sample refused: {}", r.name());
         }
@@ -684,7 +686,7 @@ impl Gateway<'_> {
                 tracing::warn!(operator = %zid, "operator link lost: the arm stops; a new session and neutral input resume");
                 self.count(gateway_counts::LINK_LOSSES);
                 // Stand in at once, answering the newest tick: the arm stops at the next one.
-                let tick = self.st.tick;
+                let tick = self.hb.status().tick;
                 if tick != ipc_types::NO_TICK {
                     self.publish_sample(OperatorLink::placeholder(tick, 0))?;
                 }
@@ -737,7 +739,7 @@ impl Gateway<'_> {
     }
 
     fn tick(&mut self, s: &RobotState, net: &Network) -> Result<(), GatewayError> {
-        self.st.tick = s.tick;
+        self.hb.status_mut().tick = s.tick;
         if self.cfg.network.accept_joystick {
             let (stop, mut stand_in) = self.link.tick(s.tick);
             if let Some(stop) = stop {
@@ -763,13 +765,14 @@ impl Gateway<'_> {
                 self.count(gateway_counts::STOOD_IN);
             }
         }
-        self.st.handled += 1;
-        self.st.t_ns = now_ns();
-        self.st.rule_counts[gateway_counts::OUTBOUND_DROPPED] =
+        let st = self.hb.status_mut();
+        st.handled += 1;
+        st.t_ns = now_ns();
+        st.rule_counts[gateway_counts::OUTBOUND_DROPPED] =
             u32::try_from(self.outbound_dropped).unwrap_or(u32::MAX);
-        self.st.rule_counts[gateway_counts::INBOUND_DROPPED] =
+        st.rule_counts[gateway_counts::INBOUND_DROPPED] =
             u32::try_from(self.inbound_dropped.load(Ordering::Relaxed)).unwrap_or(u32::MAX);
-        self.st.rule_counts[gateway_counts::LINK] = self.link.status().link;
+        st.rule_counts[gateway_counts::LINK] = self.link.status().link;
         self.send_out(net, Outbound::Gateway(self.gateway_status()));
         Ok(())
     }
@@ -957,13 +960,11 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         joystick,
         estop,
         seq: 0,
-        st: NodeStatus::new(NodeRole::Gateway, phase::READY, now_ns()),
+        hb: Heartbeat::ready(&heartbeat, NodeRole::Gateway, |_| {})?,
         outbound_dropped: 0,
         inbound_dropped,
         joy: net_cfg.ros2_joy.then(|| JoyOperator::new(net_cfg)),
     };
-    heartbeat.send(gw.st)?;
-    gw.st.phase = phase::RUNNING;
     tracing::info!(
         namespace = keys.namespace(),
         listen = ?net_cfg.listen,
@@ -982,7 +983,7 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         })?;
         if let Some(s) = newest {
             gw.tick(&s, &net)?;
-            heartbeat.send(gw.st)?;
+            gw.hb.beat()?;
         }
         while let Ok(m) = in_rx.try_recv() {
             gw.inbound(m, &net)?;
@@ -998,12 +999,11 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         controls.drain(|c| gw.send_out(&net, Outbound::Control(*c)))?;
         estops.drain(|c| gw.send_out(&net, Outbound::Estop(*c)))?;
     }
-    gw.st.phase = phase::STOPPING;
-    gw.st.t_ns = now_ns();
-    let _ = heartbeat.send(gw.st);
+    let handled = gw.hb.status().handled;
+    let _ = gw.hb.stop();
     drop(net);
     drop(captures);
-    log_cpu_time(gw.st.handled);
+    log_cpu_time(handled);
     Ok(())
 }
 

@@ -31,8 +31,6 @@ pub(crate) trait Endpoint {
     fn send_sample(&mut self, s: JoystickInput) -> Result<(), JoystickError>;
     /// Publishes an e-stop press.
     fn send_estop(&mut self, c: EstopCommand) -> Result<(), JoystickError>;
-    /// Publishes the heartbeat (the graph's nodes only).
-    fn send_status(&mut self, s: NodeStatus) -> Result<(), JoystickError>;
     /// The other nodes' heartbeats that arrived, if this endpoint reads them.
     fn heartbeats(&mut self, f: &mut dyn FnMut(&NodeStatus)) -> Result<(), JoystickError>;
     /// Where the samples go, for the log.
@@ -51,7 +49,6 @@ pub(crate) struct Local {
     /// Kept for the process's life: a sample of a publisher that is gone is not delivered.
     pub(crate) estop: transport::control::EstopPublisher,
     pub(crate) states: transport::TopicSubscriber<RobotState>,
-    pub(crate) status: transport::TopicPublisher<NodeStatus>,
     pub(crate) heartbeats: Option<transport::TopicSubscriber<NodeStatus>>,
 }
 
@@ -81,11 +78,6 @@ impl Endpoint for Local {
 
     fn send_estop(&mut self, c: EstopCommand) -> Result<(), JoystickError> {
         self.estop.send(c)?;
-        Ok(())
-    }
-
-    fn send_status(&mut self, s: NodeStatus) -> Result<(), JoystickError> {
-        self.status.send(s)?;
         Ok(())
     }
 
@@ -275,11 +267,6 @@ impl Endpoint for Remote {
             key: self.estop.key().to_owned(),
             source,
         })
-    }
-
-    fn send_status(&mut self, _: NodeStatus) -> Result<(), JoystickError> {
-        // Heartbeats are the graph's: the gateway is this operator's node there.
-        Ok(())
     }
 
     fn heartbeats(&mut self, _: &mut dyn FnMut(&NodeStatus)) -> Result<(), JoystickError> {

@@ -46,9 +46,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::Receiver;
-use ipc_types::{
-    JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, phase, time::now_ns,
-};
+use ipc_types::{JoystickInput, NO_TICK, NodeRole, NodeStatus, Prefix, buttons, time::now_ns};
+use node_rt::node::Heartbeat;
 use transport::Graph;
 
 use scl_config::{ConfigError, FaultConfig, GraphConfig, GraphSection, JoystickConfig, RtRole};
@@ -628,11 +627,14 @@ pub fn run(
     } else {
         None
     };
+    let samples = graph.joystick_publisher()?;
+    let estop = graph.estop_publisher()?;
+    let states = graph.robot_state_subscriber(true)?;
+    let status = graph.status_publisher()?;
     let mut local = endpoint::Local {
-        samples: graph.joystick_publisher()?,
-        estop: graph.estop_publisher()?,
-        states: graph.robot_state_subscriber(true)?,
-        status: graph.status_publisher()?,
+        samples,
+        estop,
+        states,
         heartbeats,
     };
     node_rt::rt::elevate(graph_cfg, RtRole::Joystick);
@@ -645,7 +647,7 @@ pub fn run(
         );
         sampling::SampleClock::new(period_ns, margin_ns)
     });
-    drive(source, &mut local, cfg, faults, clock)
+    drive(source, &mut local, Some(&status), cfg, faults, clock)
 }
 
 /// Runs the joystick as a remote operator of a graph on another machine, through its gateway
@@ -661,17 +663,20 @@ pub fn run_remote(
         *origin = Origin::FirstSeen(None);
     }
     let mut ep = endpoint::Remote::open(remote)?;
-    drive(source, &mut ep, cfg, faults, None)
+    // Heartbeats are the graph's: the gateway is this operator's node there.
+    drive(source, &mut ep, None, cfg, faults, None)
 }
 
 /// The loop. Each turn: wait for a robot state, the source's thread or the next sample due
 /// on `clock`, take the newest state, read the source, send an e-stop press and the sample
 /// (unless a fault injection silenced the joystick), show the input, and on a new state send
 /// the heartbeat. Without `clock` (or until it knows the grid) a sample answers each state on
-/// its arrival; with it, at the times it says.
+/// its arrival; with it, at the times it says. The heartbeats go to `status` (none for a remote
+/// operator).
 fn drive(
     mut source: Source,
     ep: &mut dyn Endpoint,
+    status: Option<&transport::TopicPublisher<NodeStatus>>,
     cfg: &JoystickConfig,
     faults: &FaultConfig,
     mut clock: Option<sampling::SampleClock>,
@@ -695,9 +700,8 @@ fn drive(
     if source.has_input_before_a_tick() {
         out.publish(ep, input, tick, true, t0)?;
     }
-    ep.send_status(NodeStatus::new(NodeRole::Joystick, phase::READY, now_ns()))?;
+    let mut hb = Heartbeat::ready(status, NodeRole::Joystick, |_| {})?;
     tracing::info!(source = %cfg.source, "publishing on {}", ep.describe());
-    let mut st = NodeStatus::new(NodeRole::Joystick, phase::RUNNING, 0);
     let mut screen = StatusScreen::new(matches!(source, Source::Keyboard(_)));
     while !signals::stop_requested() && !source.quit() {
         let mut timeout = source.timeout(Instant::now());
@@ -735,12 +739,13 @@ fn drive(
         let mut input = source.input(now, tick, gripper);
         inject_nan_axes(faults, tick, new_state.is_some(), &mut input);
         let silent = faults.joystick_silent_after_ticks;
-        if silent == 0 || st.handled < silent {
+        let handled = hb.status().handled;
+        if silent == 0 || handled < silent {
             out.send_estop(ep, &input)?;
             if (tick != NO_TICK || source.has_input_before_a_tick()) && !hold {
                 out.publish(ep, input, tick, answer, now)?;
             }
-        } else if st.handled == silent && new_state.is_some() {
+        } else if handled == silent && new_state.is_some() {
             tracing::warn!(tick, "fault injection: the joystick goes silent");
         }
         // (Silenced too: the sample is done with, and the loop sleeps until the next.)
@@ -752,9 +757,10 @@ fn drive(
         }
         screen.show(ep, now);
         if let Some(s) = new_state {
-            count_tick(&mut st, s.tick, &input);
+            let st = hb.status_mut();
+            count_tick(st, s.tick, &input);
             st.held_up = clock.as_ref().map_or(0, sampling::SampleClock::missed);
-            ep.send_status(st)?;
+            hb.beat()?;
         }
     }
     drop(source);
@@ -763,9 +769,7 @@ fn drive(
     if let Some(r) = out.recorder.take() {
         finish_recording(r, cfg, t0)?;
     }
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    ep.send_status(st)?;
+    hb.stop()?;
     Ok(())
 }
 

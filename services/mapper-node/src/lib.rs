@@ -18,13 +18,15 @@ pub enum MapperNodeError {
 
 use std::time::Duration;
 
-use ipc_types::{NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::{
+    JoystickInput, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, time::now_ns,
+};
 use mapper::step::MapperStep;
+use node_rt::node::{Heartbeat, Node, Turn};
 use node_rt::poller::{Polled, Poller, TickStart};
-use transport::Graph;
+use transport::{Graph, TopicPublisher, TopicSubscriber};
 
 use scl_config::{FaultConfig, GraphSection, RtRole};
-use transport::signals;
 
 /// Runs the mapper process until a shutdown is requested.
 ///
@@ -38,7 +40,7 @@ pub fn run(
     model: &str,
     id: u32,
 ) -> Result<(), MapperNodeError> {
-    let mut step = MapperStep::load(model, id, graph_cfg.profile()?, graph_cfg.period_s())?;
+    let step = MapperStep::load(model, id, graph_cfg.profile()?, graph_cfg.period_s())?;
     let graph = Graph::join_with(prefix, &format!("mapper-{id}"), graph_cfg.transport)?;
     let states = graph.robot_state_subscriber(true)?;
     let joystick = graph.joystick_subscriber(true)?;
@@ -48,60 +50,101 @@ pub fn run(
     // Initialised at normal priority (a mapper starting for a live swap must not compete
     // with the running one); real-time from here on.
     node_rt::rt::elevate(graph_cfg, RtRole::Mapper);
-    let mut st = NodeStatus::new(NodeRole::Mapper, phase::READY, now_ns());
-    st.mapper_id = id;
-    set_mode(&mut st, &step);
-    status.send(st)?;
+    let heartbeat = Heartbeat::ready(&status, NodeRole::Mapper, |st| {
+        st.mapper_id = id;
+        set_mode(st, &step);
+    })?;
     say_serving(&step, id);
-    st.phase = phase::RUNNING;
-    // The newest joystick sample and when it arrived; samples are taken as they come (the
-    // joystick publishes on change), the map runs on each robot state.
-    let mut joy = None;
-    let mut joy_rx_ns = 0;
-    let wakes: [&dyn transport::graph::Wakeable; 2] = [&states, &joystick];
-    let mut prewarm = Prewarm::new(graph_cfg);
-    // Polls for the state before the event wait (`spin`: also for joystick samples).
-    let mut poller = Poller::new(wait, graph_cfg.period_ns()).with_early_arrival();
-    while !signals::stop_requested() {
-        let polled = poller.poll(
+    let mut node = Mapper {
+        step,
+        states,
+        joystick,
+        commands,
+        joy: None,
+        joy_rx_ns: 0,
+        prewarm: Prewarm::new(graph_cfg),
+        // Polls for the state before the event wait (`spin`: also for joystick samples).
+        poller: Poller::new(wait, graph_cfg.period_ns()).with_early_arrival(),
+        faults,
+        id,
+    };
+    node_rt::node::run(&mut node, heartbeat)?;
+    Ok(())
+}
+
+/// The mapper's loop: its topics, the map and the newest joystick sample.
+struct Mapper<'a> {
+    step: MapperStep,
+    states: TopicSubscriber<RobotState>,
+    joystick: TopicSubscriber<JoystickInput>,
+    commands: TopicPublisher<MapperCommand>,
+    /// The newest joystick sample and when it arrived; samples are taken as they come (the
+    /// joystick publishes on change), the map runs on each robot state.
+    joy: Option<JoystickInput>,
+    joy_rx_ns: u64,
+    prewarm: Prewarm,
+    poller: Poller,
+    faults: &'a FaultConfig,
+    id: u32,
+}
+
+impl Node for Mapper<'_> {
+    type Error = MapperNodeError;
+
+    fn step(&mut self, st: &mut NodeStatus) -> Result<Turn, MapperNodeError> {
+        let polled = self.poller.poll(
             TickStart::Grid,
             now_ns() + 100_000_000,
-            &states,
-            Some(&joystick),
+            &self.states,
+            Some(&self.joystick),
         );
         let woke = match polled {
             Polled::Came(bits) => Some(bits),
-            _ => prewarm.wait(&wakes, &mut step),
+            _ => {
+                let wakes: [&dyn transport::graph::Wakeable; 2] = [&self.states, &self.joystick];
+                self.prewarm.wait(&wakes, &mut self.step)
+            }
         };
         let Some(woke) = woke else {
-            continue;
+            return Ok(Turn::Quiet);
         };
         let rx_ns = now_ns();
-        if let Some(j) = joystick.latest()? {
-            joy = Some(j);
-            joy_rx_ns = rx_ns;
+        if let Some(j) = self.joystick.latest()? {
+            self.joy = Some(j);
+            self.joy_rx_ns = rx_ns;
         }
         if woke & 1 == 0 {
-            continue;
+            return Ok(Turn::Quiet);
         }
-        let Some(state) = states.latest()? else {
-            continue;
+        let Some(state) = self.states.latest()? else {
+            return Ok(Turn::Quiet);
         };
-        prewarm.last = Some(state);
+        self.prewarm.last = Some(state);
         // A state carries no stamp of its publication (its `t_ns` is its tick's start): its
         // arrival is the time it was taken, exact when polled.
-        poller.took(state.tick, state.t_ns, rx_ns);
-        let joy_rx = if joy.is_some() { joy_rx_ns } else { 0 };
-        let cmd = map_state(&mut step, &state, joy.as_ref(), rx_ns, joy_rx, faults);
-        commands.send(cmd)?;
-        count_tick(&mut st, &step, &cmd, state.tick, id);
-        status.send(st)?;
+        self.poller.took(state.tick, state.t_ns, rx_ns);
+        let joy_rx = if self.joy.is_some() {
+            self.joy_rx_ns
+        } else {
+            0
+        };
+        let cmd = map_state(
+            &mut self.step,
+            &state,
+            self.joy.as_ref(),
+            rx_ns,
+            joy_rx,
+            self.faults,
+        );
+        self.commands.send(cmd)?;
+        count_tick(st, &self.step, &cmd, state.tick, self.id);
+        Ok(Turn::Beat)
     }
-    poller.log("mapper");
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    status.send(st)?;
-    Ok(())
+
+    fn finish(&mut self, _: &mut NodeStatus) -> Result<(), MapperNodeError> {
+        self.poller.log("mapper");
+        Ok(())
+    }
 }
 
 /// Says which model the mapper serves.

@@ -60,7 +60,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
-use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, phase, time::now_ns};
+use ipc_types::{NO_TICK, NodeRole, NodeStatus, Prefix, time::now_ns};
+use node_rt::node::Heartbeat;
 use serde::Serialize;
 use transport::{Graph, TopicSubscriber};
 
@@ -1026,9 +1027,9 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
         topics = opts.topics.len(),
         "recording graph `{prefix}`"
     );
-    let mut st = NodeStatus::new(NodeRole::Recorder, phase::READY, now_ns());
-    let mut loop_result = heartbeat.send(st).map(|_| ()).map_err(RecorderError::from);
-    st.phase = phase::RUNNING;
+    // The publisher is dropped with the other ports, after the writer finished.
+    let mut hb = Heartbeat::new(&heartbeat, NodeRole::Recorder);
+    let mut loop_result = hb.say_ready().map_err(RecorderError::from);
     while loop_result.is_ok() && !signals::stop_requested() {
         loop_result = subs
             .states
@@ -1036,19 +1037,18 @@ pub fn run(prefix: &Prefix, opts: &RecordOptions) -> Result<RecordReport, Record
             .map_err(RecorderError::from)
             .and_then(|_| subs.drain(&mut producer))
             .and_then(|()| {
+                let st = hb.status_mut();
                 st.t_ns = now_ns();
                 st.tick = producer.last_tick().unwrap_or(NO_TICK);
                 st.handled = tally.received();
                 st.faults = tally.dropped();
-                heartbeat.send(st).map(|_| ()).map_err(RecorderError::from)
+                hb.beat().map_err(RecorderError::from)
             });
     }
     // What arrived while stopping (the bridge's last state) goes in too.
     let _ = subs.drain(&mut producer);
     outcome_at_stop(opts, &mut producer);
-    st.phase = phase::STOPPING;
-    st.t_ns = now_ns();
-    let _ = heartbeat.send(st);
+    let _ = hb.stop();
     // The writer finishes the file once the hand-off is closed and drained.
     drop(producer);
     let outcome = writer.join().unwrap_or_else(|_| WriterOutcome {
@@ -1198,7 +1198,7 @@ pub fn absolute(p: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ipc_types::RobotState;
+    use ipc_types::{RobotState, phase};
 
     fn state(tick: u64) -> Payload {
         Payload::RobotState(RobotState::at_rest(tick, 1000 + tick, 6))

@@ -34,14 +34,15 @@ use std::time::Duration;
 use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
 use ipc_types::{
     MapperCommand, NO_TICK, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, mapper_flags,
-    phase, safe_flags, safety_state, time::now_ns,
+    safe_flags, safety_state, time::now_ns,
 };
+use node_rt::node::{Heartbeat, Node, Turn};
 use node_rt::poller::{Poller, TickStart};
 use safety::{SafetyConfig, SafetyFilter};
+use transport::control::{EstopSubscriber, SafetyControlSubscriber};
 use transport::{Graph, TopicPublisher, TopicSubscriber};
 
 use scl_config::{FaultConfig, GraphSection, RtRole};
-use transport::signals;
 
 /// Without a command for this long (ns) the graph has stopped sending them: the arm will
 /// wait for neutral input when they resume (safety's own gap check says so too, at the next
@@ -132,13 +133,11 @@ struct Ports {
     commands: TopicSubscriber<MapperCommand>,
     states: TopicSubscriber<RobotState>,
     out: TopicPublisher<SafeCommand>,
-    status: TopicPublisher<NodeStatus>,
 }
 
 /// What the loop remembers between wake-ups.
 struct Forwarder {
     filter: SafetyFilter,
-    st: NodeStatus,
     /// The newest robot state.
     state: Option<RobotState>,
     /// The tick of the last command published.
@@ -165,7 +164,6 @@ impl Forwarder {
         Self {
             deadman: filter.config().deadman,
             filter,
-            st: NodeStatus::new(NodeRole::Safety, phase::READY, now),
             state: None,
             last_tick: NO_TICK,
             last_stop_flags: 0,
@@ -250,21 +248,22 @@ impl Forwarder {
     /// confirm and `scl status` shows it alive, and, after 100 ms without a command, that the
     /// arm will wait for neutral input when they resume (a wait can also end without one: a
     /// signal, another mapper joining).
-    fn idle(&mut self, rx_ns: u64) {
+    fn idle(&mut self, st: &mut NodeStatus, rx_ns: u64) {
         if rx_ns.saturating_sub(self.last_step_ns) > NO_COMMANDS_NS {
             self.filter.interrupt();
         }
-        self.st.t_ns = now_ns();
-        self.st.safety_state = safety_state_bits(&self.filter);
+        st.t_ns = now_ns();
+        st.safety_state = safety_state_bits(&self.filter);
     }
 
     /// The command to publish now, if any: the active mapper's command for the newest
     /// state's tick through the filter, or with the e-stop latched and none in time, safety's
-    /// own answer.
+    /// own answer (its mapper named in the heartbeat `st`).
     fn next(
         &mut self,
         p: &Ports,
         rx_ns: u64,
+        st: &mut NodeStatus,
     ) -> Result<Option<(SafeCommand, Option<MapperCommand>)>, SafetyNodeError> {
         self.take_newest_state(p)?;
         let Some(state) = self.state else {
@@ -301,14 +300,18 @@ impl Forwarder {
         safe.mapper_rx_ns = if pending.is_some() { rx_ns } else { 0 };
         safe.compute_ns = t1 - t0;
         safe.t_ns = t1;
-        self.st.mapper_id = active;
+        st.mapper_id = active;
         Ok(Some((safe, pending)))
     }
 
-    /// Counts the published command in the heartbeat and logs what changed: restart
+    /// Counts the published command in the heartbeat `st` and logs what changed: restart
     /// prevention waiting or released, the stop reasons (once per episode, not every tick).
-    fn published(&mut self, safe: &SafeCommand, mapper: Option<&MapperCommand>) {
-        let st = &mut self.st;
+    fn published(
+        &mut self,
+        st: &mut NodeStatus,
+        safe: &SafeCommand,
+        mapper: Option<&MapperCommand>,
+    ) {
         st.t_ns = safe.t_ns;
         st.tick = safe.tick;
         st.handled += 1;
@@ -371,6 +374,25 @@ impl Forwarder {
     }
 }
 
+/// The supervisor's control messages and the e-stop commands that arrived.
+struct Inputs {
+    control: SafetyControlSubscriber,
+    estops: EstopSubscriber,
+    /// The counter of the last relayed e-stop applied.
+    estop_seq: u32,
+}
+
+impl Inputs {
+    /// Applies what arrived to `filter`.
+    fn apply(&mut self, filter: &mut SafetyFilter) -> Result<(), SafetyNodeError> {
+        let estop_seq = &mut self.estop_seq;
+        self.control
+            .drain(|c| apply_control(filter, c, estop_seq))?;
+        self.estops.drain(|e| apply_estop(filter, e))?;
+        Ok(())
+    }
+}
+
 /// Runs the safety process until a shutdown is requested.
 pub fn run(
     prefix: &Prefix,
@@ -390,34 +412,58 @@ pub fn run(
         states: graph.robot_state_subscriber(false)?,
         // Fails if another safety process already publishes: the arm listens to one only.
         out: graph.safe_command_publisher()?,
-        status: graph.status_publisher()?,
     };
-    let control = graph.safety_control_subscriber()?;
-    let estops = graph.estop_subscriber()?;
+    let status = graph.status_publisher()?;
     // A restarted safety learns the active mapper (and a relayed e-stop) from the topic's
     // history.
-    let mut estop_seq = 0;
-    let mut apply_inputs = |filter: &mut SafetyFilter| -> Result<(), SafetyNodeError> {
-        control.drain(|c| apply_control(filter, c, &mut estop_seq))?;
-        estops.drain(|e| apply_estop(filter, e))?;
-        Ok(())
+    let mut inputs = Inputs {
+        control: graph.safety_control_subscriber()?,
+        estops: graph.estop_subscriber()?,
+        estop_seq: 0,
     };
     let mut f = Forwarder::new(filter, period_s, faults.safety_stall_at_tick);
-    apply_inputs(&mut f.filter)?;
+    inputs.apply(&mut f.filter)?;
     let wait = node_rt::wait::strategy_of(graph_cfg, RtRole::Safety, "safety")?;
-    let mut poller = Poller::new(wait, graph_cfg.period_ns());
+    let poller = Poller::new(wait, graph_cfg.period_ns());
     node_rt::rt::elevate(graph_cfg, RtRole::Safety);
-    f.st.mapper_id = f.filter.active_for_tick(0);
-    // At start-up too the arm waits for neutral input (restart prevention).
-    f.st.safety_state = safety_state_bits(&f.filter);
-    ports.status.send(f.st)?;
+    let heartbeat = Heartbeat::ready(&status, NodeRole::Safety, |st| {
+        st.mapper_id = f.filter.active_for_tick(0);
+        // At start-up too the arm waits for neutral input (restart prevention).
+        st.safety_state = safety_state_bits(&f.filter);
+    })?;
     tracing::info!(
-        active_mapper = f.st.mapper_id,
+        active_mapper = heartbeat.status().mapper_id,
         "forwarding to {}",
         ports.out.service()
     );
-    f.st.phase = phase::RUNNING;
-    while !signals::stop_requested() {
+    let mut node = Safety {
+        ports,
+        inputs,
+        f,
+        poller,
+    };
+    node_rt::node::run(&mut node, heartbeat)?;
+    Ok(())
+}
+
+/// Safety's loop: its ports, the forwarder and the poller.
+struct Safety {
+    ports: Ports,
+    inputs: Inputs,
+    f: Forwarder,
+    poller: Poller,
+}
+
+impl Node for Safety {
+    type Error = SafetyNodeError;
+
+    fn step(&mut self, st: &mut NodeStatus) -> Result<Turn, SafetyNodeError> {
+        let Self {
+            ports,
+            inputs,
+            f,
+            poller,
+        } = self;
         // Polling only while commands flow (the e-stop's and a quiet graph's timed answers
         // keep the event wait).
         let now = now_ns();
@@ -430,30 +476,34 @@ pub fn run(
                     None,
                 )
                 .came();
-        let woke = polled || f.wait(&ports)?;
+        let woke = polled || f.wait(ports)?;
         let rx_ns = now_ns();
-        apply_inputs(&mut f.filter)?;
-        let next = if woke { f.next(&ports, rx_ns)? } else { None };
+        inputs.apply(&mut f.filter)?;
+        let next = if woke {
+            f.next(ports, rx_ns, st)?
+        } else {
+            None
+        };
         match next {
             Some((safe, cmd)) => {
                 ports.out.send(safe)?;
                 if let Some(c) = &cmd {
                     poller.took(c.tick, c.state_t_ns, c.t_ns);
                 }
-                f.published(&safe, cmd.as_ref());
-                ports.status.send(f.st)?;
+                f.published(st, &safe, cmd.as_ref());
+                Ok(Turn::Beat)
             }
             // Nothing to forward: with no command for a while, the heartbeat says so.
             None if !woke || f.quiet(rx_ns) => {
-                f.idle(rx_ns);
-                ports.status.send(f.st)?;
+                f.idle(st, rx_ns);
+                Ok(Turn::Beat)
             }
-            None => {}
+            None => Ok(Turn::Quiet),
         }
     }
-    poller.log("safety");
-    f.st.phase = phase::STOPPING;
-    f.st.t_ns = now_ns();
-    ports.status.send(f.st)?;
-    Ok(())
+
+    fn finish(&mut self, _: &mut NodeStatus) -> Result<(), SafetyNodeError> {
+        self.poller.log("safety");
+        Ok(())
+    }
 }
