@@ -4,6 +4,7 @@
 //! that talk to a running graph (`scl swap`, `scl status`, `scl estop`) are `graph-client`'s.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
+mod histogram;
 pub mod notify;
 pub mod up;
 

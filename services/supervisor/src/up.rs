@@ -37,9 +37,10 @@ use serde::Serialize;
 use transport::Graph;
 use transport::control::{ActiveControlRequest, SafetyControlPublisher};
 
+use crate::histogram::Histogram;
 use crate::{LiveStartError, SupervisorError};
 use mapper::step::MapperStep;
-use node_rt::stats::{Percentiles, percentiles_us};
+use node_rt::stats::Percentiles;
 use scl_config::{GraphConfig, RestartPolicy, SupervisorConfig};
 use transport::signals;
 
@@ -84,7 +85,8 @@ pub struct Summary {
     /// The sum of every joint's absolute change is up to `sqrt(n_joints)` times larger; the
     /// Python example `load_recording.py` computes this one from a recording.
     pub joint_travel_rad: f64,
-    /// Latency samples behind the percentiles.
+    /// Latency samples behind the percentiles (counted in a histogram: each percentile is
+    /// within 0.8 % of the sample it stands for; `max` is exact).
     pub latency_samples: usize,
     /// Wall time of the run (s).
     pub duration_s: f64,
@@ -271,8 +273,10 @@ struct Telemetry {
     cur_held_up: u64,
     cur_travel: f64,
     active_mapper: u32,
-    latency_ns: Vec<u64>,
-    lateness_ns: Vec<u64>,
+    /// End-to-end latencies and the bridge's lateness of every tick, in ns: of fixed size,
+    /// whatever the run's length.
+    latency_ns: Histogram,
+    lateness_ns: Histogram,
     last_bridge_tick: Option<u64>,
     min_clearance_m: Option<f64>,
     max_tcp_speed_m_s: Option<f64>,
@@ -307,10 +311,10 @@ impl Telemetry {
             self.last_bridge_tick = Some(s.tick);
             self.last_bridge_beat = Some(Instant::now());
             if s.latency_ns > 0 {
-                self.latency_ns.push(s.latency_ns);
+                self.latency_ns.record(s.latency_ns);
                 self.active_mapper = s.mapper_id;
             }
-            self.lateness_ns.push(s.lateness_ns);
+            self.lateness_ns.record(s.lateness_ns);
         }
     }
 
@@ -1288,7 +1292,7 @@ impl<'a> Supervisor<'a> {
 
     /// Prints the once-a-second progress line.
     fn report_progress(&self, elapsed: Duration) {
-        let l = percentiles_us(&self.tel.latency_ns);
+        let l = self.tel.latency_ns.percentiles_us();
         let restarts = if self.restarts > 0 {
             format!("  restarts {}", self.restarts)
         } else {
@@ -1336,10 +1340,10 @@ impl<'a> Supervisor<'a> {
             ticks: self.tel.ticks(),
             missed: self.tel.missed(),
             held_up: self.tel.held_up(),
-            latency_us: percentiles_us(&self.tel.latency_ns),
-            tick_lateness_us: percentiles_us(&self.tel.lateness_ns),
+            latency_us: self.tel.latency_ns.percentiles_us(),
+            tick_lateness_us: self.tel.lateness_ns.percentiles_us(),
             joint_travel_rad: self.tel.travel(),
-            latency_samples: self.tel.latency_ns.len(),
+            latency_samples: self.tel.latency_ns.len() as usize,
             duration_s,
             prefix: self.opts.prefix.to_string(),
             active_mapper: self.tel.active_mapper,
