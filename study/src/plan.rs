@@ -337,15 +337,7 @@ fn check_task(
         reason,
     };
     let key = |k: &str| format!("tasks[{i}].{k}");
-    if !is_file_name(&t.name) || !names.insert(t.name.clone()) {
-        return Err(bad(
-            key("name"),
-            format!(
-                "`{}` must be unique and use only letters, digits, '-' and '_'",
-                t.name
-            ),
-        ));
-    }
+    unique_file_name(&t.name, names).map_err(|r| bad(key("name"), r))?;
     if !(t.time_limit_s.is_finite() && t.time_limit_s > 0.0) {
         return Err(bad(key("time_limit_s"), "must be positive".into()));
     }
@@ -399,15 +391,7 @@ impl ConditionCheck<'_> {
             reason,
         };
         let key = |k: &str| format!("conditions[{i}].{k}");
-        if !is_file_name(&c.label) || !labels.insert(c.label.clone()) {
-            return Err(bad(
-                key("label"),
-                format!(
-                    "`{}` must be unique and use only letters, digits, '-' and '_'",
-                    c.label
-                ),
-            ));
-        }
+        unique_file_name(&c.label, labels).map_err(|r| bad(key("label"), r))?;
         if let ModelRef::PerTask(m) = &c.model
             && let Some(t) = m.keys().find(|t| !names.contains(*t))
         {
@@ -487,6 +471,17 @@ fn is_file_name(s: &str) -> bool {
     !s.is_empty()
         && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// Takes `name` into `seen` if it is a file-safe name not taken yet; else why not.
+fn unique_file_name(name: &str, seen: &mut BTreeSet<String>) -> Result<(), String> {
+    if is_file_name(name) && seen.insert(name.to_owned()) {
+        Ok(())
+    } else {
+        Err(format!(
+            "`{name}` must be unique and use only letters, digits, '-' and '_'"
+        ))
+    }
 }
 
 /// The rows of the balanced Latin square (Williams design) over `k` conditions: `k` rows for

@@ -191,22 +191,7 @@ fn run_remote(
         ));
     }
     let report = scl_bench::remote::remote(opts, &parsed)?;
-    let text = serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
-        what: "report",
-        source,
-    })?;
-    if let Some(dir) = out {
-        let p = dir.join("report.json");
-        std::fs::write(&p, &text).map_err(|source| SclError::Write {
-            path: p.clone(),
-            source,
-        })?;
-    }
-    if json {
-        println!("{text}");
-    } else {
-        print!("{}", scl_bench::remote::render(&report));
-    }
+    emit_report(&report, out, json, || scl_bench::remote::render(&report))?;
     let failed = report.failures();
     if failed.is_empty() {
         Ok(ExitCode::SUCCESS)
@@ -320,16 +305,7 @@ fn hops(
         transports: parse_transports(transport)?,
     };
     let report = scl_bench::hops::hops(&opts)?;
-    if json {
-        let text = serde_json::to_string_pretty(&report).map_err(|source| SclError::Encode {
-            what: "report",
-            source,
-        })?;
-        println!("{text}");
-    } else {
-        print!("{}", scl_bench::hops::render(&report));
-    }
-    Ok(ExitCode::SUCCESS)
+    emit_report(&report, None, json, || scl_bench::hops::render(&report))
 }
 
 /// Every rate of `rates` makes a valid configuration of `cfg`.
