@@ -1,10 +1,13 @@
 //! Talking to a running graph from outside it, for the commands and observers that are not
 //! its control path: [`control`] (`scl swap`, `scl status`, `scl estop` / `scl reset`, and
-//! the dashboard's keys) and [`process`] (what each process of the graph runs, read from
-//! `/proc` and written into a recording by `scl record` and `scl live`).
+//! the dashboard's keys), [`observe`] (every recorded topic, read-only, as payloads: the
+//! recorder's, `scl live`'s and the gateway's reading of the graph) and [`process`] (what each
+//! process of the graph runs, read from `/proc` and written into a recording by `scl record`
+//! and `scl live`).
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::needless_range_loop))]
 
 pub mod control;
+pub mod observe;
 pub mod process;
 
 /// Why a control request to a running graph failed, with the message a user sees.

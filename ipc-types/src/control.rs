@@ -119,18 +119,6 @@ message! {
     }
 }
 
-/// Topic name of [`EstopCommand`].
-pub const ESTOP: &str = "estop";
-
-/// Settings of the [`EstopCommand`] topic.
-pub const ESTOP_TOPIC: crate::topics::TopicSettings = crate::topics::TopicSettings {
-    name: ESTOP,
-    history: 1,
-    buffer: 8,
-    max_publishers: 8,
-    max_subscribers: 8,
-};
-
 /// What a [`ControlRequest`] asks for.
 pub mod request_kind {
     /// Swap the active mapper for a new one serving the model at `path`.
@@ -196,17 +184,6 @@ impl ControlResponse {
     }
 }
 
-/// Topic name of [`SafetyControl`].
-pub const SAFETY_CONTROL: &str = "safety_control";
-
-/// Settings of the [`SafetyControl`] topic: the newest switch kept for a restarted safety.
-pub const SAFETY_CONTROL_TOPIC: crate::topics::TopicSettings = crate::topics::TopicSettings {
-    name: SAFETY_CONTROL,
-    history: 1,
-    buffer: 8,
-    max_publishers: 2,
-    max_subscribers: 8,
-};
 /// Service name of the supervisor's request-response service.
 pub const SUPERVISOR: &str = "supervisor";
 

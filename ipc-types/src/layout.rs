@@ -19,16 +19,13 @@ pub use crate::fields::FieldType;
 use crate::fields::Fields;
 
 use crate::control::{
-    ControlRequest, ControlResponse, ESTOP_TOPIC, EstopCommand, SAFETY_CONTROL_TOPIC, SUPERVISOR,
-    SafetyControl, TEXT_CAP, Text,
+    ControlRequest, ControlResponse, EstopCommand, SUPERVISOR, SafetyControl, TEXT_CAP, Text,
 };
 use crate::msg::{
     ACTION_DIM, JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState,
     SafeCommand, TickReport, buttons, mapper_flags, safe_flags, safety_state, state_flags,
 };
-use crate::topics::{
-    JOYSTICK, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
-};
+use crate::topics::{self, TopicSettings};
 
 /// One field of a message.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -125,16 +122,12 @@ fn topic(s: &TopicSettings, message: &'static str) -> TopicLayout {
 pub fn describe() -> Layout {
     let mut types = message_types();
     types.extend(control_types());
-    let topics = vec![
-        topic(&JOYSTICK, "JoystickInput"),
-        topic(&ROBOT_STATE, "RobotState"),
-        topic(&MAPPER_COMMAND, "MapperCommand"),
-        topic(&SAFE_COMMAND, "SafeCommand"),
-        topic(&STATUS, "NodeStatus"),
-        topic(&TICK_REPORT, "TickReport"),
-        topic(&SAFETY_CONTROL_TOPIC, "SafetyControl"),
-        topic(&ESTOP_TOPIC, "EstopCommand"),
-    ];
+    // Every topic but the processes' log records, which no binding reads or writes.
+    let topics = topics::ALL
+        .iter()
+        .filter(|(s, _)| s.name != topics::LOG.name)
+        .map(|&(s, message)| topic(s, message))
+        .collect();
     Layout {
         version: env!("CARGO_PKG_VERSION"),
         types,

@@ -31,6 +31,7 @@ pub mod stats;
 pub mod time;
 pub mod topics;
 
+pub use control::{EstopCommand, SafetyControl};
 pub use msg::*;
 pub use prefix::{Prefix, PrefixError};
-pub use topics::{TopicSettings, Transport};
+pub use topics::{Plane, TopicDef, TopicSettings, Transport};

@@ -6,13 +6,10 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use ipc_types::control::{self, EstopCommand, SafetyControl};
-use ipc_types::{JoystickInput, MapperCommand, NodeStatus, RobotState, SafeCommand, topics};
-
-use recording::Payload;
+use recording::{Payload, Topic};
 
 use crate::keys::Keys;
-use crate::ports::{self, Got};
+use crate::ports::{self, Got, Urgency};
 use crate::session::{ClientError, SessionError};
 use crate::wire::{ClockPair, DecodeError, PROCESS_CAPTURE};
 
@@ -111,47 +108,65 @@ impl RemoteGraph {
     }
 }
 
-/// The outbound topics an observer subscribes to, by their names below the namespace (the
-/// graph's own topic names).
-pub const TOPICS: [&str; 7] = [
-    topics::JOYSTICK.name,
-    topics::ROBOT_STATE.name,
-    topics::MAPPER_COMMAND.name,
-    topics::SAFE_COMMAND.name,
-    topics::STATUS.name,
-    control::SAFETY_CONTROL,
-    control::ESTOP,
-];
+/// `subscribe_graph` and [`GraphPublishers`], one subscriber and one publisher per recorded
+/// topic of `ipc_types::recorded_topics!`: a topic added there travels to a remote observer
+/// with no edit here.
+macro_rules! graph_ports {
+    ($($(#[$doc:meta])* $variant:ident: $msg:ident => $ty:path, $topic:path;)*) => {
+        /// Subscribes to every recorded topic of the graph below `keys` (the keys the
+        /// gateway's [`GraphPublishers`] publish on); `f` gets each message (as a local
+        /// recorder takes it off shared memory), or why one was refused (with its key), on
+        /// Zenoh's threads: it must not block.
+        pub fn subscribe_graph<F>(
+            session: &zenoh::Session,
+            keys: &Keys,
+            f: F,
+        ) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, SessionError>
+        where
+            F: Fn(Result<Payload, (String, DecodeError)>) + Clone + Send + Sync + 'static,
+        {
+            Ok(vec![$({
+                let f = f.clone();
+                ports::subscribe::<$ty, _>(session, keys.topic($topic.name), move |key, m| {
+                    f(m.map(Payload::$variant).map_err(|e| (key.to_owned(), e)))
+                })?
+            }),*])
+        }
 
-/// Subscribes to every topic of the graph below `keys`; `f` gets each message (as a local
-/// recorder takes it off shared memory), or why one was refused (with its key), on Zenoh's
-/// threads: it must not block.
-pub fn subscribe_graph<F>(
-    session: &zenoh::Session,
-    keys: &Keys,
-    f: F,
-) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, SessionError>
-where
-    F: Fn(Result<Payload, (String, DecodeError)>) + Clone + Send + Sync + 'static,
-{
-    macro_rules! sub {
-        ($ty:ty, $name:expr, $variant:ident) => {{
-            let f = f.clone();
-            ports::subscribe::<$ty, _>(session, keys.topic($name), move |key, m| {
-                f(m.map(Payload::$variant).map_err(|e| (key.to_owned(), e)))
-            })?
-        }};
-    }
-    Ok(vec![
-        sub!(JoystickInput, TOPICS[0], Joystick),
-        sub!(RobotState, TOPICS[1], RobotState),
-        sub!(MapperCommand, TOPICS[2], MapperCommand),
-        sub!(SafeCommand, TOPICS[3], SafeCommand),
-        sub!(NodeStatus, TOPICS[4], Status),
-        sub!(SafetyControl, TOPICS[5], SafetyControl),
-        sub!(EstopCommand, TOPICS[6], Estop),
-    ])
+        /// The gateway's publishers of the recorded topics, one per topic below the
+        /// namespace, each at the urgency its declaration gave it.
+        #[allow(non_snake_case)]
+        pub struct GraphPublishers {
+            $($variant: ports::Out<$ty>,)*
+        }
+
+        impl GraphPublishers {
+            /// Declares a publisher per recorded topic below `keys`, `urgency(topic)` each.
+            pub fn declare(
+                session: &zenoh::Session,
+                keys: &Keys,
+                urgency: impl Fn(Topic) -> Urgency,
+            ) -> Result<Self, SessionError> {
+                Ok(Self {
+                    $($variant: ports::publisher(
+                        session,
+                        keys.topic($topic.name),
+                        urgency(Topic::$variant),
+                    )?,)*
+                })
+            }
+
+            /// Publishes `m` on its topic's key.
+            pub fn put(&self, m: &Payload) -> Result<(), zenoh::Error> {
+                match m {
+                    $(Payload::$variant(m) => self.$variant.put(m),)*
+                }
+            }
+        }
+    };
 }
+
+ipc_types::recorded_topics!(graph_ports);
 
 /// Why the gateway's queryables did not give what was asked.
 #[derive(Debug, thiserror::Error)]

@@ -26,10 +26,7 @@ use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-use ipc_types::control::{EstopCommand, SafetyControl};
-use ipc_types::{
-    JoystickInput, MAX_JOINTS, MapperCommand, NO_TICK, NodeStatus, RobotState, SafeCommand,
-};
+use ipc_types::{MAX_JOINTS, NO_TICK, RobotState};
 use mcap::records::MessageHeader;
 /// A metadata record (name and string pairs), as [`metadata`] builds it.
 pub use mcap::records::Metadata;
@@ -128,68 +125,105 @@ pub enum RecordError {
     },
 }
 
-/// A topic of the graph, as the recorder subscribes to it and names its channel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Topic {
-    /// Joystick samples.
-    Joystick,
-    /// Robot states, one per tick.
-    RobotState,
-    /// Every mapper's commands.
-    MapperCommand,
-    /// The executed commands (safety's output).
-    SafeCommand,
-    /// Every node's heartbeat.
-    Status,
-    /// The supervisor's active-mapper switches, holds and relayed e-stops.
-    SafetyControl,
-    /// E-stop and reset commands.
-    Estop,
+/// Declares [`Topic`] and [`Payload`] from `ipc_types::recorded_topics!` (the graph's
+/// one topic table): a topic added there is recorded, with its channel, schema and JSON form,
+/// with no edit here.
+macro_rules! recorded {
+    ($($(#[$doc:meta])* $variant:ident: $msg:ident => $ty:path, $topic:path;)*) => {
+        /// A topic of the graph, as the recorder subscribes to it and names its channel.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub enum Topic {
+            $(
+                $(#[$doc])*
+                $variant,
+            )*
+        }
+
+        impl Topic {
+            /// Every topic, in channel order.
+            pub const ALL: [Topic; Self::COUNT] = [$(Topic::$variant),*];
+            /// Number of topics.
+            pub const COUNT: usize = [$(stringify!($variant)),*].len();
+
+            /// The topic's service name below the graph prefix (`robot_state`).
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(Topic::$variant => $topic.name,)*
+                }
+            }
+
+            /// The schema name (`scl.RobotState`).
+            pub fn schema_name(self) -> &'static str {
+                match self {
+                    $(Topic::$variant => concat!("scl.", stringify!($msg)),)*
+                }
+            }
+
+            /// The JSON schema (draft 2020-12) of the topic's messages: `schemars::schema_for!`
+            /// of the message type.
+            pub fn schema(self) -> Value {
+                match self {
+                    $(Topic::$variant => schemars::schema_for!($ty),)*
+                }
+                .to_value()
+            }
+        }
+
+        /// One message as it came off shared memory.
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        pub enum Payload {
+            $(
+                #[doc = concat!("A `", stringify!($msg), "`.")]
+                $variant($ty),
+            )*
+        }
+
+        impl Payload {
+            /// The topic it was published on.
+            pub fn topic(&self) -> Topic {
+                match self {
+                    $(Payload::$variant(_) => Topic::$variant,)*
+                }
+            }
+
+            /// When it was produced (monotonic ns): its log and publish time in the recording.
+            pub fn t_ns(&self) -> u64 {
+                match self {
+                    $(Payload::$variant(m) => m.t_ns,)*
+                }
+            }
+
+            /// Appends its JSON form to `out`.
+            pub fn write_json(&self, out: &mut Vec<u8>) -> serde_json::Result<()> {
+                match self {
+                    $(Payload::$variant(m) => serde_json::to_writer(out, m),)*
+                }
+            }
+
+            /// A message of `topic` from its JSON form.
+            pub fn from_json(topic: Topic, json: &[u8]) -> serde_json::Result<Payload> {
+                match topic {
+                    $(Topic::$variant => serde_json::from_slice::<$ty>(json).map(Payload::$variant),)*
+                }
+            }
+        }
+
+        $(
+            impl From<$ty> for Payload {
+                fn from(m: $ty) -> Payload {
+                    Payload::$variant(m)
+                }
+            }
+        )*
+    };
 }
 
+ipc_types::recorded_topics!(recorded);
+
 impl Topic {
-    /// Number of topics.
-    pub const COUNT: usize = 7;
-    /// Every topic, in channel order.
-    pub const ALL: [Topic; Self::COUNT] = [
-        Topic::Joystick,
-        Topic::RobotState,
-        Topic::MapperCommand,
-        Topic::SafeCommand,
-        Topic::Status,
-        Topic::SafetyControl,
-        Topic::Estop,
-    ];
-
-    /// The topic's service name below the graph prefix (`robot_state`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Topic::Joystick => ipc_types::topics::JOYSTICK.name,
-            Topic::RobotState => ipc_types::topics::ROBOT_STATE.name,
-            Topic::MapperCommand => ipc_types::topics::MAPPER_COMMAND.name,
-            Topic::SafeCommand => ipc_types::topics::SAFE_COMMAND.name,
-            Topic::Status => ipc_types::topics::STATUS.name,
-            Topic::SafetyControl => ipc_types::control::SAFETY_CONTROL,
-            Topic::Estop => ipc_types::control::ESTOP,
-        }
-    }
-
     /// The MCAP channel topic (`/robot_state`).
     pub fn channel(self) -> String {
         format!("/{}", self.name())
-    }
-
-    /// The schema name (`scl.RobotState`).
-    pub fn schema_name(self) -> &'static str {
-        match self {
-            Topic::Joystick => "scl.JoystickInput",
-            Topic::RobotState => "scl.RobotState",
-            Topic::MapperCommand => "scl.MapperCommand",
-            Topic::SafeCommand => "scl.SafeCommand",
-            Topic::Status => "scl.NodeStatus",
-            Topic::SafetyControl => "scl.SafetyControl",
-            Topic::Estop => "scl.EstopCommand",
-        }
     }
 
     /// Position in [`Topic::ALL`].
@@ -229,81 +263,6 @@ impl Topic {
 
     fn known() -> String {
         Self::ALL.map(Topic::name).join(", ")
-    }
-
-    /// The JSON schema (draft 2020-12) of the topic's messages: `schemars::schema_for!` of
-    /// the message type.
-    pub fn schema(self) -> Value {
-        match self {
-            Topic::Joystick => schemars::schema_for!(JoystickInput),
-            Topic::RobotState => schemars::schema_for!(RobotState),
-            Topic::MapperCommand => schemars::schema_for!(MapperCommand),
-            Topic::SafeCommand => schemars::schema_for!(SafeCommand),
-            Topic::Status => schemars::schema_for!(NodeStatus),
-            Topic::SafetyControl => schemars::schema_for!(SafetyControl),
-            Topic::Estop => schemars::schema_for!(EstopCommand),
-        }
-        .to_value()
-    }
-}
-
-/// One message as it came off shared memory.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Payload {
-    /// A joystick sample.
-    Joystick(JoystickInput),
-    /// A robot state.
-    RobotState(RobotState),
-    /// A mapper command.
-    MapperCommand(MapperCommand),
-    /// An executed command.
-    SafeCommand(SafeCommand),
-    /// A heartbeat.
-    Status(NodeStatus),
-    /// A supervisor control message.
-    SafetyControl(SafetyControl),
-    /// An e-stop or reset command.
-    Estop(EstopCommand),
-}
-
-impl Payload {
-    /// The topic it was published on.
-    pub fn topic(&self) -> Topic {
-        match self {
-            Payload::Joystick(_) => Topic::Joystick,
-            Payload::RobotState(_) => Topic::RobotState,
-            Payload::MapperCommand(_) => Topic::MapperCommand,
-            Payload::SafeCommand(_) => Topic::SafeCommand,
-            Payload::Status(_) => Topic::Status,
-            Payload::SafetyControl(_) => Topic::SafetyControl,
-            Payload::Estop(_) => Topic::Estop,
-        }
-    }
-
-    /// When it was produced (monotonic ns): its log and publish time in the recording.
-    pub fn t_ns(&self) -> u64 {
-        match self {
-            Payload::Joystick(m) => m.t_ns,
-            Payload::RobotState(m) => m.t_ns,
-            Payload::MapperCommand(m) => m.t_ns,
-            Payload::SafeCommand(m) => m.t_ns,
-            Payload::Status(m) => m.t_ns,
-            Payload::SafetyControl(m) => m.t_ns,
-            Payload::Estop(m) => m.t_ns,
-        }
-    }
-
-    /// Appends its JSON form to `out`.
-    pub fn write_json(&self, out: &mut Vec<u8>) -> serde_json::Result<()> {
-        match self {
-            Payload::Joystick(m) => serde_json::to_writer(out, m),
-            Payload::RobotState(m) => serde_json::to_writer(out, m),
-            Payload::MapperCommand(m) => serde_json::to_writer(out, m),
-            Payload::SafeCommand(m) => serde_json::to_writer(out, m),
-            Payload::Status(m) => serde_json::to_writer(out, m),
-            Payload::SafetyControl(m) => serde_json::to_writer(out, m),
-            Payload::Estop(m) => serde_json::to_writer(out, m),
-        }
     }
 }
 
@@ -1218,7 +1177,8 @@ mod tests {
     use super::*;
     use ipc_types::control::estop_action;
     use ipc_types::{
-        NodeRole, buttons, mapper_flags, phase, safe_flags, safety_state, state_flags,
+        EstopCommand, JoystickInput, MapperCommand, NodeRole, NodeStatus, SafeCommand,
+        SafetyControl, buttons, mapper_flags, phase, safe_flags, safety_state, state_flags,
     };
 
     fn state(tick: u64) -> RobotState {
@@ -1329,16 +1289,7 @@ mod tests {
 
     /// The message `v` decodes to, as a payload of `topic`.
     fn payload_of(topic: Topic, v: Value) -> Payload {
-        let p = match topic {
-            Topic::Joystick => serde_json::from_value(v).map(Payload::Joystick),
-            Topic::RobotState => serde_json::from_value(v).map(Payload::RobotState),
-            Topic::MapperCommand => serde_json::from_value(v).map(Payload::MapperCommand),
-            Topic::SafeCommand => serde_json::from_value(v).map(Payload::SafeCommand),
-            Topic::Status => serde_json::from_value(v).map(Payload::Status),
-            Topic::SafetyControl => serde_json::from_value(v).map(Payload::SafetyControl),
-            Topic::Estop => serde_json::from_value(v).map(Payload::Estop),
-        };
-        p.unwrap()
+        Payload::from_json(topic, &serde_json::to_vec(&v).unwrap()).unwrap()
     }
 
     #[test]

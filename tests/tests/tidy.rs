@@ -296,6 +296,49 @@ fn nodes_say_ready_and_stopping_through_the_node_contract() {
     );
 }
 
+/// A topic's name is written once, in the table of `ipc_types::for_each_topic!`
+/// (`ipc-types/src/topics.rs`); every crate takes it from there. No other non-test Rust code
+/// (test modules and `tests.rs` files left out) spells a topic's channel (`"/robot_state"`),
+/// nor a name that is only a topic's (`"robot_state"`; `joystick`, `status`, `estop` and
+/// `log` are also the names of roles, commands and fields, so only their channel form counts).
+#[test]
+fn a_topic_is_named_once() {
+    let root = scl_tests::workspace::root();
+    let table = Path::new("ipc-types/src/topics.rs");
+    let mut needles = Vec::new();
+    for (s, _) in ipc_types::topics::ALL {
+        needles.push(format!("\"/{}\"", s.name));
+        if s.name.contains('_') {
+            needles.push(format!("\"{}\"", s.name));
+        }
+    }
+    assert!(needles.len() > ipc_types::topics::ALL.len(), "{needles:?}");
+    let mut found = Vec::new();
+    for p in scl_tests::workspace::packages(&[]) {
+        for f in scl_tests::workspace::rust_files(&root.join(&p.dir).join("src")) {
+            let rel = f.strip_prefix(&root).unwrap_or(&f).to_path_buf();
+            if rel == table || rel.file_name().is_some_and(|n| n == "tests.rs") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&f).unwrap_or_default();
+            let code = text.split("#[cfg(test)]").next().unwrap_or_default();
+            for (i, line) in code.lines().enumerate() {
+                let line = line.trim_start();
+                if line.starts_with("//") {
+                    continue;
+                }
+                for n in needles.iter().filter(|n| line.contains(n.as_str())) {
+                    found.push(format!("{}:{}: {n}", rel.display(), i + 1));
+                }
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "topic names written outside the table: {found:#?}"
+    );
+}
+
 /// ARCHITECTURE.md names every crate of the workspace (in backquotes) and the ROS 2 bridge.
 #[test]
 fn the_architecture_names_every_crate_and_the_ros2_bridge() {

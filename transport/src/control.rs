@@ -8,9 +8,9 @@ use iceoryx2::port::client::Client;
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use ipc_types::control::{
-    ControlRequest, ControlResponse, ESTOP_TOPIC, EstopCommand, SAFETY_CONTROL_TOPIC, SUPERVISOR,
-    SafetyControl,
+    ControlRequest, ControlResponse, EstopCommand, SUPERVISOR, SafetyControl,
 };
+use ipc_types::topics;
 
 use crate::graph::{Graph, IoError, Ipc, IpcError, OpenError, TopicPublisher, TopicSubscriber};
 
@@ -39,27 +39,9 @@ pub type SafetyControlPublisher = TopicPublisher<SafetyControl>;
 pub type SafetyControlSubscriber = TopicSubscriber<SafetyControl>;
 
 impl Graph {
-    fn safety_control_service(
-        &self,
-    ) -> Result<
-        (
-            String,
-            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, SafetyControl, ()>,
-        ),
-        IpcError,
-    > {
-        self.pubsub(&SAFETY_CONTROL_TOPIC)
-    }
-
     /// Publisher of active-mapper switches (the supervisor).
     pub fn safety_control_publisher(&self) -> Result<SafetyControlPublisher, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service: service.clone(),
-            port: "publisher",
-            source: e.into(),
-        })?;
-        Ok(TopicPublisher::without_notifier(service, publisher))
+        self.publisher_of(&topics::SAFETY_CONTROL)
     }
 
     /// Subscriber of active-mapper switches (safety); receives the newest switch at once.
@@ -70,40 +52,13 @@ impl Graph {
     /// A read-only observer of the active-mapper switches (recorder, dashboard): the same
     /// topic as [`Graph::safety_control_subscriber`], drained like any other topic.
     pub fn safety_control_observer(&self) -> Result<TopicSubscriber<SafetyControl>, IpcError> {
-        let (service, f) = self.safety_control_service()?;
-        let sub = f
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::Port {
-                service: service.clone(),
-                port: "subscriber",
-                source: e.into(),
-            })?;
-        Ok(TopicSubscriber::without_listener(service, sub))
-    }
-
-    fn estop_service(
-        &self,
-    ) -> Result<
-        (
-            String,
-            iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, EstopCommand, ()>,
-        ),
-        IpcError,
-    > {
-        self.pubsub(&ESTOP_TOPIC)
+        self.subscriber_of(&topics::SAFETY_CONTROL, false)
     }
 
     /// A publisher of e-stop commands. Keep it alive until the command took effect: a sample
     /// of a publisher that is gone is not delivered.
     pub fn estop_publisher(&self) -> Result<EstopPublisher, IpcError> {
-        let (service, f) = self.estop_service()?;
-        let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
-            service: service.clone(),
-            port: "publisher",
-            source: e.into(),
-        })?;
-        Ok(TopicPublisher::without_notifier(service, publisher))
+        self.publisher_of(&topics::ESTOP)
     }
 
     /// Subscriber of e-stop commands (safety); receives the newest at once.
@@ -113,16 +68,7 @@ impl Graph {
 
     /// A read-only observer of e-stop commands (recorder).
     pub fn estop_observer(&self) -> Result<TopicSubscriber<EstopCommand>, IpcError> {
-        let (service, f) = self.estop_service()?;
-        let sub = f
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::Port {
-                service: service.clone(),
-                port: "subscriber",
-                source: e.into(),
-            })?;
-        Ok(TopicSubscriber::without_listener(service, sub))
+        self.subscriber_of(&topics::ESTOP, false)
     }
 
     fn control_service(&self) -> Result<(String, ControlFactory), IpcError> {

@@ -29,12 +29,13 @@ use iceoryx2::service::port_factory::{event, publish_subscribe};
 use iceoryx2::service::service_name::ServiceNameError;
 use iceoryx2_cal::named_concept::NamedConceptRemoveError;
 use ipc_types::topics::{
-    JOYSTICK, LOG, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT, TopicSettings,
+    JOYSTICK, LOG, MAPPER_COMMAND, ROBOT_STATE, SAFE_COMMAND, STATUS, TICK_REPORT,
 };
 use ipc_types::{
     JoystickInput, LogRecord, MapperCommand, NodeStatus, Prefix, RobotState, SafeCommand,
     TickReport, Transport,
 };
+use ipc_types::{Plane, TopicDef, TopicSettings};
 
 use crate::uds::Datagram;
 
@@ -403,10 +404,59 @@ impl Graph {
         })
     }
 
+    /// A publisher on `topic`, on the plane it travels: the data plane's transport (with a
+    /// wake-up notifier on iceoryx2), or iceoryx2 (the log records with a notifier, the
+    /// control plane without). Every topic of [`ipc_types::for_each_topic!`] opens through
+    /// this and [`Graph::subscriber_of`]; the named constructors below are these for one
+    /// topic.
+    pub fn publisher_of<T: ZeroCopySend + core::fmt::Debug + Datagram>(
+        &self,
+        topic: &TopicDef<T>,
+    ) -> Result<TopicPublisher<T>, IpcError> {
+        match topic.plane {
+            Plane::Data => self.publisher(topic),
+            Plane::Iceoryx2 => self.iox_publisher(topic),
+            Plane::Control => {
+                let (service, f) = self.pubsub::<T>(topic)?;
+                let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
+                    service: service.clone(),
+                    port: "publisher",
+                    source: e.into(),
+                })?;
+                Ok(TopicPublisher::without_notifier(service, publisher))
+            }
+        }
+    }
+
+    /// A subscriber of `topic`; `wake` attaches a listener to its event so the caller can
+    /// block until the next sample (ignored on the control plane, which has none).
+    pub fn subscriber_of<T: ZeroCopySend + core::fmt::Debug + Datagram>(
+        &self,
+        topic: &TopicDef<T>,
+        wake: bool,
+    ) -> Result<TopicSubscriber<T>, IpcError> {
+        match topic.plane {
+            Plane::Data => self.subscriber(topic, wake),
+            Plane::Iceoryx2 => self.iox_subscriber(topic, wake),
+            Plane::Control => {
+                let (service, f) = self.pubsub::<T>(topic)?;
+                let sub = f
+                    .subscriber_builder()
+                    .create()
+                    .map_err(|e| IpcError::Port {
+                        service: service.clone(),
+                        port: "subscriber",
+                        source: e.into(),
+                    })?;
+                Ok(TopicSubscriber::without_listener(service, sub))
+            }
+        }
+    }
+
     /// Publisher of joystick samples. Fails with [`IpcError::Port`] if another process
     /// already publishes them: the topic admits one operator.
     pub fn joystick_publisher(&self) -> Result<TopicPublisher<JoystickInput>, IpcError> {
-        self.publisher(&JOYSTICK)
+        self.publisher_of(&JOYSTICK)
     }
     /// Subscriber of joystick samples; `wake` attaches a listener (the mapper takes samples
     /// as they arrive).
@@ -414,11 +464,11 @@ impl Graph {
         &self,
         wake: bool,
     ) -> Result<TopicSubscriber<JoystickInput>, IpcError> {
-        self.subscriber(&JOYSTICK, wake)
+        self.subscriber_of(&JOYSTICK, wake)
     }
     /// Publisher of robot states (the bridge).
     pub fn robot_state_publisher(&self) -> Result<TopicPublisher<RobotState>, IpcError> {
-        self.publisher(&ROBOT_STATE)
+        self.publisher_of(&ROBOT_STATE)
     }
     /// Subscriber of robot states; `wake` attaches a listener so the caller can block until
     /// the next tick.
@@ -426,7 +476,7 @@ impl Graph {
         &self,
         wake: bool,
     ) -> Result<TopicSubscriber<RobotState>, IpcError> {
-        self.subscriber(&ROBOT_STATE, wake)
+        self.subscriber_of(&ROBOT_STATE, wake)
     }
     /// How many processes wait on robot states (listeners of the topic's event): each is a
     /// wake-up the bridge pays on every tick. Always 0 over [`Transport::Uds`], whose
@@ -441,53 +491,53 @@ impl Graph {
     }
     /// Publisher of mapper commands.
     pub fn mapper_command_publisher(&self) -> Result<TopicPublisher<MapperCommand>, IpcError> {
-        self.publisher(&MAPPER_COMMAND)
+        self.publisher_of(&MAPPER_COMMAND)
     }
     /// Subscriber of mapper commands (safety wakes on them).
     pub fn mapper_command_subscriber(
         &self,
         wake: bool,
     ) -> Result<TopicSubscriber<MapperCommand>, IpcError> {
-        self.subscriber(&MAPPER_COMMAND, wake)
+        self.subscriber_of(&MAPPER_COMMAND, wake)
     }
     /// Publisher of the executed command. Fails with [`IpcError::Port`] if another process
     /// already publishes it: the arm listens to one safety process only.
     pub fn safe_command_publisher(&self) -> Result<TopicPublisher<SafeCommand>, IpcError> {
-        self.publisher(&SAFE_COMMAND)
+        self.publisher_of(&SAFE_COMMAND)
     }
     /// Subscriber of executed commands (the bridge wakes on them).
     pub fn safe_command_subscriber(
         &self,
         wake: bool,
     ) -> Result<TopicSubscriber<SafeCommand>, IpcError> {
-        self.subscriber(&SAFE_COMMAND, wake)
+        self.subscriber_of(&SAFE_COMMAND, wake)
     }
     /// Publisher of the bridge's per-tick timing report.
     pub fn tick_report_publisher(&self) -> Result<TopicPublisher<TickReport>, IpcError> {
-        self.publisher(&TICK_REPORT)
+        self.publisher_of(&TICK_REPORT)
     }
     /// Subscriber of the bridge's per-tick timing reports (benchmarks, recorders).
     pub fn tick_report_subscriber(&self) -> Result<TopicSubscriber<TickReport>, IpcError> {
-        self.subscriber(&TICK_REPORT, false)
+        self.subscriber_of(&TICK_REPORT, false)
     }
     /// Publisher of this node's heartbeat.
     pub fn status_publisher(&self) -> Result<TopicPublisher<NodeStatus>, IpcError> {
-        self.publisher(&STATUS)
+        self.publisher_of(&STATUS)
     }
     /// Subscriber of every node's heartbeat.
     pub fn status_subscriber(&self) -> Result<TopicSubscriber<NodeStatus>, IpcError> {
-        self.subscriber(&STATUS, false)
+        self.subscriber_of(&STATUS, false)
     }
 
     /// Publisher of this process's log records (always iceoryx2, whatever the data plane's
     /// transport). Fails with [`IpcError::Port`] when the topic has all the publishers it
     /// admits.
     pub fn log_publisher(&self) -> Result<TopicPublisher<LogRecord>, IpcError> {
-        self.iox_publisher(&LOG)
+        self.publisher_of(&LOG)
     }
     /// Subscriber of every process's log records (`scl live`), with the last few at once.
     pub fn log_subscriber(&self) -> Result<TopicSubscriber<LogRecord>, IpcError> {
-        self.iox_subscriber(&LOG, false)
+        self.subscriber_of(&LOG, false)
     }
 
     /// Removes the resources that dead processes of this graph left behind (a SIGKILLed

@@ -7,10 +7,6 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use ipc_types::{
-    JoystickInput, MapperCommand, NodeStatus, SafeCommand,
-    control::{EstopCommand, SafetyControl},
-};
 use mapper::LoadedModel;
 use recording::{Event, LogClock, LogWriter, Payload, RecordError, Topic};
 use scl_config::GraphConfig;
@@ -41,30 +37,17 @@ pub fn payload(
     data: &[u8],
 ) -> Option<Result<Payload, RecordError>> {
     let topic = Topic::from_channel(&channel.topic)?;
-    let d = |f: fn(&[u8]) -> Result<Payload, serde_json::Error>| {
-        f(data).map_err(|e| RecordError::Decode {
+    Some(match topic {
+        // Robot states of every format (the hand-written format 1 too).
+        Topic::RobotState => {
+            recording::decode_robot_state(path, channel, sequence, data).map(Payload::RobotState)
+        }
+        _ => Payload::from_json(topic, data).map_err(|e| RecordError::Decode {
             path: path.to_owned(),
             topic: channel.topic.clone(),
             sequence,
             reason: e.to_string(),
-        })
-    };
-    Some(match topic {
-        Topic::RobotState => {
-            recording::decode_robot_state(path, channel, sequence, data).map(Payload::RobotState)
-        }
-        Topic::Joystick => d(|b| serde_json::from_slice::<JoystickInput>(b).map(Payload::Joystick)),
-        Topic::MapperCommand => {
-            d(|b| serde_json::from_slice::<MapperCommand>(b).map(Payload::MapperCommand))
-        }
-        Topic::SafeCommand => {
-            d(|b| serde_json::from_slice::<SafeCommand>(b).map(Payload::SafeCommand))
-        }
-        Topic::Status => d(|b| serde_json::from_slice::<NodeStatus>(b).map(Payload::Status)),
-        Topic::SafetyControl => {
-            d(|b| serde_json::from_slice::<SafetyControl>(b).map(Payload::SafetyControl))
-        }
-        Topic::Estop => d(|b| serde_json::from_slice::<EstopCommand>(b).map(Payload::Estop)),
+        }),
     })
 }
 

@@ -29,14 +29,17 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
-use ipc_types::control::{EstopCommand, SafetyControl, estop_action};
+use graph_client::observe::Observers;
+use ipc_types::control::{EstopCommand, estop_action};
 use ipc_types::{
-    JoystickInput, MapperCommand, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand,
-    TickReport, gateway_counts, time::now_ns,
+    JoystickInput, NodeRole, NodeStatus, Prefix, RobotState, SafeCommand, TickReport,
+    gateway_counts, time::now_ns,
 };
 use node_rt::node::Heartbeat;
+use recording::{Payload, Topic};
 use scl_config::GraphConfig;
 use scl_net::link::{Refusal, Stop};
+use scl_net::observe::GraphPublishers;
 use scl_net::ports::{self, Out, Urgency};
 use scl_net::session::{self, SessionSpec};
 use scl_net::wire::DecodeError;
@@ -80,14 +83,9 @@ pub enum GatewayError {
 /// A message for the network thread.
 #[derive(Debug, Clone, Copy)]
 enum Outbound {
-    State(RobotState),
-    Mapper(MapperCommand),
-    Safe(SafeCommand),
-    Status(NodeStatus),
+    /// A message of a recorded topic.
+    Graph(Payload),
     Report(TickReport),
-    Joystick(JoystickInput),
-    Control(SafetyControl),
-    Estop(EstopCommand),
     Gateway(GatewayStatus),
 }
 
@@ -325,14 +323,8 @@ impl Drop for Network {
 
 /// The network thread's publishers, one per outbound key.
 struct Publishers {
-    state: Out<RobotState>,
-    mapper: Out<MapperCommand>,
-    safe: Out<SafeCommand>,
-    status: Out<NodeStatus>,
+    graph: GraphPublishers,
     report: Out<TickReport>,
-    joystick: Out<JoystickInput>,
-    control: Out<SafetyControl>,
-    estop: Out<EstopCommand>,
     gateway: Out<GatewayStatus>,
     ros2: Option<Ros2Out>,
 }
@@ -477,18 +469,11 @@ impl Publishers {
         Ok(Self {
             ros2,
             // Robot states reach a remote operator, whose samples answer them.
-            state: ports::publisher(
-                session,
-                keys.topic(topics::ROBOT_STATE.name),
-                Urgency::Control,
-            )?,
-            mapper: ports::publisher(session, keys.topic(topics::MAPPER_COMMAND.name), o)?,
-            safe: ports::publisher(session, keys.topic(topics::SAFE_COMMAND.name), o)?,
-            status: ports::publisher(session, keys.topic(topics::STATUS.name), o)?,
+            graph: GraphPublishers::declare(session, keys, |t| match t {
+                Topic::RobotState => Urgency::Control,
+                _ => o,
+            })?,
             report: ports::publisher(session, keys.topic(topics::TICK_REPORT.name), o)?,
-            joystick: ports::publisher(session, keys.topic(topics::JOYSTICK.name), o)?,
-            control: ports::publisher(session, keys.topic(ipc_types::control::SAFETY_CONTROL), o)?,
-            estop: ports::publisher(session, keys.topic(ipc_types::control::ESTOP), o)?,
             gateway: ports::publisher(session, keys.gateway(), Urgency::Control)?,
         })
     }
@@ -497,8 +482,8 @@ impl Publishers {
         let mut failures = 0u64;
         while let Ok(m) = rx.recv() {
             let ros2 = match (&mut self.ros2, &m) {
-                (Some(r), Outbound::State(s)) => r.state(s),
-                (Some(r), Outbound::Safe(c)) => r.safe(c),
+                (Some(r), Outbound::Graph(Payload::RobotState(s))) => r.state(s),
+                (Some(r), Outbound::Graph(Payload::SafeCommand(c))) => r.safe(c),
                 _ => Ok(()),
             };
             if let Err(e) = ros2 {
@@ -508,14 +493,8 @@ impl Publishers {
                 }
             }
             let r = match &m {
-                Outbound::State(s) => self.state.put(s),
-                Outbound::Mapper(c) => self.mapper.put(c),
-                Outbound::Safe(c) => self.safe.put(c),
-                Outbound::Status(s) => self.status.put(s),
+                Outbound::Graph(m) => self.graph.put(m),
                 Outbound::Report(r) => self.report.put(r),
-                Outbound::Joystick(j) => self.joystick.put(j),
-                Outbound::Control(c) => self.control.put(c),
-                Outbound::Estop(c) => self.estop.put(c),
                 Outbound::Gateway(g) => self.gateway.put(g),
             };
             if let Err(e) = r {
@@ -923,13 +902,12 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
     let keys = Keys::new(&net_cfg.namespace_for(prefix.as_str()));
     let graph = Graph::join_with(prefix, "gateway", cfg.graph.transport)?;
     let states = graph.robot_state_subscriber(true)?;
-    let mappers = graph.mapper_command_subscriber(false)?;
-    let safes = graph.safe_command_subscriber(false)?;
-    let statuses = graph.status_subscriber()?;
+    let others: Vec<Topic> = Topic::ALL
+        .into_iter()
+        .filter(|&t| t != Topic::RobotState)
+        .collect();
+    let others = Observers::open(&graph, &others)?;
     let reports = graph.tick_report_subscriber()?;
-    let joysticks = graph.joystick_subscriber(false)?;
-    let controls = graph.safety_control_observer()?;
-    let estops = graph.estop_observer()?;
     let heartbeat = graph.status_publisher()?;
     let joystick = if net_cfg.accept_joystick {
         Some(graph.joystick_publisher()?)
@@ -979,7 +957,7 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         let mut newest = None;
         states.drain(|s| {
             newest = Some(*s);
-            gw.send_out(&net, Outbound::State(*s));
+            gw.send_out(&net, Outbound::Graph(Payload::RobotState(*s)));
         })?;
         if let Some(s) = newest {
             gw.tick(&s, &net)?;
@@ -988,16 +966,13 @@ pub fn run(prefix: &Prefix, cfg: &GraphConfig) -> Result<(), GatewayError> {
         while let Ok(m) = in_rx.try_recv() {
             gw.inbound(m, &net)?;
         }
-        mappers.drain(|c| gw.send_out(&net, Outbound::Mapper(*c)))?;
-        safes.drain(|c| gw.send_out(&net, Outbound::Safe(*c)))?;
-        statuses.drain(|s| {
-            captures.note(s);
-            gw.send_out(&net, Outbound::Status(*s));
+        others.drain(|m| {
+            if let Payload::Status(s) = &m {
+                captures.note(s);
+            }
+            gw.send_out(&net, Outbound::Graph(m));
         })?;
         reports.drain(|r| gw.send_out(&net, Outbound::Report(*r)))?;
-        joysticks.drain(|j| gw.send_out(&net, Outbound::Joystick(*j)))?;
-        controls.drain(|c| gw.send_out(&net, Outbound::Control(*c)))?;
-        estops.drain(|c| gw.send_out(&net, Outbound::Estop(*c)))?;
     }
     let handled = gw.hb.status().handled;
     let _ = gw.hb.stop();

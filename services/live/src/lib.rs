@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
+use graph_client::observe::Observers;
 use graph_client::process::{self, ProcessSeen};
 use ipc_types::{NodeRole, NodeStatus, Prefix};
 use recording::{LogClock, Payload, SchemaInfo, Topic};
@@ -290,13 +291,10 @@ fn view_loop(
 
 /// The subscriptions of the live observer.
 struct Subscriptions {
+    /// The robot states: the observer's wake-up.
     states: TopicSubscriber<ipc_types::RobotState>,
-    joystick: TopicSubscriber<ipc_types::JoystickInput>,
-    mapper: TopicSubscriber<ipc_types::MapperCommand>,
-    safe: TopicSubscriber<ipc_types::SafeCommand>,
-    status: TopicSubscriber<NodeStatus>,
-    control: TopicSubscriber<ipc_types::control::SafetyControl>,
-    estop: TopicSubscriber<ipc_types::control::EstopCommand>,
+    /// The other recorded topics, heartbeats first.
+    others: Observers,
     logs: TopicSubscriber<ipc_types::LogRecord>,
 }
 
@@ -344,31 +342,28 @@ impl Producer {
 
 impl Subscriptions {
     fn open(graph: &Graph) -> Result<Self, LiveError> {
+        // Heartbeats first: a new mapper's model reaches the view before its commands.
+        let mut others = vec![Topic::Status];
+        others.extend(
+            Topic::ALL
+                .into_iter()
+                .filter(|&t| t != Topic::Status && t != Topic::RobotState),
+        );
         Ok(Self {
             states: graph.robot_state_subscriber(true)?,
-            joystick: graph.joystick_subscriber(false)?,
-            mapper: graph.mapper_command_subscriber(false)?,
-            safe: graph.safe_command_subscriber(false)?,
-            status: graph.status_subscriber()?,
-            control: graph.safety_control_observer()?,
-            estop: graph.estop_observer()?,
+            others: Observers::open(graph, &others)?,
             logs: graph.log_subscriber()?,
         })
     }
 
     fn drain(&self, p: &mut Producer) -> Result<(), LiveError> {
-        // Heartbeats first: a new mapper's model reaches the view before its commands.
-        self.status.drain(|m| {
-            p.note_process(m);
-            p.offer(Payload::Status(*m));
-        })?;
         self.states.drain(|m| p.offer(Payload::RobotState(*m)))?;
-        self.joystick.drain(|m| p.offer(Payload::Joystick(*m)))?;
-        self.mapper.drain(|m| p.offer(Payload::MapperCommand(*m)))?;
-        self.safe.drain(|m| p.offer(Payload::SafeCommand(*m)))?;
-        self.control
-            .drain(|m| p.offer(Payload::SafetyControl(*m)))?;
-        self.estop.drain(|m| p.offer(Payload::Estop(*m)))?;
+        self.others.drain(|m| {
+            if let Payload::Status(s) = &m {
+                p.note_process(s);
+            }
+            p.offer(m);
+        })?;
         self.logs.drain(|m| p.offer_log(m))?;
         Ok(())
     }

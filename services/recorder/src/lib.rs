@@ -48,6 +48,7 @@ pub enum RecorderError {
     Session(#[from] scl_net::SessionError),
 }
 
+use graph_client::observe::Observers;
 use graph_client::process;
 
 mod remote;
@@ -771,45 +772,28 @@ fn write_process<W: Write>(
     Ok(())
 }
 
-/// The subscriptions of the recorder; `None` for topics not recorded.
+/// The subscriptions of the recorder.
 struct Subscriptions {
     states: TopicSubscriber<ipc_types::RobotState>,
     record_states: bool,
-    joystick: Option<TopicSubscriber<ipc_types::JoystickInput>>,
-    mapper: Option<TopicSubscriber<ipc_types::MapperCommand>>,
-    safe: Option<TopicSubscriber<ipc_types::SafeCommand>>,
-    status: Option<TopicSubscriber<NodeStatus>>,
-    control: Option<TopicSubscriber<ipc_types::control::SafetyControl>>,
-    estop: Option<TopicSubscriber<ipc_types::control::EstopCommand>>,
+    /// The recorded topics but the robot states.
+    others: Observers,
     /// The processes' own log records (to the 3D view's `/scl/log`).
     logs: TopicSubscriber<ipc_types::LogRecord>,
 }
 
 impl Subscriptions {
     fn open(graph: &Graph, topics: &[Topic]) -> Result<Self, RecorderError> {
-        let has = |t| topics.contains(&t);
+        let others: Vec<Topic> = topics
+            .iter()
+            .copied()
+            .filter(|&t| t != Topic::RobotState)
+            .collect();
         Ok(Self {
             // Always open: its event is the recorder's wake-up.
             states: graph.robot_state_subscriber(true)?,
-            record_states: has(Topic::RobotState),
-            joystick: has(Topic::Joystick)
-                .then(|| graph.joystick_subscriber(false))
-                .transpose()?,
-            mapper: has(Topic::MapperCommand)
-                .then(|| graph.mapper_command_subscriber(false))
-                .transpose()?,
-            safe: has(Topic::SafeCommand)
-                .then(|| graph.safe_command_subscriber(false))
-                .transpose()?,
-            status: has(Topic::Status)
-                .then(|| graph.status_subscriber())
-                .transpose()?,
-            control: has(Topic::SafetyControl)
-                .then(|| graph.safety_control_observer())
-                .transpose()?,
-            estop: has(Topic::Estop)
-                .then(|| graph.estop_observer())
-                .transpose()?,
+            record_states: topics.contains(&Topic::RobotState),
+            others: Observers::open(graph, &others)?,
             logs: graph.log_subscriber()?,
         })
     }
@@ -824,37 +808,12 @@ impl Subscriptions {
                 p.last_tick = Some(m.tick);
             }
         })?;
-        if let Some(s) = &self.joystick {
-            s.drain(|m| {
-                p.offer(Payload::Joystick(*m));
-            })?;
-        }
-        if let Some(s) = &self.mapper {
-            s.drain(|m| {
-                p.offer(Payload::MapperCommand(*m));
-            })?;
-        }
-        if let Some(s) = &self.safe {
-            s.drain(|m| {
-                p.offer(Payload::SafeCommand(*m));
-            })?;
-        }
-        if let Some(s) = &self.status {
-            s.drain(|m| {
-                p.note_process(m);
-                p.offer(Payload::Status(*m));
-            })?;
-        }
-        if let Some(s) = &self.control {
-            s.drain(|m| {
-                p.offer(Payload::SafetyControl(*m));
-            })?;
-        }
-        if let Some(s) = &self.estop {
-            s.drain(|m| {
-                p.offer(Payload::Estop(*m));
-            })?;
-        }
+        self.others.drain(|m| {
+            if let Payload::Status(s) = &m {
+                p.note_process(s);
+            }
+            p.offer(m);
+        })?;
         self.logs.drain(|m| p.log(m))?;
         Ok(())
     }
