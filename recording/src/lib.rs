@@ -207,14 +207,6 @@ macro_rules! recorded {
                 }
             }
         }
-
-        $(
-            impl From<$ty> for Payload {
-                fn from(m: $ty) -> Payload {
-                    Payload::$variant(m)
-                }
-            }
-        )*
     };
 }
 
