@@ -389,7 +389,7 @@ impl TrainArgs {
 fn check_trained(t: &TrainArgs, task: learning::tasks::Task) -> Result<(), SclError> {
     let robot = match &t.robot {
         Some(name) => kinematics::RobotProfile::by_name(name)
-            .map_err(|e| SclError::Other(format!("--robot: {e}")))?,
+            .map_err(SclError::Robot)?,
         None => kinematics::RobotProfile::default_robot(),
     };
     let graph = scl_config::GraphConfig::for_robot(robot);
