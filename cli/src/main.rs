@@ -454,11 +454,10 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             let cfg = config.load()?;
             let report = scl_drill::run(config.config.as_deref(), &cfg, &args)?;
             if args.json {
-                let text = serde_json::to_string(&report)
-                    .map_err(|source| SclError::Json {
-                        what: "drill report",
-                        source,
-                    })?;
+                let text = serde_json::to_string(&report).map_err(|source| SclError::Json {
+                    what: "drill report",
+                    source,
+                })?;
                 println!("{text}");
             } else {
                 print!("{}", scl_drill::render(&report));

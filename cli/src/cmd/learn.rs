@@ -388,8 +388,7 @@ impl TrainArgs {
 /// demonstrations, then the expert from the study's start.
 fn check_trained(t: &TrainArgs, task: learning::tasks::Task) -> Result<(), SclError> {
     let robot = match &t.robot {
-        Some(name) => kinematics::RobotProfile::by_name(name)
-            .map_err(SclError::Robot)?,
+        Some(name) => kinematics::RobotProfile::by_name(name).map_err(SclError::Robot)?,
         None => kinematics::RobotProfile::default_robot(),
     };
     let graph = scl_config::GraphConfig::for_robot(robot);
