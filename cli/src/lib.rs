@@ -105,14 +105,6 @@ pub enum SclError {
     /// `--robot`: not a robot this build knows.
     #[error("--robot: {0}")]
     Robot(#[source] kinematics::ProfileError),
-    /// A report could not be written as JSON.
-    #[error("cannot encode the {what} as JSON: {source}")]
-    Json {
-        /// Which report.
-        what: &'static str,
-        /// What serde said.
-        source: serde_json::Error,
-    },
     /// The command line itself (an option out of range or that does not go with another).
     #[error("{0}")]
     Other(String),

@@ -454,7 +454,7 @@ fn run(cli: Cli, role: &str) -> Result<ExitCode, SclError> {
             let cfg = config.load()?;
             let report = scl_drill::run(config.config.as_deref(), &cfg, &args)?;
             if args.json {
-                let text = serde_json::to_string(&report).map_err(|source| SclError::Json {
+                let text = serde_json::to_string(&report).map_err(|source| SclError::Encode {
                     what: "drill report",
                     source,
                 })?;

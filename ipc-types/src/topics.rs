@@ -82,8 +82,8 @@ macro_rules! for_each_topic {
             { $($($args)*)? }
             /// Joystick samples: newest wins; a late mapper gets the last sample at once. One
             /// publisher at a time: the joystick process, or with `[joystick] source =
-            /// "external"` whoever publishes first (a second is refused: `transport::IpcError::
-            /// Port`).
+            /// "external"` whoever publishes first (a second is refused:
+            /// `transport::IpcError::Port`).
             JOYSTICK: JoystickInput on Data("joystick", 1, 64, 1, 16) recorded Joystick;
             /// Robot state, one per tick, from the bridge.
             ROBOT_STATE: RobotState on Data("robot_state", 1, 64, 1, 16) recorded RobotState;
@@ -116,7 +116,7 @@ macro_rules! for_each_topic {
 #[macro_export]
 macro_rules! recorded_topics {
     ($($cb:tt)::+) => {
-        $crate::for_each_topic! { $crate::__recorded_rows { $($cb)::+ } }
+        $crate::for_each_topic! { $crate::__recorded_rows { @rows $($cb)::+ } }
     };
 }
 
@@ -147,8 +147,8 @@ macro_rules! __recorded_rows {
     ) => {
         $crate::__recorded_rows! { { $($cb)::+ } [$($out)*] $($rest)* }
     };
-    // From `for_each_topic!`.
-    ({ $($cb:tt)::+ } $($rows:tt)*) => {
+    // From `for_each_topic!` (the marker keeps a malformed row from landing here again).
+    ({ @rows $($cb:tt)::+ } $($rows:tt)*) => {
         $crate::__recorded_rows! { { $($cb)::+ } [] $($rows)* }
     };
 }

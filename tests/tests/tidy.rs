@@ -321,8 +321,16 @@ fn a_topic_is_named_once() {
                 continue;
             }
             let text = std::fs::read_to_string(&f).unwrap_or_default();
-            let code = text.split("#[cfg(test)]").next().unwrap_or_default();
-            for (i, line) in code.lines().enumerate() {
+            // Up to the first test module (they close each file); a test-only item before
+            // it is read like the rest.
+            let lines: Vec<&str> = text.lines().collect();
+            let end = lines
+                .windows(2)
+                .position(|w| {
+                    w[0].trim() == "#[cfg(test)]" && w[1].trim_start().starts_with("mod ")
+                })
+                .unwrap_or(lines.len());
+            for (i, line) in lines[..end].iter().enumerate() {
                 let line = line.trim_start();
                 if line.starts_with("//") {
                     continue;

@@ -1,9 +1,11 @@
 //! The one place that opens every service of a graph, with its settings.
 //!
-//! Each topic is a publish-subscribe service for the data plus an event service of the same
-//! name with `/event` appended, which wakes the processes that react to the topic. Settings
-//! (history, buffer sizes, how many publishers may exist) live in [`TopicSettings`] constants
-//! next to the topic names, so every process opens every service identically.
+//! Each topic is a publish-subscribe service for the data plus, on the data plane and for the
+//! log records, an event service of the same name with `/event` appended, which wakes the
+//! processes that react to the topic (the control plane's topics have none: their readers
+//! drain them each tick). Each topic's settings (history, buffer sizes, how many publishers
+//! may exist) and plane are its [`TopicDef`] constant, from the one table
+//! `ipc_types::for_each_topic!`, so every process opens every service identically.
 //!
 //! The graph's [`Prefix`] is used twice: in every service name (`lab2/robot_state`) and as the
 //! file-name prefix of every shared-memory resource (`scl_lab2_…`), so two graphs never see

@@ -291,9 +291,12 @@ fn view_loop(
 
 /// The subscriptions of the live observer.
 struct Subscriptions {
+    /// The heartbeats, drained first: a new mapper's model or mode reaches the view before
+    /// the states and commands it applies to.
+    status: Observers,
     /// The robot states: the observer's wake-up.
     states: TopicSubscriber<ipc_types::RobotState>,
-    /// The other recorded topics, heartbeats first.
+    /// The other recorded topics.
     others: Observers,
     logs: TopicSubscriber<ipc_types::LogRecord>,
 }
@@ -342,14 +345,12 @@ impl Producer {
 
 impl Subscriptions {
     fn open(graph: &Graph) -> Result<Self, LiveError> {
-        // Heartbeats first: a new mapper's model reaches the view before its commands.
-        let mut others = vec![Topic::Status];
-        others.extend(
-            Topic::ALL
-                .into_iter()
-                .filter(|&t| t != Topic::Status && t != Topic::RobotState),
-        );
+        let others: Vec<Topic> = Topic::ALL
+            .into_iter()
+            .filter(|&t| t != Topic::Status && t != Topic::RobotState)
+            .collect();
         Ok(Self {
+            status: Observers::open(graph, &[Topic::Status])?,
             states: graph.robot_state_subscriber(true)?,
             others: Observers::open(graph, &others)?,
             logs: graph.log_subscriber()?,
@@ -357,13 +358,14 @@ impl Subscriptions {
     }
 
     fn drain(&self, p: &mut Producer) -> Result<(), LiveError> {
-        self.states.drain(|m| p.offer(Payload::RobotState(*m)))?;
-        self.others.drain(|m| {
+        self.status.drain(|m| {
             if let Payload::Status(s) = &m {
                 p.note_process(s);
             }
             p.offer(m);
         })?;
+        self.states.drain(|m| p.offer(Payload::RobotState(*m)))?;
+        self.others.drain(|m| p.offer(m))?;
         self.logs.drain(|m| p.offer_log(m))?;
         Ok(())
     }
