@@ -6,7 +6,7 @@
 use std::process::Stdio;
 use std::time::Duration;
 
-use ipc_types::{NO_TICK, NodeRole, RobotState, buttons, state_flags};
+use ipc_types::{NO_TICK, NodeRole, RobotState, buttons, safe_flags, state_flags};
 use kinematics::{Gen3Lite, pose_error};
 use scl_tests::{
     ChildGuard, DomainGuard, Recorder, scl, serial, temp_dir, unique_prefix, wait_clean,
@@ -229,12 +229,20 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
         // deflection for 1 s); less where the joint speed limits cap the twist, more or less as
         // the joint acceleration limits ramp it up and bring it to a stop.
         let nominal = if h.row < 3 { 0.15 } else { 0.425 };
-        // A tick the bridge missed (a loaded machine) stops the arm, and safety then waits
-        // for neutral input: the rest of that hold does not move it, as promised. Such a hold
-        // is checked for direction and leakage only, and at most two of the five may be.
+        // A tick the bridge missed or an input that came too late (a loaded machine) stops
+        // the arm, and safety then waits for neutral input: the rest of that hold does not
+        // move it, as promised. A stop on the two ticks before the hold's first sample counts
+        // too (the stick goes from rest to pushed with no rest sample after the stop). Such a
+        // hold is checked for direction and leakage only, and at most two of the five may be.
+        let from = first.saturating_sub(2);
+        let late = safe_flags::STALE_STATE | safe_flags::STALE_JOYSTICK | safe_flags::STALE_COMMAND;
         let missed = states
             .iter()
-            .any(|s| s.tick >= first && s.tick < next && s.flags & state_flags::MISSED != 0);
+            .any(|s| s.tick >= from && s.tick < next && s.flags & state_flags::MISSED != 0)
+            || rec
+                .safe_commands
+                .iter()
+                .any(|c| c.tick >= from && c.tick < next && c.flags & late != 0);
         let cut_short = missed && rules.contains_key("stop");
         if cut_short {
             disturbed.push(what.clone());
