@@ -326,12 +326,15 @@ impl Graph {
                 inner: PubInner::Uds(std::cell::RefCell::new(p)),
             });
         }
-        self.iox_publisher(s)
+        self.iox_publisher(s, true)
     }
 
+    /// An iceoryx2 publisher; `notify` adds a notifier on the topic's event (the control
+    /// topics have none: nobody waits on them).
     fn iox_publisher<T: ZeroCopySend + core::fmt::Debug + Datagram>(
         &self,
         s: &TopicSettings,
+        notify: bool,
     ) -> Result<TopicPublisher<T>, IpcError> {
         let (service, data) = self.pubsub::<T>(s)?;
         let publisher = data
@@ -342,17 +345,21 @@ impl Graph {
                 port: "publisher",
                 source: e.into(),
             })?;
-        let (_, ev) = self.event(s)?;
-        let notifier = ev.notifier_builder().create().map_err(|e| IpcError::Port {
-            service: service.clone(),
-            port: "notifier",
-            source: e.into(),
-        })?;
+        let notifier = if notify {
+            let (_, ev) = self.event(s)?;
+            Some(ev.notifier_builder().create().map_err(|e| IpcError::Port {
+                service: service.clone(),
+                port: "notifier",
+                source: e.into(),
+            })?)
+        } else {
+            None
+        };
         Ok(TopicPublisher {
             service,
             inner: PubInner::Iox {
                 publisher,
-                notifier: Some(notifier),
+                notifier,
             },
         })
     }
@@ -417,16 +424,8 @@ impl Graph {
     ) -> Result<TopicPublisher<T>, IpcError> {
         match topic.plane {
             Plane::Data => self.publisher(topic),
-            Plane::Iceoryx2 => self.iox_publisher(topic),
-            Plane::Control => {
-                let (service, f) = self.pubsub::<T>(topic)?;
-                let publisher = f.publisher_builder().create().map_err(|e| IpcError::Port {
-                    service: service.clone(),
-                    port: "publisher",
-                    source: e.into(),
-                })?;
-                Ok(TopicPublisher::without_notifier(service, publisher))
-            }
+            Plane::Iceoryx2 => self.iox_publisher(topic, true),
+            Plane::Control => self.iox_publisher(topic, false),
         }
     }
 
@@ -440,18 +439,7 @@ impl Graph {
         match topic.plane {
             Plane::Data => self.subscriber(topic, wake),
             Plane::Iceoryx2 => self.iox_subscriber(topic, wake),
-            Plane::Control => {
-                let (service, f) = self.pubsub::<T>(topic)?;
-                let sub = f
-                    .subscriber_builder()
-                    .create()
-                    .map_err(|e| IpcError::Port {
-                        service: service.clone(),
-                        port: "subscriber",
-                        source: e.into(),
-                    })?;
-                Ok(TopicSubscriber::without_listener(service, sub))
-            }
+            Plane::Control => self.iox_subscriber(topic, false),
         }
     }
 
@@ -666,18 +654,6 @@ pub struct TopicPublisher<T: ZeroCopySend + core::fmt::Debug + Datagram + 'stati
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicPublisher<T> {
-    /// Wraps a publisher of a topic opened elsewhere in this crate (the control topics),
-    /// without a notifier: nobody waits on their event.
-    pub(crate) fn without_notifier(service: String, publisher: Publisher<Ipc, T, ()>) -> Self {
-        Self {
-            service,
-            inner: PubInner::Iox {
-                publisher,
-                notifier: None,
-            },
-        }
-    }
-
     /// Sends `msg` (iceoryx2: loan, write, send through shared memory, then notify) and
     /// returns the number of subscribers that received it.
     pub fn send(&self, msg: T) -> Result<usize, IpcError> {
@@ -739,18 +715,6 @@ pub struct TopicSubscriber<T: ZeroCopySend + core::fmt::Debug + Datagram + 'stat
 }
 
 impl<T: ZeroCopySend + core::fmt::Debug + Datagram + 'static> TopicSubscriber<T> {
-    /// Wraps a subscriber of a topic opened elsewhere in this crate (the control topics),
-    /// without a wake-up listener.
-    pub(crate) fn without_listener(service: String, subscriber: Subscriber<Ipc, T, ()>) -> Self {
-        Self {
-            service,
-            inner: SubInner::Iox {
-                subscriber,
-                listener: None,
-            },
-        }
-    }
-
     /// Calls `f` with every buffered message, oldest first.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
         let err = |source: IoError| IpcError::Io {
