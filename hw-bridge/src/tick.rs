@@ -179,6 +179,9 @@ pub struct BridgeCore<R: Robot> {
     accel: Vec<f64>,
     tick: u64,
     missed: u64,
+    /// `missed` as the last published state reported it: a state after a miss carries
+    /// [`state_flags::MISSED`].
+    missed_reported: u64,
     applied_tick: u64,
     in_force: [f64; MAX_JOINTS],
     stopping: bool,
@@ -200,6 +203,7 @@ impl<R: Robot> BridgeCore<R> {
             accel,
             tick: NO_TICK,
             missed: 0,
+            missed_reported: 0,
             applied_tick: NO_TICK,
             in_force: [0.0; MAX_JOINTS],
             stopping: false,
@@ -289,6 +293,12 @@ impl<R: Robot> BridgeCore<R> {
         }
         self.last_q = Some(r.q_rad);
         let mut flags = extra;
+        if self.missed != self.missed_reported {
+            // A tick missed (no valid command in time, or the clock skipped ticks) since the
+            // state before.
+            flags |= state_flags::MISSED;
+            self.missed_reported = self.missed;
+        }
         if self.stopping {
             flags |= state_flags::STOPPING;
         }
@@ -462,6 +472,7 @@ mod tests {
         );
         let s1 = b.begin_tick(20).unwrap();
         assert_eq!((s1.tick, s1.applied_tick, s1.missed), (1, 0, 0));
+        assert_eq!(s1.flags & state_flags::MISSED, 0);
         assert!((s1.q_rad[0] - 0.2 * DT).abs() < 1e-12);
         // A command for the previous tick is never executed.
         assert_eq!(
@@ -470,9 +481,24 @@ mod tests {
         );
         let s2 = b.begin_tick(30).unwrap();
         assert_eq!((s2.applied_tick, s2.missed), (NO_TICK, 1));
+        assert!(s2.flags & state_flags::MISSED != 0);
         assert!(s2.flags & state_flags::STOPPING != 0);
         assert!(s2.flags & state_flags::MOCK != 0);
         assert!(s2.qdot_rad_s[0] < 0.2, "decelerating, not executing 0.4");
+        // The flag marks the state after a miss only; ticks the clock skipped are misses too.
+        assert_eq!(
+            b.finish_tick(Some(&cmd(2, 0.0))).unwrap(),
+            Outcome::Executed
+        );
+        let s3 = b.begin_tick(40).unwrap();
+        assert_eq!(
+            (s3.applied_tick, s3.missed, s3.flags & state_flags::MISSED),
+            (2, 1, 0)
+        );
+        b.add_skipped(2);
+        let s4 = b.begin_tick(90).unwrap();
+        assert_eq!(s4.missed, 3);
+        assert!(s4.flags & state_flags::MISSED != 0);
     }
 
     #[test]

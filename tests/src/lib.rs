@@ -453,19 +453,28 @@ pub fn held_up_skips(log: &str) -> u64 {
 }
 
 /// How many times a whole-graph test that requires no miss lets the machine hold the graph
-/// up in one run (see [`held_up_skips`]).
-pub const MAX_HELD_UP: usize = 2;
+/// up in a run of `duration_s` seconds (see [`held_up_skips`]): two, and one more for every
+/// [`HELD_UP_EVERY_S`] of the run. A shared CI machine held a 12 s graph up twice
+/// (2026-11-29's failed run); a graph whose own wake-ups were late would miss a tick in
+/// every few, far above this.
+pub fn max_held_up(duration_s: f64) -> usize {
+    2 + (duration_s.max(0.0) / HELD_UP_EVERY_S) as usize
+}
+
+/// See [`max_held_up`].
+pub const HELD_UP_EVERY_S: f64 = 4.0;
 
 /// Asserts that every miss of an `scl up --json` run (`summary`) is one the machine took
-/// (its `held_up`, as the bridge counted them), in at most [`MAX_HELD_UP`] hold-ups per its
-/// log `log`; `what` names the run.
+/// (its `held_up`, as the bridge counted them), in at most [`max_held_up`] of the run's
+/// `duration_s` hold-ups per its log `log`; `what` names the run.
 pub fn assert_misses_only_held_up(summary: &serde_json::Value, log: &str, what: &str) {
     let missed = summary["missed"].as_u64().unwrap_or(u64::MAX);
     let held_up = summary["held_up"].as_u64().unwrap_or(u64::MAX);
+    let allowed = max_held_up(summary["duration_s"].as_f64().unwrap_or(0.0));
     let events = log.lines().filter(|l| l.contains("held up")).count();
     assert!(
-        missed == held_up && events <= MAX_HELD_UP && held_up_skips(log) == held_up,
-        "{what}: {missed} missed ticks, {held_up} of them taken by the machine in {events} hold-up(s):\n{}",
+        missed == held_up && events <= allowed && held_up_skips(log) == held_up,
+        "{what}: {missed} missed ticks, {held_up} of them taken by the machine in {events} hold-up(s) ({allowed} allowed):\n{}",
         miss_report(log)
     );
     if missed > 0 {

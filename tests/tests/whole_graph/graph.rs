@@ -29,6 +29,11 @@ fn cosine(a: &[f64], b: &[f64]) -> f64 {
     dot / (na * nb)
 }
 
+/// The default graph for 9 s on the step script (`+x, 0, +y, 0, ...`: a person's strokes with
+/// the stick at rest between them; a tick the machine holds up stops the arm until the stick's
+/// next rest, so it costs one stroke, not the rest of the run as a circle's would): no miss
+/// the machine did not take, every tick executing its own command, the arm moving by the
+/// integral of safety's commands and the mapper's commands the bundled map's.
 #[test]
 fn graph_runs_closed_loop_at_40hz_without_misses() {
     let _serial = serial();
@@ -37,7 +42,7 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
     let mut rec = Recorder::join(&prefix);
     let log = scl_tests::temp_dir("loop").join("up.log");
     let mut guard = ChildGuard(Some(
-        up(&prefix, &["--for", "9s", "--json", "--script", "circle"])
+        up(&prefix, &["--for", "9s", "--json", "--script", "step"])
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
@@ -93,9 +98,16 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
 
     // Closed loop, bridge side: over every second of the run the arm moved by exactly the
     // integral of the commands safety sent (the mock arm integrates them; no joint reached
-    // its hard limit in this run).
+    // its hard limit in this run), but a second with a tick the machine held up (the bridge
+    // executed a controlled stop in its place, checked above): at most one second per tick.
     let cmd_at = |tick: u64| rec.safe_commands.iter().find(|c| c.tick == tick);
+    let held_up = summary["held_up"].as_u64().unwrap() as usize;
+    let mut seconds = 0;
     for window in states.chunks(40) {
+        if window.windows(2).any(|w| w[1].applied_tick != w[0].tick) {
+            continue;
+        }
+        seconds += 1;
         let (first, last) = (window[0], window[window.len() - 1]);
         let mut integrated = [0.0; 6];
         for st in &window[..window.len() - 1] {
@@ -115,6 +127,11 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
             );
         }
     }
+
+    assert!(
+        seconds + held_up >= states.chunks(40).count(),
+        "{seconds} seconds checked, {held_up} ticks held up: {summary}"
+    );
 
     // Closed loop, map side, tick by tick: the joystick sample the mapper used is one the
     // joystick published; the mapper's command is s·map(q_k, c_k, a) of the bundled model at
@@ -188,9 +205,10 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
             scaled += 1;
         }
     }
-    // The rest were limited in acceleration: the first ticks ramp up from rest, and the
-    // circle (one turn in 8 s at full deflection) turns the command of the slowest joints
-    // (0.4-0.5 rad/s²) about as fast as they may change. The safety tests check that rule.
+    // The rest were limited in acceleration (each step of the script ramps the slowest joints
+    // up or down at 0.4-0.5 rad/s²; the safety tests check that rule) or stopped: a tick the
+    // machine held up stops the arm until the stick's next rest (restart prevention), which
+    // the step script reaches every 2.5 s.
     assert!(
         unchanged >= 40 && unchanged + scaled >= states.len() / 3,
         "only {unchanged} + {scaled} of {} commands passed through safety",
@@ -208,6 +226,7 @@ fn graph_runs_closed_loop_at_40hz_without_misses() {
 /// the Gen3's own (`models/gen3.safetensors`, from its profile), so the graph runs with no
 /// training step. 200 ticks and more at 40 Hz with no miss the machine did not take, seven
 /// joints everywhere, and every mapper command is `s · map(q_k, c_k, a)` of the Gen3's model.
+/// On the step script, as the test above: a tick the machine holds up costs a stroke.
 #[test]
 fn a_gen3_graph_runs_its_bundled_model_with_no_model_named() {
     let _serial = serial();
@@ -223,7 +242,7 @@ fn a_gen3_graph_runs_its_bundled_model_with_no_model_named() {
         up(
             &prefix,
             &[
-                "--config", &cfg_arg, "--for", "7s", "--json", "--script", "circle",
+                "--config", &cfg_arg, "--for", "7s", "--json", "--script", "step",
             ],
         )
         .stdout(Stdio::piped())
@@ -325,16 +344,27 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let text = std::fs::read_to_string(&log).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
-    // 60 ms asleep is at least one whole period lost, at most three ticks.
-    let missed = summary["missed"].as_u64().unwrap();
-    assert!((1..=3).contains(&missed), "{summary}\n{text}");
-    assert_eq!(scl_tests::held_up_skips(&text), missed, "{text}");
-    assert_eq!(summary["held_up"], missed, "{summary}");
-    assert_eq!(
-        text.lines().filter(|l| l.contains("held up")).count(),
-        1,
-        "{text}"
+    // 60 ms asleep is at least one whole period lost, at most three ticks, in a hold-up the
+    // bridge reports 35 to 60 ms past the deadline it slept for (wherever in its sleep the
+    // stop came); every miss is the machine's (a shared machine adds hold-ups of its own: a
+    // CI run's were 16 and 21 ms).
+    let ours: Vec<(u64, f64)> = text
+        .lines()
+        .filter(|l| l.contains("the bridge was held up"))
+        .filter_map(|l| {
+            let field = |key: &str| l.split(key).nth(1)?.split(' ').next();
+            Some((
+                field("ticks_lost=")?.parse().ok()?,
+                field("late_ms=")?.parse().ok()?,
+            ))
+        })
+        .filter(|(_, late_ms)| *late_ms >= 30.0)
+        .collect();
+    assert!(
+        !ours.is_empty() && ours.iter().all(|(lost, _)| (1..=3).contains(lost)),
+        "{ours:?}\n{summary}\n{text}"
     );
+    scl_tests::assert_misses_only_held_up(&summary, &text, "a bridge held up");
     // The ticks go on without a gap in their numbers (the lost periods are not replayed),
     // and after the hold-up every tick executes its own command again.
     let states = running(&rec);

@@ -252,8 +252,17 @@ fn mode_switching_moves_the_tool_along_each_modes_axes() {
             failures.push(what.clone());
         }
         // ... and hardly along the other five: under 1 mm and 3 mrad (measured: 0.07 mm and
-        // 0.4 mrad at most, over 9 .. 16 cm or 0.41 .. 0.44 rad).
-        if !(lin < 1e-3 && ang < 3e-3) {
+        // 0.4 mrad at most, over 9 .. 16 cm or 0.41 .. 0.44 rad). A stop in mid-hold ramps the
+        // joints down along the joint-space direction they had while the pose moves on, so the
+        // tool drifts off the mode's axis by the Jacobian's change over the stopping distance
+        // (measured with the graph held up 35-60 ms every 2 s: up to 3.1 mm and 3.8 mrad):
+        // under 1 cm and 10 mrad then.
+        let (lin_max, ang_max) = if cut_short {
+            (1e-2, 1e-2)
+        } else {
+            (1e-3, 3e-3)
+        };
+        if !(lin < lin_max && ang < ang_max) {
             failures.push(what);
         }
     }

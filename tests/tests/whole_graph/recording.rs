@@ -84,18 +84,22 @@ fn contents(path: &Path) -> Contents {
 /// The recorded states match the test's own recorder's, tick for tick.
 /// The ticks of `states` (a run's robot states, in order) that `scl dataset` turns into
 /// tuples: each but the last, unless the next state reports a miss or a stop. In these runs
-/// only the graph's first ticks are stops: before the joystick's first sample has reached
-/// the mapper, safety stops the arm (no sample at all is a stale one); checked here.
+/// the only stops are the graph's first ticks (before the joystick's first sample has reached
+/// the mapper, safety stops the arm: no sample at all is a stale one) and those from a tick
+/// the machine held up on (restart prevention then holds the arm until the stick rests);
+/// checked here.
 fn demonstration_ticks(states: &[(u64, u32)]) -> Vec<u64> {
     let stop = state_flags::MISSED | state_flags::STOPPING | state_flags::SAFETY_STOP;
     let mut ticks = Vec::new();
+    let mut missed = false;
     for w in states.windows(2) {
+        missed |= w[1].1 & state_flags::MISSED != 0;
         if w[1].1 & stop == 0 {
             ticks.push(w[0].0);
         } else {
             assert!(
-                w[0].0 < states[0].0 + 5,
-                "tick {}: a stop after the start-up ({:#x})",
+                w[0].0 < states[0].0 + 5 || missed,
+                "tick {}: a stop after the start-up with no miss before it ({:#x})",
                 w[0].0,
                 w[1].1
             );
@@ -136,7 +140,7 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
     let mut rec = Recorder::join(&prefix);
     let mut up = scl(&prefix);
     up.args([
-        "up", "--for", "6s", "--json", "--script", "circle", "--record",
+        "up", "--for", "6s", "--json", "--script", "step", "--record",
     ])
     .arg(&file);
     let out = run_polling(up, &mut rec);
@@ -262,7 +266,14 @@ fn a_recorded_run_becomes_a_dataset_of_what_the_graph_did() {
             .map(|s| (s.tick, s.flags))
             .collect::<Vec<_>>(),
     );
-    assert!(expected.len() >= ticks as usize - 5);
+    // All of them on an undisturbed run; with a tick the machine held up, the step script's
+    // next rest re-arms the arm (at most one 2.5 s stroke lost per miss).
+    let missed = summary["missed"].as_u64().unwrap() as usize;
+    assert!(
+        expected.len() + missed * 100 >= ticks as usize - 5,
+        "{} of {ticks} ticks, {missed} missed",
+        expected.len()
+    );
     assert_eq!(covered, expected);
     assert_eq!(ds.n_train() + ds.n_val(), expected.len());
 
