@@ -5,8 +5,9 @@
 #   scripts/regenerate-bundled-model.sh            the Gen3 lite:
 #     data/joint-reach/          joint-space reaching demonstrations (scl demos, seed 1); the
 #                                tests fit PCA models with known directions on them
-#     data/pick-and-place/       the paper's pick-and-place task (scl demos, seed 1; 2001
-#                                training tuples as in the paper)
+#     data/pick-and-place/       the paper's pick-and-place task (scl demos, seed 1: the
+#                                paper's six demonstrations, 5291 training tuples at the arm's
+#                                accelerations, docs/demos.md)
 #     models/default.safetensors the Gen3 lite's bundled model: SCL trained on
 #                                data/pick-and-place with the paper's defaults (d = 2, 2 x 256
 #                                tanh, Gram-Schmidt, L = 1, 200 epochs, best of 10 seeds) and a
@@ -15,8 +16,8 @@
 #
 #   scripts/regenerate-bundled-model.sh gen3       the 7-joint Gen3:
 #     data/gen3-pick-and-place/  pick-and-place on the Gen3 (scl demos --robot gen3, seed 1;
-#                                the paper's 2001 training tuples, the scene moved into the
-#                                Gen3's workspace)
+#                                the paper's six demonstrations, 2657 training tuples, the
+#                                scene moved into the Gen3's workspace)
 #     models/gen3.safetensors    the Gen3's bundled model: SCL as above but 2 x 128 tanh (a
 #                                quarter of the weights, 156 KB; the same validation loss on
 #                                these data), speed scale 0.6 rad/s (about the Gen3's default
