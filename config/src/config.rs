@@ -64,6 +64,10 @@ pub struct FaultConfig {
     /// (non-finite operator input; more than one, so the mapper sees it whichever sample it
     /// takes).
     pub joystick_nan_at_tick: u64,
+    /// The joystick publishes [`OUT_OF_RANGE_AXES`], far outside the stick's disc, for
+    /// [`NAN_INPUT_TICKS`] ticks from this one (a broken device's reading; the mapper clamps
+    /// every action to the disc).
+    pub joystick_out_of_range_at_tick: u64,
     /// The bridge stops publishing robot states after this many ticks (its clock goes on).
     pub bridge_states_stop_after_ticks: u64,
     /// Safety stalls for 1.2 periods before it filters this one tick's command, as if the
@@ -72,8 +76,11 @@ pub struct FaultConfig {
     pub safety_stall_at_tick: u64,
 }
 
-/// How many ticks `[faults] joystick_nan_at_tick` lasts.
+/// How many ticks `[faults] joystick_nan_at_tick` and `joystick_out_of_range_at_tick` last.
 pub const NAN_INPUT_TICKS: u64 = 4;
+
+/// The axes `[faults] joystick_out_of_range_at_tick` sends: finite, 50 times the disc's radius.
+pub const OUT_OF_RANGE_AXES: [f32; 2] = [40.0, -30.0];
 
 /// What the supervisor does when a process exits on its own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

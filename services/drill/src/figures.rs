@@ -22,8 +22,8 @@ pub struct Recorded {
     pub joystick: Vec<JoystickInput>,
     /// Every heartbeat.
     pub status: Vec<NodeStatus>,
-    /// The tick of every mapper command.
-    pub mapper_ticks: Vec<u64>,
+    /// The tick of every mapper command and the norm of the action it mapped.
+    pub mapper: Vec<(u64, f64)>,
     /// Every e-stop and reset command.
     pub estops: Vec<ipc_types::control::EstopCommand>,
 }
@@ -108,6 +108,11 @@ pub struct Figures {
     pub missed: u64,
     /// How many of them the machine held up.
     pub held_up: u64,
+    /// The largest finite stick reading the joystick sent from the fault on (`|axes|`).
+    pub max_input: f64,
+    /// The largest action the mapper mapped from the fault on (`|a|`; the stick's disc is
+    /// `|a| <= 1`, to which the mapper clamps every input).
+    pub max_action: f64,
 }
 
 /// Where the joystick sample is neutral and usable.
@@ -204,6 +209,18 @@ pub fn measure(rec: &Recorded, fault_ns: u64, promise: &Promise) -> Option<Figur
         .filter(|c| c.tick >= fault.tick && c.flags & safe_flags::STOP != 0)
         .count() as u64;
     let (missed, held_up) = misses(&rec.status);
+    let max_action = rec
+        .mapper
+        .iter()
+        .filter(|(t, _)| *t >= fault.tick)
+        .fold(0.0f64, |m, (_, a)| m.max(*a));
+    let max_input = rec
+        .joystick
+        .iter()
+        .filter(|j| j.tick != ipc_types::NO_TICK && j.tick >= fault.tick)
+        .map(|j| f64::from(j.axes[0]).hypot(f64::from(j.axes[1])))
+        .filter(|a| a.is_finite())
+        .fold(0.0f64, f64::max);
     Some(Figures {
         fault_tick: fault.tick,
         speed_at_fault_rad_s: v0.iter().fold(0.0, |m, v| m.max(*v)),
@@ -218,6 +235,8 @@ pub fn measure(rec: &Recorded, fault_ns: u64, promise: &Promise) -> Option<Figur
         stop_commands,
         missed,
         held_up,
+        max_input,
+        max_action,
     })
 }
 
@@ -314,6 +333,12 @@ pub fn judge(f: &Figures, promise: &Promise, leftovers: usize) -> Vec<String> {
                 f.held_up
             ));
         }
+    }
+    if f.max_action > 1.0 + 1e-6 {
+        why.push(format!(
+            "the mapper mapped an action of |a| = {:.3}, outside the stick's disc",
+            f.max_action
+        ));
     }
     if leftovers > 0 {
         why.push(format!(
@@ -414,6 +439,24 @@ mod tests {
         assert_eq!(f.resumed, "before-neutral");
         let why = judge(&f, &promise(true), 3);
         assert_eq!(why.len(), 2, "{why:?}");
+    }
+
+    /// An action outside the stick's disc mapped after the fault breaks every row's promise
+    /// (the mapper clamps each input to the disc); one on its edge does not.
+    #[test]
+    fn an_action_outside_the_disc_fails() {
+        let mut rec = run(0.5, 1.0, 45, 40);
+        rec.mapper = vec![(5, 7.0), (10, 1.0), (11, 0.3)];
+        let f = measure(&rec, 1_000 + 10 * 25_000_000, &promise(true)).unwrap();
+        assert_eq!(f.max_action, 1.0);
+        assert!(judge(&f, &promise(true), 0).is_empty());
+        rec.mapper.push((12, 50.0));
+        let f = measure(&rec, 1_000 + 10 * 25_000_000, &promise(true)).unwrap();
+        let why = judge(&f, &promise(true), 0);
+        assert!(
+            why.iter().any(|w| w.contains("outside the stick's disc")),
+            "{why:?}"
+        );
     }
 
     #[test]

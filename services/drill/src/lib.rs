@@ -104,6 +104,9 @@ pub enum Fault {
     StaleJoystick,
     /// NaN operator input for a few ticks (`[faults] joystick_nan_at_tick`).
     NanInput,
+    /// Operator input far outside the stick's disc for a few ticks (`[faults]
+    /// joystick_out_of_range_at_tick`): the mapper clamps it, nothing stops.
+    RangeInput,
     /// A NaN command from the mapper (`[faults] mapper_nan_at_tick`).
     NanCommand,
     /// `scl estop` while the mapper runs, `scl reset` a second later.
@@ -118,7 +121,7 @@ pub enum Fault {
 
 impl Fault {
     /// Every drill, in the order they run.
-    pub const ALL: [Fault; 15] = [
+    pub const ALL: [Fault; 16] = [
         Fault::Kill(NodeRole::Joystick),
         Fault::Kill(NodeRole::Mapper),
         Fault::Kill(NodeRole::Safety),
@@ -129,6 +132,7 @@ impl Fault {
         Fault::Stall(NodeRole::Safety),
         Fault::StaleJoystick,
         Fault::NanInput,
+        Fault::RangeInput,
         Fault::NanCommand,
         Fault::Estop,
         Fault::EstopWithoutMapper,
@@ -151,6 +155,7 @@ impl Fault {
             Fault::Stall(_) => "stall-other",
             Fault::StaleJoystick => "stale-joystick",
             Fault::NanInput => "nan-input",
+            Fault::RangeInput => "out-of-range",
             Fault::NanCommand => "nan-command",
             Fault::Estop => "estop",
             Fault::EstopWithoutMapper => "estop-no-mapper",
@@ -277,6 +282,7 @@ fn drill_config(base: &GraphConfig, fault: Fault, fault_tick: u64) -> GraphConfi
     match fault {
         Fault::StaleJoystick => cfg.faults.joystick_silent_after_ticks = fault_tick,
         Fault::NanInput => cfg.faults.joystick_nan_at_tick = fault_tick,
+        Fault::RangeInput => cfg.faults.joystick_out_of_range_at_tick = fault_tick,
         Fault::NanCommand => cfg.faults.mapper_nan_at_tick = fault_tick,
         _ => {}
     }
@@ -294,7 +300,7 @@ fn promise_of(cfg: &GraphConfig, fault: Fault) -> Result<Promise, DrillError> {
         stop_ticks += ticks(cfg.safety.max_joystick_age_ms / 1000.0);
     }
     Ok(Promise {
-        stops: !matches!(fault, Fault::SwapBad | Fault::SwapGood),
+        stops: !matches!(fault, Fault::SwapBad | Fault::SwapGood | Fault::RangeInput),
         stop_ticks,
         decel_rad_s2: cfg.profile()?.limits().max_acceleration_rad_s2.clone(),
         period_s,
@@ -318,7 +324,9 @@ fn schedule(
             (f, Action::Signal(role, Signal::SIGSTOP)),
             (at(stall_s), Action::ResumeStalled),
         ],
-        Fault::StaleJoystick | Fault::NanInput | Fault::NanCommand => vec![],
+        Fault::StaleJoystick | Fault::NanInput | Fault::RangeInput | Fault::NanCommand => {
+            vec![]
+        }
         Fault::Estop => vec![
             (f, Action::Estop(estop_action::ESTOP)),
             (at(1.0), Action::Estop(estop_action::RESET)),
@@ -446,7 +454,10 @@ fn read_recording(path: &Path) -> Result<Recorded, DrillError> {
                 .is_ok(),
             Some(Topic::MapperCommand) => {
                 decode::<ipc_types::MapperCommand>(path, channel, sequence, data)
-                    .map(|m| rec.mapper_ticks.push(m.tick))
+                    .map(|m| {
+                        let [x, y] = m.action.map(f64::from);
+                        rec.mapper.push((m.tick, x.hypot(y)));
+                    })
                     .is_ok()
             }
             _ => true,
@@ -474,7 +485,7 @@ fn estop_answers(rec: &Recorded, from_ns: u64, to_ns: u64) -> (u64, u64, f64) {
         .skip(1)
         .collect();
     for s in states {
-        if rec.mapper_ticks.contains(&s.tick) {
+        if rec.mapper.iter().any(|(t, _)| *t == s.tick) {
             continue;
         }
         due += 1;
@@ -1054,17 +1065,25 @@ pub fn render(r: &DrillReport) -> String {
 }
 
 /// A drill's line (and its runs' broken promises) when its fault need not stop the arm:
-/// the stop commands sent instead of the stop figures.
+/// the stop commands sent instead of the stop figures, and a stick reading outside the disc
+/// with the largest action mapped from it.
 fn render_non_stopping(row: &Row, figs: &[&Figures]) -> String {
     let mut out = String::new();
     let stops: u64 = figs.iter().map(|f| f.stop_commands).max().unwrap_or(0);
+    let input = figs.iter().map(|f| f.max_input).fold(0.0f64, f64::max);
+    let action = figs.iter().map(|f| f.max_action).fold(0.0f64, f64::max);
+    let clamped = if input > 1.0 {
+        format!("input {input:.0} -> {action:.3}")
+    } else {
+        "-".to_owned()
+    };
     out.push_str(&format!(
         "{:<16} {:>10} {:>8} {:>21} {:>20} {:<14} {:>7} ({:>3})    {:>4}  {}\n",
         row.fault,
         "-",
         "-",
         format!("{stops} stop commands"),
-        "-",
+        clamped,
         "-",
         figs.iter().map(|f| f.missed).max().unwrap_or(0),
         figs.iter().map(|f| f.held_up).max().unwrap_or(0),
@@ -1124,5 +1143,8 @@ mod tests {
         assert_eq!(p.stop_ticks, 6);
         assert_eq!(promise_of(&cfg, Fault::Estop).unwrap().stop_ticks, 2);
         assert!(!promise_of(&cfg, Fault::SwapGood).unwrap().stops);
+        let cfg = drill_config(&base, Fault::RangeInput, 44);
+        assert_eq!(cfg.faults.joystick_out_of_range_at_tick, 44);
+        assert!(!promise_of(&cfg, Fault::RangeInput).unwrap().stops);
     }
 }

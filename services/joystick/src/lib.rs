@@ -737,7 +737,7 @@ fn drive(
         }
         let now = Instant::now();
         let mut input = source.input(now, tick, gripper);
-        inject_nan_axes(faults, tick, new_state.is_some(), &mut input);
+        inject_bad_axes(faults, tick, new_state.is_some(), &mut input);
         let silent = faults.joystick_silent_after_ticks;
         let handled = hb.status().handled;
         if silent == 0 || handled < silent {
@@ -773,19 +773,26 @@ fn drive(
     Ok(())
 }
 
-/// Fault injection: from `joystick_nan_at_tick`, for a few ticks, the axes are NaN (said
-/// once per new state).
-fn inject_nan_axes(faults: &FaultConfig, tick: u64, new_state: bool, input: &mut Input) {
-    let nan_from = faults.joystick_nan_at_tick;
-    if nan_from != 0
-        && tick != NO_TICK
-        && (nan_from..nan_from + scl_config::NAN_INPUT_TICKS).contains(&tick)
-    {
-        if new_state {
-            tracing::warn!(tick, "fault injection: the joystick sends NaN axes");
-        }
-        input.axes = [f32::NAN, f32::NAN];
+/// Fault injection: from `joystick_nan_at_tick`, for a few ticks, the axes are NaN; from
+/// `joystick_out_of_range_at_tick`, far outside the stick's disc (said once per new state).
+fn inject_bad_axes(faults: &FaultConfig, tick: u64, new_state: bool, input: &mut Input) {
+    let during = |from: u64| {
+        from != 0 && tick != NO_TICK && (from..from + scl_config::NAN_INPUT_TICKS).contains(&tick)
+    };
+    let (axes, what) = if during(faults.joystick_nan_at_tick) {
+        ([f32::NAN, f32::NAN], "NaN axes")
+    } else if during(faults.joystick_out_of_range_at_tick) {
+        (
+            scl_config::OUT_OF_RANGE_AXES,
+            "axes outside the stick's disc",
+        )
+    } else {
+        return;
+    };
+    if new_state {
+        tracing::warn!(tick, "fault injection: the joystick sends {what}");
     }
+    input.axes = axes;
 }
 
 /// Ends the input recording (`[joystick] record_input`) started at `t0`.

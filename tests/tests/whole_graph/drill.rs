@@ -1,4 +1,5 @@
-//! `scl drill` on the mock arm: a short drill of the default graph keeps every promise, and a
+//! `scl drill` on the mock arm: a short drill of the default graph keeps every promise (a
+//! stick reading far outside the disc is mapped on its edge and stops nothing), and a
 //! graph whose configured stop is slower than documented (`[safety] max_acceleration_rad_s2`
 //! at a fifth of the profile's) fails the row of a stop safety ramps down (a silent
 //! joystick), naming the distance; the command exits 1 then. Each drill run leaves nothing in
@@ -47,8 +48,15 @@ fn row<'a>(report: &'a serde_json::Value, fault: &str) -> &'a serde_json::Value 
 #[test]
 fn a_short_drill_of_the_default_graph_passes() {
     let _serial = serial();
-    let (out, report) = drill("drillok", None, "estop,kill-mapper");
+    let (out, report) = drill("drillok", None, "estop,kill-mapper,out-of-range");
     assert!(out.status.success(), "{report:#}");
+    // A reading far outside the stick's disc was mapped on its edge, and nothing stopped.
+    let r = row(&report, "out-of-range");
+    assert_eq!(r["result"], "PASS", "{r:#}");
+    let f = &r["runs"][0]["figures"];
+    assert!(f["max_input"].as_f64().unwrap() > 40.0, "{f}");
+    assert!(f["max_action"].as_f64().unwrap() <= 1.0 + 1e-6, "{f}");
+    assert_eq!(f["stop_commands"], 0, "{f}");
     for fault in ["estop", "kill-mapper"] {
         let r = row(&report, fault);
         assert_eq!(r["result"], "PASS", "{r:#}");
