@@ -29,6 +29,19 @@ pub struct Recorded {
 }
 
 impl Recorded {
+    /// Appends the robot states of `seen` (the drill's own view, in order) published after the
+    /// recording's last one: a killed recorder's file ends up to a second before the kill (its
+    /// last chunk is lost), and the graph runs on until its bridge has stopped the arm. A
+    /// recording that holds the bridge's last state gets nothing.
+    pub fn fill_after_end(&mut self, seen: &[RobotState]) {
+        let end = self.states.last().map_or(0, |s| s.t_ns);
+        let after: Vec<RobotState> = seen.iter().filter(|s| s.t_ns > end).copied().collect();
+        if !after.is_empty() {
+            tracing::debug!(states = after.len(), "states after the recording's end");
+        }
+        self.states.extend(after);
+    }
+
     /// When the first e-stop (`action`: an `estop_action`) was sent, if one was.
     pub fn estop_sent(&self, action: u32) -> Option<u64> {
         self.estops
@@ -439,6 +452,24 @@ mod tests {
         assert_eq!(f.resumed, "before-neutral");
         let why = judge(&f, &promise(true), 3);
         assert_eq!(why.len(), 2, "{why:?}");
+    }
+
+    /// A recording cut before the fault (its recorder killed) is filled in from the drill's
+    /// own view after its end, and the stop measured there; a whole one gets nothing.
+    #[test]
+    fn the_drills_view_fills_in_after_a_cut_recording() {
+        let whole = run(0.5, 1.0, 45, 40);
+        let mut cut = whole.clone();
+        cut.states.truncate(8);
+        let fault_ns = 1_000 + 10 * 25_000_000;
+        assert!(measure(&cut, fault_ns, &promise(true)).is_none());
+        cut.fill_after_end(&whole.states);
+        assert_eq!(cut.states, whole.states);
+        let f = measure(&cut, fault_ns, &promise(true)).unwrap();
+        assert_eq!(f.stop_ticks, Some(0));
+        let mut again = whole.clone();
+        again.fill_after_end(&whole.states[..20]);
+        assert_eq!(again.states, whole.states);
     }
 
     /// An action outside the stick's disc mapped after the fault breaks every row's promise

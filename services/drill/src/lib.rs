@@ -98,6 +98,8 @@ pub enum Fault {
     Kill(NodeRole),
     /// `kill -9` of `scl up` itself.
     KillSupervisor,
+    /// `kill -9` of the recorder, which is never restarted: the graph stops, bridge first.
+    KillRecorder,
     /// SIGSTOP of a process for longer than the stale limit, then SIGCONT.
     Stall(NodeRole),
     /// The joystick goes silent (`[faults] joystick_silent_after_ticks`).
@@ -121,12 +123,13 @@ pub enum Fault {
 
 impl Fault {
     /// Every drill, in the order they run.
-    pub const ALL: [Fault; 16] = [
+    pub const ALL: [Fault; 17] = [
         Fault::Kill(NodeRole::Joystick),
         Fault::Kill(NodeRole::Mapper),
         Fault::Kill(NodeRole::Safety),
         Fault::Kill(NodeRole::Bridge),
         Fault::KillSupervisor,
+        Fault::KillRecorder,
         Fault::Stall(NodeRole::Joystick),
         Fault::Stall(NodeRole::Mapper),
         Fault::Stall(NodeRole::Safety),
@@ -149,6 +152,7 @@ impl Fault {
             Fault::Kill(NodeRole::Bridge) => "kill-bridge",
             Fault::Kill(_) => "kill-other",
             Fault::KillSupervisor => "kill-supervisor",
+            Fault::KillRecorder => "kill-recorder",
             Fault::Stall(NodeRole::Joystick) => "stall-joystick",
             Fault::Stall(NodeRole::Mapper) => "stall-mapper",
             Fault::Stall(NodeRole::Safety) => "stall-safety",
@@ -202,8 +206,13 @@ enum Action {
     Signal(NodeRole, Signal),
     ResumeStalled,
     KillSupervisor,
+    /// `kill -9` of the recorder: the graph ends by design.
+    KillRecorder,
     Estop(u32),
-    Swap { model: String, loads: bool },
+    Swap {
+        model: String,
+        loads: bool,
+    },
 }
 
 /// One run of one drill.
@@ -320,6 +329,7 @@ fn schedule(
     match fault {
         Fault::Kill(role) => vec![(f, Action::Signal(role, Signal::SIGKILL))],
         Fault::KillSupervisor => vec![(f, Action::KillSupervisor)],
+        Fault::KillRecorder => vec![(f, Action::KillRecorder)],
         Fault::Stall(role) => vec![
             (f, Action::Signal(role, Signal::SIGSTOP)),
             (at(stall_s), Action::ResumeStalled),
@@ -353,11 +363,14 @@ fn schedule(
     }
 }
 
-/// The drill's view of the running graph: the newest tick and each role's newest process.
+/// The drill's view of the running graph: the newest tick, each role's newest process, and
+/// every robot state it saw (what fills in after the recording's end when the recorder is
+/// killed).
 struct Watch {
     states: transport::TopicSubscriber<RobotState>,
     status: transport::TopicSubscriber<NodeStatus>,
     tick: Option<u64>,
+    seen: Vec<RobotState>,
     newest: Vec<NodeStatus>,
     graph: transport::Graph,
 }
@@ -369,13 +382,16 @@ impl Watch {
             states: graph.robot_state_subscriber(false)?,
             status: graph.status_subscriber()?,
             tick: None,
+            seen: Vec::new(),
             newest: Vec::new(),
             graph,
         })
     }
 
     fn poll(&mut self) -> Result<(), DrillError> {
-        if let Some(s) = self.states.latest()? {
+        let seen = &mut self.seen;
+        self.states.drain(|s| seen.push(*s))?;
+        if let Some(s) = self.seen.last() {
             self.tick = Some(s.tick);
         }
         let newest = &mut self.newest;
@@ -533,7 +549,7 @@ fn run_once(
         fault_ns: None,
         stalled: None,
         estop_window: (0, u64::MAX),
-        supervisor_gone: false,
+        graph_ends: false,
     };
     // An error from watching the graph or sending the e-stop ends the drill, one of the graph
     // ends the run; either way the `scl up` child is stopped and the domain released first.
@@ -543,7 +559,7 @@ fn run_once(
     }
     let Drive {
         mut up,
-        watch,
+        mut watch,
         fault_ns,
         estop_window,
         ..
@@ -559,10 +575,13 @@ fn run_once(
             return Err(e);
         }
     };
+    watch.poll()?;
+    let seen = std::mem::take(&mut watch.seen);
     leave_graph(fault, watch, prefix)?;
     let left = leftovers(prefix).len();
     tracing::debug!(?status, "scl up ended");
-    let rec = read_recording(&files.rec)?;
+    let mut rec = read_recording(&files.rec)?;
+    rec.fill_after_end(&seen);
     let fault_ns = match fault_ns {
         // The e-stop from the moment it was sent (the drill joins the graph to send it).
         _ if fault == Fault::Estop => rec.estop_sent(estop_action::ESTOP).unwrap_or(u64::MAX),
@@ -733,7 +752,8 @@ struct Drive<'a> {
     stalled: Option<u32>,
     /// When the e-stop was sent and reset.
     estop_window: (u64, u64),
-    supervisor_gone: bool,
+    /// `scl up` is to end: the drill stopped or killed it, or the fault ends the graph.
+    graph_ends: bool,
 }
 
 impl Drive<'_> {
@@ -760,7 +780,7 @@ impl Drive<'_> {
                 last_progress = Instant::now();
             }
             if let Ok(Some(status)) = self.up.try_wait() {
-                if self.supervisor_gone || self.watch.tick.is_some_and(|t| t >= end_tick) {
+                if self.graph_ends || self.watch.tick.is_some_and(|t| t >= end_tick) {
                     return Ok(Ok(status));
                 }
                 return Ok(Err(self.graph_err(format!("scl up ended early ({status})"))));
@@ -793,9 +813,9 @@ impl Drive<'_> {
                 }
                 continue;
             }
-            if self.plan.is_empty() && !self.supervisor_gone && tick >= end_tick {
+            if self.plan.is_empty() && !self.graph_ends && tick >= end_tick {
                 signal(self.up.id(), Signal::SIGINT);
-                self.supervisor_gone = true;
+                self.graph_ends = true;
             }
             std::thread::sleep(Duration::from_millis(2));
         }
@@ -822,8 +842,15 @@ impl Drive<'_> {
                 }
             }
             Action::KillSupervisor => {
-                self.supervisor_gone = true;
+                self.graph_ends = true;
                 let _ = self.up.kill();
+            }
+            Action::KillRecorder => {
+                let Some(pid) = self.watch.pid_of(NodeRole::Recorder) else {
+                    return Ok(Err(self.graph_err("no recorder process to kill".into())));
+                };
+                self.graph_ends = true;
+                signal(pid, Signal::SIGKILL);
             }
             Action::Estop(action) => {
                 if action == estop_action::ESTOP {
@@ -1146,5 +1173,6 @@ mod tests {
         let cfg = drill_config(&base, Fault::RangeInput, 44);
         assert_eq!(cfg.faults.joystick_out_of_range_at_tick, 44);
         assert!(!promise_of(&cfg, Fault::RangeInput).unwrap().stops);
+        assert_eq!(promise_of(&cfg, Fault::KillRecorder).unwrap().stop_ticks, 2);
     }
 }

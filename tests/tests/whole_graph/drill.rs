@@ -1,5 +1,6 @@
 //! `scl drill` on the mock arm: a short drill of the default graph keeps every promise (a
-//! stick reading far outside the disc is mapped on its edge and stops nothing), and a
+//! stick reading far outside the disc is mapped on its edge and stops nothing; a killed
+//! recorder ends the graph, its stop seen by the drill itself after the file's end), and a
 //! graph whose configured stop is slower than documented (`[safety] max_acceleration_rad_s2`
 //! at a fifth of the profile's) fails the row of a stop safety ramps down (a silent
 //! joystick), naming the distance; the command exits 1 then. Each drill run leaves nothing in
@@ -48,7 +49,11 @@ fn row<'a>(report: &'a serde_json::Value, fault: &str) -> &'a serde_json::Value 
 #[test]
 fn a_short_drill_of_the_default_graph_passes() {
     let _serial = serial();
-    let (out, report) = drill("drillok", None, "estop,kill-mapper,out-of-range");
+    let (out, report) = drill(
+        "drillok",
+        None,
+        "estop,kill-mapper,kill-recorder,out-of-range",
+    );
     assert!(out.status.success(), "{report:#}");
     // A reading far outside the stick's disc was mapped on its edge, and nothing stopped.
     let r = row(&report, "out-of-range");
@@ -57,7 +62,9 @@ fn a_short_drill_of_the_default_graph_passes() {
     assert!(f["max_input"].as_f64().unwrap() > 40.0, "{f}");
     assert!(f["max_action"].as_f64().unwrap() <= 1.0 + 1e-6, "{f}");
     assert_eq!(f["stop_commands"], 0, "{f}");
-    for fault in ["estop", "kill-mapper"] {
+    // The recorder killed: its file ends before the kill, the drill's own view fills in the
+    // stop (the graph ends, bridge first).
+    for fault in ["estop", "kill-mapper", "kill-recorder"] {
         let r = row(&report, fault);
         assert_eq!(r["result"], "PASS", "{r:#}");
         let f = &r["runs"][0]["figures"];
