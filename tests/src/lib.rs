@@ -441,15 +441,18 @@ pub fn miss_report(log: &str) -> String {
 pub fn held_up_skips(log: &str) -> u64 {
     log.lines()
         .filter(|l| l.contains("held up"))
-        .filter_map(|l| {
-            l.split("ticks_lost=")
-                .nth(1)?
-                .split(' ')
-                .next()?
-                .parse::<u64>()
-                .ok()
-        })
+        .filter_map(|l| log_field::<u64>(l, "ticks_lost"))
         .sum()
+}
+
+/// The value of field `key` (`key=value`) of one `scl` log line, parsed.
+pub fn log_field<T: std::str::FromStr>(line: &str, key: &str) -> Option<T> {
+    line.split(&format!("{key}="))
+        .nth(1)?
+        .split(' ')
+        .next()?
+        .parse()
+        .ok()
 }
 
 /// How many times a whole-graph test that requires no miss lets the machine hold the graph

@@ -369,7 +369,6 @@ fn schedule(
 struct Watch {
     states: transport::TopicSubscriber<RobotState>,
     status: transport::TopicSubscriber<NodeStatus>,
-    tick: Option<u64>,
     seen: Vec<RobotState>,
     newest: Vec<NodeStatus>,
     graph: transport::Graph,
@@ -381,7 +380,6 @@ impl Watch {
         Ok(Self {
             states: graph.robot_state_subscriber(false)?,
             status: graph.status_subscriber()?,
-            tick: None,
             seen: Vec::new(),
             newest: Vec::new(),
             graph,
@@ -391,9 +389,6 @@ impl Watch {
     fn poll(&mut self) -> Result<(), DrillError> {
         let seen = &mut self.seen;
         self.states.drain(|s| seen.push(*s))?;
-        if let Some(s) = self.seen.last() {
-            self.tick = Some(s.tick);
-        }
         let newest = &mut self.newest;
         self.status
             .drain(|s| match newest.iter_mut().find(|n| n.role == s.role) {
@@ -402,6 +397,11 @@ impl Watch {
                 None => newest.push(*s),
             })?;
         Ok(())
+    }
+
+    /// The newest tick seen.
+    fn tick(&self) -> Option<u64> {
+        self.seen.last().map(|s| s.tick)
     }
 
     fn pid_of(&self, role: NodeRole) -> Option<u32> {
@@ -775,12 +775,12 @@ impl Drive<'_> {
         let mut last_tick = None;
         loop {
             self.watch.poll()?;
-            if self.watch.tick != last_tick {
-                last_tick = self.watch.tick;
+            if self.watch.tick() != last_tick {
+                last_tick = self.watch.tick();
                 last_progress = Instant::now();
             }
             if let Ok(Some(status)) = self.up.try_wait() {
-                if self.graph_ends || self.watch.tick.is_some_and(|t| t >= end_tick) {
+                if self.graph_ends || self.watch.tick().is_some_and(|t| t >= end_tick) {
                     return Ok(Ok(status));
                 }
                 return Ok(Err(self.graph_err(format!("scl up ended early ({status})"))));
@@ -788,8 +788,8 @@ impl Drive<'_> {
             if last_progress.elapsed() > Duration::from_secs(30) {
                 return Ok(Err(self.graph_err("no tick for 30 s".into())));
             }
-            let tick = self.watch.tick.unwrap_or(0);
-            if self.watch.tick.is_some()
+            let tick = self.watch.tick().unwrap_or(0);
+            if self.watch.tick().is_some()
                 && self.fault_ns.is_none()
                 && tick >= fault_tick
                 && self.plan.is_empty()
@@ -798,7 +798,7 @@ impl Drive<'_> {
                 self.fault_ns = Some(0);
             }
             if let Some((at, _)) = self.plan.last()
-                && self.watch.tick.is_some()
+                && self.watch.tick().is_some()
                 && tick >= *at
             {
                 let Some((_, action)) = self.plan.pop() else {

@@ -353,10 +353,9 @@ fn a_bridge_held_up_by_the_machine_logs_the_ticks_it_lost_and_goes_on() {
         .lines()
         .filter(|l| l.contains("the bridge was held up"))
         .filter_map(|l| {
-            let field = |key: &str| l.split(key).nth(1)?.split(' ').next();
             Some((
-                field("ticks_lost=")?.parse().ok()?,
-                field("late_ms=")?.parse().ok()?,
+                scl_tests::log_field(l, "ticks_lost")?,
+                scl_tests::log_field(l, "late_ms")?,
             ))
         })
         .filter(|(_, late_ms)| *late_ms >= 30.0)
