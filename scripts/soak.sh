@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Soak test (issue 41): run the whole graph (`scl up --for DURATION`) at a given rate with the
-# recorder, the live Foxglove server and the network gateway attached (no client connected),
-# sample every process's resident memory and open file descriptors and the graph's files in
-# /dev/shm every INTERVAL, then check that none of them grows and that the recording replays
-# bit for bit. See --help and docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
+# recorder, the live Foxglove server and the network gateway attached, a Foxglove client
+# (`scl live --client`) on the server and a remote observer (`scl record --remote`) on the
+# gateway, sample every process's resident memory and open file descriptors and the graph's
+# files in /dev/shm every INTERVAL, then check that none of them grows, that both clients were
+# served throughout, and that the recordings replay bit for bit. See --help and docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
 set -euo pipefail
 
 usage() {
@@ -11,8 +12,11 @@ usage() {
 Usage: scripts/soak.sh [OPTIONS]
 
 Runs `scl up --for DURATION --record FILE --json --live` (the mock arm, the scripted circle
-joystick, the recorder, the live Foxglove server and the network gateway; no client connects to
-either) under a prefix of its own, samples every process of the graph every INTERVAL, and checks:
+joystick, the recorder, the live Foxglove server and the network gateway) under a prefix of its
+own, with two clients attached for the whole run: a Foxglove client on the live server
+(`scl live --client`, subscribed to every channel, as Foxglove is) and a remote observer on the
+gateway (`scl record --remote`, through Zenoh on loopback, recording everything). Samples every
+process (the clients too) every INTERVAL, and checks:
   rss      each process's VmRSS at most RSS_SLACK above its value at the first sample
   fds      each process's open file descriptors (the least of 3 looks) as at the first sample
   shm      the graph's files in /dev/shm (scl_<prefix>_*) as many as at the first sample
@@ -20,6 +24,8 @@ either) under a prefix of its own, samples every process of the graph every INTE
   up       `scl up` exited 0 (no child died for good)
   clean    no file of the prefix left in /dev/shm after the run
   replay   `scl replay --json` of the recording: every tick identical, exit 0
+  foxglove the Foxglove client received frames in every interval and never lost the server
+  remote   the remote recording replays: every tick identical, exit 0
 Missed ticks (the bridge's own counters, `scl up --json`'s `missed` and `held_up`) are
 reported, not checked: on a busy machine the scheduler decides them.
 The first sample is taken one INTERVAL after the start (the graph warmed up); no sample is
@@ -34,14 +40,18 @@ Options:
   --prefix NAME      graph prefix (default soak<pid>; must not be in use)
   --scl PATH         the scl binary (default: <cargo target dir>/release/scl, built if missing)
   --no-live          do not attach `scl live` (the Foxglove server, on 127.0.0.1, a free port)
+                     nor its Foxglove client
   --no-gateway       do not start the network gateway ([network] enabled, Zenoh on
-                     127.0.0.1, a free port)
-  --keep-recording   keep the MCAP file (default: removed when every check passes; it takes
-                     about 0.7 MB per second at 1 kHz)
+                     127.0.0.1, a free port) nor the remote observer
+  --no-clients       start the live server and the gateway, but no client of either
+  --keep-recording   keep the MCAP files (default: removed when every check passes; each
+                     takes about 0.7 MB per second at 1 kHz)
   -h, --help         this help
 
 Writes into DIR: graph.toml, samples.csv (time_s,process,pid,rss_kib,fds,shm_files),
-up.json (the run's summary), up.log, replay.json, replay.log, report.txt.
+clients.csv (time_s,foxglove_frames,foxglove_connects,remote_mcap_bytes), up.json (the run's
+summary), up.log, replay.json, replay.log, foxglove.jsonl (the client's report each second),
+foxglove.log, remote.log, remote-replay.json, remote-replay.log, report.txt.
 Exit status: 0 when every check passes, 1 when one fails, 2 on a usage or setup error.
 EOF
 }
@@ -61,6 +71,7 @@ scl=""
 live=1
 gateway=1
 keep_recording=0
+clients=1
 while [ $# -gt 0 ]; do
   case "$1" in
   --for) duration=${2:?--for needs a value}; shift 2 ;;
@@ -73,6 +84,7 @@ while [ $# -gt 0 ]; do
   --no-live) live=0; shift ;;
   --no-gateway) gateway=0; shift ;;
   --keep-recording) keep_recording=1; shift ;;
+  --no-clients) clients=0; shift ;;
   -h | --help) usage; exit 0 ;;
   *) echo "soak: unknown option '$1'" >&2; usage >&2; exit 2 ;;
   esac
@@ -129,6 +141,12 @@ if [ "$(shm_count)" -ne 0 ]; then
   die "/dev/shm already holds files of prefix '$prefix' (${shm_prefix}*): another graph of that prefix runs, or one left them; choose another --prefix"
 fi
 
+# A free loopback port, picked by the kernel (a race with another program is possible but
+# harmless: the server then fails to start and the run says so).
+free_port() {
+  python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
+}
+
 # The graph's configuration: the built-in defaults (examples/graph.toml) with the rate and
 # the prefix, and the gateway's section when asked for.
 cfg="$out/graph.toml"
@@ -138,9 +156,7 @@ cfg="$out/graph.toml"
   echo "rate_hz = $rate"
   echo "prefix = \"$prefix\""
   if [ "$gateway" = 1 ]; then
-    # A free loopback port for Zenoh, picked by the kernel (a race with another program is
-    # possible but harmless: the gateway then fails to start and the run says so).
-    zport=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    zport=$(free_port)
     echo "[network]"
     echo "enabled = true"
     echo "listen = [\"tcp/127.0.0.1:$zport\"]"
@@ -148,12 +164,18 @@ cfg="$out/graph.toml"
 } >"$cfg"
 
 recording="$out/run.mcap"
+remote_recording="$out/remote.mcap"
 csv="$out/samples.csv"
 report="$out/report.txt"
 echo "time_s,process,pid,rss_kib,fds,shm_files" >"$csv"
+clients_csv="$out/clients.csv"
+echo "time_s,foxglove_frames,foxglove_connects,remote_mcap_bytes" >"$clients_csv"
 
 up_args=(--prefix "$prefix" --config "$cfg" up --for "$duration" --record "$recording" --json)
-[ "$live" = 0 ] || up_args+=(--live 127.0.0.1:0)
+if [ "$live" = 1 ]; then
+  lport=$(free_port)
+  up_args+=(--live "127.0.0.1:$lport")
+fi
 echo "soak: $scl ${up_args[*]}" >&2
 echo "soak: output in $out; samples every ${interval} s over ${duration_s} s" >&2
 
@@ -163,11 +185,46 @@ set -m
 "$scl" "${up_args[@]}" >"$out/up.json" 2>"$out/up.log" &
 up_pid=$!
 set +m
+
+# The clients, each in its own process group too; they wait for their server themselves
+# (the Foxglove client up to 30 s, the remote observer until the gateway answers).
+client_pid=""
+remote_pid=""
+if [ "$clients" = 1 ] && [ "$live" = 1 ]; then
+  set -m
+  "$scl" live --client "127.0.0.1:$lport" --json >"$out/foxglove.jsonl" 2>"$out/foxglove.log" &
+  client_pid=$!
+  set +m
+fi
+if [ "$clients" = 1 ] && [ "$gateway" = 1 ]; then
+  # The remote observer connects once: wait (up to 30 s) until the gateway listens.
+  for _ in $(seq 300); do
+    (exec 3<>"/dev/tcp/127.0.0.1/$zport") 2>/dev/null && break
+    kill -0 "$up_pid" 2>/dev/null || break
+    sleep 0.1
+  done
+  set -m
+  "$scl" --prefix "$prefix" --config "$cfg" record --remote "tcp/127.0.0.1:$zport" \
+    --out "$remote_recording" >"$out/remote.log" 2>&1 &
+  remote_pid=$!
+  set +m
+fi
+stop_clients() {
+  local p
+  for p in $client_pid $remote_pid; do
+    kill -INT "$p" 2>/dev/null || true
+  done
+  client_status=0
+  remote_status=0
+  [ -z "$client_pid" ] || wait "$client_pid" 2>/dev/null || client_status=$?
+  [ -z "$remote_pid" ] || wait "$remote_pid" 2>/dev/null || remote_status=$?
+}
 cleanup() {
   if kill -0 "$up_pid" 2>/dev/null; then
     kill -TERM "$up_pid" 2>/dev/null || true
     wait "$up_pid" 2>/dev/null || true
   fi
+  stop_clients
 }
 trap cleanup EXIT
 trap 'echo "soak: interrupted" >&2; exit 130' INT TERM
@@ -191,6 +248,8 @@ proc_name() {
     up) [ -n "$role" ] || role=supervisor ;;
     joystick | mapper | safety | bridge | record | live | gateway)
       [ -n "$role" ] || role=$a ;;
+    --client) role=foxglove-client ;;
+    --remote) role=remote-observer ;;
     esac
     [ "$prev" != "--id" ] || id=$a
     prev=$a
@@ -219,12 +278,16 @@ while kill -0 "$up_pid" 2>/dev/null; do
   if [ "$now" -ge "$next" ]; then
     if [ "$now" -le $((duration_s - 5)) ]; then
       shm=$(shm_count)
-      for pid in "$up_pid" $(descendants "$up_pid"); do
+      for pid in "$up_pid" $(descendants "$up_pid") $client_pid $remote_pid; do
         name=$(proc_name "$pid") || continue
         rss=$(awk '/^VmRSS:/ {print $2}' "/proc/$pid/status" 2>/dev/null) || continue
         fds=$(fd_count "$pid")
         echo "$now,$name,$pid,${rss:-0},$fds,$shm" >>"$csv"
       done
+      # What the clients got so far: the Foxglove client's newest report, the remote
+      # recording's size (it grows by chunks, about one a second).
+      fx=$(tail -n 1 "$out/foxglove.jsonl" 2>/dev/null | jq -r '"\(.frames),\(.connects)"' 2>/dev/null) || fx=","
+      echo "$now,${fx:-,},$(stat -c %s "$remote_recording" 2>/dev/null || echo)" >>"$clients_csv"
       echo "soak: t=${now}s sampled ($(grep -c "^$now," "$csv") processes, $shm shm files)" >&2
     fi
     next=$((next + interval))
@@ -234,6 +297,8 @@ done
 up_status=0
 wait "$up_pid" || up_status=$?
 trap - EXIT
+# The graph has stopped: the clients go next (the remote observer closes its file).
+stop_clients
 
 # The graph's processes all release their files on a clean stop; give them a moment.
 left=0
@@ -245,6 +310,20 @@ done
 
 replay_status=0
 "$scl" replay "$recording" --json >"$out/replay.json" 2>"$out/replay.log" || replay_status=$?
+remote_replay_status=0
+if [ -n "$remote_pid" ]; then
+  "$scl" replay "$remote_recording" --json >"$out/remote-replay.json" 2>"$out/remote-replay.log" ||
+    remote_replay_status=$?
+fi
+# One check line for a replay: replayed_check NAME STATUS JSON LOG
+replay_check() {
+  if [ "$2" = 0 ] && jq -e '.diverged == 0 and .ticks == .identical and .ticks > 0' "$3" >/dev/null 2>&1; then
+    check "$1" 1 "$(jq -r '"\(.ticks) ticks replayed, \(.identical) identical, \(.diverged) diverged"' "$3")"
+  else
+    check "$1" 0 "scl replay exited $2: $(jq -c '{ticks, identical, diverged, first_divergence}' \
+      "$3" 2>/dev/null || tail -n 3 "$4")"
+  fi
+}
 
 # The checks, each one line `PASS|FAIL name: detail`.
 fail=0
@@ -291,12 +370,20 @@ check() { # check NAME OK DETAIL
   check up "$([ "$up_status" = 0 ] && echo 1 || echo 0)" "scl up exited $up_status$(
     [ "$up_status" = 0 ] || echo " ($(tail -n 1 "$out/up.log"))")"
   check clean "$([ "$left" = 0 ] && echo 1 || echo 0)" "$left file(s) ${shm_prefix}* left in /dev/shm after the run"
-  if [ "$replay_status" = 0 ] && jq -e '.diverged == 0 and .ticks == .identical and .ticks > 0' \
-    "$out/replay.json" >/dev/null 2>&1; then
-    check replay 1 "$(jq -r '"\(.ticks) ticks replayed, \(.identical) identical, \(.diverged) diverged"' "$out/replay.json")"
-  else
-    check replay 0 "scl replay exited $replay_status: $(jq -c '{ticks, identical, diverged, first_divergence}' \
-      "$out/replay.json" 2>/dev/null || tail -n 3 "$out/replay.log")"
+  replay_check replay "$replay_status" "$out/replay.json" "$out/replay.log"
+  if [ -n "$client_pid" ]; then
+    # Frames in every interval between samples (none stalled), one connection all along,
+    # and the client exited cleanly at the end.
+    read -r stalls last_frames connects < <(tail -n +2 "$clients_csv" | awk -F, '
+      { if (NR > 1 && $2 + 0 <= prev) s++; prev = $2 + 0; c = $3 }
+      END { print s + 0, prev + 0, (c == "" ? 0 : c) }')
+    final=$(tail -n 1 "$out/foxglove.jsonl" 2>/dev/null)
+    check foxglove "$([ "$stalls" = 0 ] && [ "$connects" = 1 ] && [ "$client_status" = 0 ] &&
+      [ "$last_frames" -gt 0 ] && echo 1 || echo 0)" \
+      "$(echo "$final" | jq -r '"\(.frames) frames on \(.channels) channels in \(.t_s | round) s"' 2>/dev/null || echo "no report"), $connects connection(s), $stalls interval(s) without a frame, exit $client_status"
+  fi
+  if [ -n "$remote_pid" ]; then
+    replay_check remote "$remote_replay_status" "$out/remote-replay.json" "$out/remote-replay.log"
   fi
   if jq -e '.ticks' "$out/up.json" >/dev/null 2>&1; then
     jq -r '"missed ticks: \(.missed) of \(.ticks) (\(.held_up) held up by the machine, \(.missed - .held_up) the graph'"'"'s own); e2e latency p50 / p99 / max \(.latency_us.p50 | round) / \(.latency_us.p99 | round) / \(.latency_us.max | round) µs; restarts \(.restarts)"' "$out/up.json"
@@ -304,12 +391,13 @@ check() { # check NAME OK DETAIL
     echo "missed ticks: unknown (no summary from scl up; see $out/up.log)"
   fi
   echo "recording: $(du -h "$recording" 2>/dev/null | cut -f1) ($recording)"
+  [ -z "$remote_pid" ] || echo "remote recording: $(du -h "$remote_recording" 2>/dev/null | cut -f1) (exit $remote_status)"
   echo "samples: $csv"
 } | tee "$report"
 grep -q '^FAIL' "$report" && fail=1
 
 if [ "$fail" = 0 ] && [ "$keep_recording" = 0 ]; then
-  rm -f "$recording"
+  rm -f "$recording" "$remote_recording"
 fi
 # Files of the prefix still there (a failed stop) would only take memory: they are ours.
 [ "$left" = 0 ] || find /dev/shm -maxdepth 1 -name "${shm_prefix}*" -delete 2>/dev/null || true

@@ -232,11 +232,12 @@ enum Cmd {
     /// Run the fault drills on this machine with this configuration: the graph (the mock arm
     /// unless `--arm`) records itself while a scripted stick keeps the arm moving, and each
     /// fault in turn (kill -9 or SIGSTOP of each process, stale, non-finite and out-of-range
-    /// input, the e-stop with and without a mapper, live swaps) is measured from the recording
-    /// against the documented promise: ticks to the stop, travel and time to rest, no speed-up,
-    /// motion only after neutral input, actions within the stick's disc, missed ticks, shared
-    /// memory left. Prints one PASS / FAIL row
-    /// per drill; exit code 1 on any FAIL. See docs/safety-drills.md.
+    /// input, the e-stop with and without a mapper, live swaps; with `[network]` on, the
+    /// gateway's kill -9 and, with `accept_joystick`, a remote operator's link cut) is measured
+    /// from the recording against the documented promise: ticks to the stop, travel and time
+    /// to rest, no speed-up, motion only after neutral input, actions within the stick's disc,
+    /// missed ticks, shared memory left. Prints one PASS / FAIL row per drill; exit code 1 on
+    /// any FAIL. See docs/safety-drills.md.
     Drill {
         #[command(flatten)]
         config: ConfigArgs,

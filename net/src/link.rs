@@ -24,6 +24,11 @@ use crate::wire::{GatewayStatus, link_state};
 /// same bound, `safety::restart::NEUTRAL_MAX_ACTION`: a test in the gateway keeps them equal).
 pub const NEUTRAL_MAX_ACTION: f64 = 0.05;
 
+/// The driving operator's input is stale at the robot tick this many ticks after the newest
+/// tick it answered (one behind is still fresh: the mapper's own rule): the gateway then
+/// stands in with neutral input and safety stops the arm.
+pub const STALE_AFTER_TICKS: u64 = 2;
+
 /// Sessions remembered as ended (the oldest forgotten first).
 const ENDED_KEPT: usize = 64;
 
@@ -198,7 +203,7 @@ impl OperatorLink {
         let mut stop = None;
         if let Some(d) = self.driver.as_mut()
             && d.armed
-            && d.newest.saturating_add(2) <= tick
+            && d.newest.saturating_add(STALE_AFTER_TICKS) <= tick
         {
             d.armed = false;
             self.status.stale_stops += 1;

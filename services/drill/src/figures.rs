@@ -134,7 +134,7 @@ fn neutral(j: &JoystickInput) -> bool {
     x.is_finite() && y.is_finite() && x.hypot(y) <= NEUTRAL_MAX_ACTION
 }
 
-fn max_speed(s: &RobotState) -> f64 {
+pub(crate) fn max_speed(s: &RobotState) -> f64 {
     let n = s.n_joints as usize;
     s.qdot_rad_s[..n.min(s.qdot_rad_s.len())]
         .iter()

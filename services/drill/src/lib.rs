@@ -65,6 +65,17 @@ pub enum DrillError {
     /// The configuration could not be written for the drill's graph.
     #[error("cannot write the drill's configuration: {0}")]
     Encode(#[from] toml::ser::Error),
+    /// `--only` names a drill the configuration gives nothing to drill.
+    #[error("drill {drill} cannot run on this configuration: {why}")]
+    NotApplicable {
+        /// The drill.
+        drill: &'static str,
+        /// Why.
+        why: &'static str,
+    },
+    /// The remote operator's relay (the link the link-cut drill cuts) did not start.
+    #[error(transparent)]
+    Relay(#[from] scl_net::relay::RelayError),
 }
 
 /// `scl drill`'s options.
@@ -119,11 +130,18 @@ pub enum Fault {
     SwapBad,
     /// A live swap to a model that loads.
     SwapGood,
+    /// `kill -9` of the network gateway (`[network] enabled`): with `accept_joystick`, the
+    /// remote operator's input is gone and the arm stops as for a dead joystick; without, the
+    /// gateway only serves observers and nothing may stop.
+    KillGateway,
+    /// A remote operator's link cut, silently, as a pulled cable (`[network] enabled` and
+    /// `accept_joystick`): the gateway finds the input stale and stands in with neutral.
+    LinkCut,
 }
 
 impl Fault {
     /// Every drill, in the order they run.
-    pub const ALL: [Fault; 17] = [
+    pub const ALL: [Fault; 19] = [
         Fault::Kill(NodeRole::Joystick),
         Fault::Kill(NodeRole::Mapper),
         Fault::Kill(NodeRole::Safety),
@@ -141,6 +159,8 @@ impl Fault {
         Fault::EstopWithoutMapper,
         Fault::SwapBad,
         Fault::SwapGood,
+        Fault::KillGateway,
+        Fault::LinkCut,
     ];
 
     /// The drill's name (`--only`, the table, the JSON rows).
@@ -165,7 +185,30 @@ impl Fault {
             Fault::EstopWithoutMapper => "estop-no-mapper",
             Fault::SwapBad => "swap-bad-model",
             Fault::SwapGood => "swap-good-model",
+            Fault::KillGateway => "kill-gateway",
+            Fault::LinkCut => "link-cut",
         }
+    }
+
+    /// Why this drill does not apply to a graph of `cfg` (`None`: it does).
+    pub fn not_applicable(self, cfg: &GraphConfig) -> Option<&'static str> {
+        match self {
+            Fault::KillGateway if !cfg.network.enabled => {
+                Some("the configuration runs no gateway (`[network] enabled = false`)")
+            }
+            Fault::LinkCut if !(cfg.network.enabled && cfg.network.accept_joystick) => Some(
+                "the configuration takes no remote operator (`[network] enabled` and `accept_joystick` are not both true)",
+            ),
+            _ => None,
+        }
+    }
+
+    /// Whether the drill's graph takes the stick from the network: a remote operator the
+    /// drill runs drives it through the gateway.
+    fn remote_stick(self, cfg: &GraphConfig) -> bool {
+        matches!(self, Fault::KillGateway | Fault::LinkCut)
+            && cfg.network.enabled
+            && cfg.network.accept_joystick
     }
 
     /// The drill of `name`.
@@ -179,14 +222,14 @@ impl Fault {
             })
     }
 
-    /// Whether the joystick's age limit decides when the stop comes.
-    fn waits_for_stale_input(self) -> bool {
+    /// Whether the joystick's age limit decides when the stop comes (on a graph of `cfg`).
+    fn waits_for_stale_input(self, cfg: &GraphConfig) -> bool {
         matches!(
             self,
             Fault::Kill(NodeRole::Joystick)
                 | Fault::Stall(NodeRole::Joystick)
                 | Fault::StaleJoystick
-        )
+        ) || (self == Fault::KillGateway && self.remote_stick(cfg))
     }
 }
 
@@ -195,8 +238,10 @@ impl Fault {
 /// 1.3 s, so a stopped arm may move again.
 const HOLD_S: f64 = 1.0;
 const REST_S: f64 = 0.3;
-/// The fault comes in the middle of the first hold (the script rests 0.5 s first).
-const FAULT_AT_S: f64 = 0.5 + 0.6;
+/// The script rests this long at its start.
+const REST_START_S: f64 = 0.5;
+/// The fault comes in the middle of the first hold.
+const FAULT_AT_S: f64 = REST_START_S + 0.6;
 /// The graph runs this long after the fault: the stop, a restart, two passes through neutral.
 const AFTER_S: f64 = 3.4;
 
@@ -213,6 +258,8 @@ enum Action {
         model: String,
         loads: bool,
     },
+    /// The remote operator's link cut.
+    CutLink,
 }
 
 /// One run of one drill.
@@ -245,6 +292,15 @@ pub struct Row {
     pub result: &'static str,
 }
 
+/// A drill left out because the configuration gives it nothing to drill.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotRun {
+    /// The drill.
+    pub fault: &'static str,
+    /// Why.
+    pub why: &'static str,
+}
+
 /// The whole drill.
 #[derive(Debug, Clone, Serialize)]
 pub struct DrillReport {
@@ -260,6 +316,8 @@ pub struct DrillReport {
     pub repeat: u32,
     /// The rows.
     pub rows: Vec<Row>,
+    /// The drills left out (with no `--only`) and why.
+    pub not_run: Vec<NotRun>,
     /// Every row passed.
     pub passed: bool,
 }
@@ -287,6 +345,20 @@ fn drill_config(base: &GraphConfig, fault: Fault, fault_tick: u64) -> GraphConfi
         .supervisor
         .backoff_max_ms
         .max(cfg.supervisor.backoff_initial_ms);
+    if cfg.network.enabled {
+        // The drill's own gateway: on loopback (a free port each run, [`run_once`]), reached
+        // by nothing outside this machine. Only the network drills take the stick from the
+        // network (a remote operator the drill runs); every other drill drives with the
+        // local script, as its promise is about the processes here.
+        let n = &mut cfg.network;
+        n.accept_joystick &= fault.remote_stick(base);
+        n.accept_reset = false;
+        n.ros2_joy = false;
+        n.connect.clear();
+        n.mode = scl_config::NetworkMode::Peer;
+        n.multicast_scouting = false;
+        cfg.supervisor.restart.gateway = RestartPolicy::OnFailure;
+    }
     cfg.faults = scl_config::FaultConfig::default();
     match fault {
         Fault::StaleJoystick => cfg.faults.joystick_silent_after_ticks = fault_tick,
@@ -305,11 +377,18 @@ fn promise_of(cfg: &GraphConfig, fault: Fault) -> Result<Promise, DrillError> {
     // A fault is seen at the tick it happens (a miss, a non-finite value, the e-stop), the
     // stop starting at the next; a silent joystick once its sample is older than the limit.
     let mut stop_ticks = 2;
-    if fault.waits_for_stale_input() {
+    if fault.waits_for_stale_input(cfg) {
         stop_ticks += ticks(cfg.safety.max_joystick_age_ms / 1000.0);
     }
+    if fault == Fault::LinkCut {
+        // The gateway's rule: the input is stale once it answers a tick this far behind.
+        stop_ticks += scl_net::link::STALE_AFTER_TICKS;
+    }
+    // A gateway that serves only observers must not disturb the loop when it dies.
+    let observers_only = fault == Fault::KillGateway && !fault.remote_stick(cfg);
     Ok(Promise {
-        stops: !matches!(fault, Fault::SwapBad | Fault::SwapGood | Fault::RangeInput),
+        stops: !matches!(fault, Fault::SwapBad | Fault::SwapGood | Fault::RangeInput)
+            && !observers_only,
         stop_ticks,
         decel_rad_s2: cfg.profile()?.limits().max_acceleration_rad_s2.clone(),
         period_s,
@@ -360,6 +439,8 @@ fn schedule(
                 loads: true,
             },
         )],
+        Fault::KillGateway => vec![(f, Action::Signal(NodeRole::Gateway, Signal::SIGKILL))],
+        Fault::LinkCut => vec![(f, Action::CutLink)],
     }
 }
 
@@ -530,10 +611,22 @@ fn run_once(
     let period_s = base.period_s();
     let fault_tick = (FAULT_AT_S / period_s).round() as u64;
     let end_tick = fault_tick + (AFTER_S / period_s).round() as u64;
-    let cfg = drill_config(base, fault, fault_tick);
+    let mut cfg = drill_config(base, fault, fault_tick);
+    if cfg.network.enabled {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map_err(io_error(Path::new("127.0.0.1:0")))?
+            .port();
+        cfg.network.listen = vec![format!("tcp/127.0.0.1:{port}")];
+    }
     let promise = promise_of(&cfg, fault)?;
     let (files, log) = RunFiles::create(fault, &cfg, dir, tag)?;
     let exe = std::env::current_exe().map_err(io_error(Path::new("scl")))?;
+    let operator = if fault.remote_stick(&cfg) {
+        Some(RemoteOperator::new(&exe, &cfg, &files, dir, tag, prefix)?)
+    } else {
+        None
+    };
     let watch = Watch::join(prefix, &cfg)?;
     let up = files.start_graph(exe, log, prefix)?;
     let mut plan = schedule(fault, fault_tick, period_s, &cfg, dir);
@@ -546,6 +639,9 @@ fn run_once(
         up,
         watch,
         plan,
+        fault_tick,
+        end_tick,
+        operator,
         fault_ns: None,
         stalled: None,
         estop_window: (0, u64::MAX),
@@ -553,7 +649,7 @@ fn run_once(
     };
     // An error from watching the graph or sending the e-stop ends the drill, one of the graph
     // ends the run; either way the `scl up` child is stopped and the domain released first.
-    let result = drive.run(fault_tick, end_tick).and_then(|r| r);
+    let result = drive.run().and_then(|r| r);
     if let Some(pid) = drive.stalled {
         signal(pid, Signal::SIGCONT);
     }
@@ -561,9 +657,14 @@ fn run_once(
         mut up,
         mut watch,
         fault_ns,
+        fault_tick,
         estop_window,
+        operator,
         ..
     } = drive;
+    if let Some(op) = operator {
+        op.stop();
+    }
     let status = match result {
         Ok(s) => Some(s),
         Err(e) => {
@@ -733,6 +834,91 @@ fn leave_graph(fault: Fault, mut watch: Watch, prefix: &Prefix) -> Result<(), Dr
     Ok(())
 }
 
+/// The remote operator of a network drill: `scl joystick --remote` with the drill's script
+/// and the configuration's credentials, on this machine, reaching the drill's gateway through
+/// a relay on loopback, which the link-cut drill cuts as a pulled cable would.
+struct RemoteOperator {
+    relay: scl_net::relay::Relay,
+    /// The command, until it is started (once the gateway is up).
+    cmd: Option<Command>,
+    child: Option<Child>,
+    /// Since when the drill waits for it (its start, then its first motion).
+    since: Instant,
+    /// The arm has moved under its input.
+    driving: bool,
+}
+
+impl RemoteOperator {
+    /// The operator of run `tag` (its log `dir/<tag>-operator.log`), not started yet.
+    fn new(
+        exe: &Path,
+        cfg: &GraphConfig,
+        files: &RunFiles,
+        dir: &Path,
+        tag: &str,
+        prefix: &Prefix,
+    ) -> Result<Self, DrillError> {
+        let gateway = cfg
+            .network
+            .listen
+            .first()
+            .and_then(|e| e.strip_prefix("tcp/"))
+            .unwrap_or_default()
+            .to_owned();
+        let relay = scl_net::relay::Relay::start_here(gateway)?;
+        let log_path = dir.join(format!("{tag}-operator.log"));
+        let log = std::fs::File::create(&log_path).map_err(io_error(&log_path))?;
+        let mut cmd = Command::new(exe);
+        cmd.env("SCL_PREFIX", prefix.as_str())
+            .arg("joystick")
+            .arg("--config")
+            .arg(&files.cfg)
+            .args(["--source", "script", "--script", "step", "--remote"])
+            .arg(relay.endpoint())
+            .arg("--credentials")
+            .arg(&cfg.network.credentials)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log);
+        Ok(Self {
+            relay,
+            cmd: Some(cmd),
+            child: None,
+            since: Instant::now(),
+            driving: false,
+        })
+    }
+
+    /// Starts the operator once `gateway_up`; an operator that exited is an error.
+    fn poll(&mut self, gateway_up: bool) -> Result<(), String> {
+        if let Some(c) = self.child.as_mut() {
+            return match c.try_wait() {
+                Ok(Some(status)) => Err(format!(
+                    "the remote operator (scl joystick --remote) exited ({status}) before it drove"
+                )),
+                _ => Ok(()),
+            };
+        }
+        if gateway_up && let Some(mut cmd) = self.cmd.take() {
+            let child = cmd
+                .spawn()
+                .map_err(|e| format!("cannot start the remote operator: {e}"))?;
+            self.child = Some(child);
+            self.since = Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Stops the operator (SIGINT, then SIGKILL after 5 s) and the relay.
+    fn stop(self) {
+        if let Some(mut c) = self.child {
+            signal(c.id(), Signal::SIGINT);
+            wait_exit(&mut c, Duration::from_secs(5));
+        }
+        drop(self.relay);
+    }
+}
+
 /// How a run ended: `scl up`'s exit status, or an error after which the graph is stopped.
 type Ended = Result<std::process::ExitStatus, DrillError>;
 
@@ -746,6 +932,11 @@ struct Drive<'a> {
     up: Child,
     watch: Watch,
     plan: Vec<(u64, Action)>,
+    /// The fault's tick (moved on once a remote operator drives) and the tick the run ends.
+    fault_tick: u64,
+    end_tick: u64,
+    /// The remote operator of a network drill.
+    operator: Option<RemoteOperator>,
     /// When the fault began (0: at its tick, set in the configuration).
     fault_ns: Option<u64>,
     /// The process stopped with SIGSTOP, to resume.
@@ -770,7 +961,7 @@ impl Drive<'_> {
     /// `scl up` at `end_tick`, until it ends. An error outside (watching the graph, sending the
     /// e-stop) ends the drill; one inside ends the run. The caller stops the graph after
     /// either.
-    fn run(&mut self, fault_tick: u64, end_tick: u64) -> Result<Ended, DrillError> {
+    fn run(&mut self) -> Result<Ended, DrillError> {
         let mut last_progress = Instant::now();
         let mut last_tick = None;
         loop {
@@ -780,7 +971,7 @@ impl Drive<'_> {
                 last_progress = Instant::now();
             }
             if let Ok(Some(status)) = self.up.try_wait() {
-                if self.graph_ends || self.watch.tick().is_some_and(|t| t >= end_tick) {
+                if self.graph_ends || self.watch.tick().is_some_and(|t| t >= self.end_tick) {
                     return Ok(Ok(status));
                 }
                 return Ok(Err(self.graph_err(format!("scl up ended early ({status})"))));
@@ -788,6 +979,15 @@ impl Drive<'_> {
             if last_progress.elapsed() > Duration::from_secs(30) {
                 return Ok(Err(self.graph_err("no tick for 30 s".into())));
             }
+            match self.operator_drives() {
+                Ok(true) => {}
+                Ok(false) => {
+                    std::thread::sleep(Duration::from_millis(2));
+                    continue;
+                }
+                Err(e) => return Ok(Err(e)),
+            }
+            let (fault_tick, end_tick) = (self.fault_tick, self.end_tick);
             let tick = self.watch.tick().unwrap_or(0);
             if self.watch.tick().is_some()
                 && self.fault_ns.is_none()
@@ -818,6 +1018,55 @@ impl Drive<'_> {
                 self.graph_ends = true;
             }
             std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// Whether the plan may go on: no remote operator, or the arm has moved under its input.
+    /// Starts the operator once the gateway is up; once the arm first moves, moves the fault
+    /// (and the plan and the run's end with it) to as far into the stick's first hold as the
+    /// drill's fault comes for a local stick. An error ends the run.
+    fn operator_drives(&mut self) -> Result<bool, DrillError> {
+        const PATIENCE: Duration = Duration::from_secs(60);
+        let gateway_up = self.watch.pid_of(NodeRole::Gateway).is_some();
+        let moving = self
+            .watch
+            .seen
+            .last()
+            .is_some_and(|s| figures::max_speed(s) > 0.01);
+        let tick = self.watch.tick().unwrap_or(0);
+        let Some(op) = self.operator.as_mut() else {
+            return Ok(true);
+        };
+        if op.driving {
+            return Ok(true);
+        }
+        let problem = match op.poll(gateway_up) {
+            Err(e) => Some(e),
+            Ok(()) if moving => {
+                op.driving = true;
+                let lead = ((FAULT_AT_S - REST_START_S) / self.cfg.period_s()).round() as u64;
+                let shift = (tick + lead).saturating_sub(self.fault_tick);
+                self.fault_tick += shift;
+                self.end_tick += shift;
+                for (t, _) in &mut self.plan {
+                    *t += shift;
+                }
+                tracing::debug!(
+                    tick,
+                    fault_tick = self.fault_tick,
+                    "the remote operator drives"
+                );
+                return Ok(true);
+            }
+            Ok(()) if op.since.elapsed() > PATIENCE => Some(format!(
+                "the remote operator did not move the arm within {} s",
+                PATIENCE.as_secs()
+            )),
+            Ok(()) => None,
+        };
+        match problem {
+            Some(what) => Err(self.graph_err(what)),
+            None => Ok(false),
         }
     }
 
@@ -866,6 +1115,14 @@ impl Drive<'_> {
                 )
                 .map_err(|e| self.graph_err(format!("e-stop: {e}")))?;
             }
+            Action::CutLink => match &self.operator {
+                Some(op) => op.relay.cut(),
+                None => {
+                    return Ok(Err(
+                        self.graph_err("no remote operator's link to cut".into())
+                    ));
+                }
+            },
             Action::Swap { model, loads } => {
                 let r = graph_client::control::swap(self.prefix, &model, Duration::from_secs(20));
                 let ok = matches!(&r, Ok(resp) if resp.ok != 0);
@@ -920,13 +1177,37 @@ pub fn run(
     args: &DrillArgs,
 ) -> Result<DrillReport, DrillError> {
     cfg.validate_file(config)?;
+    let mut not_run = Vec::new();
     let faults = if args.only.is_empty() {
-        Fault::ALL.to_vec()
+        Fault::ALL
+            .into_iter()
+            .filter(|f| match f.not_applicable(cfg) {
+                None => true,
+                Some(why) => {
+                    not_run.push(NotRun {
+                        fault: f.name(),
+                        why,
+                    });
+                    false
+                }
+            })
+            .collect()
     } else {
-        args.only
+        let faults = args
+            .only
             .iter()
             .map(|n| Fault::by_name(n.trim()))
-            .collect::<Result<Vec<_>, _>>()?
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some((f, why)) = faults
+            .iter()
+            .find_map(|f| f.not_applicable(cfg).map(|why| (f, why)))
+        {
+            return Err(DrillError::NotApplicable {
+                drill: f.name(),
+                why,
+            });
+        }
+        faults
     };
     let mut cfg = cfg.clone();
     if cfg.bridge.robot != "mock" {
@@ -998,6 +1279,7 @@ pub fn run(
         repeat: args.repeat,
         passed: rows.iter().all(|r| r.result == "PASS"),
         rows,
+        not_run,
     })
 }
 
@@ -1082,6 +1364,9 @@ pub fn render(r: &DrillReport) -> String {
                 out.push_str(&format!("  run {}: {why}\n", i + 1));
             }
         }
+    }
+    for n in &r.not_run {
+        out.push_str(&format!("{:<16} not run: {}\n", n.fault, n.why));
     }
     out.push_str(if r.passed {
         "every drill kept its promise\n"
@@ -1174,5 +1459,38 @@ mod tests {
         assert_eq!(cfg.faults.joystick_out_of_range_at_tick, 44);
         assert!(!promise_of(&cfg, Fault::RangeInput).unwrap().stops);
         assert_eq!(promise_of(&cfg, Fault::KillRecorder).unwrap().stop_ticks, 2);
+    }
+
+    /// The network drills run only where the configuration gives them something to drill;
+    /// their graph's gateway listens on loopback, and only they take the stick from the
+    /// network. A cut link stops within the gateway's staleness rule, a dead gateway that
+    /// carried the stick within the joystick's age limit, and one that served only observers
+    /// must not stop anything.
+    #[test]
+    fn the_network_drills_and_their_promises() {
+        let mut base = GraphConfig::default();
+        assert!(Fault::KillGateway.not_applicable(&base).is_some());
+        assert!(Fault::LinkCut.not_applicable(&base).is_some());
+        base.network.enabled = true;
+        assert!(Fault::KillGateway.not_applicable(&base).is_none());
+        assert!(Fault::LinkCut.not_applicable(&base).is_some());
+        let observed = drill_config(&base, Fault::KillGateway, 44);
+        assert!(!promise_of(&observed, Fault::KillGateway).unwrap().stops);
+        base.network.accept_joystick = true;
+        base.network.accept_reset = true;
+        base.network.connect = vec!["tcp/192.0.2.10:7447".into()];
+        assert!(Fault::LinkCut.not_applicable(&base).is_none());
+        let cut = drill_config(&base, Fault::LinkCut, 44);
+        assert!(cut.network.accept_joystick && !cut.network.accept_reset);
+        assert!(cut.network.connect.is_empty());
+        assert_eq!(cut.supervisor.restart.gateway, RestartPolicy::OnFailure);
+        assert_eq!(promise_of(&cut, Fault::LinkCut).unwrap().stop_ticks, 2 + 2);
+        let killed = drill_config(&base, Fault::KillGateway, 44);
+        let p = promise_of(&killed, Fault::KillGateway).unwrap();
+        assert!(p.stops);
+        assert_eq!(p.stop_ticks, 2 + 4);
+        // Every other drill drives with the local stick.
+        let other = drill_config(&base, Fault::Kill(NodeRole::Joystick), 44);
+        assert!(other.network.enabled && !other.network.accept_joystick);
     }
 }

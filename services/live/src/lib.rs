@@ -37,6 +37,8 @@ use scl_net::observe::RemoteGraph;
 use transport::{Graph, TopicSubscriber, signals};
 use viz::{Viz, VizMessage, VizTopic};
 
+pub mod client;
+
 /// The address `scl live` and `scl up --live` listen on by default.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:8765";
 
@@ -81,6 +83,9 @@ pub enum LiveError {
     /// `--remote`: a subscription to the gateway's topics could not be declared.
     #[error(transparent)]
     Session(#[from] scl_net::SessionError),
+    /// `--client`: no server to be a client of.
+    #[error(transparent)]
+    Client(#[from] client::ClientRunError),
     /// A thread did not start (`what`: the server's runtime, the view thread).
     #[error("cannot start {what}: {source}")]
     Thread {
@@ -120,6 +125,14 @@ pub struct LiveArgs {
     /// credentials`, if any), for a gateway that requires authentication.
     #[arg(long, value_name = "FILE", requires = "remote")]
     pub credentials: Option<std::path::PathBuf>,
+    /// Serve nothing: be a Foxglove client of the server at ADDR:PORT (another `scl live`,
+    /// `scl up --live`, any Foxglove WebSocket server), subscribed to every channel it
+    /// advertises, reading every frame until Ctrl-C, as Foxglove does. Reports the frames
+    /// received each second (`--json`: one JSON object a line on stdout; otherwise a line on
+    /// stderr every 5 s), reconnecting a lost server. For soaks (scripts/soak.sh) and to check
+    /// from another machine that a robot PC's server serves.
+    #[arg(long, value_name = "ADDR:PORT", conflicts_with_all = ["remote", "listen", "announce"])]
+    pub client: Option<String>,
 }
 
 /// Parses `ADDR:PORT`; says whether it is a loopback address.
@@ -637,6 +650,9 @@ pub fn cli(
     config: GraphConfig,
     args: &LiveArgs,
 ) -> Result<std::process::ExitCode, LiveError> {
+    if let Some(addr) = &args.client {
+        return client_cli(addr, args.json);
+    }
     let r = run(
         prefix,
         &LiveOptions {
@@ -667,6 +683,39 @@ pub fn cli(
         && let Ok(text) = serde_json::to_string(&r)
     {
         println!("{text}");
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `scl live --client`: reads until Ctrl-C / SIGTERM, reporting as it goes.
+fn client_cli(addr: &str, json: bool) -> Result<std::process::ExitCode, LiveError> {
+    let line = |r: &client::ClientReport| match serde_json::to_string(r) {
+        Ok(text) => println!("{text}"),
+        Err(e) => tracing::warn!(error = %e, "cannot write the report"),
+    };
+    let r = client::run(addr, |r| {
+        if json {
+            line(r);
+        } else if (r.t_s.round() as u64).is_multiple_of(5) {
+            eprintln!(
+                "scl live --client: {addr}: {:.0} s, {} channels, {} frames, {}",
+                r.t_s,
+                r.channels,
+                r.frames,
+                if r.connected {
+                    "connected"
+                } else {
+                    "not connected"
+                }
+            );
+        }
+    })?;
+    eprintln!(
+        "scl live --client: {addr}: {} frames on {} channels in {:.1} s, {} connection(s)",
+        r.frames, r.channels, r.t_s, r.connects
+    );
+    if json {
+        line(&r);
     }
     Ok(std::process::ExitCode::SUCCESS)
 }

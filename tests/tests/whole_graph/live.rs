@@ -450,3 +450,60 @@ fn a_live_client_gets_the_frames_at_40_hz_and_never_disturbs_the_graph() {
         Vec::<String>::new()
     );
 }
+
+/// `scl live --client`, the Foxglove client the soak attaches: subscribed to every channel of
+/// `scl up --live`, it reports each second on stdout (one JSON object a line), counting the
+/// frames of each topic at the graph's rate, and on SIGINT ends with one connection made and
+/// exit code 0.
+#[test]
+fn scl_live_client_reads_every_channel_and_reports_each_second() {
+    let _serial = serial();
+    let prefix = unique_prefix("live-cl");
+    let _domain = DomainGuard(prefix.clone());
+    let addr = format!("127.0.0.1:{}", free_port());
+    let mut rec = Recorder::join(&prefix);
+    let mut up = scl(&prefix);
+    up.args(["up", "--for", "8s", "--json", "--live", &addr]);
+    let client = scl(&prefix)
+        .args(["live", "--client", &addr, "--json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = client.id();
+    let stopper = std::thread::spawn(move || {
+        // Past the graph's start (a debug build takes seconds), well before its end.
+        std::thread::sleep(Duration::from_secs(6));
+        scl_tests::send_signal(pid, nix::sys::signal::Signal::SIGINT);
+    });
+    let out = run_polling(up, &mut rec);
+    stopper.join().unwrap();
+    let client = client.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&client.stderr);
+    assert!(out.status.success(), "scl up failed");
+    assert!(client.status.success(), "scl live --client: {stderr}");
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&client.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(lines.len() >= 4, "{} reports: {stderr}", lines.len());
+    let last = lines.last().unwrap();
+    assert_eq!(last["connects"], 1, "{last}");
+    assert!(last["channels"].as_u64().unwrap() >= 8, "{last}");
+    // The frames grow report by report once connected.
+    let frames: Vec<u64> = lines
+        .iter()
+        .map(|l| l["frames"].as_u64().unwrap())
+        .collect();
+    assert!(frames.windows(2).all(|w| w[0] <= w[1]), "{frames:?}");
+    // At 40 Hz: the robot states of the seconds it read, one frame each.
+    let states = last["per_topic"]["/robot_state"].as_u64().unwrap();
+    assert!(states >= 40, "{states} robot states: {last}");
+    let tf = last["per_topic"]["/tf"].as_u64().unwrap();
+    assert!(tf.abs_diff(states) <= 2, "{tf} frame transforms: {last}");
+    drop(rec);
+    assert_eq!(
+        wait_clean(&prefix, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+}
