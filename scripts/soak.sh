@@ -25,7 +25,9 @@ process (the clients too) every INTERVAL, and checks:
   clean    no file of the prefix left in /dev/shm after the run
   replay   `scl replay --json` of the recording: every tick identical, exit 0
   foxglove the Foxglove client received frames in every interval and never lost the server
-  remote   the remote recording replays: every tick identical, exit 0
+  remote   the remote recording replays: every tick identical, but those whose joystick
+           sample the network path dropped (counted by the gateway's queue and the remote
+           recorder, `scl replay`'s `diverged_on_lost_input`), at most one per message dropped
 Missed ticks (the bridge's own counters, `scl up --json`'s `missed` and `held_up`) are
 reported, not checked: on a busy machine the scheduler decides them.
 The first sample is taken one INTERVAL after the start (the graph warmed up); no sample is
@@ -51,7 +53,8 @@ Options:
 Writes into DIR: graph.toml, samples.csv (time_s,process,pid,rss_kib,fds,shm_files),
 clients.csv (time_s,foxglove_frames,foxglove_connects,remote_mcap_bytes), up.json (the run's
 summary), up.log, replay.json, replay.log, foxglove.jsonl (the client's report each second),
-foxglove.log, remote.log, remote-replay.json, remote-replay.log, report.txt.
+foxglove.log, remote.json (the remote recorder's report), remote.log, remote-replay.json,
+remote-replay.log, report.txt.
 Exit status: 0 when every check passes, 1 when one fails, 2 on a usage or setup error.
 EOF
 }
@@ -205,7 +208,7 @@ if [ "$clients" = 1 ] && [ "$gateway" = 1 ]; then
   done
   set -m
   "$scl" --prefix "$prefix" --config "$cfg" record --remote "tcp/127.0.0.1:$zport" \
-    --out "$remote_recording" >"$out/remote.log" 2>&1 &
+    --out "$remote_recording" --json >"$out/remote.json" 2>"$out/remote.log" &
   remote_pid=$!
   set +m
 fi
@@ -383,7 +386,18 @@ check() { # check NAME OK DETAIL
       "$(echo "$final" | jq -r '"\(.frames) frames on \(.channels) channels in \(.t_s | round) s"' 2>/dev/null || echo "no report"), $connects connection(s), $stalls interval(s) without a frame, exit $client_status"
   fi
   if [ -n "$remote_pid" ]; then
-    replay_check remote "$remote_replay_status" "$out/remote-replay.json" "$out/remote-replay.log"
+    # What the network path lost: the remote recorder's drops and the robot states missing
+    # between those it received (the gateway's queue drops the newest when full, counted).
+    lost=$(jq -r '.dropped + .robot_state_gaps' "$out/remote.json" 2>/dev/null || echo "")
+    if [ -n "$lost" ] && [ "$remote_status" = 0 ] && [ "$remote_replay_status" -le 1 ] && jq -e --argjson lost "$lost" \
+      '.ticks > 0 and .ticks == .identical + .diverged and .diverged == .diverged_on_lost_input
+       and .diverged <= $lost' "$out/remote-replay.json" >/dev/null 2>&1; then
+      check remote 1 "$(jq -r --argjson lost "$lost" '"\(.ticks) ticks replayed, \(.identical) identical, \(.diverged) on joystick samples lost on the way (\($lost) messages lost: dropped or missing)"' "$out/remote-replay.json")"
+    else
+      check remote 0 "scl record --remote exited $remote_status, scl replay $remote_replay_status, ${lost:-?} messages lost on the way: $(jq -c \
+        '{ticks, identical, diverged, diverged_on_lost_input, first_divergence}' \
+        "$out/remote-replay.json" 2>/dev/null || tail -n 3 "$out/remote-replay.log")"
+    fi
   fi
   if jq -e '.ticks' "$out/up.json" >/dev/null 2>&1; then
     jq -r '"missed ticks: \(.missed) of \(.ticks) (\(.held_up) held up by the machine, \(.missed - .held_up) the graph'"'"'s own); e2e latency p50 / p99 / max \(.latency_us.p50 | round) / \(.latency_us.p99 | round) / \(.latency_us.max | round) µs; restarts \(.restarts)"' "$out/up.json"

@@ -464,6 +464,11 @@ pub struct Replay {
     pub identical: u64,
     /// Ticks where either differed.
     pub diverged: u64,
+    /// Of those, the ticks whose mapper command was fed a joystick sample the recording lacks
+    /// (lost before the recorder: a remote recorder's network path drops and counts what it
+    /// cannot carry), rebuilt from the command: what the recording cannot replay, not a
+    /// divergence of the graph.
+    pub diverged_on_lost_input: u64,
     /// The first divergence, if any.
     pub first_divergence: Option<Divergence>,
     /// Mapper commands re-executed (every mapper's, also those safety did not forward).
@@ -761,6 +766,8 @@ struct MapperReplay {
     replayed: Replayed,
     /// The first divergence of each (tick, mapper id).
     divs: BTreeMap<(u64, u32), Divergence>,
+    /// Of those, the ones whose joystick sample was not in the recording (rebuilt).
+    lost_input: std::collections::BTreeSet<(u64, u32)>,
     /// Commands replayed.
     commands: u64,
     /// Commands replayed bit for bit.
@@ -813,6 +820,9 @@ fn replay_mappers(
             m.identical += 1;
         } else {
             let rebuilt_joy = matches!(joy, Some((_, true)));
+            if rebuilt_joy {
+                m.lost_input.insert((cmd.tick, cmd.mapper_id));
+            }
             let input = mapper_input(*altered, rebuilt_joy, model_name, state.tick, cmd);
             m.divs
                 .entry((cmd.tick, cmd.mapper_id))
@@ -927,6 +937,7 @@ fn replay_safety(
             ticks: 0,
             identical: 0,
             diverged: 0,
+            diverged_on_lost_input: 0,
             first_divergence: None,
             mapper_commands: mappers.commands,
             mapper_identical: mappers.identical,
@@ -973,6 +984,9 @@ fn replay_safety(
             r.out.identical += 1;
         } else {
             r.out.diverged += 1;
+            if mapper_div.is_some() && mappers.lost_input.contains(&(safe.tick, safe.mapper_id)) {
+                r.out.diverged_on_lost_input += 1;
+            }
             if r.first.is_none() {
                 r.first = Some(match mapper_div {
                     Some(m) => m.clone(),

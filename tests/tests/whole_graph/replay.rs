@@ -113,7 +113,7 @@ fn recorded_run() -> &'static Run {
             dir,
             file,
             done: AtomicUsize::new(0),
-            users: 2,
+            users: 3,
         }
     })
 }
@@ -304,6 +304,48 @@ fn a_recording_with_an_altered_model_diverges_at_the_first_tick_the_map_moves() 
         )),
         "{text}"
     );
+    run.release();
+}
+
+/// A recording that lacks some joystick samples (as a remote recorder's, whose network path
+/// drops and counts what it cannot carry): the replay rebuilds each from its command, and
+/// every tick that then diverges is counted as one on a lost input, not as the graph's.
+#[test]
+fn joystick_samples_lost_before_the_recorder_are_the_only_divergences_counted_as_lost_input() {
+    let run = recorded_run();
+    let _serial = serial();
+    let lossy = run.dir.join("lossy.mcap");
+    let _ = std::fs::remove_file(&lossy);
+    {
+        let out = recording::create_new(&lossy).unwrap();
+        let mut w =
+            recording::LogWriter::new(std::io::BufWriter::new(out), &lossy, None).unwrap();
+        let mut n = 0u64;
+        recording::read_file(&run.file, |ev| {
+            if let Event::Message { channel, .. } = &ev
+                && channel.topic == "/joystick"
+            {
+                n += 1;
+                // Every 25th sample past the first second: lost on the way.
+                if n > 40 && n % 25 == 0 {
+                    return Ok(());
+                }
+            }
+            w.copy_event(&ev).map(|_| ())
+        })
+        .unwrap();
+        w.finish(None).unwrap();
+    }
+    let (code, v, err) = replay_json(&lossy);
+    assert_eq!(code, Some(1), "{v} {err}");
+    let diverged = v["diverged"].as_u64().unwrap();
+    assert!(diverged > 0, "{v}");
+    assert_eq!(v["diverged_on_lost_input"].as_u64(), Some(diverged), "{v}");
+    // The recording as made replays with none.
+    let (code, v, err) = replay_json(&run.file);
+    assert_eq!(code, Some(0), "{v} {err}");
+    assert_eq!(v["diverged_on_lost_input"], 0, "{v}");
+    std::fs::remove_file(&lossy).unwrap();
     run.release();
 }
 
