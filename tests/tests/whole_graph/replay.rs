@@ -318,8 +318,7 @@ fn joystick_samples_lost_before_the_recorder_are_the_only_divergences_counted_as
     let _ = std::fs::remove_file(&lossy);
     {
         let out = recording::create_new(&lossy).unwrap();
-        let mut w =
-            recording::LogWriter::new(std::io::BufWriter::new(out), &lossy, None).unwrap();
+        let mut w = recording::LogWriter::new(std::io::BufWriter::new(out), &lossy, None).unwrap();
         let mut n = 0u64;
         recording::read_file(&run.file, |ev| {
             if let Event::Message { channel, .. } = &ev
