@@ -326,7 +326,7 @@ fn joystick_samples_lost_before_the_recorder_are_the_only_divergences_counted_as
             {
                 n += 1;
                 // Every 25th sample past the first second: lost on the way.
-                if n > 40 && n % 25 == 0 {
+                if n > 40 && n.is_multiple_of(25) {
                     return Ok(());
                 }
             }
