@@ -25,11 +25,14 @@ process (the clients too) every INTERVAL, and checks:
   clean    no file of the prefix left in /dev/shm after the run
   replay   `scl replay --json` of the recording: every tick identical, exit 0
   foxglove the Foxglove client received frames in every interval and never lost the server
-  remote   the remote recording replays: every tick identical, but those whose joystick
-           sample the network path dropped (counted by the gateway's queue and the remote
-           recorder, `scl replay`'s `diverged_on_lost_input`), at most one per message dropped
+  remote   the remote observer was served throughout: its file grew in every interval, it
+           wrote messages and exited 0 at the end
 Missed ticks (the bridge's own counters, `scl up --json`'s `missed` and `held_up`) are
-reported, not checked: on a busy machine the scheduler decides them.
+reported, not checked: on a busy machine the scheduler decides them. So is the replay of the
+remote recording: the gateway's queue drops the newest messages when the network side is
+behind (counted), and a recording that lacks a robot state or a joystick sample cannot be
+replayed bit for bit from there on (`scl replay` counts the ticks it diverged on a lost
+joystick sample, `diverged_on_lost_input`).
 The first sample is taken one INTERVAL after the start (the graph warmed up); no sample is
 taken in the last 5 s (the graph stopping).
 
@@ -386,18 +389,17 @@ check() { # check NAME OK DETAIL
       "$(echo "$final" | jq -r '"\(.frames) frames on \(.channels) channels in \(.t_s | round) s"' 2>/dev/null || echo "no report"), $connects connection(s), $stalls interval(s) without a frame, exit $client_status"
   fi
   if [ -n "$remote_pid" ]; then
-    # What the network path lost: the remote recorder's drops and the robot states missing
-    # between those it received (the gateway's queue drops the newest when full, counted).
-    lost=$(jq -r '.dropped + .robot_state_gaps' "$out/remote.json" 2>/dev/null || echo "")
-    if [ -n "$lost" ] && [ "$remote_status" = 0 ] && [ "$remote_replay_status" -le 1 ] && jq -e --argjson lost "$lost" \
-      '.ticks > 0 and .ticks == .identical + .diverged and .diverged == .diverged_on_lost_input
-       and .diverged <= $lost' "$out/remote-replay.json" >/dev/null 2>&1; then
-      check remote 1 "$(jq -r --argjson lost "$lost" '"\(.ticks) ticks replayed, \(.identical) identical, \(.diverged) on joystick samples lost on the way (\($lost) messages lost: dropped or missing)"' "$out/remote-replay.json")"
-    else
-      check remote 0 "scl record --remote exited $remote_status, scl replay $remote_replay_status, ${lost:-?} messages lost on the way: $(jq -c \
-        '{ticks, identical, diverged, diverged_on_lost_input, first_divergence}' \
-        "$out/remote-replay.json" 2>/dev/null || tail -n 3 "$out/remote-replay.log")"
-    fi
+    # Served throughout: the file grew between every two samples (a chunk a second), the
+    # recorder wrote messages and stopped cleanly.
+    read -r rstalls rbytes < <(tail -n +2 "$clients_csv" | awk -F, '
+      { b = $4 + 0; if (NR > 1 && b <= prev) s++; prev = b } END { print s + 0, prev + 0 }')
+    written=$(jq -r '.written' "$out/remote.json" 2>/dev/null || echo 0)
+    lost=$(jq -r '"\(.dropped) dropped, \(.robot_state_gaps) robot states missing"' "$out/remote.json" 2>/dev/null || echo "no report")
+    check remote "$([ "$rstalls" = 0 ] && [ "$remote_status" = 0 ] && [ "${written:-0}" -gt 0 ] &&
+      [ "$rbytes" -gt 0 ] && echo 1 || echo 0)" \
+      "${written:-0} messages written, $rstalls interval(s) without growth, exit $remote_status; lost on the way: $lost"
+    echo "remote replay (reported): $(jq -r '"\(.ticks) ticks, \(.identical) identical, \(.diverged) diverged (\(.diverged_on_lost_input) on a lost joystick sample)"' \
+      "$out/remote-replay.json" 2>/dev/null || echo "scl replay exited $remote_replay_status")"
   fi
   if jq -e '.ticks' "$out/up.json" >/dev/null 2>&1; then
     jq -r '"missed ticks: \(.missed) of \(.ticks) (\(.held_up) held up by the machine, \(.missed - .held_up) the graph'"'"'s own); e2e latency p50 / p99 / max \(.latency_us.p50 | round) / \(.latency_us.p99 | round) / \(.latency_us.max | round) µs; restarts \(.restarts)"' "$out/up.json"
