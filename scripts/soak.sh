@@ -4,7 +4,7 @@
 # (`scl live --client`) on the server and a remote observer (`scl record --remote`) on the
 # gateway, sample every process's resident memory and open file descriptors and the graph's
 # files in /dev/shm every INTERVAL, then check that none of them grows, that both clients were
-# served throughout, and that the recordings replay bit for bit. See --help and docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
+# served throughout, and that the graph's own recording replays bit for bit. See --help and docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
 set -euo pipefail
 
 usage() {
@@ -215,10 +215,24 @@ if [ "$clients" = 1 ] && [ "$gateway" = 1 ]; then
   remote_pid=$!
   set +m
 fi
+# SIGINT to each client; one still running 60 s later (the remote observer closes a file of
+# gigabytes) is killed, and its status is then not 0, so its check fails instead of the soak
+# hanging.
 stop_clients() {
   local p
   for p in $client_pid $remote_pid; do
     kill -INT "$p" 2>/dev/null || true
+  done
+  for _ in $(seq 600); do
+    local alive=0
+    for p in $client_pid $remote_pid; do
+      if kill -0 "$p" 2>/dev/null; then alive=1; fi
+    done
+    [ "$alive" = 1 ] || break
+    sleep 0.1
+  done
+  for p in $client_pid $remote_pid; do
+    kill -KILL "$p" 2>/dev/null || true
   done
   client_status=0
   remote_status=0
@@ -321,7 +335,7 @@ if [ -n "$remote_pid" ]; then
   "$scl" replay "$remote_recording" --json >"$out/remote-replay.json" 2>"$out/remote-replay.log" ||
     remote_replay_status=$?
 fi
-# One check line for a replay: replayed_check NAME STATUS JSON LOG
+# One check line for a replay: replay_check NAME STATUS JSON LOG
 replay_check() {
   if [ "$2" = 0 ] && jq -e '.diverged == 0 and .ticks == .identical and .ticks > 0' "$3" >/dev/null 2>&1; then
     check "$1" 1 "$(jq -r '"\(.ticks) ticks replayed, \(.identical) identical, \(.diverged) diverged"' "$3")"

@@ -467,7 +467,9 @@ pub struct Replay {
     /// Of those, the ticks whose mapper command was fed a joystick sample the recording lacks
     /// (lost before the recorder: a remote recorder's network path drops and counts what it
     /// cannot carry), rebuilt from the command: what the recording cannot replay, not a
-    /// divergence of the graph.
+    /// divergence of the graph. Only those ticks: a later tick whose safety step diverged
+    /// because of one (the filter keeps state from tick to tick) counts as an ordinary
+    /// divergence.
     pub diverged_on_lost_input: u64,
     /// The first divergence, if any.
     pub first_divergence: Option<Divergence>,

@@ -60,13 +60,22 @@ pub struct Client {
 }
 
 impl Client {
-    /// Connects to `ws://addr` and waits up to `timeout` for the server's advertisements.
+    /// Connects to `ws://addr` (the TCP connection given up after `timeout` too: an
+    /// unreachable host does not hold the caller for the kernel's minutes) and waits up to
+    /// `timeout` for the server's advertisements.
     pub fn connect(addr: &str, timeout: Duration) -> Result<Self, ClientError> {
+        use std::net::ToSocketAddrs as _;
         let cerr = |reason: String| ClientError::Connect {
             addr: addr.to_owned(),
             reason,
         };
-        let stream = TcpStream::connect(addr).map_err(|e| cerr(e.to_string()))?;
+        let sock = addr
+            .to_socket_addrs()
+            .map_err(|e| cerr(e.to_string()))?
+            .next()
+            .ok_or_else(|| cerr("the address resolves to nothing".into()))?;
+        let stream = TcpStream::connect_timeout(&sock, timeout.max(Duration::from_millis(100)))
+            .map_err(|e| cerr(e.to_string()))?;
         stream
             .set_read_timeout(Some(Duration::from_millis(100)))
             .map_err(|e| cerr(e.to_string()))?;

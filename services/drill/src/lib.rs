@@ -909,13 +909,14 @@ impl RemoteOperator {
         Ok(())
     }
 
-    /// Stops the operator (SIGINT, then SIGKILL after 5 s) and the relay.
+    /// Stops the relay, then the operator (SIGINT, then SIGKILL after 5 s): with its link
+    /// closed (not cut) its session ends at once.
     fn stop(self) {
+        drop(self.relay);
         if let Some(mut c) = self.child {
             signal(c.id(), Signal::SIGINT);
             wait_exit(&mut c, Duration::from_secs(5));
         }
-        drop(self.relay);
     }
 }
 

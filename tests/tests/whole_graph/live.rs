@@ -453,52 +453,57 @@ fn a_live_client_gets_the_frames_at_40_hz_and_never_disturbs_the_graph() {
 
 /// `scl live --client`, the Foxglove client the soak attaches: subscribed to every channel of
 /// `scl up --live`, it reports each second on stdout (one JSON object a line), counting the
-/// frames of each topic at the graph's rate, and on SIGINT ends with one connection made and
-/// exit code 0.
+/// frames of each topic at the graph's rate, and on SIGINT (once it has read 2 s of robot
+/// states) ends with one connection made and exit code 0.
 #[test]
 fn scl_live_client_reads_every_channel_and_reports_each_second() {
+    use std::io::BufRead as _;
     let _serial = serial();
     let prefix = unique_prefix("live-cl");
     let _domain = DomainGuard(prefix.clone());
     let addr = format!("127.0.0.1:{}", free_port());
     let mut rec = Recorder::join(&prefix);
     let mut up = scl(&prefix);
-    up.args(["up", "--for", "8s", "--json", "--live", &addr]);
-    let client = scl(&prefix)
+    up.args(["up", "--for", "15s", "--json", "--live", &addr]);
+    let mut client = scl(&prefix)
         .args(["live", "--client", &addr, "--json"])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
     let pid = client.id();
-    let stopper = std::thread::spawn(move || {
-        // Past the graph's start (a debug build takes seconds), well before its end.
-        std::thread::sleep(Duration::from_secs(6));
-        scl_tests::send_signal(pid, nix::sys::signal::Signal::SIGINT);
+    let stdout = client.stdout.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let t0 = Instant::now();
+        let mut sent = false;
+        let mut lines = Vec::new();
+        for line in std::io::BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+            let states = v["per_topic"]["/robot_state"].as_u64().unwrap_or(0);
+            // Stopped while the graph serves: 80 robot states (2 s at 40 Hz), or a deadline.
+            if !sent && (states >= 80 || t0.elapsed() > Duration::from_secs(40)) {
+                scl_tests::send_signal(pid, nix::sys::signal::Signal::SIGINT);
+                sent = true;
+            }
+            lines.push(v);
+        }
+        lines
     });
     let out = run_polling(up, &mut rec);
-    stopper.join().unwrap();
+    let lines = reader.join().unwrap();
     let client = client.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&client.stderr);
     assert!(out.status.success(), "scl up failed");
     assert!(client.status.success(), "scl live --client: {stderr}");
-    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&client.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert!(lines.len() >= 4, "{} reports: {stderr}", lines.len());
-    let last = lines.last().unwrap();
+    let last = lines
+        .last()
+        .unwrap_or_else(|| panic!("no report: {stderr}"));
     assert_eq!(last["connects"], 1, "{last}");
     assert!(last["channels"].as_u64().unwrap() >= 8, "{last}");
-    // The frames grow report by report once connected.
-    let frames: Vec<u64> = lines
-        .iter()
-        .map(|l| l["frames"].as_u64().unwrap())
-        .collect();
-    assert!(frames.windows(2).all(|w| w[0] <= w[1]), "{frames:?}");
-    // At 40 Hz: the robot states of the seconds it read, one frame each.
+    // At 40 Hz: one frame a tick on each of the state's topics.
     let states = last["per_topic"]["/robot_state"].as_u64().unwrap();
-    assert!(states >= 40, "{states} robot states: {last}");
+    assert!(states >= 80, "{states} robot states: {last}");
     let tf = last["per_topic"]["/tf"].as_u64().unwrap();
     assert!(tf.abs_diff(states) <= 2, "{tf} frame transforms: {last}");
     drop(rec);
