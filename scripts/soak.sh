@@ -4,7 +4,8 @@
 # (`scl live --client`) on the server and a remote observer (`scl record --remote`) on the
 # gateway, sample every process's resident memory and open file descriptors and the graph's
 # files in /dev/shm every INTERVAL, then check that none of them grows, that both clients were
-# served throughout, and that the graph's own recording replays bit for bit. See --help and docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
+# served throughout, and that the graph's own recording replays bit for bit. See --help and
+# docs/benchmarks.md ("Soak"). CI runs it for 5 minutes (.ci/run).
 set -euo pipefail
 
 usage() {

@@ -66,7 +66,6 @@ pub fn run(
     let mut topics: BTreeSet<String> = BTreeSet::new();
     let mut next_report = started + REPORT_EVERY;
     let mut client: Option<(Client, BTreeSet<u64>)> = None;
-    let mut last_error: Option<ClientError> = None;
     while !signals::stop_requested() {
         let now = Instant::now();
         if now >= next_report {
@@ -91,7 +90,7 @@ pub fn run(
                             source: e,
                         });
                     }
-                    last_error = Some(e);
+                    tracing::debug!(addr, error = %e, "no server yet");
                     std::thread::sleep(Duration::from_millis(100));
                 }
             }
@@ -129,7 +128,6 @@ pub fn run(
             Err(_) if signals::stop_requested() => break,
             Err(e) => {
                 tracing::warn!(addr, error = %e, "connection lost; reconnecting");
-                last_error = Some(e);
                 client = None;
             }
         }
@@ -137,9 +135,6 @@ pub fn run(
     if let Some((c, _)) = client.take() {
         c.close();
         report.connected = true;
-    }
-    if let Some(e) = last_error {
-        tracing::debug!(addr, error = %e, "last connection error");
     }
     report.t_s = started.elapsed().as_secs_f64();
     report.channels = topics.len();
